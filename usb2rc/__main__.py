@@ -1,0 +1,3 @@
+from usb2rc.cli import main
+
+raise SystemExit(main())

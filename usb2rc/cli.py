@@ -1,0 +1,75 @@
+"""Command line: `usb2rc [run] --config FILE`, plus one small module per subcommand.
+
+Each module in `usb2rc.commands` exposes `add_parser(subparsers)` which registers its
+sub-parser and sets `func=run` on it; `run(args) -> int` returns the exit status
+(0 ok, 1 runtime failure, 2 usage or config error).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from usb2rc import __version__
+
+# Subcommand name -> module in usb2rc.commands. `run` is the default when none is given.
+COMMANDS: dict[str, str] = {
+    "run": "run",
+    "demo": "demo",
+    "decode": "decode",
+    "list": "list_devices",
+    "describe": "describe",
+    "check": "check",
+    "icd": "icd",
+    "monitor": "monitor",
+    "record": "record",
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="usb2rc",
+        description="USB joysticks, HOTAS and pedals to a C2-16B / SUMD serial RC stream.",
+        epilog="Without a subcommand, usb2rc runs the daemon (same options as `usb2rc run`).",
+    )
+    parser.add_argument("--version", action="version", version=f"usb2rc {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, module_name in COMMANDS.items():
+        try:
+            module = importlib.import_module(f"usb2rc.commands.{module_name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"usb2rc.commands.{module_name}":
+                continue  # command not built yet
+            raise
+        module.add_parser(subparsers)
+    return parser
+
+
+def _with_default_command(argv: list[str], known: set[str]) -> list[str]:
+    """`usb2rc --config x.yaml` means `usb2rc run --config x.yaml`."""
+    if any(arg in ("-h", "--help", "--version") for arg in argv[:1]):
+        return argv
+    first_positional = next((arg for arg in argv if not arg.startswith("-")), None)
+    if first_positional in known:
+        return argv
+    return ["run", *argv]
+
+
+def main(argv: list[str] | None = None) -> int:
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    subparsers = next(
+        action for action in parser._actions if isinstance(action, argparse._SubParsersAction)
+    )
+    known = set(subparsers.choices)
+    if "run" in known:
+        args_list = _with_default_command(args_list, known)
+    args = parser.parse_args(args_list)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        return 130

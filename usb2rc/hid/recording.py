@@ -1,0 +1,134 @@
+"""The hid-recorder text format (hid-tools' `hid-recorder`), read and written sans-IO.
+
+    # comment lines
+    D: 0                                   device number (several devices in one file)
+    R: 119 05 01 09 04 a1 01 ...           report descriptor: length, then hex bytes
+    N: Thrustmaster T.16000M               name
+    P: usb-0000:00:14.0-1.2/input0         physical path
+    I: 3 044f b10a                         bus, vendor, product (hex)
+    E: 0.004123 9 01 00 80 ...             event: seconds.micros since start, length, report bytes
+
+Report bytes in `E:` lines start with the report ID when the device uses report IDs.
+Only the first device of a file is read; `D:` lines for other devices are skipped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+
+
+class RecordingError(ValueError):
+    """A hid-recorder file that cannot be used; the message names the line."""
+
+
+@dataclass(frozen=True)
+class RecordedEvent:
+    time_s: float
+    report: bytes
+
+
+@dataclass(frozen=True)
+class Recording:
+    descriptor: bytes
+    name: str = ""
+    phys: str = ""
+    bus: int = 3
+    vid: int = 0
+    pid: int = 0
+    events: tuple[RecordedEvent, ...] = field(default_factory=tuple)
+
+
+def _hex_payload(rest: str, lineno: int, source: str) -> bytes:
+    parts = rest.split()
+    if not parts:
+        raise RecordingError(f"{source}:{lineno}: empty line, expected a length and hex bytes")
+    try:
+        length = int(parts[0])
+        data = bytes(int(p, 16) for p in parts[1:])
+    except ValueError as exc:
+        raise RecordingError(f"{source}:{lineno}: not a length and hex bytes ({exc})") from None
+    if length != len(data):
+        raise RecordingError(f"{source}:{lineno}: length {length} but {len(data)} bytes follow")
+    return data
+
+
+def _parse_event(rest: str, lineno: int, source: str) -> RecordedEvent:
+    stamp, _, payload = rest.strip().partition(" ")
+    try:
+        time_s = float(stamp)
+    except ValueError:
+        raise RecordingError(f"{source}:{lineno}: bad timestamp {stamp!r}") from None
+    return RecordedEvent(time_s, _hex_payload(payload, lineno, source))
+
+
+def _parse_ids(rest: str, lineno: int, source: str) -> tuple[int, int, int]:
+    parts = rest.split()
+    try:
+        bus, vid, pid = (int(p, 16) for p in parts[:3])
+    except ValueError:
+        raise RecordingError(f"{source}:{lineno}: expected 'I: bus vid pid' in hex") from None
+    return bus, vid, pid
+
+
+def parse_recording(lines: Iterable[str], source: str = "<recording>") -> Recording:
+    """Parse hid-recorder text. Raises RecordingError naming the line on bad input."""
+    descriptor: bytes | None = None
+    name = phys = ""
+    bus, vid, pid = 3, 0, 0
+    events: list[RecordedEvent] = []
+    device_index = 0
+    for lineno, raw in enumerate(lines, start=1):
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        tag, sep, rest = line.partition(":")
+        if not sep:
+            raise RecordingError(f"{source}:{lineno}: expected 'X: ...', got {line[:40]!r}")
+        tag, rest = tag.strip(), rest.strip()
+        if tag == "D":
+            device_index = int(rest) if rest.isdigit() else 0
+            continue
+        if device_index != 0:
+            continue
+        if tag == "R":
+            descriptor = _hex_payload(rest, lineno, source)
+        elif tag == "N":
+            name = rest
+        elif tag == "P":
+            phys = rest
+        elif tag == "I":
+            bus, vid, pid = _parse_ids(rest, lineno, source)
+        elif tag == "E":
+            events.append(_parse_event(rest, lineno, source))
+        # other tags (H:, S: ...) are informational and ignored
+    if descriptor is None:
+        raise RecordingError(f"{source}: no 'R:' report descriptor line")
+    return Recording(descriptor, name, phys, bus, vid, pid, tuple(events))
+
+
+def read_recording(path: str) -> Recording:
+    with open(path, encoding="utf-8", errors="replace") as fh:
+        return parse_recording(fh, source=str(path))
+
+
+def _hex(data: bytes) -> str:
+    return " ".join(f"{b:02x}" for b in data)
+
+
+def format_header(rec: Recording) -> Iterator[str]:
+    yield "D: 0"
+    yield f"R: {len(rec.descriptor)} {_hex(rec.descriptor)}"
+    yield f"N: {rec.name}"
+    yield f"P: {rec.phys}"
+    yield f"I: {rec.bus:x} {rec.vid:04x} {rec.pid:04x}"
+
+
+def format_event(event: RecordedEvent) -> str:
+    return f"E: {event.time_s:.6f} {len(event.report)} {_hex(event.report)}"
+
+
+def format_recording(rec: Recording) -> str:
+    lines = list(format_header(rec))
+    lines.extend(format_event(e) for e in rec.events)
+    return "\n".join(lines) + "\n"
