@@ -70,6 +70,15 @@ def _make_info(path: Path, stat_id: tuple[int, int, int], rec: Recording) -> Dev
     )
 
 
+def install_file(path: str | os.PathLike[str], text: str) -> Path:
+    """Write `text` to `path` atomically (a hidden temp file renamed into place): one plug."""
+    target = Path(path)
+    tmp = target.with_name(f".{target.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, target)
+    return target
+
+
 def load_replay_file(path: Path) -> ReplayFile:
     """Parse one file; raises RecordingError (or OSError) when it cannot be a device."""
     stat_id = _stat_id(path)
@@ -95,12 +104,11 @@ class ReplayBackend:
         self._cache_ids: dict[Path, tuple[int, int, int]] = {}
         self._reported: set[str] = set()
 
-    def _candidates(self) -> list[Path]:
+    def _candidates(self, problems: list[str]) -> list[Path]:
         try:
             entries = sorted(self.directory.iterdir())
         except OSError as exc:
-            with self._lock:
-                self.problems = [f"{self.directory}: {exc.strerror or exc}"]
+            problems.append(f"{self.directory}: cannot list the replay directory: {exc}")
             return []
         return [p for p in entries if not p.name.startswith(".") and p.is_file()]
 
@@ -128,7 +136,7 @@ class ReplayBackend:
     def enumerate(self, all: bool = False) -> list[DeviceInfo]:
         infos: list[DeviceInfo] = []
         problems: list[str] = []
-        for path in self._candidates():
+        for path in self._candidates(problems):
             entry = self._load_cached(path)
             if isinstance(entry, str):
                 problems.append(entry)
