@@ -1,0 +1,219 @@
+"""`usb2rc decode`: print the C2-16B or SUMD frames found in a capture file, stdin or a port.
+
+SOURCE is a file (read to its end), `-` for stdin, or a serial port: a character device
+path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C. One line
+per valid frame on stdout (`--json`: one JSON object per line); a summary on stderr at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import stat
+import sys
+from collections import Counter
+from collections.abc import Iterable, Iterator
+from contextlib import closing
+from typing import Any, BinaryIO
+
+from usb2rc.protocol.c2_16b import DATA_STATUS_NAMES, DataFrame, Decoder, ServiceFrame
+from usb2rc.protocol.sumd import SumdDecoder, SumdFrame
+
+AnyFrame = DataFrame | ServiceFrame | SumdFrame
+READ_SIZE = 65536
+PORT_TIMEOUT_S = 0.5
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "decode",
+        help="print the frames in a C2-16B / SUMD capture, stdin or serial port",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--protocol", choices=("c2-16b", "sumd"), default="c2-16b")
+    parser.add_argument("--json", action="store_true", help="one JSON object per frame")
+    parser.add_argument("--baudrate", type=int, default=115200, help="for ports (115200)")
+    parser.add_argument("source", metavar="SOURCE", help="file, '-' (stdin), port or URL")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    decoder = SumdDecoder() if args.protocol == "sumd" else Decoder()
+    format_frame = json_line if args.json else text_line
+    try:
+        chunks = open_source(args.source, args.baudrate)
+    except (OSError, ValueError) as exc:
+        print(f"usb2rc decode: cannot open {args.source}: {_reason(exc)}", file=sys.stderr)
+        return 1
+    kinds: Counter[str] = Counter()
+    status = 0
+    try:
+        with closing(chunks):
+            for chunk in chunks:
+                _print_frames(decoder.feed(chunk), format_frame, kinds)
+        _print_frames(decoder.flush(), format_frame, kinds)
+    except KeyboardInterrupt:
+        pass
+    except BrokenPipeError:
+        _silence_stdout()
+    except OSError as exc:
+        print(f"usb2rc decode: reading {args.source}: {_reason(exc)}", file=sys.stderr)
+        status = 1
+    print(summary(decoder, kinds), file=sys.stderr)
+    return status
+
+
+# --- sources -------------------------------------------------------------------------------
+
+
+def open_source(name: str, baudrate: int) -> Iterator[bytes]:
+    """Open SOURCE now (so errors surface before reading) and return its chunks."""
+    if name == "-":
+        return _read_stream(sys.stdin.buffer, close=False)
+    if "://" in name or _is_character_device(name):
+        return _read_port(_open_port(name, baudrate))
+    return _read_stream(open(name, "rb"), close=True)
+
+
+def _is_character_device(path: str) -> bool:
+    try:
+        return stat.S_ISCHR(os.stat(path).st_mode)
+    except OSError:
+        return False
+
+
+def _read_stream(stream: BinaryIO, close: bool) -> Iterator[bytes]:
+    try:
+        while chunk := stream.read1(READ_SIZE):  # type: ignore[attr-defined]
+            yield chunk
+    finally:
+        if close:
+            stream.close()
+
+
+def _open_port(name: str, baudrate: int) -> Any:
+    import serial  # only ports need pyserial
+
+    port = serial.serial_for_url(name, baudrate=baudrate, timeout=PORT_TIMEOUT_S)
+    print(f"usb2rc decode: reading {name} at {baudrate} baud, Ctrl-C to stop", file=sys.stderr)
+    return port
+
+
+def _read_port(port: Any) -> Iterator[bytes]:
+    try:
+        while True:
+            chunk = port.read(port.in_waiting or 1)
+            if chunk:
+                yield chunk
+    finally:
+        port.close()
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, FileNotFoundError):
+        return "no such file or port"
+    return getattr(exc, "strerror", None) or str(exc)
+
+
+# --- output --------------------------------------------------------------------------------
+
+
+def _print_frames(frames: list[AnyFrame], format_frame: Any, kinds: Counter[str]) -> None:
+    if not frames:
+        return
+    kinds.update(frame_kind(frame) for frame in frames)
+    sys.stdout.write("".join(f"{format_frame(frame)}\n" for frame in frames))
+    sys.stdout.flush()
+
+
+def _silence_stdout() -> None:
+    """The reader went away (`| head`): drop what is still buffered for stdout."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+
+
+def frame_kind(frame: AnyFrame) -> str:
+    """`live`, `failsafe`, ... for data and SUMD frames; the service name for service frames."""
+    if isinstance(frame, ServiceFrame):
+        return frame.service.service_name
+    if isinstance(frame, SumdFrame):
+        return "failsafe" if frame.failsafe else "live"
+    return DATA_STATUS_NAMES[frame.status]
+
+
+def json_record(frame: AnyFrame) -> dict[str, Any]:
+    if isinstance(frame, DataFrame):
+        return {
+            "protocol": "c2-16b",
+            "status": chr(frame.status),
+            "node_id": frame.node_id,
+            "code": frame.code,
+            "axes": list(frame.axes),
+            "group1": frame.group1,
+            "group2": frame.group2,
+        }
+    if isinstance(frame, ServiceFrame):
+        return _service_record(frame)
+    return {"protocol": "sumd", "failsafe": frame.failsafe, "channels": list(frame.channels)}
+
+
+def _service_record(frame: ServiceFrame) -> dict[str, Any]:
+    record: dict[str, Any] = {
+        "protocol": "c2-16b",
+        "status": str(frame.service.value),
+        "status_encoding": "binary" if frame.binary_status else "ascii",
+        "node_id": frame.node_id,
+        "service": frame.service.service_name,
+        "payload_hex": frame.payload.rstrip(b"\0").hex(),
+    }
+    for field in ("vid", "pid", "text", "error_code"):
+        value = getattr(frame, field)
+        if value is not None:
+            record[field] = value
+    return record
+
+
+def json_line(frame: AnyFrame) -> str:
+    return json.dumps(json_record(frame), separators=(",", ":"))
+
+
+def text_line(frame: AnyFrame) -> str:
+    if isinstance(frame, DataFrame):
+        return (
+            f"{chr(frame.status)} node {frame.node_id} code {frame.code} axes {list(frame.axes)}"
+            f" g1 0x{frame.group1:08X} g2 0x{frame.group2:08X}"
+        )
+    if isinstance(frame, ServiceFrame):
+        return _service_text(frame)
+    state = "failsafe" if frame.failsafe else "live"
+    return f"sumd {state} {len(frame.channels)}ch {list(frame.channels)}"
+
+
+def _service_text(frame: ServiceFrame) -> str:
+    line = f"service {frame.service.service_name} node {frame.node_id}"
+    payload = frame.payload.rstrip(b"\0")
+    if frame.vid is not None:
+        line += f" vid 0x{frame.vid:04X} pid 0x{frame.pid:04X}"
+    elif frame.text is not None:
+        line += f" {json.dumps(frame.text)}"
+    elif frame.error_code is not None:
+        line += f" error 0x{frame.error_code:02X}"
+    elif payload:
+        line += f" payload {payload.hex()}"
+    return line + (" (binary status)" if frame.binary_status else "")
+
+
+def summary(decoder: Decoder | SumdDecoder, kinds: Counter[str]) -> str:
+    by_kind = ", ".join(f"{kind} {count}" for kind, count in _ordered(kinds.items()))
+    return (
+        f"summary: frames {decoder.frames} ({by_kind or 'none'}), "
+        f"bytes skipped {decoder.bytes_skipped}, CRC failures {decoder.crc_failures}, "
+        f"bytes read {decoder.bytes_in}"
+    )
+
+
+def _ordered(items: Iterable[tuple[str, int]]) -> list[tuple[str, int]]:
+    return sorted(items, key=lambda item: (-item[1], item[0]))
