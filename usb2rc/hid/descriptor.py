@@ -2,11 +2,31 @@
 
 Terms are the HID 1.11 spec's: usage page / usage, logical minimum / maximum, report size /
 count, report ID, Main / Global / Local items.
+
+Where the spec leaves room, usb2rc does what the Linux kernel's hid-core does:
+
+- A Usage Page given after the Usages of a Main item (but before it) applies to those Usages
+  (hid-core's "concatenate last usage page"); 4-byte (extended) usages keep their own page.
+- Report Count larger than the usage list: the last usage repeats (HID 1.11 §6.2.2.8). For
+  values each repeat is one more InputField (its `occurrence` counts up). For buttons only the
+  first bit of a button number in a report is that button: repeats are ignored, so a stray bit
+  in such a run can never press a button (the FR-TEC Raptor sends 128 bits for buttons 1..29).
+- Logical Minimum is read as signed. Logical Maximum is read as signed when the minimum is
+  negative, else as unsigned (hid-core does the same), so `15 00 26 FF FF` is 0..65535 and not
+  0..-1 (Windows' synthesized Xbox 360 descriptor has exactly that).
+- A logical range with max < min on a data input is refused, as hid-core refuses it.
+- Unknown Main and Local items are skipped; an unknown Global item is refused (it may change
+  the meaning of everything that follows). Long items are skipped.
+- Limits (as hid-core): Report Size <= 256, Report Count <= 12288, Report ID 1..255, an input
+  report of at most 16383 data bytes, Push nested at most 16 deep.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+from usb2rc.hid.usages import BUTTON_PAGE, GD_HAT_SWITCH
 
 
 class DescriptorError(ValueError):
@@ -27,6 +47,22 @@ class InputField:
     has_null: bool
     occurrence: int  # 0 for the first field with this usage in the device, 1 for the second ...
 
+    @property
+    def is_signed(self) -> bool:
+        return self.logical_min < 0
+
+    def null_value(self) -> int:
+        """A raw value outside [logical_min, logical_max], preferably one the field can hold."""
+        low, high = _representable(self.bit_size, self.is_signed)
+        if self.logical_max < high:
+            return self.logical_max + 1
+        if self.logical_min > low:
+            return self.logical_min - 1
+        return self.logical_max + 1
+
+    def centre(self) -> int:
+        return (self.logical_min + self.logical_max + 1) // 2
+
 
 @dataclass(frozen=True)
 class InputState:
@@ -37,12 +73,608 @@ class InputState:
 
 
 @dataclass(frozen=True)
+class ButtonField:
+    """`count` buttons numbered from `first_button`, each `bit_size` bits (normally 1) wide,
+    side by side from `bit_offset`. A button is pressed when its bits are not all zero."""
+
+    report_id: int
+    first_button: int  # 1-based HID button number
+    count: int
+    bit_offset: int
+    bit_size: int = 1
+
+    @property
+    def mask(self) -> int:
+        return ((1 << self.count) - 1) << (self.first_button - 1)
+
+
+@dataclass(frozen=True)
+class ButtonArray:
+    """An array input on the Button page: `count` slots of `bit_size` bits, each holding the
+    index (from `logical_min`) of a pressed button, or a value outside the range for none."""
+
+    report_id: int
+    bit_offset: int
+    bit_size: int
+    count: int
+    logical_min: int
+    logical_max: int
+    # (first index, end index (exclusive), button number at the first index)
+    segments: tuple[tuple[int, int, int], ...]
+
+    @property
+    def mask(self) -> int:
+        mask = 0
+        for start, end, first in self.segments:
+            mask |= ((1 << (end - start)) - 1) << (first - 1)
+        return mask
+
+    def button_at(self, value: int) -> int:
+        """The button number a slot value stands for, 0 for none."""
+        if not self.logical_min <= value <= self.logical_max:
+            return 0
+        index = value - self.logical_min
+        for start, end, first in self.segments:
+            if start <= index < end:
+                return first + index - start
+        return 0
+
+
+@dataclass(frozen=True)
 class DeviceLayout:
     application: int  # top-level collection usage, e.g. 0x00010004 (Joystick)
     uses_report_ids: bool
     inputs: tuple[InputField, ...]
     button_count: int  # highest HID button number seen
     input_report_lengths: dict[int, int]  # report ID -> data bytes, without the ID byte
+    buttons: tuple[ButtonField, ...] = ()
+    button_arrays: tuple[ButtonArray, ...] = ()
+
+    def hat_fields(self) -> tuple[InputField, ...]:
+        return tuple(f for f in self.inputs if f.usage == GD_HAT_SWITCH)
 
     def initial_state(self) -> InputState:
-        return InputState(tuple(0 for _ in self.inputs), 0)
+        """Axes at the centre of their logical range, hats at a null (centred) value."""
+        values = tuple(
+            f.null_value() if f.usage == GD_HAT_SWITCH else f.centre() for f in self.inputs
+        )
+        return InputState(values, 0)
+
+    def make_decoder(self) -> ReportDecoder:
+        return ReportDecoder(self)
+
+
+def _representable(bit_size: int, signed: bool) -> tuple[int, int]:
+    if signed and bit_size > 1:
+        return -(1 << (bit_size - 1)), (1 << (bit_size - 1)) - 1
+    return 0, (1 << bit_size) - 1
+
+
+# --------------------------------------------------------------------------------------------
+# Parsing
+
+
+MAX_REPORT_SIZE = 256  # bits per Report Size
+MAX_REPORT_COUNT = 12288
+MAX_REPORT_BYTES = 16383  # data bytes of one input report
+MAX_PUSH_DEPTH = 16
+MAX_INPUT_ELEMENTS = 65536  # values and button bits over the whole descriptor
+
+INPUT, OUTPUT, FEATURE, COLLECTION, END_COLLECTION = 0x80, 0x90, 0xB0, 0xA0, 0xC0
+USAGE_PAGE, LOGICAL_MIN, LOGICAL_MAX = 0x04, 0x14, 0x24
+PHYSICAL_MIN, PHYSICAL_MAX, UNIT_EXPONENT, UNIT = 0x34, 0x44, 0x54, 0x64
+REPORT_SIZE, REPORT_ID, REPORT_COUNT, PUSH, POP = 0x74, 0x84, 0x94, 0xA4, 0xB4
+USAGE, USAGE_MIN, USAGE_MAX, DELIMITER = 0x08, 0x18, 0x28, 0xA8
+LONG_ITEM = 0xFE
+
+FLAG_CONSTANT, FLAG_VARIABLE, FLAG_NULL_STATE = 0x01, 0x02, 0x40
+COLLECTION_APPLICATION = 0x01
+
+_DATA_SIZES = (0, 1, 2, 4)
+
+
+@dataclass(frozen=True)
+class _Item:
+    offset: int  # byte offset of the item's header in the descriptor
+    tag: int  # header byte with the size bits cleared
+    size: int  # data bytes: 0, 1, 2 or 4
+    value: int  # data, unsigned little-endian
+
+
+def _items(data: bytes) -> Iterator[_Item]:
+    pos = 0
+    end = len(data)
+    while pos < end:
+        header = data[pos]
+        if header == LONG_ITEM:
+            if pos + 3 > end:
+                raise DescriptorError(f"truncated long item at byte {pos}")
+            nxt = pos + 3 + data[pos + 1]
+            if nxt > end:
+                raise DescriptorError(f"truncated long item at byte {pos}")
+            pos = nxt
+            continue
+        size = _DATA_SIZES[header & 0x03]
+        if pos + 1 + size > end:
+            raise DescriptorError(
+                f"truncated item 0x{header:02X} at byte {pos}: {size} data bytes expected, "
+                f"{end - pos - 1} left"
+            )
+        value = int.from_bytes(data[pos + 1 : pos + 1 + size], "little")
+        yield _Item(pos, header & 0xFC, size, value)
+        pos += 1 + size
+
+
+def _signed(value: int, size: int) -> int:
+    if size and value & (1 << (8 * size - 1)):
+        return value - (1 << (8 * size))
+    return value
+
+
+@dataclass
+class _Globals:
+    usage_page: int = 0
+    logical_min: tuple[int, int] = (0, 0)  # (raw value, data bytes)
+    logical_max: tuple[int, int] = (0, 0)
+    report_size: int = 0
+    report_count: int = 0
+    report_id: int = 0
+
+    def copy(self) -> _Globals:
+        return _Globals(
+            self.usage_page,
+            self.logical_min,
+            self.logical_max,
+            self.report_size,
+            self.report_count,
+            self.report_id,
+        )
+
+    def logical_range(self) -> tuple[int, int]:
+        low = _signed(*self.logical_min)
+        high = _signed(*self.logical_max) if low < 0 else self.logical_max[0]
+        return low, high
+
+
+@dataclass
+class _UsageRun:
+    """Usages first..last (same page); `size` is the data size of the item that gave them."""
+
+    first: int
+    last: int
+    size: int
+
+    def __len__(self) -> int:
+        return self.last - self.first + 1
+
+
+@dataclass
+class _Locals:
+    runs: list[_UsageRun] = field(default_factory=list)
+    usage_min: tuple[int, int] | None = None  # (raw value, data bytes)
+    delimiter_depth: int = 0
+    delimiter_branch: int = 0
+
+
+def _full_usage(value: int, size: int, page: int) -> int:
+    return value if size == 4 else (page << 16) | (value & 0xFFFF)
+
+
+class _Parser:
+    """The HID 1.11 item state machine. One instance parses one descriptor."""
+
+    def __init__(self) -> None:
+        self.glob = _Globals()
+        self.stack: list[_Globals] = []
+        self.local = _Locals()
+        self.depth = 0
+        self.application: int | None = None
+        self.bit_ends: dict[int, int] = {}  # report ID -> input bits so far
+        self.inputs: list[InputField] = []
+        self.occurrences: dict[int, int] = {}
+        self.buttons: list[ButtonField] = []
+        self.button_arrays: list[ButtonArray] = []
+        self.owned_buttons: dict[int, set[int]] = {}  # report ID -> button numbers
+        self.elements = 0
+
+    # -- driver ------------------------------------------------------------------------------
+
+    def parse(self, data: bytes) -> DeviceLayout:
+        for item in _items(data):
+            kind = item.tag & 0x0C
+            if kind == 0x00:
+                self.main(item)
+            elif kind == 0x04:
+                self.global_item(item)
+            elif kind == 0x08:
+                self.local_item(item)
+            # kind 0x0C: reserved item type, skipped
+        return self.finish(len(data))
+
+    def finish(self, end: int) -> DeviceLayout:
+        if self.depth:
+            raise DescriptorError(
+                f"unbalanced collections: {self.depth} still open at the end (byte {end})"
+            )
+        lengths = {rid: (bits + 7) // 8 for rid, bits in self.bit_ends.items() if bits}
+        if not self.inputs and not self.buttons and not self.button_arrays:
+            raise DescriptorError("no usable inputs in the descriptor")
+        if 0 in lengths and len(lengths) > 1:
+            raise DescriptorError("input items without a report ID beside numbered reports")
+        button_count = max(
+            [b.first_button + b.count - 1 for b in self.buttons]
+            + [s[2] + s[1] - s[0] - 1 for a in self.button_arrays for s in a.segments]
+            + [0]
+        )
+        return DeviceLayout(
+            application=self.application or 0,
+            uses_report_ids=0 not in lengths,
+            inputs=tuple(self.inputs),
+            button_count=button_count,
+            input_report_lengths=lengths,
+            buttons=tuple(_merge_button_fields(self.buttons)),
+            button_arrays=tuple(self.button_arrays),
+        )
+
+    # -- global items ------------------------------------------------------------------------
+
+    def global_item(self, item: _Item) -> None:
+        tag, value, glob = item.tag, item.value, self.glob
+        if tag == USAGE_PAGE:
+            if value > 0xFFFF:
+                raise DescriptorError(f"usage page 0x{value:X} too large at byte {item.offset}")
+            glob.usage_page = value
+        elif tag == LOGICAL_MIN:
+            glob.logical_min = (value, item.size)
+        elif tag == LOGICAL_MAX:
+            glob.logical_max = (value, item.size)
+        elif tag in (PHYSICAL_MIN, PHYSICAL_MAX, UNIT_EXPONENT, UNIT):
+            pass
+        elif tag == REPORT_SIZE:
+            glob.report_size = self.limited(item, "Report Size", MAX_REPORT_SIZE)
+        elif tag == REPORT_COUNT:
+            glob.report_count = self.limited(item, "Report Count", MAX_REPORT_COUNT)
+        elif tag == REPORT_ID:
+            if not 1 <= value <= 255:
+                raise DescriptorError(f"invalid Report ID {value} at byte {item.offset}")
+            glob.report_id = value
+        elif tag == PUSH:
+            self.push(item)
+        elif tag == POP:
+            if not self.stack:
+                raise DescriptorError(f"Pop without Push at byte {item.offset}")
+            self.glob = self.stack.pop()
+        else:
+            raise DescriptorError(f"unknown global item 0x{item.tag:02X} at byte {item.offset}")
+
+    @staticmethod
+    def limited(item: _Item, what: str, limit: int) -> int:
+        if item.value > limit:
+            raise DescriptorError(
+                f"{what} {item.value} at byte {item.offset} is larger than {limit}"
+            )
+        return item.value
+
+    def push(self, item: _Item) -> None:
+        if len(self.stack) >= MAX_PUSH_DEPTH:
+            raise DescriptorError(f"Push nested deeper than {MAX_PUSH_DEPTH} at byte {item.offset}")
+        self.stack.append(self.glob.copy())
+
+    # -- local items -------------------------------------------------------------------------
+
+    def local_item(self, item: _Item) -> None:
+        local = self.local
+        if item.tag == DELIMITER:
+            self.delimiter(item)
+        elif local.delimiter_branch > 1 and item.tag in (USAGE, USAGE_MIN, USAGE_MAX):
+            pass  # only the first usage set of a delimited alternative counts (as hid-core)
+        elif item.tag == USAGE:
+            usage = _full_usage(item.value, item.size, self.glob.usage_page)
+            local.runs.append(_UsageRun(usage, usage, item.size))
+        elif item.tag == USAGE_MIN:
+            local.usage_min = (item.value, item.size)
+        elif item.tag == USAGE_MAX:
+            self.usage_range(item)
+
+    def usage_range(self, item: _Item) -> None:
+        high = _full_usage(item.value, item.size, self.glob.usage_page)
+        low_id = (self.local.usage_min or (0, 0))[0] & 0xFFFF
+        if low_id <= high & 0xFFFF:
+            self.local.runs.append(_UsageRun((high & ~0xFFFF) | low_id, high, item.size))
+        self.local.usage_min = None
+
+    def delimiter(self, item: _Item) -> None:
+        local = self.local
+        if item.value:
+            if local.delimiter_depth:
+                raise DescriptorError(f"nested Delimiter at byte {item.offset}")
+            local.delimiter_depth += 1
+            local.delimiter_branch += 1
+        else:
+            if not local.delimiter_depth:
+                raise DescriptorError(f"Delimiter close without open at byte {item.offset}")
+            local.delimiter_depth -= 1
+
+    def concatenate_usage_page(self) -> None:
+        """hid-core: a Usage Page set after usages (before the Main item) applies to them."""
+        page = self.glob.usage_page
+        for run in reversed(self.local.runs):
+            if run.size > 2:
+                continue
+            if run.first >> 16 == page:
+                break
+            run.first = (page << 16) | (run.first & 0xFFFF)
+            run.last = (page << 16) | (run.last & 0xFFFF)
+
+    # -- main items --------------------------------------------------------------------------
+
+    def main(self, item: _Item) -> None:
+        self.concatenate_usage_page()
+        if item.tag == INPUT:
+            self.input(item)
+        elif item.tag == COLLECTION:
+            self.open_collection(item)
+        elif item.tag == END_COLLECTION:
+            if not self.depth:
+                raise DescriptorError(f"End Collection without Collection at byte {item.offset}")
+            self.depth -= 1
+        # Output, Feature and reserved main items carry nothing into input reports.
+        self.local = _Locals()
+
+    def open_collection(self, item: _Item) -> None:
+        if self.depth == 0 and item.value == COLLECTION_APPLICATION and self.application is None:
+            runs = self.local.runs
+            self.application = runs[0].first if runs else 0
+        self.depth += 1
+
+    def input(self, item: _Item) -> None:
+        glob = self.glob
+        size, count, rid = glob.report_size, glob.report_count, glob.report_id
+        start = self.bit_ends.get(rid, 0)
+        end = start + size * count
+        if end > MAX_REPORT_BYTES * 8:
+            raise DescriptorError(
+                f"input report {rid} longer than {MAX_REPORT_BYTES} bytes at byte {item.offset}"
+            )
+        self.bit_ends[rid] = end
+        if item.value & FLAG_CONSTANT or not self.local.runs or count == 0:
+            return  # padding: advances the offset only
+        if size == 0:
+            raise DescriptorError(
+                f"Report Size 0 with Report Count {count} on a data input at byte {item.offset}"
+            )
+        low, high = glob.logical_range()
+        if high < low:
+            raise DescriptorError(
+                f"logical range {low}..{high} (maximum below minimum) at byte {item.offset}"
+            )
+        self.elements += count
+        if self.elements > MAX_INPUT_ELEMENTS:
+            raise DescriptorError(
+                f"more than {MAX_INPUT_ELEMENTS} input values at byte {item.offset}"
+            )
+        if item.value & FLAG_VARIABLE:
+            self.variable_input(start, low, high, bool(item.value & FLAG_NULL_STATE))
+        else:
+            self.array_input(start, low, high)
+
+    def variable_input(self, start: int, low: int, high: int, has_null: bool) -> None:
+        glob = self.glob
+        size, rid = glob.report_size, glob.report_id
+        owned = self.owned_buttons.setdefault(rid, set())
+        for i, usage in enumerate(_usages_for(self.local.runs, glob.report_count)):
+            offset = start + i * size
+            if usage >> 16 == BUTTON_PAGE:
+                number = usage & 0xFFFF
+                if number and number not in owned:
+                    owned.add(number)
+                    self.buttons.append(ButtonField(rid, number, 1, offset, size))
+                continue
+            occurrence = self.occurrences.get(usage, 0)
+            self.occurrences[usage] = occurrence + 1
+            self.inputs.append(
+                InputField(
+                    index=len(self.inputs),
+                    report_id=rid,
+                    usage=usage,
+                    bit_offset=offset,
+                    bit_size=size,
+                    logical_min=low,
+                    logical_max=high,
+                    has_null=has_null,
+                    occurrence=occurrence,
+                )
+            )
+
+    def array_input(self, start: int, low: int, high: int) -> None:
+        segments = _button_segments(self.local.runs)
+        if not segments:
+            return  # arrays on other pages (keyboard keys, ...) are not read
+        glob = self.glob
+        self.button_arrays.append(
+            ButtonArray(
+                report_id=glob.report_id,
+                bit_offset=start,
+                bit_size=glob.report_size,
+                count=glob.report_count,
+                logical_min=low,
+                logical_max=high,
+                segments=segments,
+            )
+        )
+
+
+def _usages_for(runs: list[_UsageRun], count: int) -> Iterator[int]:
+    """The usage of each of `count` variable fields: in order, the last one repeating."""
+    produced = 0
+    last = 0
+    for run in runs:
+        for usage in range(run.first, min(run.last, run.first + count - produced - 1) + 1):
+            yield usage
+            produced += 1
+            last = usage
+        if produced >= count:
+            return
+    for _ in range(count - produced):
+        yield last
+
+
+def _button_segments(runs: list[_UsageRun]) -> tuple[tuple[int, int, int], ...]:
+    """Array index ranges that name buttons: (first index, end index, first button)."""
+    segments = []
+    index = 0
+    for run in runs:
+        first_id = run.first & 0xFFFF
+        if run.first >> 16 == BUTTON_PAGE:
+            skip = 1 if first_id == 0 else 0  # Button 0 is "no button pressed"
+            if len(run) > skip:
+                segments.append((index + skip, index + len(run), first_id + skip))
+        index += len(run)
+    return tuple(segments)
+
+
+def _merge_button_fields(fields: list[ButtonField]) -> list[ButtonField]:
+    """Join 1-bit buttons that follow each other in bits and in numbers into one run."""
+    merged: list[ButtonField] = []
+    for f in fields:
+        prev = merged[-1] if merged else None
+        if (
+            prev is not None
+            and prev.report_id == f.report_id
+            and prev.bit_size == 1
+            and f.bit_size == 1
+            and prev.bit_offset + prev.count == f.bit_offset
+            and prev.first_button + prev.count == f.first_button
+        ):
+            merged[-1] = ButtonField(
+                prev.report_id, prev.first_button, prev.count + f.count, prev.bit_offset
+            )
+        else:
+            merged.append(f)
+    return merged
+
+
+def parse_descriptor(data: bytes) -> DeviceLayout:
+    """Parse a HID report descriptor into the layout of its input reports.
+
+    Raises DescriptorError (and nothing else) for a descriptor usb2rc cannot use."""
+    try:
+        return _Parser().parse(bytes(data))
+    except DescriptorError:
+        raise
+    except Exception as exc:  # a bug here must not take the daemon down with another type
+        raise DescriptorError(f"descriptor not understood: {exc!r}") from exc
+
+
+# --------------------------------------------------------------------------------------------
+# Decoding: a straight-line function per report, generated once per device
+
+
+_DecodeFn = Callable[[bytes, list[int]], int]
+
+
+def _array_buttons(word: int, array: ButtonArray, shift: int) -> int:
+    """Buttons pressed in a Button-page array (the rare path: a loop over its slots)."""
+    size, mask = array.bit_size, (1 << array.bit_size) - 1
+    sign = 1 << (size - 1) if array.logical_min < 0 else 0
+    pressed = 0
+    for slot in range(array.count):
+        value = (word >> (shift + slot * size)) & mask
+        if sign:
+            value = (value ^ sign) - sign
+        number = array.button_at(value)
+        if number:
+            pressed |= 1 << (number - 1)
+    return pressed
+
+
+def _value_expr(f: InputField, id_bits: int) -> str:
+    """Python source of the expression that reads one field out of report `r` / int `v`."""
+    offset = f.bit_offset + id_bits
+    signed = f.is_signed and f.bit_size > 1
+    sign = 1 << (f.bit_size - 1)
+    if offset % 8 == 0 and f.bit_size == 8:
+        raw = f"r[{offset // 8}]"
+    else:
+        raw = f"(v >> {offset} & {(1 << f.bit_size) - 1})"
+    return f"(({raw} ^ {sign}) - {sign})" if signed else raw
+
+
+def _button_expr(b: ButtonField, id_bits: int) -> str:
+    offset = b.bit_offset + id_bits
+    if b.bit_size != 1:
+        return f"({1 << (b.first_button - 1)} if v >> {offset} & {(1 << b.bit_size) - 1} else 0)"
+    target = b.first_button - 1
+    mask = ((1 << b.count) - 1) << target
+    if offset >= target:
+        return f"(v >> {offset - target} & {mask})"
+    return f"(v << {target - offset} & {mask})"
+
+
+@dataclass(frozen=True)
+class _ReportPlan:
+    length: int  # bytes the report must have, ID byte included
+    decode: _DecodeFn
+    keep_buttons: int  # ~ the buttons this report owns
+    source: str  # the generated code, for debugging
+
+
+def _compile_report(layout: DeviceLayout, rid: int) -> _ReportPlan:
+    id_bits = 8 if layout.uses_report_ids else 0
+    fields = [f for f in layout.inputs if f.report_id == rid]
+    buttons = [b for b in layout.buttons if b.report_id == rid]
+    arrays = [a for a in layout.button_arrays if a.report_id == rid]
+    lines = ["def decode(r, vals):", "    v = int.from_bytes(r, 'little')"]
+    lines += [f"    vals[{f.index}] = {_value_expr(f, id_bits)}" for f in fields]
+    terms = [_button_expr(b, id_bits) for b in buttons]
+    terms += [
+        f"_array_buttons(v, arrays[{i}], {a.bit_offset + id_bits})" for i, a in enumerate(arrays)
+    ]
+    lines.append(f"    return {' | '.join(terms) or '0'}")
+    source = "\n".join(lines) + "\n"
+    namespace: dict[str, object] = {"_array_buttons": _array_buttons, "arrays": tuple(arrays)}
+    exec(compile(source, f"<usb2rc decode plan, report {rid}>", "exec"), namespace)
+    owned = 0
+    for b in [*buttons, *arrays]:
+        owned |= b.mask
+    length = layout.input_report_lengths[rid] + id_bits // 8
+    decode: _DecodeFn = namespace["decode"]  # type: ignore[assignment]
+    return _ReportPlan(length, decode, ~owned, source)
+
+
+class ReportDecoder:
+    """Decodes one device's raw input reports into an InputState. Not thread-safe: one reader
+    thread feeds it and takes its states."""
+
+    def __init__(self, layout: DeviceLayout) -> None:
+        self.layout = layout
+        self.reports = 0
+        self.bad_reports = 0
+        self._plans = {rid: _compile_report(layout, rid) for rid in layout.input_report_lengths}
+        self._plan = None if layout.uses_report_ids else self._plans[0]
+        initial = layout.initial_state()
+        self._values = list(initial.values)
+        self._buttons = 0
+        self._state: InputState | None = initial
+
+    def feed(self, report: bytes) -> bool:
+        """Take one raw input report (ID byte first when the device uses IDs). False, and
+        counted in bad_reports, for an unknown report ID or a too short report."""
+        plan = self._plan
+        if plan is None:
+            plan = self._plans.get(report[0]) if report else None
+        if plan is None or len(report) < plan.length:
+            self.bad_reports += 1
+            return False
+        pressed = plan.decode(report, self._values)
+        self._buttons = (self._buttons & plan.keep_buttons) | pressed
+        self._state = None
+        self.reports += 1
+        return True
+
+    def state(self) -> InputState:
+        """The current state merged over all report IDs."""
+        state = self._state
+        if state is None:
+            state = self._state = InputState(tuple(self._values), self._buttons)
+        return state
