@@ -23,6 +23,7 @@ Where the spec leaves room, usb2rc does what the Linux kernel's hid-core does:
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
@@ -600,6 +601,49 @@ def _value_expr(f: InputField, id_bits: int) -> str:
     return f"(({raw} ^ {sign}) - {sign})" if signed else raw
 
 
+_STRUCT_CODES = {8: "B", 16: "H", 32: "I"}
+
+
+def _struct_code(f: InputField, id_bits: int) -> str | None:
+    """The struct format character of a byte-aligned 8/16/32-bit field, else None."""
+    code = _STRUCT_CODES.get(f.bit_size)
+    if code is None or (f.bit_offset + id_bits) % 8:
+        return None
+    return code.lower() if f.is_signed else code
+
+
+def _runs(fields: list[InputField], id_bits: int) -> list[list[InputField]]:
+    """Split fields into runs that one struct.unpack_from (or one bytes slice) can read:
+    byte-aligned, same width and signedness, adjacent in bits and in index."""
+    runs: list[list[InputField]] = []
+    for f in fields:
+        prev = runs[-1][-1] if runs else None
+        code = _struct_code(f, id_bits)
+        if (
+            prev is not None
+            and code is not None
+            and code == _struct_code(prev, id_bits)
+            and f.index == prev.index + 1
+            and f.bit_offset == prev.bit_offset + prev.bit_size
+        ):
+            runs[-1].append(f)
+        else:
+            runs.append([f])
+    return runs
+
+
+def _run_lines(run: list[InputField], id_bits: int) -> list[str]:
+    first = run[0]
+    if len(run) == 1 or _struct_code(first, id_bits) is None:
+        return [f"    vals[{f.index}] = {_value_expr(f, id_bits)}" for f in run]
+    start = (first.bit_offset + id_bits) // 8
+    target = f"vals[{first.index}:{first.index + len(run)}]"
+    code = _struct_code(first, id_bits)
+    if code == "B":
+        return [f"    {target} = r[{start}:{start + len(run)}]"]
+    return [f"    {target} = unpack_from('<{len(run)}{code}', r, {start})"]
+
+
 def _button_expr(b: ButtonField, id_bits: int) -> str:
     offset = b.bit_offset + id_bits
     if b.bit_size != 1:
@@ -625,14 +669,19 @@ def _compile_report(layout: DeviceLayout, rid: int) -> _ReportPlan:
     buttons = [b for b in layout.buttons if b.report_id == rid]
     arrays = [a for a in layout.button_arrays if a.report_id == rid]
     lines = ["def decode(r, vals):", "    v = int.from_bytes(r, 'little')"]
-    lines += [f"    vals[{f.index}] = {_value_expr(f, id_bits)}" for f in fields]
+    for run in _runs(fields, id_bits):
+        lines += _run_lines(run, id_bits)
     terms = [_button_expr(b, id_bits) for b in buttons]
     terms += [
         f"_array_buttons(v, arrays[{i}], {a.bit_offset + id_bits})" for i, a in enumerate(arrays)
     ]
     lines.append(f"    return {' | '.join(terms) or '0'}")
     source = "\n".join(lines) + "\n"
-    namespace: dict[str, object] = {"_array_buttons": _array_buttons, "arrays": tuple(arrays)}
+    namespace: dict[str, object] = {
+        "_array_buttons": _array_buttons,
+        "arrays": tuple(arrays),
+        "unpack_from": struct.unpack_from,
+    }
     exec(compile(source, f"<usb2rc decode plan, report {rid}>", "exec"), namespace)
     owned = 0
     for b in [*buttons, *arrays]:
