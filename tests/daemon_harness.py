@@ -1,0 +1,227 @@
+"""Run the daemon as a subprocess on real pseudo-terminals with replayed devices.
+
+`PtyLine` is the far end of a serial line: a thread reads the pty master and decodes what
+the daemon sends; tests wait on a condition (never a bare sleep) for what they expect.
+A T.16000M report packer lives here too, written from the descriptor by hand, so the tests
+do not compute expected frames with the code under test.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from usb2rc.protocol import c2_16b, sumd
+
+ROOT = Path(__file__).resolve().parent.parent
+
+# Thrustmaster T.16000M (044f:b10a), from tests/data/real-devices.json: 16 buttons, hat
+# 0..7 (4 bits, null) + 4 pad bits, X 14 bit + 2 pad, Y 14 bit + 2 pad, Rz 8 bit, Slider
+# 8 bit, 55 constant bytes: 64-byte reports, no report ID.
+T16000M_DESCRIPTOR = bytes.fromhex(
+    "05010904a101050919012910150025013500450175019510810205010939150025073500463b0165147504"
+    "9501814281010930150026ff3f350046ff3f6500750e950181027502950181010931750e95018102750295"
+    "0181010935093615002"
+    "6ff00350046ff0065007508950281027508953781010600ff27ffff0000090175089504b1a2c0"
+)
+HAT_NULL = 8
+
+
+@dataclass(frozen=True)
+class StickState:
+    x: int = 8192
+    y: int = 8192
+    rz: int = 128
+    slider: int = 128
+    buttons: int = 0  # HID button n -> bit n-1
+    hat: int = HAT_NULL  # 0..7 or null
+
+    def report(self) -> bytes:
+        head = bytes(
+            [
+                self.buttons & 0xFF,
+                self.buttons >> 8 & 0xFF,
+                self.hat & 0x0F,
+                self.x & 0xFF,
+                self.x >> 8 & 0x3F,
+                self.y & 0xFF,
+                self.y >> 8 & 0x3F,
+                self.rz,
+                self.slider,
+            ]
+        )
+        return head + bytes(55)
+
+
+def scale(v: int, lo: int, hi: int) -> int:
+    """DECISIONS.md: round((v - min) * 65535 / (max - min)) - 32768, in exact integers."""
+    return (2 * (v - lo) * 65535 + (hi - lo)) // (2 * (hi - lo)) - 32768
+
+
+HAT_BITS = {n: 1 << (24 + n) for n in range(8)}  # UP, UP-RIGHT ... UP-LEFT -> group 1 24..31
+
+
+def expected_frame(state: StickState) -> tuple[tuple[int, ...], int, int]:
+    """The default layout (DECISIONS.md) of a T.16000M state: axes, group1, group2."""
+    axes = [0] * 10
+    axes[0] = scale(state.x, 0, 16383)
+    axes[1] = scale(state.y, 0, 16383)
+    axes[3] = scale(state.slider, 0, 255)
+    axes[6] = scale(state.rz, 0, 255)
+    group1 = (state.buttons & 0xFFFF) | HAT_BITS.get(state.hat, 0)
+    return tuple(axes), group1, 0
+
+
+def recording(
+    states: Sequence[StickState],
+    hold_s: float = 0.1,
+    name: str = "Thrustmaster T.16000M",
+    extra: str = "",
+) -> str:
+    lines = [
+        "# usb2rc test recording",
+        f"R: {len(T16000M_DESCRIPTOR)} " + " ".join(f"{b:02x}" for b in T16000M_DESCRIPTOR),
+        f"N: {name}",
+        "P: usb-0000:00:14.0-1/input0",
+        "I: 3 044f b10a",
+    ]
+    if extra:
+        lines.append(extra)
+    for i, state in enumerate(states):
+        report = state.report()
+        lines.append(f"E: {i * hold_s:.6f} {len(report)} " + " ".join(f"{b:02x}" for b in report))
+    return "\n".join(lines) + "\n"
+
+
+def install(path: Path, text: str) -> None:
+    """Plug: the file appears whole (written aside, then renamed)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+@dataclass(frozen=True)
+class Seen:
+    time: float
+    frame: Any  # c2_16b.DataFrame | c2_16b.ServiceFrame | sumd.SumdFrame
+
+
+class PtyLine:
+    """A pty pair; the test holds the master (the far end), the daemon opens the slave."""
+
+    def __init__(self, protocol: str = "c2-16b") -> None:
+        self.master, self._slave = os.openpty()
+        self.path = os.ttyname(self._slave)
+        self.decoder: Any = sumd.SumdDecoder() if protocol == "sumd" else c2_16b.Decoder()
+        self.seen: list[Seen] = []
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"pty {self.path}")
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self.master], [], [], 0.05)
+            if not ready:
+                continue
+            try:
+                data = os.read(self.master, 65536)
+            except OSError:
+                continue
+            now = time.monotonic()
+            frames = self.decoder.feed(data)
+            if frames:
+                with self._cond:
+                    self.seen.extend(Seen(now, f) for f in frames)
+                    self._cond.notify_all()
+
+    def send(self, data: bytes) -> None:
+        os.write(self.master, data)
+
+    def frames(self) -> list[Any]:
+        with self._cond:
+            return [s.frame for s in self.seen]
+
+    def wait_for(self, predicate: Callable[[list[Any]], Any], timeout: float = 10.0) -> Any:
+        """Wait until predicate(frames) is truthy; return its value. Fails after timeout."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                result = predicate([s.frame for s in self.seen])
+                if result:
+                    return result
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise AssertionError(
+                        f"timed out after {timeout} s; saw {len(self.seen)} frames"
+                    )
+                self._cond.wait(left)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        os.close(self.master)
+        os.close(self._slave)
+
+
+class DaemonProcess:
+    """`python -m usb2rc run ...` as a subprocess; its log goes to a file the test can read."""
+
+    def __init__(self, args: Sequence[str], log_path: Path) -> None:
+        self.log_path = log_path
+        self._log = open(log_path, "wb")  # noqa: SIM115 - closed in stop()
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "usb2rc", "run", "--log-level", "debug", *args],
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            cwd=ROOT,
+            env=env,
+        )
+
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def signal(self, signum: int) -> None:
+        self.proc.send_signal(signum)
+
+    def stop(self, timeout: float = 10.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+        try:
+            code = self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            code = self.proc.wait()
+        self._log.close()
+        return code
+
+
+def data_frames(frames: list[Any], node_id: int | None = None) -> list[c2_16b.DataFrame]:
+    return [
+        f
+        for f in frames
+        if isinstance(f, c2_16b.DataFrame) and (node_id is None or f.node_id == node_id)
+    ]
+
+
+def service_frames(frames: list[Any], node_id: int | None = None) -> list[c2_16b.ServiceFrame]:
+    return [
+        f
+        for f in frames
+        if isinstance(f, c2_16b.ServiceFrame) and (node_id is None or f.node_id == node_id)
+    ]
+
+
+def services(frames: list[Any], node_id: int | None = None) -> list[str]:
+    return [f.service.service_name for f in service_frames(frames, node_id)]

@@ -1,0 +1,216 @@
+"""`usb2rc demo [--seconds N]`: the real daemon on replayed devices and a pseudo-terminal.
+
+A stick and a throttle (shipped hid-recorder recordings) plug in, move, unplug and come
+back on a loop; the daemon writes real C2-16B frames to a pty, and the other end of that pty
+is decoded and shown as a receiver would see it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import select
+import shutil
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from importlib import resources
+from pathlib import Path
+
+from usb2rc.config import Config
+from usb2rc.daemon import Daemon
+from usb2rc.hid.replay import ReplayBackend
+from usb2rc.protocol.c2_16b import AXIS_NAMES
+from usb2rc.receiver import NodeView, ReceiverModel
+
+log = logging.getLogger("usb2rc.demo")
+
+# (seconds into the cycle, action, recording): the plug / unplug script of one cycle.
+SCRIPT: tuple[tuple[float, str, str], ...] = (
+    (0.0, "plug", "stick.hid"),
+    (1.5, "plug", "throttle.hid"),
+    (12.0, "unplug", "stick.hid"),
+    (15.0, "plug", "stick.hid"),
+    (19.0, "unplug", "throttle.hid"),
+    (21.0, "plug", "throttle.hid"),
+)
+CYCLE_S = 24.0
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "demo", help="run usb2rc on built-in replayed devices and show what a receiver decodes"
+    )
+    parser.add_argument("--seconds", type=float, default=0.0, help="stop after N s (0: Ctrl-C)")
+    parser.add_argument(
+        "--plain", action="store_true", help="print text lines instead of a live screen"
+    )
+    parser.set_defaults(func=run)
+
+
+def demo_recordings() -> dict[str, str]:
+    folder = resources.files("usb2rc") / "data" / "demo"
+    return {name: (folder / name).read_text() for name in ("stick.hid", "throttle.hid")}
+
+
+class PlugScript(threading.Thread):
+    """Copies recordings into (and removes them from) the replay folder on a schedule."""
+
+    def __init__(self, folder: Path, recordings: dict[str, str]) -> None:
+        super().__init__(name="demo-plugs")
+        self.folder = folder
+        self.recordings = recordings
+        self._stop_event = threading.Event()
+
+    def stop(self) -> None:
+        self._stop_event.set()
+
+    def run(self) -> None:
+        start = time.monotonic()
+        cycle = 0
+        while not self._stop_event.is_set():
+            for at, action, name in SCRIPT:
+                due = start + cycle * CYCLE_S + at
+                if self._stop_event.wait(max(0.0, due - time.monotonic())):
+                    return
+                self._apply(action, name)
+            cycle += 1
+
+    def _apply(self, action: str, name: str) -> None:
+        path = self.folder / name
+        if action == "plug":
+            tmp = self.folder / f".{name}.tmp"
+            tmp.write_text(self.recordings[name])
+            tmp.rename(path)  # appears whole: the backend never sees half a file
+        else:
+            path.unlink(missing_ok=True)
+
+
+class PtyReceiver(threading.Thread):
+    """Reads the far end of the pty and folds what it decodes into a ReceiverModel."""
+
+    def __init__(self, master_fd: int, model: ReceiverModel) -> None:
+        super().__init__(name="demo-receiver")
+        self.master_fd = master_fd
+        self.model = model
+        self.lock = threading.Lock()
+        self._stop_event = threading.Event()
+
+    def stop(self) -> None:
+        self._stop_event.set()
+
+    def run(self) -> None:
+        while not self._stop_event.is_set():
+            ready, _, _ = select.select([self.master_fd], [], [], 0.1)
+            if not ready:
+                continue
+            try:
+                data = os.read(self.master_fd, 4096)
+            except OSError:  # the daemon closed its end for a moment
+                self._stop_event.wait(0.05)
+                continue
+            with self.lock:
+                self.model.feed(data)
+
+
+def axis_bar(value: int, width: int = 21) -> str:
+    pos = round((value + 32768) / 65535 * (width - 1))
+    return "".join(
+        "|" if i == width // 2 and i != pos else ("#" if i == pos else "-") for i in range(width)
+    )
+
+
+def node_lines(node: NodeView) -> list[str]:
+    state = {">": "LIVE", "!": "FAILSAFE"}.get(node.status, node.status)
+    lines = [
+        f"node {node.node_id} {state:<8} code {node.code:3d}  {node.product} "
+        f"{node.vid_pid} {node.device_type}  frames {node.frames}, code gaps {node.code_gaps}"
+    ]
+    for name, value in zip(AXIS_NAMES, node.axes, strict=True):
+        if value:
+            lines.append(f"  {name:<6} {axis_bar(value)} {value:+6d}")
+    buttons = node.pressed_buttons()
+    lines.append(f"  buttons {buttons or '-'}  hat {node.hat()}")
+    return lines
+
+
+def screen_text(model: ReceiverModel, port: str) -> str:
+    lines = [f"usb2rc demo: daemon -> {port} -> receiver (Ctrl-C stops)", ""]
+    for node_id in sorted(model.nodes):
+        lines.extend(node_lines(model.nodes[node_id]))
+    d = model.decoder
+    lines += [
+        "",
+        f"frames {d.frames}, bytes skipped {d.bytes_skipped}, CRC failures {d.crc_failures}",
+        "service events:",
+    ]
+    lines += [f"  {event}" for event in model.events]
+    return "\n".join(lines)
+
+
+@contextmanager
+def staged_folder() -> Iterator[Path]:
+    folder = Path(tempfile.mkdtemp(prefix="usb2rc-demo-"))
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _show_live(model: ReceiverModel, receiver: PtyReceiver, port: str, until: float) -> None:
+    from rich.live import Live
+    from rich.text import Text
+
+    with Live(refresh_per_second=10, screen=False) as live:
+        while time.monotonic() < until:
+            with receiver.lock:
+                live.update(Text(screen_text(model, port)))
+            time.sleep(0.1)
+
+
+def _show_plain(model: ReceiverModel, receiver: PtyReceiver, port: str, until: float) -> None:
+    printed_events = 0
+    next_summary = time.monotonic()
+    while time.monotonic() < until:
+        with receiver.lock:
+            for event in model.events_since(printed_events):
+                print(f"event: {event}", flush=True)
+            printed_events = model.event_total
+            if time.monotonic() >= next_summary:
+                for node_id in sorted(model.nodes):
+                    print(node_lines(model.nodes[node_id])[0], flush=True)
+                next_summary += 1.0
+        time.sleep(0.05)
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
+    master_fd, slave_fd = os.openpty()
+    port = os.ttyname(slave_fd)
+    model = ReceiverModel()
+    receiver = PtyReceiver(master_fd, model)
+    until = time.monotonic() + args.seconds if args.seconds > 0 else float("inf")
+    with staged_folder() as folder:
+        plugs = PlugScript(folder, demo_recordings())
+        daemon = Daemon(Config.default(), ReplayBackend(folder, loop=True), port_override=port)
+        receiver.start()
+        daemon.start()
+        plugs.start()
+        try:
+            show = _show_plain if args.plain or not sys.stdout.isatty() else _show_live
+            show(model, receiver, port, until)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            plugs.stop()
+            daemon.stop()
+            receiver.stop()
+            plugs.join()
+            receiver.join()
+            os.close(master_fd)
+            os.close(slave_fd)
+    return 0

@@ -1,0 +1,187 @@
+"""`usb2rc [run] --config FILE [--port PORT] [--replay DIR]`: the daemon."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import queue
+import signal
+import sys
+import threading
+import time
+
+from usb2rc.config import Config, ConfigError, load_config
+from usb2rc.daemon import Daemon, NoPortError
+from usb2rc.hid.backend import Backend
+from usb2rc.sdnotify import Notifier
+
+log = logging.getLogger("usb2rc")
+
+SERVICE_CONFIG = "/etc/usb2rc/usb2rc.yaml"
+
+
+def add_common_input_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", metavar="FILE", help="YAML config (default: zero config)")
+    parser.add_argument(
+        "--replay", metavar="DIR", help="replay hid-recorder files in DIR instead of real devices"
+    )
+    parser.add_argument("--replay-loop", action="store_true", help="replay each recording forever")
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("run", help="run the daemon (the default command)")
+    add_common_input_args(parser)
+    parser.add_argument("--port", help="serial port or pyserial URL (overrides the first output)")
+    parser.add_argument(
+        "--log-level", default="info", choices=["debug", "info", "warning", "error"]
+    )
+    parser.add_argument(
+        "--stats-interval",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="log statistics every S seconds (also on SIGUSR1)",
+    )
+    parser.set_defaults(func=run)
+
+
+def under_systemd() -> bool:
+    return bool(os.environ.get("INVOCATION_ID") or os.environ.get("JOURNAL_STREAM"))
+
+
+def setup_logging(level: str) -> None:
+    # The journal stamps every line itself: no second timestamp under systemd.
+    fmt = (
+        "%(levelname)s %(message)s" if under_systemd() else "%(asctime)s %(levelname)s %(message)s"
+    )
+    logging.basicConfig(level=getattr(logging, level.upper()), format=fmt, stream=sys.stderr)
+
+
+def config_path_for(args: argparse.Namespace) -> str | None:
+    if args.config:
+        return str(args.config)
+    if under_systemd() and os.path.exists(SERVICE_CONFIG):
+        return SERVICE_CONFIG
+    return None
+
+
+def load_or_report(path: str | None) -> Config | None:
+    if path is None:
+        return Config.default()
+    try:
+        return load_config(path)
+    except ConfigError as exc:
+        for error in exc.errors:
+            print(error, file=sys.stderr)
+        return None
+    except OSError as exc:
+        print(f"{path}: cannot read the config: {exc.strerror}", file=sys.stderr)
+        return None
+
+
+def make_backend(args: argparse.Namespace) -> Backend:
+    if args.replay:
+        from usb2rc.hid.replay import ReplayBackend
+
+        return ReplayBackend(args.replay, loop=args.replay_loop)
+    from usb2rc.hid.hidapi_backend import HidapiBackend
+
+    return HidapiBackend()
+
+
+class _WatchdogFeeder:
+    """Feeds systemd's watchdog from the scheduler's tick: a hung scheduler stops feeding."""
+
+    def __init__(self, notifier: Notifier) -> None:
+        self.notifier = notifier
+        self.interval = notifier.watchdog_interval_s()
+        self._next = 0.0
+
+    def __call__(self) -> None:
+        if self.interval is None:
+            return
+        now = time.monotonic()
+        if now >= self._next:
+            self._next = now + self.interval
+            self.notifier.watchdog()
+
+
+def serve(daemon: Daemon, config_path: str | None, stats_interval: float) -> int:
+    """Run until SIGTERM/SIGINT; SIGHUP reloads the config, SIGUSR1 logs statistics."""
+    requests: queue.SimpleQueue[str] = queue.SimpleQueue()  # put() is safe in a handler
+    names = {signal.SIGTERM: "stop", signal.SIGINT: "stop", signal.SIGHUP: "reload"}
+    if hasattr(signal, "SIGUSR1"):
+        names[signal.SIGUSR1] = "stats"
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for signum, what in names.items():
+            previous[signum] = signal.signal(signum, lambda _s, _f, w=what: requests.put(w))
+    daemon.start()
+    next_stats = time.monotonic() + stats_interval if stats_interval > 0 else None
+    try:
+        while True:
+            timeout = 1.0 if next_stats is None else max(0.0, next_stats - time.monotonic())
+            try:
+                what = requests.get(timeout=timeout)
+            except queue.Empty:
+                what = "stats" if next_stats is not None else ""
+                if next_stats is not None:
+                    next_stats = time.monotonic() + stats_interval
+            if what == "stop":
+                break
+            if what == "reload":
+                reload(daemon, config_path)
+            elif what == "stats":
+                for line in daemon.stats_lines():
+                    log.info("stats: %s", line)
+    finally:
+        daemon.stop()
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    log.info("stopped")
+    return 0
+
+
+def reload(daemon: Daemon, config_path: str | None) -> None:
+    if config_path is None:
+        log.warning("SIGHUP: no config file to re-read (zero config)")
+        return
+    try:
+        config = load_config(config_path)
+    except (ConfigError, OSError) as exc:
+        errors = exc.errors if isinstance(exc, ConfigError) else [str(exc)]
+        log.error("config %s rejected, the running config stays:", config_path)
+        for error in errors:
+            log.error("  %s", error)
+        return
+    daemon.reload(config)
+    log.info("config %s reloaded", config_path)
+
+
+def run(args: argparse.Namespace) -> int:
+    setup_logging(args.log_level)
+    config_path = config_path_for(args)
+    config = load_or_report(config_path)
+    if config is None:
+        return 2
+    notifier = Notifier.from_env()
+    try:
+        daemon = Daemon(
+            config,
+            make_backend(args),
+            port_override=args.port,
+            on_ready=notifier.ready,
+            on_tick=_WatchdogFeeder(notifier),
+        )
+    except NoPortError as exc:
+        print(f"usb2rc: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"usb2rc: {exc}", file=sys.stderr)
+        return 1
+    try:
+        return serve(daemon, config_path, args.stats_interval)
+    finally:
+        notifier.stopping()
+        notifier.close()

@@ -1,0 +1,346 @@
+"""The daemon: wires HID sources, the compiled mapping, node state and the outputs together.
+
+    hotplug/readers ──> NodeTable <── C2Output / SumdOutput threads ──> SerialLink
+
+Device callbacks run on the hot-plug and reader threads and only take the NodeTable's lock
+briefly; the scheduler threads never wait on a device.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from usb2rc import __version__
+from usb2rc.config import Config, OutputConfig
+from usb2rc.hid.backend import Backend, DeviceInfo, DevicePermissionError, ErrorCode
+from usb2rc.hid.descriptor import DescriptorError, DeviceLayout, parse_descriptor
+from usb2rc.hid.hotplug import HotplugMonitor
+from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
+from usb2rc.hid.reader import DeviceReader
+from usb2rc.hid.usages import device_type_name
+from usb2rc.mapping import (
+    ChannelSource,
+    DeviceBinding,
+    Mapping,
+    MappingError,
+    NodeInputs,
+    compile_mapping,
+    sumd_value,
+)
+from usb2rc.protocol.c2_16b import AXIS_NAMES
+from usb2rc.scheduler import C2Output, C2Settings, ChannelValue, RxThread, SumdOutput, TickThread
+from usb2rc.state import NodeFrame, NodeTable
+from usb2rc.transport import SerialLink
+
+log = logging.getLogger("usb2rc")
+
+JOIN_TIMEOUT_S = 0.5
+
+
+class NoPortError(ValueError):
+    """No serial port in the config nor on the command line."""
+
+
+@dataclass
+class _Output:
+    config: OutputConfig
+    link: SerialLink
+    thread: TickThread
+    rx: RxThread | None = None
+
+
+@dataclass
+class _Present:
+    reader: DeviceReader
+    layout: DeviceLayout
+
+
+def outputs_with_port(config: Config, port_override: str | None) -> tuple[OutputConfig, ...]:
+    """The config's outputs, the first one's port replaced by --port; every one needs a port."""
+    outputs = list(config.outputs) or [OutputConfig()]
+    if port_override:
+        outputs[0] = dataclasses.replace(outputs[0], port=port_override)
+    missing = [i + 1 for i, out in enumerate(outputs) if not out.port]
+    if missing:
+        raise NoPortError(
+            "no serial port for output "
+            + ", ".join(map(str, missing))
+            + ": give one with --port /dev/ttyUSB0 (or a pyserial URL such as "
+            "socket://host:port), or set `port:` under `outputs:` in the config."
+        )
+    return tuple(outputs)
+
+
+def expected_nodes(config: Config) -> dict[int, dict[str, NodeInputs]]:
+    """Config entries pinned to a Node-ID, as what they send before their device comes:
+    the configured failsafe values (0, or mid-scale for unsigned axes, without one)."""
+    nodes: dict[int, dict[str, NodeInputs]] = {}
+    for entry in config.devices:
+        if entry.node_id is None:
+            continue
+        axes: list[int | None] = [None] * len(AXIS_NAMES)
+        for axis in entry.axes:
+            centre = 32768 if axis.unsigned else 0
+            axes[AXIS_NAMES.index(axis.slot)] = centre if axis.failsafe is None else axis.failsafe
+        nodes.setdefault(entry.node_id, {})[entry.name] = NodeInputs(tuple(axes), 0, 0)
+    return nodes
+
+
+def sumd_channel(source: ChannelSource, extended: bool) -> ChannelValue:
+    """A function from the nodes' frames to (wire value, in failsafe) for one SUMD channel."""
+    absent = (None,) * len(AXIS_NAMES)
+
+    def value(nodes: dict[int, NodeFrame]) -> tuple[int, bool]:
+        frame = nodes.get(source.node_id)
+        if frame is None:
+            return sumd_value(source, absent, 0, 0, extended), True
+        wire = sumd_value(source, frame.axes, frame.group1, frame.group2, extended)
+        return wire, frame.failsafe
+
+    return value
+
+
+class Daemon:
+    def __init__(
+        self,
+        config: Config,
+        backend: Backend,
+        *,
+        port_override: str | None = None,
+        version: str = __version__,
+        on_ready: Callable[[], None] | None = None,
+        on_tick: Callable[[], None] | None = None,
+    ) -> None:
+        self.config = config
+        self.backend = backend
+        self.version = version
+        self.port_override = port_override
+        self.output_configs = outputs_with_port(config, port_override)
+        self.mapping: Mapping = compile_mapping(config)
+        self.table = NodeTable(expected_nodes(config))
+        self.allocator = NodeIdAllocator(self.mapping.pinned_node_ids())
+        self._alloc_lock = threading.Lock()
+        self._present: dict[str, _Present] = {}
+        self._present_lock = threading.Lock()
+        self._on_ready = on_ready
+        self._on_tick = on_tick
+        self._ready_once = threading.Event()
+        self.outputs = [self._make_output(i, out) for i, out in enumerate(self.output_configs)]
+        self.monitor = HotplugMonitor(backend, self._device_added, self._device_removed)
+        self.started_at = 0.0
+
+    # --- outputs ---------------------------------------------------------------------------
+
+    def _make_output(self, index: int, out: OutputConfig) -> _Output:
+        assert out.port
+        link = SerialLink(out.port, out.baudrate)
+        name = f"output{index + 1}-{out.protocol}"
+        if out.protocol == "sumd":
+            channels = [sumd_channel(s, out.extended) for s in self.mapping.sumd_channels(out)]
+            thread: TickThread = SumdOutput(
+                name, link, self.table, channels, out.rate_hz, on_first_write=self._first_write
+            )
+            return _Output(out, link, thread)
+        settings = C2Settings(
+            rate_hz=out.rate_hz,
+            baudrate=out.baudrate,
+            line_feed=out.line_feed,
+            binary_status=out.service_status == "binary",
+            version=self.version,
+        )
+        c2 = C2Output(name, link, self.table, settings, self._tick, self._first_write)
+        rx = RxThread(f"{name}-rx", link, self.table, c2.subscriber)
+        return _Output(out, link, c2, rx)
+
+    def _first_write(self) -> None:
+        if not self._ready_once.is_set():
+            self._ready_once.set()
+            log.info("first frame written: usb2rc is running")
+            if self._on_ready:
+                self._on_ready()
+
+    def _tick(self) -> None:
+        if self._on_tick:
+            self._on_tick()
+
+    # --- devices ---------------------------------------------------------------------------
+
+    def _node_for(self, info: DeviceInfo, pinned: int | None) -> int:
+        with self._alloc_lock:
+            return self.allocator.assign(info, pinned)
+
+    def _report_unusable(self, info: DeviceInfo, code: ErrorCode, message: str) -> None:
+        log.error(
+            "%s (%04x:%04x, port %s): %s",
+            info.product or info.path,
+            info.vid,
+            info.pid,
+            info.port_path or "?",
+            message,
+        )
+        try:
+            node_id = self._node_for(info, None)
+        except NodeIdError:
+            return
+        self.table.report_error(node_id, info, int(code))
+
+    def _open_and_bind(self, info: DeviceInfo) -> tuple[object, DeviceLayout, DeviceBinding] | None:
+        try:
+            device = self.backend.open(info)
+        except DevicePermissionError as exc:
+            self._report_unusable(info, ErrorCode.PERMISSION_DENIED, str(exc))
+            return None
+        except OSError as exc:
+            self._report_unusable(info, ErrorCode.OPEN_FAILED, f"cannot open: {exc}")
+            return None
+        try:
+            layout = parse_descriptor(device.report_descriptor())
+            binding = self.mapping.bind(info, layout)
+        except (DescriptorError, MappingError, OSError) as exc:
+            device.close()
+            self._report_unusable(
+                info, ErrorCode.DESCRIPTOR_UNUSABLE, f"not used: {exc}; usb2rc goes on without it"
+            )
+            return None
+        if binding is None:
+            device.close()
+            log.info(
+                "%s (%04x:%04x): ignored (`defaults: false` and no config entry matches)",
+                info.product,
+                info.vid,
+                info.pid,
+            )
+            return None
+        return device, layout, binding
+
+    def _device_added(self, info: DeviceInfo) -> None:
+        opened = self._open_and_bind(info)
+        if opened is None:
+            return
+        device, layout, binding = opened
+        pinned = binding.node_id
+        if pinned is None:
+            pinned = self.table.lost_node_of(info, binding)
+        try:
+            node_id = self._node_for(info, pinned)
+        except NodeIdError as exc:
+            device.close()  # type: ignore[attr-defined]
+            log.error("%s: %s", info.product, exc)
+            return
+        reader = DeviceReader(device, layout.make_decoder(), self._reader_ended)  # type: ignore[arg-type]
+        with self._present_lock:
+            self._present[info.key] = _Present(reader, layout)
+        self.table.add_device(node_id, info, binding, reader, device_type_name(layout.application))
+        reader.start()
+
+    def _device_removed(self, info: DeviceInfo) -> None:
+        with self._present_lock:
+            present = self._present.pop(info.key, None)
+        if present is not None:
+            present.reader.stop()
+        self.table.remove_device(info.key)
+
+    def _reader_ended(self, reader: DeviceReader, code: ErrorCode | None) -> None:
+        with self._present_lock:
+            self._present.pop(reader.info.key, None)
+        self.table.remove_device(reader.info.key, int(code) if code else None)
+        if code is not None:
+            # A read failure on a device that is still plugged: look at it again on the next
+            # hot-plug scan (a transient error recovers; a dead device fails again, counted).
+            self.monitor.forget(reader.info.key)
+
+    # --- life cycle ------------------------------------------------------------------------
+
+    def start(self) -> None:
+        self.started_at = time.monotonic()
+        for out in self.outputs:
+            out.link.try_open()
+        for info in self.monitor.initial_devices():
+            self._device_added(info)
+        for out in self.outputs:
+            out.thread.start()
+            if out.rx is not None:
+                out.rx.start()
+        self.monitor.start()
+
+    def stop(self) -> None:
+        self.monitor.stop()
+        with self._present_lock:
+            readers = [p.reader for p in self._present.values()]
+            self._present.clear()
+        for reader in readers:
+            reader.stop()
+        for out in self.outputs:
+            out.thread.stop()
+            if out.rx is not None:
+                out.rx.stop()
+        self.monitor.join(JOIN_TIMEOUT_S)
+        for reader in readers:
+            reader.join(JOIN_TIMEOUT_S)
+        for out in self.outputs:
+            out.thread.join(JOIN_TIMEOUT_S)
+            if out.rx is not None:
+                out.rx.join(JOIN_TIMEOUT_S)
+            out.link.close()
+
+    def reload(self, config: Config) -> None:
+        """Take a new, already validated config: the mapping changes without a tick lost."""
+        mapping = compile_mapping(config)
+        with self._present_lock:
+            layouts = {key: p.layout for key, p in self._present.items()}
+
+        def rebind(info: DeviceInfo) -> DeviceBinding | None:
+            layout = layouts.get(info.key)
+            if layout is None:
+                return None
+            try:
+                return mapping.bind(info, layout)
+            except MappingError as exc:
+                log.error("%s: %s (keeps its previous mapping)", info.product, exc)
+                return None
+
+        self.table.rebind(rebind, expected_nodes(config))
+        self.mapping = mapping
+        if outputs_with_port(config, self.port_override) != self.output_configs:
+            log.warning("config reloaded; changed outputs take effect after a restart")
+        self.config = config
+
+    # --- stats -----------------------------------------------------------------------------
+
+    def stats_lines(self) -> list[str]:
+        lines = []
+        for out in self.outputs:
+            st, link = out.thread.stats, out.link.stats
+            p99 = st.period_p99_error_ms(out.thread.period_s)
+            line = (
+                f"{out.thread.name} {out.link.url}: writes {st.writes}, ticks {st.ticks}, "
+                f"late {st.late_ticks}, missed {st.missed_ticks}, p99 |period error| "
+                f"{p99:.3f} ms, bytes {link.bytes_written}, queue-full skips "
+                f"{link.writes_skipped_queue_full}, write timeouts {link.write_timeouts}, "
+                f"line lost {link.losses}x"
+            )
+            if out.rx is not None:
+                dec = out.rx.decoder
+                line += (
+                    f", rx bytes {link.bytes_read}, rx skipped {dec.bytes_skipped}, "
+                    f"rx crc failures {dec.crc_failures}, requests {out.rx.requests}"
+                )
+            lines.append(line)
+        now = time.monotonic()
+        with self._present_lock:
+            present = list(self._present.values())
+        for p in present:
+            r = p.reader
+            age = f"{now - r.last_report_monotonic:.2f} s" if r.last_report_monotonic else "never"
+            uptime = max(1e-9, now - self.started_at)
+            lines.append(
+                f"device {r.info.product or r.info.path} ({r.info.port_path}): "
+                f"{r.reports} reports ({r.reports / uptime:.1f}/s avg), bad {r.bad_reports}, "
+                f"last report {age} ago"
+            )
+        return lines

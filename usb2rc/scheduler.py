@@ -1,0 +1,326 @@
+"""The scheduler: one thread per output, ticking against absolute monotonic deadlines.
+
+A C2-16B tick writes, in one `write()`, the pending service frames and then one data frame
+per node (round-robin when the baud rate cannot carry them all). A SUMD tick writes one
+frame. A late tick is counted, never caught up with a burst. An RX thread per C2-16B output
+answers the far end's `<` and `4` requests.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from usb2rc.protocol import c2_16b, sumd
+from usb2rc.state import EventKind, NodeFrame, NodeTable, ServiceEvent
+from usb2rc.transport import SerialLink
+
+log = logging.getLogger("usb2rc.scheduler")
+
+BITS_PER_BYTE_ON_WIRE = 10  # 8N1: start + 8 data + stop
+
+
+def frames_per_tick(baudrate: int, rate_hz: float, frame_len: int) -> int:
+    """How many frames of frame_len bytes the line carries in one tick (at least 1)."""
+    bytes_per_tick = baudrate / BITS_PER_BYTE_ON_WIRE / rate_hz
+    return max(1, int(bytes_per_tick // frame_len))
+
+
+def baud_needed(frames: int, rate_hz: float, frame_len: int) -> int:
+    """The smallest standard baud rate that carries `frames` frames per tick."""
+    needed = frames * frame_len * BITS_PER_BYTE_ON_WIRE * rate_hz
+    for baud in (115200, 230400, 460800, 500000, 921600, 1000000, 1500000, 2000000):
+        if baud >= needed:
+            return baud
+    return int(needed)
+
+
+@dataclass
+class OutputStats:
+    ticks: int = 0
+    late_ticks: int = 0
+    missed_ticks: int = 0
+    writes: int = 0
+    data_frames: int = 0
+    service_frames: int = 0
+    deferred_nodes: int = 0
+    periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=3000))
+
+    def period_p99_error_ms(self, nominal_s: float) -> float:
+        if not self.periods_s:
+            return 0.0
+        errors = sorted(abs(p - nominal_s) for p in self.periods_s)
+        return errors[min(len(errors) - 1, int(len(errors) * 0.99))] * 1000.0
+
+
+class TickThread(threading.Thread):
+    """Calls `tick()` every 1/rate_hz s on absolute monotonic deadlines until stopped."""
+
+    def __init__(self, name: str, rate_hz: float) -> None:
+        super().__init__(name=name)
+        self.period_s = 1.0 / rate_hz
+        self.stats = OutputStats()
+        self._stop_event = threading.Event()
+        self._last_write = 0.0
+
+    def stop(self) -> None:
+        self._stop_event.set()
+
+    def run(self) -> None:
+        deadline = time.monotonic()
+        while not self._stop_event.is_set():
+            delay = deadline - time.monotonic()
+            if delay > 0 and self._stop_event.wait(delay):
+                break
+            started = time.monotonic()
+            if started - deadline > self.period_s / 2:
+                self.stats.late_ticks += 1
+            self.tick()
+            self.stats.ticks += 1
+            deadline += self.period_s
+            behind = time.monotonic() - deadline
+            if behind >= 0:  # a whole tick lost: skip it, never burst to catch up
+                missed = int(behind // self.period_s) + 1
+                self.stats.missed_ticks += missed
+                deadline += missed * self.period_s
+        self.finish()
+
+    def tick(self) -> None:
+        raise NotImplementedError
+
+    def finish(self) -> None:
+        """Called once in the thread after the last tick."""
+
+    def note_write(self) -> None:
+        now = time.monotonic()
+        if self._last_write:
+            self.stats.periods_s.append(now - self._last_write)
+        self._last_write = now
+        self.stats.writes += 1
+
+
+@dataclass(frozen=True)
+class C2Settings:
+    rate_hz: float = 50.0
+    baudrate: int = 115200
+    line_feed: bool = True
+    binary_status: bool = False
+    version: str = "0.0.0"
+
+
+class C2Output(TickThread):
+    """SERaero C2-16B: startup, service frames, one data frame per node per tick."""
+
+    def __init__(
+        self,
+        name: str,
+        link: SerialLink,
+        table: NodeTable,
+        settings: C2Settings,
+        on_tick: Callable[[], None] | None = None,
+        on_first_write: Callable[[], None] | None = None,
+    ) -> None:
+        super().__init__(name, settings.rate_hz)
+        self.link = link
+        self.table = table
+        self.settings = settings
+        self.subscriber = table.subscribe()
+        self.on_tick = on_tick
+        self.on_first_write = on_first_write
+        self.frame_len = c2_16b.FRAME_LEN + (1 if settings.line_feed else 0)
+        self.capacity = frames_per_tick(settings.baudrate, settings.rate_hz, self.frame_len)
+        self._codes: dict[int, int] = {}
+        self._pending: deque[tuple[int, bytes]] = deque()  # (node_id, service frame)
+        self._round_robin = 0
+        self._warned_nodes = 0
+        self._startup_due = True
+        link.on_change = self._link_changed
+
+    def _link_changed(self, is_open: bool) -> None:
+        if is_open:  # a fresh line (or one that came back): startup, then who is here
+            self._startup_due = True
+            self._pending.clear()
+            self.table.collect(self.subscriber)  # what was queued is superseded by:
+            self.table.request_connect_sequences(self.subscriber)
+
+    def _kw(self) -> dict[str, bool]:
+        return {
+            "binary_status": self.settings.binary_status,
+            "line_feed": self.settings.line_feed,
+        }
+
+    def service_frames(self, event: ServiceEvent) -> list[bytes]:
+        kw, node = self._kw(), event.node_id
+        if event.kind is EventKind.DISCONNECTED:
+            return [c2_16b.disconnected(node, **kw)]
+        if event.kind is EventKind.ERROR:
+            return [c2_16b.device_error(node, event.error_code, **kw)]
+        info = event.info
+        assert info is not None
+        return [
+            c2_16b.connected(node, **kw),
+            c2_16b.vid_pid(node, info.vid, info.pid, **kw),
+            c2_16b.device_string(node, info.product or "", **kw),
+            c2_16b.device_type(node, event.device_type or "", **kw),
+        ]
+
+    def data_frame(self, frame: NodeFrame) -> bytes:
+        code = self._codes.get(frame.node_id, 0)
+        self._codes[frame.node_id] = (code + 1) & 0xFF
+        status = c2_16b.FAILSAFE if frame.failsafe else c2_16b.LIVE
+        return c2_16b.encode_data(
+            status,
+            frame.node_id,
+            code,
+            frame.axes,
+            frame.group1,
+            frame.group2,
+            line_feed=self.settings.line_feed,
+        )
+
+    def _choose_nodes(self, frames: Sequence[NodeFrame], room: int) -> list[NodeFrame]:
+        held = {node for node, _ in self._pending}
+        ready = [f for f in frames if f.node_id not in held]
+        if len(ready) <= room:
+            return ready
+        self._warn_bandwidth(len(frames))
+        start = self._round_robin % len(ready)
+        chosen = (ready[start:] + ready[:start])[:room]
+        self._round_robin = start + room
+        self.stats.deferred_nodes += len(ready) - len(chosen)
+        return sorted(chosen, key=lambda f: f.node_id)
+
+    def _warn_bandwidth(self, nodes: int) -> None:
+        if nodes <= self._warned_nodes:
+            return
+        self._warned_nodes = nodes
+        log.warning(
+            "%s: %d nodes need %d frames per %.0f ms tick but %d baud carries %d; sending "
+            "nodes round-robin (each node every %.1f ticks). %d baud would carry them all.",
+            self.link.url,
+            nodes,
+            nodes,
+            self.period_s * 1000,
+            self.settings.baudrate,
+            self.capacity,
+            nodes / max(1, self.capacity),
+            baud_needed(nodes, self.settings.rate_hz, self.frame_len),
+        )
+
+    def tick(self) -> None:
+        if not self.link.is_open:
+            self.link.try_open()
+        events, frames = self.table.collect(self.subscriber)
+        if not self.link.is_open:
+            self._pending.clear()  # the line is gone: the startup + connect sequence follow
+            self._call(self.on_tick)
+            return
+        for event in events:
+            self._pending.extend((event.node_id, f) for f in self.service_frames(event))
+        out: list[bytes] = []
+        if self._startup_due:
+            out.append(c2_16b.startup(self.settings.version, **self._kw()))
+        room = self.capacity - len(out)
+        while self._pending and room > 0:
+            out.append(self._pending.popleft()[1])
+            room -= 1
+        service_count = len(out)
+        out.extend(self.data_frame(f) for f in self._choose_nodes(frames, room))
+        if out and self.link.write(b"".join(out)):
+            self._startup_due = False
+            self.stats.service_frames += service_count
+            self.stats.data_frames += len(out) - service_count
+            self.note_write()
+            if self.on_first_write:
+                callback, self.on_first_write = self.on_first_write, None
+                callback()
+        self._call(self.on_tick)
+
+    @staticmethod
+    def _call(callback: Callable[[], None] | None) -> None:
+        if callback:
+            callback()
+
+    def finish(self) -> None:
+        self.link.close()
+
+
+ChannelValue = Callable[[dict[int, NodeFrame]], tuple[int, bool]]
+
+
+class SumdOutput(TickThread):
+    """HoTT SUMD: one frame of the configured channels per tick (100 Hz)."""
+
+    def __init__(
+        self,
+        name: str,
+        link: SerialLink,
+        table: NodeTable,
+        channels: Sequence[ChannelValue],
+        rate_hz: float = 100.0,
+        on_first_write: Callable[[], None] | None = None,
+    ) -> None:
+        super().__init__(name, rate_hz)
+        self.link = link
+        self.table = table
+        self.channels = list(channels)
+        self.on_first_write = on_first_write
+        self.frames_sent = 0
+
+    def tick(self) -> None:
+        if not self.link.is_open and not self.link.try_open():
+            return
+        nodes = {f.node_id: f for f in self.table.frames()}
+        values: list[int] = []
+        failsafe = False
+        for channel in self.channels:
+            value, channel_failsafe = channel(nodes)
+            values.append(value)
+            failsafe = failsafe or channel_failsafe
+        if self.link.write(sumd.encode_sumd(values, failsafe=failsafe)):
+            self.frames_sent += 1
+            self.note_write()
+            if self.on_first_write:
+                callback, self.on_first_write = self.on_first_write, None
+                callback()
+
+    def finish(self) -> None:
+        self.link.close()
+
+
+class RxThread(threading.Thread):
+    """Reads what the far end sends on a C2-16B line and answers `<` and `4` requests."""
+
+    def __init__(self, name: str, link: SerialLink, table: NodeTable, subscriber: int) -> None:
+        super().__init__(name=name)
+        self.link = link
+        self.table = table
+        self.subscriber = subscriber
+        self.decoder = c2_16b.Decoder()
+        self.requests = 0
+        self._stop_event = threading.Event()
+
+    def stop(self) -> None:
+        self._stop_event.set()
+
+    def run(self) -> None:
+        while not self._stop_event.is_set():
+            if not self.link.is_open:
+                self._stop_event.wait(0.1)
+                continue
+            data = self.link.read()
+            if data:
+                for frame in self.decoder.feed(data):
+                    self._answer(frame)
+
+    def _answer(self, frame: c2_16b.DataFrame | c2_16b.ServiceFrame) -> None:
+        if isinstance(frame, c2_16b.DataFrame) and frame.status == c2_16b.CONFIG_REQUEST:
+            self.requests += 1
+            self.table.request_connect_sequences(self.subscriber)
+        elif isinstance(frame, c2_16b.ServiceFrame) and frame.service == c2_16b.Service.POLL:
+            self.requests += 1
+            self.table.request_connect_sequences(self.subscriber, frame.node_id)

@@ -1,0 +1,173 @@
+"""The serial line: pyserial's `serial_for_url`, reopened every second while it is gone.
+
+Any pyserial URL works (`/dev/serial0`, `socket://host:port`, `spy:///dev/ttyUSB0`,
+`loop://`). A missing or vanished port is logged once, retried every second, and reported
+back through `on_change(open: bool)`; writes never block a tick for longer than
+`write_timeout_s`, and the OS transmit queue is never allowed to grow past `max_queued_bytes`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import serial
+
+log = logging.getLogger("usb2rc.serial")
+
+
+@dataclass
+class LinkStats:
+    bytes_written: int = 0
+    writes: int = 0
+    writes_skipped_queue_full: int = 0
+    write_timeouts: int = 0
+    bytes_read: int = 0
+    losses: int = 0
+    opens: int = 0
+
+
+def _describe_open_error(url: str, exc: Exception) -> str:
+    text = str(exc)
+    if "Permission denied" in text or "Errno 13" in text:
+        return (
+            f"serial port {url}: permission denied. Add the user to the 'dialout' group "
+            "(sudo usermod -aG dialout $USER, then log in again) or run as the usb2rc service."
+        )
+    if "No such file" in text or "Errno 2" in text or "could not open port" in text:
+        return (
+            f"serial port {url} is not there ({text}). Check the cable / adapter, the path "
+            "(ls /dev/serial* /dev/ttyUSB* /dev/ttyACM*) or give another one with --port."
+        )
+    return f"serial port {url}: {text}"
+
+
+class SerialLink:
+    """One serial output line, shared by the output's writer thread and its RX thread."""
+
+    def __init__(
+        self,
+        url: str,
+        baudrate: int = 115200,
+        *,
+        write_timeout_s: float = 0.005,
+        max_queued_bytes: int = 4096,
+        reopen_interval_s: float = 1.0,
+        on_change: Callable[[bool], None] | None = None,
+    ) -> None:
+        self.url = url
+        self.baudrate = baudrate
+        self.write_timeout_s = write_timeout_s
+        self.max_queued_bytes = max_queued_bytes
+        self.reopen_interval_s = reopen_interval_s
+        self.on_change = on_change
+        self.stats = LinkStats()
+        self._port: serial.SerialBase | None = None
+        self._lock = threading.Lock()  # guards _port replacement, not I/O
+        self._next_attempt = 0.0
+        self._was_lost_logged = False
+        self.last_error = ""
+
+    @property
+    def is_open(self) -> bool:
+        return self._port is not None
+
+    def try_open(self) -> bool:
+        """Open the port if it is closed and the retry interval has passed. Never raises."""
+        if self._port is not None:
+            return True
+        now = time.monotonic()
+        if now < self._next_attempt:
+            return False
+        self._next_attempt = now + self.reopen_interval_s
+        try:
+            port = serial.serial_for_url(
+                self.url,
+                baudrate=self.baudrate,
+                timeout=0.05,
+                write_timeout=self.write_timeout_s,
+                exclusive=True,
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            self.last_error = _describe_open_error(self.url, exc)
+            if not self._was_lost_logged:
+                log.error("%s; retrying every %.0f s", self.last_error, self.reopen_interval_s)
+                self._was_lost_logged = True
+            return False
+        with self._lock:
+            self._port = port
+        self.stats.opens += 1
+        if self._was_lost_logged:
+            log.warning("serial port %s is back", self.url)
+        self._was_lost_logged = False
+        self.last_error = ""
+        if self.on_change:
+            self.on_change(True)
+        return True
+
+    def _lost(self, exc: BaseException) -> None:
+        with self._lock:
+            port, self._port = self._port, None
+        if port is None:
+            return
+        self.stats.losses += 1
+        self.last_error = f"serial port {self.url} lost: {exc}"
+        log.error("%s; retrying every %.0f s", self.last_error, self.reopen_interval_s)
+        self._was_lost_logged = True
+        self._next_attempt = time.monotonic() + self.reopen_interval_s
+        with contextlib.suppress(serial.SerialException, OSError):
+            port.close()
+        if self.on_change:
+            self.on_change(False)
+
+    def _queued_bytes(self, port: serial.SerialBase) -> int:
+        try:
+            return int(port.out_waiting)
+        except (AttributeError, NotImplementedError, serial.SerialException, OSError):
+            return 0
+
+    def write(self, data: bytes) -> bool:
+        """Write one tick's bytes in one call. False when the port is closed or full."""
+        port = self._port
+        if port is None:
+            return False
+        if self._queued_bytes(port) + len(data) > self.max_queued_bytes:
+            self.stats.writes_skipped_queue_full += 1
+            return False
+        try:
+            port.write(data)
+        except serial.SerialTimeoutException:
+            self.stats.write_timeouts += 1
+            return False
+        except (serial.SerialException, OSError) as exc:
+            self._lost(exc)
+            return False
+        self.stats.writes += 1
+        self.stats.bytes_written += len(data)
+        return True
+
+    def read(self) -> bytes:
+        """Whatever arrived (waits up to the port's 50 ms timeout); b'' when closed."""
+        port = self._port
+        if port is None:
+            return b""
+        try:
+            waiting = port.in_waiting
+            data = port.read(max(1, min(waiting, 4096)))
+        except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+            # TypeError/AttributeError: pyserial's posix read on a port closed under it.
+            self._lost(exc)
+            return b""
+        self.stats.bytes_read += len(data)
+        return data
+
+    def close(self) -> None:
+        with self._lock:
+            port, self._port = self._port, None
+        if port is not None:
+            with contextlib.suppress(serial.SerialException, OSError):
+                port.close()
