@@ -1,0 +1,242 @@
+"""The real devices, through cython-hidapi (>= 0.14).
+
+On Linux this uses the `hidraw` module of the hidapi package (the hidraw backend: it reports
+each top-level usage and leaves the kernel driver alone); the default `hid` module there is
+libusb, which reports no usage page and detaches the kernel driver. Elsewhere it uses `hid`.
+The USB port path comes from sysfs on Linux, from pyusb elsewhere.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import logging
+import os
+import re
+import sys
+from collections import deque
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+from usb2rc.hid.backend import (
+    DeviceGone,
+    DeviceInfo,
+    DeviceOpenError,
+    DevicePermissionError,
+    is_usable_usage,
+    permission_message,
+)
+
+log = logging.getLogger(__name__)
+
+READ_SIZE = 1024  # hidraw returns one report per read; larger than any input report
+_USB_DEVICE_DIR = re.compile(r"^\d+-\d+(\.\d+)*$")  # "1-1.2"; not "usb1", not "1-1.2:1.0"
+
+
+def load_hid_module() -> ModuleType:
+    if sys.platform.startswith("linux"):
+        import hidraw
+
+        return hidraw
+    import hid
+
+    return hid
+
+
+def port_path_from_sysfs(hidraw_name: str, sysfs_root: Path) -> str:
+    """'1-1.2' for hidraw3: resolve .../hidraw/hidraw3/device, walk up to the USB device dir."""
+    link = sysfs_root / "class" / "hidraw" / hidraw_name / "device"
+    try:
+        device_dir = link.resolve(strict=True)
+    except OSError:
+        return ""
+    for part in (device_dir, *device_dir.parents):
+        if _USB_DEVICE_DIR.match(part.name):
+            return part.name
+    return ""  # not USB (Bluetooth, uhid)
+
+
+def descriptor_from_sysfs(hidraw_name: str, sysfs_root: Path) -> bytes | None:
+    path = sysfs_root / "class" / "hidraw" / hidraw_name / "device" / "report_descriptor"
+    try:
+        return path.read_bytes()
+    except OSError:
+        return None
+
+
+def port_path_from_pyusb(vid: int, pid: int, serial: str) -> str:
+    """'1-1.2' from pyusb's bus and port_numbers; '' when pyusb or its backend is missing."""
+    try:
+        import usb.core
+
+        for dev in usb.core.find(find_all=True, idVendor=vid, idProduct=pid) or ():
+            if serial and _usb_serial(dev) != serial:
+                continue
+            ports = dev.port_numbers or ()
+            if ports:
+                return f"{dev.bus}-{'.'.join(str(p) for p in ports)}"
+    except Exception as exc:
+        log.debug("pyusb port path for %04x:%04x: %s", vid, pid, exc)
+    return ""
+
+
+def _usb_serial(dev: Any) -> str:
+    try:
+        return str(dev.serial_number or "")
+    except Exception:
+        return ""
+
+
+def _text(value: Any) -> str:
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "replace")
+    return str(value or "")
+
+
+class HidapiBackend:
+    name = "hidapi"
+
+    def __init__(
+        self,
+        hid_module: ModuleType | Any | None = None,
+        sysfs_root: str | os.PathLike[str] = "/sys",
+        linux: bool | None = None,
+    ) -> None:
+        self._hid = hid_module if hid_module is not None else load_hid_module()
+        self._sysfs = Path(sysfs_root)
+        self._linux = sys.platform.startswith("linux") if linux is None else linux
+
+    def _port_path(self, hidraw: str, vid: int, pid: int, serial: str) -> str:
+        if self._linux and hidraw:
+            return port_path_from_sysfs(os.path.basename(hidraw), self._sysfs)
+        return port_path_from_pyusb(vid, pid, serial)
+
+    def _info(self, entry: dict[str, Any], usage_page: int, usage: int) -> DeviceInfo:
+        path = _text(entry.get("path"))
+        hidraw = path if self._linux and path.startswith("/dev/hidraw") else ""
+        vid, pid = int(entry.get("vendor_id", 0)), int(entry.get("product_id", 0))
+        serial = _text(entry.get("serial_number"))
+        return DeviceInfo(
+            key=path,
+            path=path,
+            vid=vid,
+            pid=pid,
+            serial=serial,
+            manufacturer=_text(entry.get("manufacturer_string")),
+            product=_text(entry.get("product_string")),
+            interface=int(entry.get("interface_number", -1)),
+            port_path=self._port_path(hidraw, vid, pid, serial),
+            usage_page=usage_page,
+            usage=usage,
+            hidraw=hidraw,
+        )
+
+    def enumerate(self, all: bool = False) -> list[DeviceInfo]:
+        """One DeviceInfo per device path; hidapi lists one entry per top-level usage."""
+        usages: dict[str, list[tuple[int, int]]] = {}
+        entries: dict[str, dict[str, Any]] = {}
+        for entry in self._hid.enumerate(0, 0):
+            path = _text(entry.get("path"))
+            entries.setdefault(path, entry)
+            pair = (int(entry.get("usage_page", 0)), int(entry.get("usage", 0)))
+            usages.setdefault(path, []).append(pair)
+        infos = []
+        for path, pairs in usages.items():
+            usable = [p for p in pairs if is_usable_usage(*p)]
+            if usable or all:
+                infos.append(self._info(entries[path], *(usable or pairs)[0]))
+        return infos
+
+    def open(self, info: DeviceInfo) -> HidapiDevice:
+        handle = self._hid.device()
+        try:
+            handle.open_path(info.path.encode())
+        except (OSError, ValueError) as exc:
+            raise self._open_error(info, exc) from exc
+        return HidapiDevice(info, handle, self._hid, self._sysfs)
+
+    def _open_error(self, info: DeviceInfo, exc: Exception) -> OSError:
+        node = info.hidraw
+        if node and not os.path.exists(node):
+            return DeviceGone(f"{node}: unplugged before it could be opened")
+        if node and not os.access(node, os.R_OK | os.W_OK):
+            return DevicePermissionError(errno.EACCES, permission_message(node))
+        if isinstance(exc, PermissionError):
+            return DevicePermissionError(errno.EACCES, permission_message(node or info.path))
+        return DeviceOpenError(
+            errno.EIO, f"{node or info.path}: cannot open {info.identity}: {exc}"
+        )
+
+
+class HidapiDevice:
+    def __init__(self, info: DeviceInfo, handle: Any, hid_module: Any, sysfs_root: Path) -> None:
+        self.info = info
+        self._handle = handle
+        self._hid = hid_module
+        self._sysfs = sysfs_root
+        self._descriptor: bytes | None = None
+        self._pending: deque[bytes] = deque(self._current_reports())
+
+    def report_descriptor(self) -> bytes:
+        if self._descriptor is None:
+            self._descriptor = self._read_descriptor()
+        return self._descriptor
+
+    def _read_descriptor(self) -> bytes:
+        if self.info.hidraw:
+            data = descriptor_from_sysfs(os.path.basename(self.info.hidraw), self._sysfs)
+            if data:
+                return data
+        try:
+            return bytes(self._handle.get_report_descriptor())
+        except (OSError, ValueError) as exc:
+            raise DeviceOpenError(
+                errno.EIO, f"{self.info.path}: cannot read its report descriptor: {exc}"
+            ) from exc
+
+    def _current_reports(self) -> list[bytes]:
+        """Ask the device for each input report (DESIGN: state at open); failures ignored."""
+        try:
+            from usb2rc.hid.descriptor import parse_descriptor
+
+            layout = parse_descriptor(self.report_descriptor())
+        except Exception:
+            return []
+        reports = []
+        for report_id, length in sorted(layout.input_report_lengths.items()):
+            with contextlib.suppress(Exception):
+                data = bytes(self._handle.get_input_report(report_id, length + 1))
+                # hidapi returns the report number first; 0 means "no IDs": drop it
+                report = data[1:] if report_id == 0 else data
+                if len(report) >= length:
+                    reports.append(report)
+        return reports
+
+    def _gone(self) -> bool:
+        if self.info.hidraw:
+            return not os.path.exists(self.info.hidraw)
+        try:
+            present = self._hid.enumerate(self.info.vid, self.info.pid)
+        except Exception:
+            return False
+        return all(_text(e.get("path")) != self.info.path for e in present)
+
+    def read(self, timeout_s: float) -> bytes | None:
+        if self._pending:
+            return self._pending.popleft()
+        try:
+            data = self._handle.read(READ_SIZE, max(1, round(timeout_s * 1000)))
+        except (OSError, ValueError) as exc:
+            if self._gone():
+                raise DeviceGone(f"{self.info.path}: unplugged") from exc
+            raise OSError(errno.EIO, f"{self.info.path}: read failed: {exc}") from exc
+        if data:
+            return bytes(data)
+        if self._gone():
+            raise DeviceGone(f"{self.info.path}: unplugged")
+        return None
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._handle.close()
