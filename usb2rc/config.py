@@ -319,9 +319,7 @@ def load_config_text(text: str, source: str = "<config>") -> Config:
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.MarkedYAMLError as exc:
-        mark = exc.problem_mark or exc.context_mark
-        line = mark.line + 1 if mark else 0
-        raise ConfigError([f"{source}:{line}: not valid YAML: {exc.problem}"]) from None
+        raise ConfigError([_yaml_error(exc, source)]) from None
     if root is None:
         return Config(outputs=(OutputConfig(),), source=source)
     reader = _Reader(source)
@@ -333,6 +331,15 @@ def load_config_text(text: str, source: str = "<config>") -> Config:
         raise ConfigError(sorted(reader.errors, key=_error_line))
     assert config is not None
     return config
+
+
+def _yaml_error(exc: yaml.MarkedYAMLError, source: str) -> str:
+    mark = exc.problem_mark or exc.context_mark
+    line = mark.line + 1 if mark else 0
+    context = ""
+    if exc.context and exc.context_mark:
+        context = f" ({exc.context} at line {exc.context_mark.line + 1})"
+    return f"{source}:{line}: not valid YAML: {exc.problem}{context}"
 
 
 def _error_line(error: str) -> int:
@@ -357,13 +364,17 @@ def _read_config(reader: _Reader, root: Node) -> Config | None:
 
 
 def _read_list(
-    reader: _Reader, node: Node, path: str, read_one: Callable[[_Reader, Node, str], Any]
+    reader: _Reader,
+    node: Node,
+    path: str,
+    read_one: Callable[[_Reader, Node, str], Any],
+    allow_empty: bool = True,
 ) -> tuple[Any, ...]:
     entries = reader.sequence(node, path)
     if entries is None:
         return ()
-    if not entries:
-        reader.error(node, path, "empty list")
+    if not entries and not allow_empty:
+        reader.error(node, path, "empty list", "at least one entry")
     results = (read_one(reader, entry, f"{path}[{i}]") for i, entry in enumerate(entries))
     return tuple(r for r in results if r is not None)
 
@@ -372,7 +383,7 @@ def _read_list(
 
 
 def _read_outputs(reader: _Reader, node: Node) -> tuple[OutputConfig, ...]:
-    return _read_list(reader, node, "outputs", _read_output)
+    return _read_list(reader, node, "outputs", _read_output, allow_empty=False)
 
 
 def _read_output(reader: _Reader, node: Node, path: str) -> OutputConfig | None:
@@ -784,7 +795,7 @@ def device_claims(device: DeviceConfig) -> tuple[list[tuple[str, Where]], list[t
     bits = [(f"button {route.node}", route.where) for route in device.buttons]
     for hat in device.hats:
         if hat.to == "hat1":
-            bits.extend((f"hat1 {d}", hat.where) for d in HAT_DIRECTIONS)
+            bits.append(("hat1 (group 1 bits 24-31)", hat.where))
         else:
             bits.extend((f"button {b}", hat.where) for b in hat.to if b is not None)
     return axes, bits
