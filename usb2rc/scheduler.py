@@ -39,6 +39,22 @@ def baud_needed(frames: int, rate_hz: float, frame_len: int) -> int:
     return int(needed)
 
 
+def device_string_text(product: str, manufacturer: str = "", limit: int = 12) -> str:
+    """The product name for service frame `5`: without the maker's name in front.
+
+    Kernel and hid-recorder names are "Manufacturer Product" ("Thrustmaster T.16000M"); the
+    12 bytes the frame carries are better spent on the product. With no manufacturer known,
+    the first word goes when the name does not fit.
+    """
+    name = product.strip()
+    if manufacturer and name.lower().startswith(manufacturer.lower() + " "):
+        return name[len(manufacturer) :].strip()
+    _, _, rest = name.partition(" ")
+    if not manufacturer and len(name) > limit and rest:
+        return rest.strip()
+    return name
+
+
 @dataclass
 class OutputStats:
     ticks: int = 0
@@ -164,7 +180,7 @@ class C2Output(TickThread):
         return [
             c2_16b.connected(node, **kw),
             c2_16b.vid_pid(node, info.vid, info.pid, **kw),
-            c2_16b.device_string(node, info.product or "", **kw),
+            c2_16b.device_string(node, device_string_text(info.product, info.manufacturer), **kw),
             c2_16b.device_type(node, event.device_type or "", **kw),
         ]
 

@@ -107,7 +107,12 @@ class _WatchdogFeeder:
             self.notifier.watchdog()
 
 
-def serve(daemon: Daemon, config_path: str | None, stats_interval: float) -> int:
+def serve(
+    daemon: Daemon,
+    config_path: str | None,
+    stats_interval: float,
+    notifier: Notifier | None = None,
+) -> int:
     """Run until SIGTERM/SIGINT; SIGHUP reloads the config, SIGUSR1 logs statistics."""
     requests: queue.SimpleQueue[str] = queue.SimpleQueue()  # put() is safe in a handler
     names = {signal.SIGTERM: "stop", signal.SIGINT: "stop", signal.SIGHUP: "reload"}
@@ -131,7 +136,11 @@ def serve(daemon: Daemon, config_path: str | None, stats_interval: float) -> int
             if what == "stop":
                 break
             if what == "reload":
+                if notifier is not None:
+                    notifier.reloading()
                 reload(daemon, config_path)
+                if notifier is not None:
+                    notifier.ready()
             elif what == "stats":
                 for line in daemon.stats_lines():
                     log.info("stats: %s", line)
@@ -181,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"usb2rc: {exc}", file=sys.stderr)
         return 1
     try:
-        return serve(daemon, config_path, args.stats_interval)
+        return serve(daemon, config_path, args.stats_interval, notifier)
     finally:
         notifier.stopping()
         notifier.close()
