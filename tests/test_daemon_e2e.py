@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import pytest
-
 from daemon_harness import (
     DaemonProcess,
     PtyLine,
@@ -17,6 +17,7 @@ from daemon_harness import (
     service_frames,
     services,
 )
+
 from usb2rc import __version__
 from usb2rc.protocol import c2_16b
 
@@ -109,7 +110,7 @@ def test_plug_states_unplug_replug_and_sigterm(tmp_path, line, replay_dir):
         line.wait_for(lambda fr: len(data_frames(fr, 0)) >= 300, timeout=20)
         codes = [f.code for f in data_frames(line.frames(), 0)]
         assert codes[0] == 0
-        assert all(b == (a + 1) % 256 for a, b in zip(codes, codes[1:], strict=False))
+        assert all(b == (a + 1) % 256 for a, b in itertools.pairwise(codes))
         assert 255 in codes and codes.index(255) + 1 < len(codes)
         assert {f.status for f in data_frames(line.frames(), 0)} == {LIVE}
 
