@@ -438,14 +438,14 @@ def _span(first: int, count: int) -> str:
     return str(first) if count == 1 else f"{first}-{first + count - 1}"
 
 
-def _usage_label(usage: int, occurrence: int = 0) -> str:
+def usage_label(usage: int, occurrence: int = 0) -> str:
     from usb2rc.hid.usages import usage_name
 
     name = usage_name(usage)
     return name if occurrence == 0 else f"{name} #{occurrence + 1}"
 
 
-def _shaping(axis: AxisConfig | None) -> str:
+def shaping_text(axis: AxisConfig | None) -> str:
     if axis is None:
         return "linear"
     parts = []
@@ -462,12 +462,12 @@ def _field_axis(field: InputField, axis: AxisConfig | None, slot: str) -> tuple[
     fn = _shaped_axis(field, axis) if axis and _is_shaped(axis) else _linear_axis(field, axis)
     info = AxisInfo(
         slot,
-        _usage_label(field.usage, field.occurrence),
+        usage_label(field.usage, field.occurrence),
         field.logical_min,
         field.logical_max,
         bool(axis and axis.unsigned),
         axis.failsafe if axis else None,
-        _shaping(axis),
+        shaping_text(axis),
     )
     return fn, info
 
@@ -513,7 +513,7 @@ def default_binding(layout: DeviceLayout, name: str, node_id: int | None = None)
     hat = first_hat(layout)
     if hat is not None:
         hats.append(hat_table(hat, "hat1"))
-        notes.append(f"hat {_usage_label(hat.usage, hat.occurrence)} -> hat1 (group 1 bits 24-31)")
+        notes.append(f"hat {usage_label(hat.usage, hat.occurrence)} -> hat1 (group 1 bits 24-31)")
     return DeviceBinding(name, node_id, axes, DEFAULT_BUTTON_RUNS, hats, notes)
 
 
@@ -526,9 +526,9 @@ def _find_field(
     for f in layout.inputs:
         if f.usage == usage and f.occurrence == occurrence:
             return f
-    have = ", ".join(_usage_label(f.usage, f.occurrence) for f in layout.inputs) or "none"
+    have = ", ".join(usage_label(f.usage, f.occurrence) for f in layout.inputs) or "none"
     raise MappingError(
-        f"{where}: {what} {_usage_label(usage, occurrence)} is not in this device "
+        f"{where}: {what} {usage_label(usage, occurrence)} is not in this device "
         f"(its inputs: {have})"
     )
 
@@ -541,13 +541,13 @@ def _configured_axis(layout: DeviceLayout, axis: AxisConfig) -> tuple[AxisFn, Ax
     lo, hi = (0, 1) if axis.buttons else (-1, 1)
     if axis.hat is not None:
         f = _find_field(layout, axis.hat, axis.occurrence, axis.where, "hat")
-        label = f"{_usage_label(f.usage, f.occurrence)} {axis.hat_axis}"
+        label = f"{usage_label(f.usage, f.occurrence)} {axis.hat_axis}"
         fn, lo, hi = _hat_axis(f, axis), f.logical_min, f.logical_max
     else:
         assert axis.buttons is not None
         label = f"buttons {axis.buttons[0]}/{axis.buttons[1]} (-/+)"
         fn = _button_pair_axis(axis)
-    shaping = _shaping(axis)
+    shaping = shaping_text(axis)
     info = AxisInfo(slot, label, lo, hi, axis.unsigned, axis.failsafe, shaping)
     return fn, info
 
@@ -575,7 +575,7 @@ def configured_binding(
 
 
 def _hat_note(f: InputField, hat: HatConfig) -> str:
-    label = _usage_label(f.usage, f.occurrence)
+    label = usage_label(f.usage, f.occurrence)
     if hat.to == "hat1":
         return f"hat {label} -> hat1 (group 1 bits 24-31)"
     pairs = [f"{d} {b}" for d, b in zip(HAT_DIRECTIONS, hat.to, strict=True) if b is not None]

@@ -1,0 +1,241 @@
+"""`usb2rc icd [--config FILE] [--format markdown|text] [--replay DIR]`: the application ICD.
+
+The C2-16B ICD leaves the axis and button layout "HID descriptor dependent, must be described
+in the application ICD". This writes that document for a config: per Node-ID which device
+and usage feeds each axis (signed / unsigned, range, failsafe), each button bit and the hat
+bits, and each SUMD output's channel list with its µs ranges. For a receiver-side engineer.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from usb2rc.commands.check import bind_replay, load_or_default
+from usb2rc.config import (
+    HAT_DIRECTIONS,
+    AxisConfig,
+    Config,
+    ConfigError,
+    DeviceConfig,
+    OutputConfig,
+)
+from usb2rc.mapping import (
+    GROUP1_BUTTONS,
+    HAT1_SHIFT,
+    Mapping,
+    compile_mapping,
+    node_button_bit,
+    shaping_text,
+    usage_label,
+)
+
+FORMATS = ("markdown", "text")
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "icd",
+        help="write the application ICD (axes, buttons, hats, SUMD channels) for a config",
+        description="Write the application ICD the C2-16B ICD asks for, from a config.",
+    )
+    parser.add_argument("--config", metavar="FILE", help="YAML config (default: zero config)")
+    parser.add_argument("--format", choices=FORMATS, default="markdown")
+    parser.add_argument("--replay", metavar="DIR", help="also describe the devices in DIR")
+    parser.set_defaults(func=run)
+
+
+def table(headers: Sequence[str], rows: Sequence[Sequence[object]], fmt: str) -> list[str]:
+    cells = [[str(c) for c in row] for row in rows]
+    if fmt == "markdown":
+        lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
+        return lines + ["| " + " | ".join(row) + " |" for row in cells] + [""]
+    widths = [max(len(h), *(len(r[i]) for r in cells)) for i, h in enumerate(headers)]
+    fmt_row = lambda row: "  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True))  # noqa: E731
+    return [fmt_row(headers).rstrip(), *(fmt_row(r).rstrip() for r in cells), ""]
+
+
+def heading(text: str, level: int, fmt: str) -> list[str]:
+    if fmt == "markdown":
+        return ["#" * level + " " + text, ""]
+    return [text, "=" * len(text) if level == 1 else "-" * len(text), ""]
+
+
+# --------------------------------------------------------------------------- rows
+
+
+def axis_source(axis: AxisConfig) -> str:
+    if axis.usage is not None:
+        return usage_label(axis.usage, axis.occurrence)
+    if axis.hat is not None:
+        return f"{usage_label(axis.hat, axis.occurrence)} {axis.hat_axis} (-1/0/+1)"
+    assert axis.buttons is not None
+    return f"HID buttons {axis.buttons[0]} (-) / {axis.buttons[1]} (+)"
+
+
+def axis_rows(devices: Sequence[DeviceConfig]) -> list[list[object]]:
+    rows: list[list[object]] = []
+    for device in devices:
+        for axis in device.axes:
+            kind, span = ("unsigned", "0..65535") if axis.unsigned else ("signed", "-32768..32767")
+            failsafe = "hold last" if axis.failsafe is None else axis.failsafe
+            rows.append(
+                [
+                    axis.slot,
+                    device.name,
+                    axis_source(axis),
+                    kind,
+                    span,
+                    failsafe,
+                    shaping_text(axis),
+                ]
+            )
+    return rows
+
+
+def button_rows(devices: Sequence[DeviceConfig]) -> list[list[object]]:
+    rows: list[list[object]] = []
+    for device in devices:
+        for route in device.buttons:
+            group, bit = node_button_bit(route.node)
+            rows.append([route.node, group + 1, bit, device.name, f"HID button {route.hid}"])
+        for hat in device.hats:
+            if hat.to == "hat1":
+                continue
+            label = usage_label(hat.usage, hat.occurrence)
+            for direction, node in zip(HAT_DIRECTIONS, hat.to, strict=True):
+                if node is not None:
+                    group, bit = node_button_bit(node)
+                    rows.append([node, group + 1, bit, device.name, f"{label} {direction}"])
+    return sorted(rows, key=lambda r: int(str(r[0])))
+
+
+def hat_rows(devices: Sequence[DeviceConfig]) -> list[list[object]]:
+    rows: list[list[object]] = []
+    for device in devices:
+        for hat in device.hats:
+            if hat.to == "hat1":
+                label = usage_label(hat.usage, hat.occurrence)
+                for d, direction in enumerate(HAT_DIRECTIONS):
+                    rows.append([f"SG1_SY{d + 1}", HAT1_SHIFT + d, direction, device.name, label])
+    return rows
+
+
+def default_layout_lines() -> list[str]:
+    return [
+        "Devices on the default layout (no config entry, or an entry without axes / buttons /",
+        "hats) map as the C2-16B ICD's default tables:",
+        "",
+        "- axes: X, Y, Z, Slider, Rx, Ry, Rz, Dial to the slot of the same name; Wheel and a",
+        "  second Slider / Dial to aux1, aux2 in descriptor order, then Simulation Controls",
+        "  values (Throttle, Rudder, ...) to a still free aux1 / aux2; each linear over its",
+        "  logical range onto -32768..32767 (signed); failsafe: hold last value;",
+        "- HID buttons 1-24 -> group 1 bits 0-23; HID buttons 25-56 -> group 2 bits 0-31;",
+        "- the first hat switch -> group 1 bits 24-31, one bit per direction: UP, UP-RIGHT,",
+        "  RIGHT, DOWN-RIGHT, DOWN, DOWN-LEFT, LEFT, UP-LEFT; centred sets none.",
+        "",
+    ]
+
+
+def sumd_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
+    lo, hi = (900, 2100) if output.extended else (1100, 1900)
+    rows: list[list[object]] = []
+    for i, source in enumerate(mapping.sumd_channels(output), start=1):
+        if source.kind == "button":
+            rows.append([i, source.name, "button", "1100 / 1900"])
+        else:
+            kind = "axis, unsigned" if source.unsigned else "axis, signed"
+            rows.append([i, source.name, kind, f"{lo}..{hi}"])
+    return rows
+
+
+# --------------------------------------------------------------------------- document
+
+
+def node_section(config: Config, node_id: int, fmt: str) -> list[str]:
+    devices = [d for d in config.devices if d.node_id == node_id]
+    lines = heading(f"Node {node_id}", 2, fmt)
+    lines.append("Devices: " + ", ".join(_device_label(d) for d in devices))
+    lines.append("")
+    configured = [d for d in devices if not d.default_layout]
+    if len(configured) < len(devices):
+        lines += default_layout_lines()
+    rows = axis_rows(configured)
+    headers = ["axis", "device", "source", "kind", "range", "failsafe", "shaping"]
+    lines += table(headers, rows, fmt) if rows else []
+    rows = button_rows(configured)
+    lines += table(["button", "group", "bit", "device", "source"], rows, fmt) if rows else []
+    rows = hat_rows(configured)
+    lines += (
+        table(["switch", "group 1 bit", "direction", "device", "hat"], rows, fmt) if rows else []
+    )
+    return lines
+
+
+def _device_label(device: DeviceConfig) -> str:
+    m = device.match
+    parts = [f"vid 0x{m.vid:04x}" if m.vid is not None else "", ""]
+    parts[1] = f"pid 0x{m.pid:04x}" if m.pid is not None else ""
+    parts += [f"{k} {getattr(m, k)!r}" for k in ("serial", "port", "product") if getattr(m, k)]
+    return f"{device.name} ({', '.join(p for p in parts if p)})"
+
+
+def document(config: Config, fmt: str) -> list[str]:
+    mapping = compile_mapping(config)
+    lines = heading("usb2rc application ICD", 1, fmt)
+    lines += [
+        f"Config: {config.source}",
+        "",
+        "Axes are int16 little-endian, X Y Z Slider Rx Ry Rz Dial Aux1 Aux2; a linear axis maps",
+        "its HID logical range [min, max] as round((v - min) * 65535 / (max - min)) - 32768",
+        "(unsigned: without - 32768). Node buttons 1-24 are group 1 bits 0-23, node buttons",
+        f"25-56 group 2 bits 0-31 (button n > {GROUP1_BUTTONS}: bit n - 25); group 1 bits 24-31",
+        "are hat1. Unfed axes send 0, unfed bits 0.",
+        "",
+    ]
+    lines += heading("Outputs", 2, fmt)
+    rows = [
+        [o.protocol, o.port or "(--port)", o.baudrate, f"{o.rate_hz:g}"] for o in config.outputs
+    ]
+    lines += table(["protocol", "port", "baud", "Hz"], rows, fmt)
+    for node_id in sorted(mapping.pinned_node_ids()):
+        lines += node_section(config, node_id, fmt)
+    lines += heading("Devices without a Node-ID in the config", 2, fmt)
+    if config.defaults:
+        lines += ["Automatic Node-ID: lowest free from 0, in USB port-path order.", ""]
+        lines += default_layout_lines()
+    else:
+        lines += ["Ignored (defaults: false).", ""]
+    for i, output in enumerate(config.outputs):
+        if output.protocol == "sumd":
+            lines += heading(f"SUMD output {i + 1} ({output.port or '--port'})", 2, fmt)
+            lines += table(["channel", "source", "kind", "µs"], sumd_rows(mapping, output), fmt)
+    return lines
+
+
+def replay_section(config: Config, directory: str, fmt: str) -> list[str]:
+    devices, problems = bind_replay(compile_mapping(config), directory)
+    lines = heading(f"Devices in {directory}", 2, fmt)
+    for dev in devices:
+        label = f"{dev.info.product or '?'} ({dev.info.vid:04x}:{dev.info.pid:04x})"
+        if dev.binding is None:
+            lines.append(f"- {label}: {dev.error or 'ignored'}")
+            continue
+        lines.append(f"- {label}: node {dev.node_id}")
+        lines += [f"    - {line.strip()}" for line in dev.binding.describe()[1:]]
+    lines += [f"- problem: {p}" for p in problems]
+    return [*lines, ""]
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        config = load_or_default(args.config)
+    except ConfigError as exc:
+        print("\n".join(exc.errors), file=sys.stderr)
+        return 2
+    lines = document(config, args.format)
+    if args.replay:
+        lines += replay_section(config, args.replay, args.format)
+    print("\n".join(lines).rstrip())
+    return 0
