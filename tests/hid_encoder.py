@@ -60,7 +60,8 @@ def ref_reports(descriptor: bytes) -> dict[int, RefReport]:
             k = sum(1 for key in values if key[0] == f.usage)
             values[(f.usage, k)] = f
         number = max(rid, 0)
-        reports[number] = RefReport(number, rid >= 0, report.size, values, buttons, arrays)
+        size = (report.bitsize + 7) // 8  # hid-tools' own `size` rounds down
+        reports[number] = RefReport(number, rid >= 0, size, values, buttons, arrays)
     return reports
 
 

@@ -159,7 +159,7 @@ MAX_REPORT_SIZE = 256  # bits per Report Size
 MAX_REPORT_COUNT = 12288
 MAX_REPORT_BYTES = 16383  # data bytes of one input report
 MAX_PUSH_DEPTH = 16
-MAX_INPUT_ELEMENTS = 65536  # values and button bits over the whole descriptor
+MAX_INPUT_ELEMENTS = 16384  # values and button bits over the whole descriptor
 
 INPUT, OUTPUT, FEATURE, COLLECTION, END_COLLECTION = 0x80, 0x90, 0xB0, 0xA0, 0xC0
 USAGE_PAGE, LOGICAL_MIN, LOGICAL_MAX = 0x04, 0x14, 0x24
@@ -597,8 +597,8 @@ def _value_expr(f: InputField, id_bits: int) -> str:
     if offset % 8 == 0 and f.bit_size == 8:
         raw = f"r[{offset // 8}]"
     else:
-        raw = f"(v >> {offset} & {(1 << f.bit_size) - 1})"
-    return f"(({raw} ^ {sign}) - {sign})" if signed else raw
+        raw = f"(v >> {offset} & {(1 << f.bit_size) - 1:#x})"
+    return f"(({raw} ^ {sign:#x}) - {sign:#x})" if signed else raw
 
 
 _STRUCT_CODES = {8: "B", 16: "H", 32: "I"}
@@ -647,12 +647,13 @@ def _run_lines(run: list[InputField], id_bits: int) -> list[str]:
 def _button_expr(b: ButtonField, id_bits: int) -> str:
     offset = b.bit_offset + id_bits
     if b.bit_size != 1:
-        return f"({1 << (b.first_button - 1)} if v >> {offset} & {(1 << b.bit_size) - 1} else 0)"
+        bit, mask = 1 << (b.first_button - 1), (1 << b.bit_size) - 1
+        return f"({bit:#x} if v >> {offset} & {mask:#x} else 0)"
     target = b.first_button - 1
     mask = ((1 << b.count) - 1) << target
     if offset >= target:
-        return f"(v >> {offset - target} & {mask})"
-    return f"(v << {target - offset} & {mask})"
+        return f"(v >> {offset - target} & {mask:#x})"
+    return f"(v << {target - offset} & {mask:#x})"
 
 
 @dataclass(frozen=True)
@@ -675,7 +676,10 @@ def _compile_report(layout: DeviceLayout, rid: int) -> _ReportPlan:
     terms += [
         f"_array_buttons(v, arrays[{i}], {a.bit_offset + id_bits})" for i, a in enumerate(arrays)
     ]
-    lines.append(f"    return {' | '.join(terms) or '0'}")
+    if len(terms) <= 8:
+        lines.append(f"    return {' | '.join(terms) or '0'}")
+    else:  # one statement per term: a long `a | b | ...` would nest too deep to compile
+        lines += ["    b = 0", *(f"    b |= {t}" for t in terms), "    return b"]
     source = "\n".join(lines) + "\n"
     namespace: dict[str, object] = {
         "_array_buttons": _array_buttons,
