@@ -6,6 +6,8 @@ Button. Every other usage still has a name, its hex form `0xPPPPUUUU`.
 
 from __future__ import annotations
 
+import re
+
 GENERIC_DESKTOP_PAGE = 0x01
 SIMULATION_PAGE = 0x02
 BUTTON_PAGE = 0x09
@@ -289,6 +291,10 @@ _DEVICE_TYPES: dict[int, str] = {
 }
 
 
+_HEX_RE = re.compile(r"0x([0-9a-f]{1,8})")
+_BUTTON_RE = re.compile(r"button[ _]?([0-9]{1,5})")
+
+
 def usage_name(usage: int) -> str:
     """'X', 'HatSwitch', 'Throttle', 'Button 5'; any other usage as '0xPPPPUUUU'."""
     name = _NAMES.get(usage)
@@ -305,15 +311,13 @@ def usage_from_name(name: str) -> int:
     key = _normalise(name)
     if key in _BY_NAME:
         return _BY_NAME[key]
-    if key.startswith("0x") and 3 <= len(key) <= 10:
-        try:
-            return int(key, 16)
-        except ValueError:
-            pass
-    if key.startswith("button") and key[6:].isascii() and key[6:].isdigit():
-        number = int(key[6:])
-        if 1 <= number <= 0xFFFF:
-            return make_usage(BUTTON_PAGE, number)
+    text = name.strip().lower()
+    match = _HEX_RE.fullmatch(text)
+    if match:
+        return int(match.group(1), 16)
+    match = _BUTTON_RE.fullmatch(text)
+    if match and 1 <= int(match.group(1)) <= 0xFFFF:
+        return make_usage(BUTTON_PAGE, int(match.group(1)))
     raise KeyError(f"unknown HID usage name {name!r}")
 
 
