@@ -1,0 +1,139 @@
+"""`usb2rc describe FILE | --hex HEX [--json] [--reports N]`: what usb2rc reads in a device.
+
+Prints the parsed layout of a HID report descriptor (from a hid-recorder file or raw hex):
+each input field (report ID, usage, bit offset / size, logical range, null state), the
+buttons, the top-level application, and the default C2-16B mapping the device would get. For
+a hid-recorder file also the decoded values of its first N recorded reports.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from usb2rc.hid.descriptor import DescriptorError, DeviceLayout, parse_descriptor
+from usb2rc.hid.recording import Recording, RecordingError, read_recording
+from usb2rc.hid.usages import device_type_name, usage_name
+from usb2rc.mapping import default_binding
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "describe",
+        help="show a HID descriptor's fields and the default mapping it gets",
+        description="Parse a HID report descriptor (hid-recorder file or hex) and describe it.",
+    )
+    parser.add_argument("file", nargs="?", help="a hid-recorder file")
+    parser.add_argument("--hex", metavar="HEX", help="the descriptor as hex bytes instead")
+    parser.add_argument("--json", action="store_true", help="machine-readable output")
+    parser.add_argument(
+        "--reports", type=int, default=10, metavar="N", help="decode the first N reports (10)"
+    )
+    parser.set_defaults(func=run)
+
+
+class DescribeError(ValueError):
+    pass
+
+
+def load(args: argparse.Namespace) -> tuple[bytes, Recording | None]:
+    if (args.file is None) == (args.hex is None):
+        raise DescribeError("give either FILE or --hex HEX")
+    if args.hex is not None:
+        try:
+            return bytes.fromhex(args.hex.replace(":", " ")), None
+        except ValueError as exc:
+            raise DescribeError(f"--hex: not hex bytes: {exc}") from None
+    try:
+        recording = read_recording(args.file)
+    except (OSError, RecordingError) as exc:
+        raise DescribeError(str(exc)) from None
+    return recording.descriptor, recording
+
+
+def layout_dict(layout: DeviceLayout) -> dict[str, Any]:
+    return {
+        "application": usage_name(layout.application),
+        "device_type": device_type_name(layout.application),
+        "uses_report_ids": layout.uses_report_ids,
+        "input_report_lengths": {str(k): v for k, v in layout.input_report_lengths.items()},
+        "button_count": layout.button_count,
+        "inputs": [
+            {
+                "index": f.index,
+                "report_id": f.report_id,
+                "usage": usage_name(f.usage),
+                "usage_code": f"0x{f.usage:08X}",
+                "occurrence": f.occurrence,
+                "bit_offset": f.bit_offset,
+                "bit_size": f.bit_size,
+                "logical_min": f.logical_min,
+                "logical_max": f.logical_max,
+                "null": f.has_null,
+            }
+            for f in layout.inputs
+        ],
+    }
+
+
+def decoded_reports(layout: DeviceLayout, recording: Recording, limit: int) -> list[dict]:
+    decoder = layout.make_decoder()
+    out = []
+    for event in recording.events[: max(limit, 0)]:
+        ok = decoder.feed(event.report)
+        state = decoder.state()
+        pressed = [n + 1 for n in range(state.buttons.bit_length()) if state.buttons >> n & 1]
+        values = {
+            (usage_name(f.usage) + (f" #{f.occurrence + 1}" if f.occurrence else "")): v
+            for f, v in zip(layout.inputs, state.values, strict=True)
+        }
+        out.append({"time_s": event.time_s, "ok": ok, "values": values, "buttons": pressed})
+    return out
+
+
+def text_lines(info: dict[str, Any], mapping: list[str], reports: list[dict]) -> list[str]:
+    lines = [
+        f"application: {info['application']} (device type {info['device_type']})",
+        f"report IDs: {'yes' if info['uses_report_ids'] else 'no'}; input reports "
+        + ", ".join(f"ID {k}: {v} bytes" for k, v in info["input_report_lengths"].items()),
+        f"buttons: {info['button_count']}",
+        "inputs:",
+        "  #   id  usage              bits (offset+size)  logical range        null",
+    ]
+    for f in info["inputs"]:
+        label = f["usage"] + (f" #{f['occurrence'] + 1}" if f["occurrence"] else "")
+        bits = f"{f['bit_offset']}+{f['bit_size']}"
+        span = f"{f['logical_min']}..{f['logical_max']}"
+        null = "yes" if f["null"] else "no"
+        lines.append(
+            f"  {f['index']:<3} {f['report_id']:<3} {label:<18} {bits:<19} {span:<20} {null}"
+        )
+    lines += ["default C2-16B mapping:", *(f"  {line}" for line in mapping)]
+    if reports:
+        lines.append(f"first {len(reports)} reports:")
+        for r in reports:
+            values = " ".join(f"{k}={v}" for k, v in r["values"].items())
+            bad = "" if r["ok"] else " (not decoded)"
+            lines.append(f"  {r['time_s']:.6f} {values} buttons={r['buttons']}{bad}")
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        descriptor, recording = load(args)
+        layout = parse_descriptor(descriptor)
+    except (DescribeError, DescriptorError) as exc:
+        print(f"usb2rc describe: {exc}", file=sys.stderr)
+        return 2
+    info = layout_dict(layout)
+    name = recording.name if recording and recording.name else "device"
+    mapping = default_binding(layout, name).describe()[1:]
+    reports = decoded_reports(layout, recording, args.reports) if recording else []
+    if args.json:
+        info.update(default_mapping=[line.strip() for line in mapping], reports=reports)
+        print(json.dumps(info, indent=2))
+    else:
+        print("\n".join(text_lines(info, [m.strip() for m in mapping], reports)))
+    return 0
