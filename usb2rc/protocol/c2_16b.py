@@ -57,6 +57,7 @@ _DATA_FIELDS = struct.Struct("<BBB10hII")  # bytes 2-32 with the axes as int16 (
 _SERVICE_BODY = struct.Struct(f"<2sBBB{PAYLOAD_LEN}s")
 _CRC = struct.Struct("<H")
 _VID_PID = struct.Struct("<HH")
+_UINT16_MASK = 0xFFFF
 
 
 class Service(IntEnum):
@@ -192,12 +193,14 @@ def _check_data_status(status: object) -> int:
 
 
 def _wire_axes(axes: Sequence[int]) -> list[int]:
-    """Axes as uint16 for packing; accepts int16 or uint16 values."""
+    """Axes as uint16 for packing; accepts int16 or uint16 values (-32768..65535)."""
     if len(axes) != AXIS_COUNT:
         raise ValueError(f"expected {AXIS_COUNT} axes {AXIS_NAMES}, got {len(axes)}")
-    for name, value in zip(AXIS_NAMES, axes, strict=True):
-        _check_int(f"axis {name}", value, -32768, 65535)
-    return [value & 0xFFFF for value in axes]
+    # Fast path with C-level builtins; the per-axis loop only runs to name the bad axis.
+    if set(map(type, axes)) != {int} or min(axes) < -32768 or max(axes) > 65535:
+        for name, value in zip(AXIS_NAMES, axes, strict=True):
+            _check_int(f"axis {name}", value, -32768, 65535)
+    return list(map(_UINT16_MASK.__and__, axes))
 
 
 def _with_crc(body: bytes, line_feed: bool) -> bytes:
