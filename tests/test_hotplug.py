@@ -120,3 +120,15 @@ def test_failing_enumerate_and_handler_do_not_kill_the_thread(tmp_path: Path) ->
     finally:
         monitor.stop()
         monitor.join(WAIT_S)
+
+
+def test_forget_makes_a_present_device_come_again(tmp_path: Path) -> None:
+    install_file(tmp_path / "a.hid", recording_text(numbered(1)))
+    events = Events()
+    monitor = HotplugMonitor(ReplayBackend(tmp_path), events.added, events.removed)
+    [info] = monitor.initial_devices()
+    monitor.scan()
+    assert events.q.empty()
+    monitor.forget(info.key)
+    monitor.scan()
+    assert events.next() == ("added", "a")

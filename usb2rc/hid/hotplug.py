@@ -88,14 +88,23 @@ class HotplugMonitor:
             use_udev = sys.platform.startswith("linux") and backend.name == "hidapi"
         self._use_udev = use_udev
         self._known: dict[str, DeviceInfo] | None = None
+        self._lock = threading.Lock()  # guards _known: forget() comes from reader threads
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="hid-hotplug")
 
     def initial_devices(self) -> list[DeviceInfo]:
         """Take the present devices (port-path order); `start()` then reports only changes."""
         present = initial_devices(self.backend)
-        self._known = {info.key: info for info in present}
+        with self._lock:
+            self._known = {info.key: info for info in present}
         return present
+
+    def forget(self, key: str) -> None:
+        """Treat a device as unseen: if it is still present, the next scan reports it added
+        again (the daemon retries a device whose reads failed)."""
+        with self._lock:
+            if self._known is not None:
+                self._known.pop(key, None)
 
     def start(self) -> None:
         self._thread.start()
@@ -125,13 +134,14 @@ class HotplugMonitor:
         present = self._enumerate()
         if present is None:
             return
-        known = self._known or {}
         current = {info.key: info for info in present}
-        for key, info in known.items():
-            if key not in current:
-                self._call(self._on_removed, info)
-        added = [info for key, info in current.items() if key not in known]
-        self._known = current
+        with self._lock:
+            known = self._known or {}
+            removed = [info for key, info in known.items() if key not in current]
+            added = [info for key, info in current.items() if key not in known]
+            self._known = current
+        for info in removed:
+            self._call(self._on_removed, info)
         for info in sort_by_port_path(added):
             self._call(self._on_added, info)
 
