@@ -196,9 +196,9 @@ def axis_to_sumd(value: int, extended: bool = False) -> int:
     """int16 onto µs×8: -32768 → 1100 µs (8800), 0 → 1500 (12000), 32767 → 1900 (15200)."""
     try:
         from usb2rc.protocol.sumd import axis_to_sumd as codec_axis_to_sumd
-    except ImportError:
-        half = 4800 if extended else 3200
-        return 12000 + round_div(value * half, 32768)
+    except ImportError:  # same line as protocol/sumd.py: through both ends
+        low, high = (7200, 16800) if extended else (8800, 15200)
+        return low + round_div((value + 32768) * (high - low), 65535)
     return codec_axis_to_sumd(value, extended)
 
 
