@@ -1,0 +1,214 @@
+"""Faults on the running daemon: the serial line vanishing, read errors, RX garbage and
+requests, SIGHUP with good and bad configs, unusable devices, the SUMD output."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import random
+import signal
+from pathlib import Path
+
+import pytest
+from daemon_harness import (
+    DaemonProcess,
+    PtyLine,
+    StickState,
+    data_frames,
+    expected_frame,
+    install,
+    recording,
+    service_frames,
+    services,
+)
+
+from usb2rc.protocol import c2_16b, sumd
+
+LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
+
+
+@pytest.fixture
+def line():
+    pty = PtyLine()
+    yield pty
+    pty.close()
+
+
+@pytest.fixture
+def replay_dir(tmp_path: Path) -> Path:
+    folder = tmp_path / "replay"
+    folder.mkdir()
+    return folder
+
+
+def run_daemon(tmp_path: Path, port: str, replay_dir: Path, *extra: str) -> DaemonProcess:
+    return DaemonProcess(
+        ["--port", port, "--replay", str(replay_dir), *extra], tmp_path / "daemon.log"
+    )
+
+
+def live_node(frames: list, node_id: int = 0) -> bool:
+    own = data_frames(frames, node_id)
+    return bool(own) and own[-1].status == LIVE
+
+
+def test_serial_port_gone_and_back(tmp_path, replay_dir):
+    install(replay_dir / "stick.hid", recording([StickState(x=0)]))
+    link = tmp_path / "ttyLINK"  # the port path the daemon knows; we swap what is behind it
+    first = PtyLine()
+    link.symlink_to(first.path)
+    daemon = run_daemon(tmp_path, str(link), replay_dir)
+    second = None
+    try:
+        first.wait_for(lambda fr: len(data_frames(fr, 0)) >= 5)
+        link.unlink()
+        first.close()  # the adapter is pulled: writes fail, the path is gone
+        second = PtyLine()
+        link.symlink_to(second.path)  # ... and plugged back in
+        second.wait_for(lambda fr: live_node(fr), timeout=10)
+        frames = second.frames()
+        assert frames[0].service == c2_16b.Service.STARTUP  # resumes with the startup frame
+        assert services(frames, 0)[:4] == ["connected", "vid-pid", "device-string", "device-type"]
+        codes = [f.code for f in data_frames(frames, 0)]
+        assert all(b == (a + 1) % 256 for a, b in itertools.pairwise(codes))
+    finally:
+        assert daemon.stop() == 0
+        if second is not None:
+            second.close()
+    log = daemon.log()
+    assert "Traceback" not in log
+    assert log.count("lost") == 1 and "is back" in log
+
+
+def test_device_read_error_mid_stream(tmp_path, line, replay_dir):
+    states = [StickState(x=0, buttons=1)] * 3
+    text = recording(states, extra="# usb2rc-fault: read-error at 0.5")
+    install(replay_dir / "bad.hid", text)
+    daemon = run_daemon(tmp_path, line.path, replay_dir)
+    try:
+        line.wait_for(lambda fr: "error" in services(fr, 0))
+        line.wait_for(lambda fr: any(f.status == FAILSAFE for f in data_frames(fr, 0)))
+        frames = line.frames()
+        error = next(f for f in service_frames(frames, 0) if f.service == c2_16b.Service.ERROR)
+        assert error.error_code == 0x01  # READ_FAILED
+        after = frames[frames.index(error) :]
+        assert services(after, 0)[:2] == ["error", "disconnected"]
+        failsafe = [f for f in data_frames(after, 0) if f.status == FAILSAFE]
+        assert failsafe and all(f.group1 == 0 for f in failsafe)
+        # still plugged: it is opened again and comes back live with a connect sequence
+        count = len(frames)
+        line.wait_for(lambda fr: "connected" in services(fr[count:], 0), timeout=10)
+        line.wait_for(lambda fr: live_node(fr[count:]))
+    finally:
+        assert daemon.stop() == 0
+    assert "Traceback" not in daemon.log()
+
+
+def test_rx_garbage_and_requests(tmp_path, line, replay_dir):
+    install(replay_dir / "stick.hid", recording([StickState()]))
+    daemon = run_daemon(tmp_path, line.path, replay_dir)
+    try:
+        line.wait_for(lambda fr: live_node(fr))
+        rng = random.Random(7)
+        garbage = bytes(rng.randrange(256) for _ in range(300)).replace(b"H", b"h")
+        request = c2_16b.encode_data(c2_16b.CONFIG_REQUEST, 0x10, 0, [0] * 10, 0, 0)
+        poll_present = c2_16b.poll_request(0)
+        poll_absent = c2_16b.poll_request(9)
+        count = len(line.frames())
+        line.send(garbage + request + garbage[:50] + poll_present + garbage[50:90] + poll_absent)
+        line.wait_for(lambda fr: "disconnected" in services(fr[count:], 9))
+        line.wait_for(lambda fr: services(fr[count:], 0).count("connected") >= 2)
+        after = line.frames()[count:]
+        assert services(after, 0) == ["connected", "vid-pid", "device-string", "device-type"] * 2
+        assert live_node(after)
+    finally:
+        assert daemon.stop() == 0
+
+
+CONFIG_X = """
+devices:
+  - name: stick
+    match: {{vid: 0x044f, pid: 0xb10a}}
+    node_id: 4
+    axes:
+      x: {{usage: X, invert: {invert}}}
+"""
+
+
+def test_sighup_good_and_bad_config(tmp_path, line, replay_dir):
+    config = tmp_path / "usb2rc.yaml"
+    config.write_text(CONFIG_X.format(invert="false"))
+    install(replay_dir / "stick.hid", recording([StickState(x=0)]))
+    daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(config))
+    try:
+        line.wait_for(lambda fr: live_node(fr, 4) and data_frames(fr, 4)[-1].axes[0] == -32768)
+        count = len(line.frames())
+        config.write_text(CONFIG_X.format(invert="true"))
+        daemon.signal(signal.SIGHUP)
+        line.wait_for(
+            lambda fr: (
+                data_frames(fr[count:], 4)[-1:] and data_frames(fr[count:], 4)[-1].axes[0] == 32767
+            )
+        )
+        config.write_text(CONFIG_X.format(invert="maybe"))
+        daemon.signal(signal.SIGHUP)
+        count = len(line.frames())
+        line.wait_for(lambda fr: len(data_frames(fr[count:], 4)) >= 25)
+        assert {f.axes[0] for f in data_frames(line.frames()[count:], 4)} == {32767}
+        codes = [f.code for f in data_frames(line.frames(), 4)]
+        assert all(b == (a + 1) % 256 for a, b in itertools.pairwise(codes)), "a tick was lost"
+    finally:
+        assert daemon.stop() == 0
+    log = daemon.log()
+    assert "reloaded" in log
+    assert "rejected" in log and f"{config}:7" in log
+    assert "Traceback" not in log
+
+
+def test_unusable_descriptor_reports_error_and_others_go_on(tmp_path, line, replay_dir):
+    install(replay_dir / "a-good.hid", recording([StickState(x=0)]))
+    # a joystick collection that is never closed: the descriptor is unusable
+    desc = "05 01 09 04 a1 01 75 08 95 01 15 00 26 ff 00 09 30 81 02"
+    broken = f"R: 19 {desc}\nN: Broken Stick\nI: 3 1234 5678\nE: 0.0 1 00\n"
+    install(replay_dir / "b-broken.hid", broken)
+    daemon = run_daemon(tmp_path, line.path, replay_dir)
+    try:
+        line.wait_for(lambda fr: "error" in services(fr, 1))
+        error = next(f for f in service_frames(line.frames(), 1))
+        assert error.error_code == 0x02  # DESCRIPTOR_UNUSABLE
+        line.wait_for(lambda fr: len(data_frames(fr, 0)) >= 10)
+        assert not data_frames(line.frames(), 1)
+    finally:
+        assert daemon.stop() == 0
+    assert "Broken Stick" in daemon.log()
+
+
+SUMD_CONFIG = """
+outputs:
+  - protocol: c2-16b
+  - protocol: sumd
+    port: {sumd_port}
+    channels: [node0.x, node0.y, node0.rz, node0.button1, node0.button16]
+"""
+
+
+def test_sumd_output_and_its_failsafe(tmp_path, line, replay_dir):
+    sumd_line = PtyLine("sumd")
+    config = tmp_path / "sumd.yaml"
+    config.write_text(SUMD_CONFIG.format(sumd_port=sumd_line.path))
+    state = StickState(x=0, y=16383, rz=0, buttons=0x0001)
+    install(replay_dir / "stick.hid", recording([state]))
+    daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(config))
+    try:
+        assert expected_frame(state)[0][6] == -32768
+        want = [8800, 15200, 8800, 15200, 8800]  # 1100 / 1900 µs ×8, DECISIONS.md
+        sumd_line.wait_for(lambda fr: any(f.channels == tuple(want) and not f.failsafe for f in fr))
+        os.unlink(replay_dir / "stick.hid")
+        sumd_line.wait_for(lambda fr: fr[-1].failsafe)
+        last = sumd_line.frames()[-1]
+        assert isinstance(last, sumd.SumdFrame)
+        assert last.channels[:3] == tuple(want[:3])  # axes held
+        assert last.channels[3:] == (8800, 8800)  # buttons released
+    finally:
+        assert daemon.stop() == 0
+        sumd_line.close()
