@@ -13,7 +13,7 @@ import os
 import stat
 import sys
 from collections import Counter
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import closing
 from typing import Any, BinaryIO
 
@@ -21,6 +21,7 @@ from usb2rc.protocol.c2_16b import DATA_STATUS_NAMES, DataFrame, Decoder, Servic
 from usb2rc.protocol.sumd import SumdDecoder, SumdFrame
 
 AnyFrame = DataFrame | ServiceFrame | SumdFrame
+Formatter = Callable[[AnyFrame], str]
 READ_SIZE = 65536
 PORT_TIMEOUT_S = 0.5
 
@@ -41,7 +42,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     decoder = SumdDecoder() if args.protocol == "sumd" else Decoder()
-    format_frame = json_line if args.json else text_line
+    format_frame: Formatter = json_line if args.json else text_line
     try:
         chunks = open_source(args.source, args.baudrate)
     except (OSError, ValueError) as exc:
@@ -120,7 +121,7 @@ def _reason(exc: BaseException) -> str:
 # --- output --------------------------------------------------------------------------------
 
 
-def _print_frames(frames: list[AnyFrame], format_frame: Any, kinds: Counter[str]) -> None:
+def _print_frames(frames: list[Any], format_frame: Formatter, kinds: Counter[str]) -> None:
     if not frames:
         return
     kinds.update(frame_kind(frame) for frame in frames)
