@@ -343,6 +343,7 @@ def test_sumd_values() -> None:
     assert [sumd_value(ax(i), axes, 0, 0) for i in range(3)] == [8800, 12000, 15200]
     assert [sumd_value(ax(i), axes, 0, 0, True) for i in range(3)] == [7200, 12000, 16800]
     assert sumd_value(ax(3), axes, 0, 0) == 12000
+    assert sumd_value(ax(0), (16384,), 0, 0) == 13600  # 8800 + round(49152 * 6400 / 65535)
     assert sumd_value(ax(4, True), axes, 0, 0) == 8800
     assert sumd_value(ax(5, True), axes, 0, 0) == 15200
     button = lambda n: ChannelSource(1, "button", n)  # noqa: E731
