@@ -18,7 +18,8 @@ Where the spec leaves room, usb2rc does what the Linux kernel's hid-core does:
 - Unknown Main and Local items are skipped; an unknown Global item is refused (it may change
   the meaning of everything that follows). Long items are skipped.
 - Limits (as hid-core): Report Size <= 256, Report Count <= 12288, Report ID 1..255, an input
-  report of at most 16383 data bytes, Push nested at most 16 deep.
+  report of at most 16383 data bytes, Push nested at most 16 deep, at most 16384 input values
+  and button bits in one descriptor.
 """
 
 from __future__ import annotations
