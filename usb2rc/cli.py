@@ -35,13 +35,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"usb2rc {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for module_name in COMMANDS.values():
+    for name, module_name in COMMANDS.items():
         try:
             module = importlib.import_module(f"usb2rc.commands.{module_name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"usb2rc.commands.{module_name}":
-                continue  # command not built yet
-            raise
+        except Exception as exc:  # one broken command must not take the others down
+            sys.stderr.write(f"usb2rc: the `{name}` command is unavailable: {exc!r}\n")
+            continue
         module.add_parser(subparsers)
     return parser
 
