@@ -212,3 +212,29 @@ def test_sumd_output_and_its_failsafe(tmp_path, line, replay_dir):
     finally:
         assert daemon.stop() == 0
         sumd_line.close()
+
+
+PINNED = """
+devices:
+  - name: stick
+    match: {vid: 0x044f, pid: 0xb10a}
+    node_id: 2
+"""
+
+
+def test_two_devices_on_one_config_entry_is_a_clash_not_a_merge(tmp_path, line, replay_dir):
+    config = tmp_path / "pinned.yaml"
+    config.write_text(PINNED)
+    install(replay_dir / "a.hid", recording([StickState(x=0)]))
+    install(replay_dir / "b.hid", recording([StickState(x=16383, buttons=1)]))
+    daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(config))
+    try:
+        line.wait_for(lambda fr: "error" in services(fr))
+        line.wait_for(lambda fr: len(data_frames(fr, 2)) >= 10)
+        error = next(f for f in service_frames(line.frames()) if f.service.service_name == "error")
+        assert error.error_code == 0x05 and error.node_id != 2
+        # node 2 is fed by the first device only: never a mix of the two sticks
+        assert {(f.axes[0], f.group1) for f in data_frames(line.frames(), 2)} == {(-32768, 0)}
+    finally:
+        assert daemon.stop() == 0
+    assert "add `serial:` or `port:`" in daemon.log()

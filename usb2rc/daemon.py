@@ -224,6 +224,16 @@ class Daemon:
             return
         device, layout, binding = opened
         pinned = binding.node_id
+        if pinned is not None and (other := self.table.entry_in_use(pinned, binding.name)):
+            device.close()  # type: ignore[attr-defined]
+            self._report_unusable(
+                info,
+                ErrorCode.CONFIG_CLASH,
+                f"matches config entry {binding.name!r} like {other.product} "
+                f"(port {other.port_path}), which already feeds node {pinned}: add `serial:` or "
+                "`port:` to that entry's match so each device has its own entry",
+            )
+            return
         if pinned is None:
             pinned = self.table.lost_node_of(info, binding)
         try:

@@ -219,6 +219,15 @@ class NodeTable:
         with self._lock:
             self._broadcast(ServiceEvent(EventKind.ERROR, node_id, info, "", error_code))
 
+    def entry_in_use(self, node_id: int, entry_name: str) -> DeviceInfo | None:
+        """The present device that already feeds node_id through the config entry, if any."""
+        with self._lock:
+            node = self._nodes.get(node_id)
+            for attached in node.attached if node else ():
+                if attached.present and attached.binding.name == entry_name:
+                    return attached.info
+        return None
+
     def lost_node_of(self, info: DeviceInfo, binding: DeviceBinding) -> int | None:
         """The node a re-plugged device fed before it was lost (same port, serial or entry)."""
         with self._lock:

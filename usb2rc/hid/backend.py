@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Protocol, runtime_checkable
 
-UDEV_RULES_FILE = "systemd/99-usb2rc.rules"
-UDEV_RULES_INSTALLED = "/etc/udev/rules.d/99-usb2rc.rules"
+UDEV_RULES_FILE = "systemd/70-usb2rc.rules"
+UDEV_RULES_INSTALLED = "/etc/udev/rules.d/70-usb2rc.rules"
 
 # Top-level collections usb2rc uses: (usage page, usage); page 0x02 (Simulation Controls) whole.
 GENERIC_DESKTOP = 0x01
@@ -41,6 +41,7 @@ class ErrorCode(IntEnum):
     DESCRIPTOR_UNUSABLE = 0x02
     OPEN_FAILED = 0x03
     PERMISSION_DENIED = 0x04
+    CONFIG_CLASH = 0x05  # a second device matches a config entry already feeding its node
 
 
 class DeviceGone(OSError):
