@@ -207,6 +207,13 @@ class DaemonProcess:
         return code
 
 
+def run_daemon(tmp_path: Path, port: str, replay_dir: Path, *extra: str) -> DaemonProcess:
+    """The daemon on `port` with the replay folder, its log in tmp_path/daemon.log."""
+    return DaemonProcess(
+        ["--port", port, "--replay", str(replay_dir), *extra], tmp_path / "daemon.log"
+    )
+
+
 def data_frames(frames: list[Any], node_id: int | None = None) -> list[c2_16b.DataFrame]:
     return [
         f

@@ -3,17 +3,14 @@
 from __future__ import annotations
 
 import itertools
-from pathlib import Path
 
-import pytest
 from daemon_harness import (
-    DaemonProcess,
-    PtyLine,
     StickState,
     data_frames,
     expected_frame,
     install,
     recording,
+    run_daemon,
     service_frames,
     services,
 )
@@ -33,26 +30,6 @@ STATES = [
     StickState(x=16383, y=16383, rz=200, slider=10, buttons=0xFFFF, hat=2),
 ]
 FINAL = STATES[-1]
-
-
-@pytest.fixture
-def line():
-    pty = PtyLine()
-    yield pty
-    pty.close()
-
-
-@pytest.fixture
-def replay_dir(tmp_path: Path) -> Path:
-    folder = tmp_path / "replay"
-    folder.mkdir()
-    return folder
-
-
-def start(tmp_path: Path, line: PtyLine, replay_dir: Path, *extra: str) -> DaemonProcess:
-    return DaemonProcess(
-        ["--port", line.path, "--replay", str(replay_dir), *extra], tmp_path / "daemon.log"
-    )
 
 
 def is_subsequence(wanted: list, seen: list) -> bool:
@@ -79,7 +56,7 @@ def connect_sequence_at(frames: list, node_id: int, start: int = 0) -> int:
 
 
 def test_plug_states_unplug_replug_and_sigterm(tmp_path, line, replay_dir):
-    daemon = start(tmp_path, line, replay_dir)
+    daemon = run_daemon(tmp_path, line.path, replay_dir)
     try:
         first = line.wait_for(lambda fr: fr[:1])
         assert first[0].service == c2_16b.Service.STARTUP
@@ -150,7 +127,7 @@ def test_plug_states_unplug_replug_and_sigterm(tmp_path, line, replay_dir):
 def test_node_ids_follow_port_order_and_come_back(tmp_path, line, replay_dir):
     for name in ("a", "b"):
         install(replay_dir / f"{name}.hid", recording([StickState()]))
-    daemon = start(tmp_path, line, replay_dir)
+    daemon = run_daemon(tmp_path, line.path, replay_dir)
     try:
         line.wait_for(lambda fr: {0, 1} <= {f.node_id for f in data_frames(fr)})
         (replay_dir / "a.hid").unlink()

@@ -7,17 +7,15 @@ import itertools
 import os
 import random
 import signal
-from pathlib import Path
 
-import pytest
 from daemon_harness import (
-    DaemonProcess,
     PtyLine,
     StickState,
     data_frames,
     expected_frame,
     install,
     recording,
+    run_daemon,
     service_frames,
     services,
 )
@@ -25,26 +23,6 @@ from daemon_harness import (
 from usb2rc.protocol import c2_16b, sumd
 
 LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
-
-
-@pytest.fixture
-def line():
-    pty = PtyLine()
-    yield pty
-    pty.close()
-
-
-@pytest.fixture
-def replay_dir(tmp_path: Path) -> Path:
-    folder = tmp_path / "replay"
-    folder.mkdir()
-    return folder
-
-
-def run_daemon(tmp_path: Path, port: str, replay_dir: Path, *extra: str) -> DaemonProcess:
-    return DaemonProcess(
-        ["--port", port, "--replay", str(replay_dir), *extra], tmp_path / "daemon.log"
-    )
 
 
 def live_node(frames: list, node_id: int = 0) -> bool:
