@@ -176,10 +176,12 @@ class PtyLine:
 class DaemonProcess:
     """`python -m usb2rc run ...` as a subprocess; its log goes to a file the test can read."""
 
-    def __init__(self, args: Sequence[str], log_path: Path) -> None:
+    def __init__(
+        self, args: Sequence[str], log_path: Path, env: dict[str, str] | None = None
+    ) -> None:
         self.log_path = log_path
         self._log = open(log_path, "wb")  # noqa: SIM115 - closed in stop()
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "usb2rc", "run", "--log-level", "debug", *args],
             stdout=self._log,
@@ -207,10 +209,12 @@ class DaemonProcess:
         return code
 
 
-def run_daemon(tmp_path: Path, port: str, replay_dir: Path, *extra: str) -> DaemonProcess:
+def run_daemon(
+    tmp_path: Path, port: str, replay_dir: Path, *extra: str, env: dict[str, str] | None = None
+) -> DaemonProcess:
     """The daemon on `port` with the replay folder, its log in tmp_path/daemon.log."""
     return DaemonProcess(
-        ["--port", port, "--replay", str(replay_dir), *extra], tmp_path / "daemon.log"
+        ["--port", port, "--replay", str(replay_dir), *extra], tmp_path / "daemon.log", env
     )
 
 

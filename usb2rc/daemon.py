@@ -115,6 +115,7 @@ class Daemon:
         version: str = __version__,
         on_ready: Callable[[], None] | None = None,
         on_tick: Callable[[], None] | None = None,
+        on_status: Callable[[str], object] | None = None,
     ) -> None:
         self.config = config
         self.backend = backend
@@ -129,6 +130,7 @@ class Daemon:
         self._present_lock = threading.Lock()
         self._on_ready = on_ready
         self._on_tick = on_tick
+        self._on_status = on_status
         self._ready_once = threading.Event()
         self.outputs = [self._make_output(i, out) for i, out in enumerate(self.output_configs)]
         self.monitor = HotplugMonitor(backend, self._device_added, self._device_removed)
@@ -143,7 +145,7 @@ class Daemon:
         if out.protocol == "sumd":
             channels = [sumd_channel(s, out.extended) for s in self.mapping.sumd_channels(out)]
             thread: TickThread = SumdOutput(
-                name, link, self.table, channels, out.rate_hz, on_first_write=self._first_write
+                name, link, self.table, channels, out.rate_hz, self._tick, self._first_write
             )
             return _Output(out, link, thread)
         settings = C2Settings(
@@ -158,15 +160,36 @@ class Daemon:
         return _Output(out, link, c2, rx)
 
     def _first_write(self) -> None:
+        self._status("running: frames on " + ", ".join(o.link.url for o in self.outputs))
+        self._become_ready("first frame written: usb2rc is running")
+
+    def _become_ready(self, message: str) -> None:
         if not self._ready_once.is_set():
             self._ready_once.set()
-            log.info("first frame written: usb2rc is running")
+            log.info(message)
             if self._on_ready:
                 self._on_ready()
 
+    def _status(self, text: str) -> None:
+        if self._on_status:
+            self._on_status(text)
+
     def _tick(self) -> None:
-        if self._on_tick:
+        """Called by every output after each tick: the liveness hook (systemd watchdog)."""
+        if not self._ready_once.is_set() and not any(o.link.is_open for o in self.outputs):
+            # Decision: with every serial port missing the pipeline still runs and retries
+            # each second (that is its job), so it is ready; the status line says what waits.
+            waiting = "; ".join(o.link.last_error for o in self.outputs if o.link.last_error)
+            self._status(f"waiting for the serial line: {waiting}")
+            self._become_ready("running; no serial port open yet, retrying every second")
+        if self._on_tick and self.all_outputs_ticking():
             self._on_tick()
+
+    def all_outputs_ticking(self, within_s: float = 1.0) -> bool:
+        """True while every output thread has ticked in the last `within_s` seconds: one hung
+        scheduler stops the watchdog being fed; a stuck device cannot (it has no say here)."""
+        now = time.monotonic()
+        return all(now - out.thread.last_tick_monotonic < within_s for out in self.outputs)
 
     # --- devices ---------------------------------------------------------------------------
 

@@ -64,6 +64,7 @@ class OutputStats:
     data_frames: int = 0
     service_frames: int = 0
     deferred_nodes: int = 0
+    tick_errors: int = 0
     periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=3000))
 
     def period_p99_error_ms(self, nominal_s: float) -> float:
@@ -76,12 +77,22 @@ class OutputStats:
 class TickThread(threading.Thread):
     """Calls `tick()` every 1/rate_hz s on absolute monotonic deadlines until stopped."""
 
-    def __init__(self, name: str, rate_hz: float) -> None:
+    def __init__(
+        self,
+        name: str,
+        rate_hz: float,
+        on_tick: Callable[[], None] | None = None,
+        on_first_write: Callable[[], None] | None = None,
+    ) -> None:
         super().__init__(name=name)
         self.period_s = 1.0 / rate_hz
         self.stats = OutputStats()
+        self.on_tick = on_tick  # after every tick, on this thread (the watchdog hook)
+        self.on_first_write = on_first_write  # once, after the first successful write
+        self.last_tick_monotonic = 0.0
         self._stop_event = threading.Event()
         self._last_write = 0.0
+        self._logged_errors: set[str] = set()
 
     def stop(self) -> None:
         self._stop_event.set()
@@ -95,8 +106,11 @@ class TickThread(threading.Thread):
             started = time.monotonic()
             if started - deadline > self.period_s / 2:
                 self.stats.late_ticks += 1
-            self.tick()
-            self.stats.ticks += 1
+            if self._safe_tick():
+                self.stats.ticks += 1
+                self.last_tick_monotonic = time.monotonic()
+                if self.on_tick:
+                    self.on_tick()
             deadline += self.period_s
             behind = time.monotonic() - deadline
             if behind >= 0:  # a whole tick lost: skip it, never burst to catch up
@@ -104,6 +118,21 @@ class TickThread(threading.Thread):
                 self.stats.missed_ticks += missed
                 deadline += missed * self.period_s
         self.finish()
+
+    def _safe_tick(self) -> bool:
+        """One tick; a bug in it is logged (once per kind) and counted, never kills the
+        thread. A failed tick does not count as alive, so a scheduler that keeps failing
+        starves the watchdog and systemd restarts it."""
+        try:
+            self.tick()
+        except Exception as exc:
+            self.stats.tick_errors += 1
+            kind = f"{type(exc).__name__}: {exc}"
+            if kind not in self._logged_errors:
+                self._logged_errors.add(kind)
+                log.exception("%s: tick failed (%s); going on", self.name, kind)
+            return False
+        return True
 
     def tick(self) -> None:
         raise NotImplementedError
@@ -117,6 +146,9 @@ class TickThread(threading.Thread):
             self.stats.periods_s.append(now - self._last_write)
         self._last_write = now
         self.stats.writes += 1
+        if self.on_first_write:
+            callback, self.on_first_write = self.on_first_write, None
+            callback()
 
 
 @dataclass(frozen=True)
@@ -140,13 +172,11 @@ class C2Output(TickThread):
         on_tick: Callable[[], None] | None = None,
         on_first_write: Callable[[], None] | None = None,
     ) -> None:
-        super().__init__(name, settings.rate_hz)
+        super().__init__(name, settings.rate_hz, on_tick, on_first_write)
         self.link = link
         self.table = table
         self.settings = settings
         self.subscriber = table.subscribe()
-        self.on_tick = on_tick
-        self.on_first_write = on_first_write
         self.frame_len = c2_16b.FRAME_LEN + (1 if settings.line_feed else 0)
         self.capacity = frames_per_tick(settings.baudrate, settings.rate_hz, self.frame_len)
         self._codes: dict[int, int] = {}
@@ -203,22 +233,23 @@ class C2Output(TickThread):
         ready = [f for f in frames if f.node_id not in held]
         if len(ready) <= room:
             return ready
-        self._warn_bandwidth(len(frames))
+        self._warn_bandwidth([f.node_id for f in frames])
         start = self._round_robin % len(ready)
         chosen = (ready[start:] + ready[:start])[:room]
         self._round_robin = start + room
         self.stats.deferred_nodes += len(ready) - len(chosen)
         return sorted(chosen, key=lambda f: f.node_id)
 
-    def _warn_bandwidth(self, nodes: int) -> None:
+    def _warn_bandwidth(self, node_ids: list[int]) -> None:
+        nodes = len(node_ids)
         if nodes <= self._warned_nodes:
             return
         self._warned_nodes = nodes
         log.warning(
-            "%s: %d nodes need %d frames per %.0f ms tick but %d baud carries %d; sending "
+            "%s: nodes %s need %d frames per %.0f ms tick but %d baud carries %d; sending "
             "nodes round-robin (each node every %.1f ticks). %d baud would carry them all.",
             self.link.url,
-            nodes,
+            ", ".join(map(str, node_ids)),
             nodes,
             self.period_s * 1000,
             self.settings.baudrate,
@@ -233,7 +264,6 @@ class C2Output(TickThread):
         events, frames = self.table.collect(self.subscriber)
         if not self.link.is_open:
             self._pending.clear()  # the line is gone: the startup + connect sequence follow
-            self._call(self.on_tick)
             return
         for event in events:
             self._pending.extend((event.node_id, f) for f in self.service_frames(event))
@@ -251,15 +281,6 @@ class C2Output(TickThread):
             self.stats.service_frames += service_count
             self.stats.data_frames += len(out) - service_count
             self.note_write()
-            if self.on_first_write:
-                callback, self.on_first_write = self.on_first_write, None
-                callback()
-        self._call(self.on_tick)
-
-    @staticmethod
-    def _call(callback: Callable[[], None] | None) -> None:
-        if callback:
-            callback()
 
     def finish(self) -> None:
         self.link.close()
@@ -278,13 +299,13 @@ class SumdOutput(TickThread):
         table: NodeTable,
         channels: Sequence[ChannelValue],
         rate_hz: float = 100.0,
+        on_tick: Callable[[], None] | None = None,
         on_first_write: Callable[[], None] | None = None,
     ) -> None:
-        super().__init__(name, rate_hz)
+        super().__init__(name, rate_hz, on_tick, on_first_write)
         self.link = link
         self.table = table
         self.channels = list(channels)
-        self.on_first_write = on_first_write
         self.frames_sent = 0
 
     def tick(self) -> None:
@@ -300,9 +321,6 @@ class SumdOutput(TickThread):
         if self.link.write(sumd.encode_sumd(values, failsafe=failsafe)):
             self.frames_sent += 1
             self.note_write()
-            if self.on_first_write:
-                callback, self.on_first_write = self.on_first_write, None
-                callback()
 
     def finish(self) -> None:
         self.link.close()

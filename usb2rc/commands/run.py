@@ -182,6 +182,7 @@ def run(args: argparse.Namespace) -> int:
             port_override=args.port,
             on_ready=notifier.ready,
             on_tick=_WatchdogFeeder(notifier),
+            on_status=notifier.status,
         )
     except NoPortError as exc:
         print(f"usb2rc: {exc}", file=sys.stderr)
