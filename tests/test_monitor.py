@@ -1,0 +1,247 @@
+"""`usb2rc monitor`: the daemon's input side shown live, in a real terminal and as text.
+
+The terminal tests run the command on a tmux pane (when tmux is installed) and on a bare
+pseudo-terminal with a fixed window size; a replayed T.16000M swings X from one end to the
+other, and the screen must show both bars and values. They wait on what the screen shows,
+never on the clock.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import re
+import select
+import shutil
+import struct
+import subprocess
+import sys
+import termios
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+from daemon_harness import ROOT, StickState, install, recording
+
+from usb2rc.commands import monitor
+from usb2rc.config import Config, load_config
+from usb2rc.hid.backend import ErrorCode
+from usb2rc.hid.replay import ReplayBackend
+from usb2rc.state import EventKind, ServiceEvent
+
+ROWS, COLS = 50, 140
+LOW, HIGH = "-" * monitor.BAR_WIDTH, "#" * monitor.BAR_WIDTH
+X_LINE = re.compile(r"^\s*x\s+\[([#-]+)\]\s+([+-]\d+)\s+<- (.*)$", re.MULTILINE)
+ANSI = re.compile(r"\x1b(\[[0-?]*[ -/]*[@-~]|\][^\x07]*\x07|[()][0-9A-Za-z]|[=>78])")
+WAIT_S = 20.0
+
+# X from one end to the other, each held 0.5 s, forever (--replay-loop).
+SWING = recording([StickState(x=0, buttons=0x0001), StickState(x=16383, hat=2)], hold_s=0.5)
+
+
+def swing_dir(tmp_path: Path) -> Path:
+    folder = tmp_path / "replay"
+    folder.mkdir()
+    install(folder / "stick.hid", SWING)
+    return folder
+
+
+def monitor_argv(folder: Path, *extra: str) -> list[str]:
+    return [
+        sys.executable,
+        "-m",
+        "usb2rc",
+        "monitor",
+        "--replay",
+        str(folder),
+        "--replay-loop",
+        *extra,
+    ]
+
+
+def x_lines(screen: str) -> set[tuple[str, int, str]]:
+    return {(m[1], int(m[2]), m[3]) for m in X_LINE.finditer(screen)}
+
+
+def both_ends_seen(screen: str) -> bool:
+    seen = {(bar, value) for bar, value, _ in x_lines(screen)}
+    return (LOW, -32768) in seen and (HIGH, 32767) in seen
+
+
+def wait_until(read: Callable[[], str], done: Callable[[str], bool]) -> str:
+    deadline = time.monotonic() + WAIT_S
+    text = read()
+    while not done(text):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"the screen never showed it; last screen:\n{text}")
+        time.sleep(0.05)
+        text = read()
+    return text
+
+
+def check_screen(screen: str) -> None:
+    sources = {source for _, _, source in x_lines(screen)}
+    assert any(s.startswith("Thrustmaster T.16000M: X (raw 0..16383") for s in sources), sources
+    assert "node 0" in screen and "LIVE" in screen
+    assert "device Thrustmaster T.16000M (044f:b10a, port replay-stick)" in screen
+    assert "buttons 1  hat centre" in screen or "buttons -  hat RIGHT" in screen
+    assert "no serial port is opened" in screen
+
+
+@pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed")
+def test_live_view_in_tmux(tmp_path):
+    folder = swing_dir(tmp_path)
+    socket = f"usb2rc-test-{os.getpid()}"
+    tmux = ["tmux", "-L", socket, "-f", os.devnull]
+    command = " ".join(monitor_argv(folder, "--seconds", "60"))
+    env = dict(os.environ, TERM="xterm", LANG="C.UTF-8")
+    size = ["-x", str(COLS), "-y", str(ROWS)]
+    subprocess.run(
+        [*tmux, "new-session", "-d", "-s", "mon", *size, "-c", str(ROOT), command],
+        check=True,
+        env=env,
+    )
+    try:
+
+        def screen() -> str:
+            out = subprocess.run(
+                [*tmux, "capture-pane", "-p", "-t", "mon"], capture_output=True, text=True
+            )
+            return out.stdout
+
+        seen: list[str] = []
+
+        def collect(text: str) -> bool:
+            seen.append(text)
+            return both_ends_seen("\n".join(seen))
+
+        wait_until(screen, collect)
+        check_screen("\n".join(seen))
+        # one screen at a time: the pane never holds two different x lines
+        assert all(len(x_lines(s)) <= 1 for s in seen)
+    finally:
+        subprocess.run([*tmux, "kill-server"], capture_output=True)
+
+
+def test_live_view_on_a_pty(tmp_path):
+    folder = swing_dir(tmp_path)
+    master, slave = os.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", ROWS, COLS, 0, 0))
+    env = dict(os.environ, TERM="xterm", LANG="C.UTF-8")
+    env.pop("COLUMNS", None)
+    env.pop("LINES", None)
+    proc = subprocess.Popen(
+        monitor_argv(folder, "--seconds", "60"),
+        stdin=slave,
+        stdout=slave,
+        stderr=slave,
+        cwd=ROOT,
+        env=env,
+        start_new_session=True,
+    )
+    os.close(slave)
+    raw = bytearray()
+
+    def screen() -> str:
+        while select.select([master], [], [], 0.05)[0]:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:
+                break
+            if not chunk:
+                break
+            raw.extend(chunk)
+        return ANSI.sub("", raw.decode("utf-8", "replace")).replace("\r", "")
+
+    try:
+        text = wait_until(screen, both_ends_seen)
+        check_screen(text)
+        assert "\x1b[" in raw.decode("utf-8", "replace")  # a live, redrawn screen
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        os.close(master)
+
+
+def test_plain_snapshots_when_not_a_terminal(tmp_path):
+    folder = swing_dir(tmp_path)
+    out = subprocess.run(
+        monitor_argv(folder, "--seconds", "1.5", "--plain"),
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.count("--- ") == 2  # at 0 s and 1 s
+    assert "\x1b[" not in out.stdout
+    check_screen(out.stdout)
+    assert "event: node 0: connected Thrustmaster T.16000M" in out.stdout
+    assert out.stdout.count("event: node 0: connected") == 1  # each event printed once
+
+
+def wait_for(side: monitor.InputSide, done: Callable[[monitor.Snapshot], bool]):
+    deadline = time.monotonic() + WAIT_S
+    while not done(snap := side.snapshot()):
+        assert time.monotonic() < deadline, monitor.snapshot_text(snap, [])
+        time.sleep(0.02)
+    return snap
+
+
+def test_unplug_shows_failsafe_lost_device_and_events(tmp_path):
+    folder = swing_dir(tmp_path)
+    side = monitor.InputSide(Config.default(), ReplayBackend(folder, loop=True))
+    side.start()
+    try:
+        snap = wait_for(side, lambda s: bool(s.nodes) and bool(s.nodes[0].devices))
+        assert not side.daemon.outputs  # nothing is ever written anywhere
+        assert [n.node_id for n in snap.nodes] == [0]
+        (folder / "stick.hid").unlink()
+        snap = wait_for(side, lambda s: s.nodes[0].failsafe)
+        text = monitor.snapshot_text(snap, [])
+        assert "node 0 FAILSAFE" in text
+        assert "LOST (unplugged or failed)" in text
+        assert "LOST: holds" in text  # default layout: the axes hold their last value
+        assert "node 0: disconnected Thrustmaster T.16000M" in " ".join(side.events)
+        install(folder / "stick.hid", SWING)
+        snap = wait_for(side, lambda s: not s.nodes[0].failsafe)
+        assert [n.node_id for n in snap.nodes] == [0]  # the same Node-ID comes back
+        assert [e.split(":")[1].split()[0] for e in side.events] == [
+            "connected",
+            "disconnected",
+            "connected",
+        ]
+    finally:
+        side.stop()
+
+
+def test_config_nodes_merged_devices_and_waiting_entry():
+    config = load_config(ROOT / "config" / "hotas.yaml")
+    side = monitor.InputSide(config, ReplayBackend(ROOT / "usb2rc" / "data" / "demo"))
+    side.start()
+    try:
+        snap = wait_for(side, lambda s: len(s.nodes) == 2 and len(s.nodes[0].devices) == 2)
+        text = monitor.snapshot_text(snap, [])
+        stick, pedals = snap.nodes
+        assert stick.node_id == 1 and not stick.failsafe
+        assert "as stick" in text and "as throttle" in text
+        slots = {a.slot: a.source for a in stick.axes}
+        assert slots["x"].startswith("Thrustmaster T.16000M: X (raw 0..16383, deadband 0.02")
+        assert slots["z"].startswith("Thrustmaster TWCS Throttle: Z")
+        assert "aux1" in slots and "aux2" not in slots
+        assert pedals.node_id == 2 and pedals.failsafe and pedals.waiting == ["pedals"]
+        assert "waiting for config entry pedals: not plugged" in text
+    finally:
+        side.stop()
+
+
+def test_bar_and_event_text():
+    assert monitor.bar(-32768, -32768, 32767) == LOW
+    assert monitor.bar(32767, -32768, 32767) == HIGH
+    assert monitor.bar(32768, 0, 65535, width=4) == "##--"
+    assert monitor.bar(99999, 0, 65535, width=4) == "####"  # clamped
+    error = ServiceEvent(EventKind.ERROR, 3, None, "", int(ErrorCode.READ_FAILED))
+    assert monitor.event_text(error) == "node 3: error 0x01 (READ_FAILED)"
+    odd = ServiceEvent(EventKind.ERROR, 3, None, "", 0x7F)
+    assert monitor.event_text(odd) == "node 3: error 0x7f (unknown)"

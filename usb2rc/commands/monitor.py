@@ -1,0 +1,394 @@
+"""`usb2rc monitor [--config FILE] [--replay DIR] [--seconds N] [--plain]`: a live input view.
+
+For setting up a HOTAS: every node with its failsafe state, each axis as a bar with the value
+it would carry on the wire and the device and usage feeding it, the pressed node buttons and
+the hat, the service events an output would send, and each device's report count. It runs
+the daemon's own input side (hot-plug, one reader thread per device, the compiled mapping,
+the node table) and opens no serial port. On a terminal it redraws about 10 times a second
+(plain ANSI, fine over SSH); with `--plain`, or when stdout is not a terminal, it prints a
+text snapshot once a second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from usb2rc.commands.run import add_common_input_args, load_or_report, make_backend
+from usb2rc.config import Config, OutputConfig
+from usb2rc.daemon import Daemon
+from usb2rc.hid.backend import Backend, DeviceInfo, ErrorCode
+from usb2rc.hid.descriptor import DeviceLayout
+from usb2rc.mapping import DeviceBinding, Mapping, describe_button_runs
+from usb2rc.protocol.c2_16b import AXIS_NAMES
+from usb2rc.receiver import NodeView
+from usb2rc.state import EventKind, NodeFrame, ServiceEvent
+
+REFRESH_S = 0.1  # the live view: ~10 Hz
+PLAIN_EVERY_S = 1.0  # --plain: one snapshot a second
+BAR_WIDTH = 24
+KEPT_LINES = 8  # events and log lines the live view keeps
+UNUSED_PORT = "loop://"  # the daemon wants a port for its output; monitor never opens it
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "monitor",
+        help="live view of the nodes, axes, buttons and hats (no serial port needed)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_common_input_args(parser)
+    parser.add_argument("--seconds", type=float, default=0.0, help="stop after N s (0: Ctrl-C)")
+    parser.add_argument(
+        "--plain", action="store_true", help="print a text snapshot every second instead"
+    )
+    parser.set_defaults(func=run)
+
+
+# --------------------------------------------------------------------------- input side
+
+
+class _BindingLog:
+    """The daemon's Mapping, remembering the binding each device got (for the view)."""
+
+    def __init__(self, inner: Mapping) -> None:
+        self._inner = inner
+        self.by_key: dict[str, DeviceBinding] = {}
+
+    def bind(self, info: DeviceInfo, layout: DeviceLayout) -> DeviceBinding | None:
+        binding = self._inner.bind(info, layout)
+        if binding is not None:
+            self.by_key[info.key] = binding
+        return binding
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+
+class InputSide:
+    """The daemon with its outputs left out: hot-plug, readers, mapping and the node table."""
+
+    def __init__(self, config: Config, backend: Backend) -> None:
+        # The Daemon builds its outputs in __init__; give it one it will never start or open.
+        quiet = dataclasses.replace(config, outputs=(OutputConfig(port=UNUSED_PORT),))
+        self.daemon = Daemon(quiet, backend)
+        # Service events are queued per output subscriber: the unused output's queue is ours.
+        self.subscriber: int = self.daemon.outputs[0].thread.subscriber  # type: ignore[attr-defined]
+        self.daemon.outputs = []
+        self.bindings = _BindingLog(self.daemon.mapping)
+        self.daemon.mapping = self.bindings  # type: ignore[assignment]
+        self.table = self.daemon.table
+        self.events: deque[str] = deque(maxlen=200)
+        self.event_total = 0
+        # (node, product) -> the last device and binding seen there, for lost devices
+        self._seen: dict[tuple[int, str], tuple[DeviceInfo, DeviceBinding]] = {}
+
+    def start(self) -> None:
+        self.daemon.start()
+
+    def stop(self) -> None:
+        self.daemon.stop()
+
+    def snapshot(self) -> Snapshot:
+        events, frames = self.table.collect(self.subscriber)
+        for event in events:
+            self.events.append(event_text(event))
+            self.event_total += 1
+        described = self.table.describe()
+        present: dict[int, list[tuple[DeviceInfo, DeviceBinding]]] = {}
+        for node_id, info in self.table.present_devices():
+            binding = self.bindings.by_key.get(info.key)
+            if binding is not None:
+                present.setdefault(node_id, []).append((info, binding))
+                self._seen[(node_id, info.product)] = (info, binding)
+        nodes = [self._node(f, described.get(str(f.node_id), {}), present) for f in frames]
+        return Snapshot(nodes, list(self.events), self.event_total, self.daemon.stats_lines())
+
+    def _node(
+        self,
+        frame: NodeFrame,
+        described: dict[str, Any],
+        present: dict[int, list[tuple[DeviceInfo, DeviceBinding]]],
+    ) -> NodeRow:
+        devices: list[DeviceRow] = []
+        live = list(present.get(frame.node_id, []))
+        for entry in described.get("devices", []):
+            if entry["present"]:
+                match = next((d for d in live if d[0].product == entry["product"]), None)
+                if match is not None:
+                    live.remove(match)
+            else:
+                match = self._seen.get((frame.node_id, entry["product"]))
+            if match is not None:
+                devices.append(DeviceRow(match[0], match[1], entry["present"]))
+        view = NodeView(frame.node_id, group1=frame.group1, group2=frame.group2)
+        return NodeRow(
+            node_id=frame.node_id,
+            failsafe=frame.failsafe,
+            devices=devices,
+            waiting=list(described.get("expected", [])),
+            axes=axis_rows(frame, devices),
+            buttons=view.pressed_buttons(),
+            hat=view.hat(),
+        )
+
+
+def event_text(event: ServiceEvent) -> str:
+    what = {
+        EventKind.CONNECTED: "connected",
+        EventKind.DISCONNECTED: "disconnected",
+        EventKind.ERROR: "error",
+    }[event.kind]
+    text = f"node {event.node_id}: {what}"
+    if event.kind is EventKind.ERROR:
+        try:
+            name = ErrorCode(event.error_code).name
+        except ValueError:
+            name = "unknown"
+        text += f" 0x{event.error_code:02x} ({name})"
+    if event.info is not None:
+        text += f" {device_label(event.info)}"
+    return text
+
+
+# --------------------------------------------------------------------------- the view model
+
+
+@dataclass(frozen=True)
+class DeviceRow:
+    info: DeviceInfo
+    binding: DeviceBinding
+    present: bool
+
+
+@dataclass(frozen=True)
+class AxisRow:
+    slot: str
+    value: int
+    lo: int
+    hi: int
+    source: str  # "T.16000M: X (raw 0..16383)" or "" (no device feeds the slot)
+
+
+@dataclass(frozen=True)
+class NodeRow:
+    node_id: int
+    failsafe: bool
+    devices: list[DeviceRow]
+    waiting: list[str]  # config entries pinned here whose device has not come
+    axes: list[AxisRow]
+    buttons: list[int]
+    hat: str
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    nodes: list[NodeRow]
+    events: list[str]
+    event_total: int
+    device_stats: list[str] = field(default_factory=list)
+
+
+def device_label(info: DeviceInfo) -> str:
+    return f"{info.product or info.path} ({info.vid:04x}:{info.pid:04x}, port {info.port_path})"
+
+
+def axis_rows(frame: NodeFrame, devices: list[DeviceRow]) -> list[AxisRow]:
+    """The slots a device feeds, and any other slot that is not 0 (a configured failsafe)."""
+    rows = []
+    for slot, (name, value) in enumerate(zip(AXIS_NAMES, frame.axes, strict=True)):
+        feeder = next((d for d in devices if d.binding.axis_info[slot] is not None), None)
+        if feeder is None:
+            if value:
+                rows.append(AxisRow(name, value, -32768, 32767, "(no device: config failsafe)"))
+            continue
+        info = feeder.binding.axis_info[slot]
+        assert info is not None
+        lo, hi = info.wire_range
+        source = f"{feeder.info.product or feeder.info.path}: {info.source}"
+        source += f" (raw {info.raw_min}..{info.raw_max}"
+        source += "" if info.shaping == "linear" else f", {info.shaping}"
+        if info.unsigned:
+            source += ", unsigned"
+        if not feeder.present:
+            source += ", LOST: " + ("holds" if info.failsafe is None else "failsafe value")
+        rows.append(AxisRow(name, value, lo, hi, source + ")"))
+    return rows
+
+
+def bar(value: int, lo: int, hi: int, width: int = BAR_WIDTH) -> str:
+    """`[#######|-----]`-style: filled from the low end up to the value."""
+    filled = round((min(max(value, lo), hi) - lo) * width / (hi - lo))
+    return "#" * filled + "-" * (width - filled)
+
+
+def state_name(node: NodeRow) -> str:
+    return "FAILSAFE" if node.failsafe else "LIVE"
+
+
+def device_lines(node: NodeRow) -> list[str]:
+    lines = []
+    for dev in node.devices:
+        state = "" if dev.present else "  LOST (unplugged or failed)"
+        entry = "" if dev.binding.name == dev.info.product else f" as {dev.binding.name}"
+        lines.append(f"  device {device_label(dev.info)}{entry}{state}")
+        runs = describe_button_runs(dev.binding.button_runs)
+        lines += [f"    {line}" for line in [*runs, *dev.binding.hat_notes]]
+    lines += [f"  waiting for config entry {name}: not plugged" for name in node.waiting]
+    return lines
+
+
+def node_text(node: NodeRow) -> list[str]:
+    lines = [f"node {node.node_id} {state_name(node)}"]
+    lines += device_lines(node)
+    for axis in node.axes:
+        lines.append(
+            f"  {axis.slot:<6} [{bar(axis.value, axis.lo, axis.hi)}] {axis.value:+6d}  "
+            f"<- {axis.source}"
+        )
+    lines.append(f"  buttons {' '.join(map(str, node.buttons)) or '-'}  hat {node.hat}")
+    return lines
+
+
+def snapshot_text(snap: Snapshot, log_lines: list[str]) -> str:
+    head = f"usb2rc monitor: {len(snap.nodes)} node(s); no serial port is opened"
+    lines = [head]
+    for node in snap.nodes:
+        lines += node_text(node)
+    if not snap.nodes:
+        lines.append("no devices (usb2rc list shows what is plugged and why a device is not used)")
+    lines += [f"stats: {line}" for line in snap.device_stats]
+    lines += [f"event: {e}" for e in snap.events]
+    lines += [f"log: {line}" for line in log_lines]
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- rendering
+
+
+def render_live(snap: Snapshot, log_lines: list[str]) -> Any:
+    from rich.console import Group
+    from rich.table import Table
+    from rich.text import Text
+
+    parts: list[Any] = [
+        Text(f"usb2rc monitor: {len(snap.nodes)} node(s); no serial port is opened; Ctrl-C stops")
+    ]
+    for node in snap.nodes:
+        style = "bold red" if node.failsafe else "bold green"
+        title = Text.assemble((f"node {node.node_id} ", "bold"), (state_name(node), style))
+        parts.append(title)
+        for line in device_lines(node):
+            parts.append(Text(line, style="red" if "LOST" in line else "dim"))
+        table = Table(box=None, show_header=False, pad_edge=False, padding=(0, 1))
+        for column in ("slot", "bar", "value", "source"):
+            table.add_column(
+                column, no_wrap=True, overflow="ellipsis" if column == "source" else None
+            )
+        for axis in node.axes:
+            table.add_row(
+                axis.slot,
+                Text(f"[{bar(axis.value, axis.lo, axis.hi)}]", style="cyan"),
+                f"{axis.value:+6d}",
+                Text(f"<- {axis.source}", style="dim"),
+            )
+        parts.append(table)
+        buttons = " ".join(map(str, node.buttons)) or "-"
+        parts.append(Text(f"  buttons {buttons}  hat {node.hat}"))
+    if not snap.nodes:
+        parts.append(
+            Text("no devices (usb2rc list shows what is plugged and why a device is not used)")
+        )
+    for line in snap.device_stats:
+        parts.append(Text(f"stats: {line}", style="dim"))
+    for line in snap.events[-KEPT_LINES:]:
+        parts.append(Text(f"event: {line}"))
+    for line in log_lines[-KEPT_LINES:]:
+        parts.append(Text(f"log: {line}", style="yellow"))
+    return Group(*parts)
+
+
+class _LogLines(logging.Handler):
+    """Collects the daemon's log lines for the view (stderr would tear the live screen)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.lines: deque[str] = deque(maxlen=200)
+        self.total = 0
+        self._lock_lines = threading.Lock()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        with self._lock_lines:
+            self.lines.append(f"{record.levelname} {record.getMessage()}")
+            self.total += 1
+
+    def since(self, seen: int) -> list[str]:
+        with self._lock_lines:
+            new = min(self.total - seen, len(self.lines))
+            return list(self.lines)[-new:] if new > 0 else []
+
+
+def _show_live(side: InputSide, logs: _LogLines, until: float) -> None:
+    from rich.console import Console
+    from rich.live import Live
+
+    console = Console()
+    with Live(console=console, auto_refresh=False, redirect_stderr=False) as live:
+        while True:
+            snap = side.snapshot()
+            live.update(render_live(snap, logs.since(0)), refresh=True)
+            if time.monotonic() >= until:
+                break
+            time.sleep(max(0.0, min(REFRESH_S, until - time.monotonic())))
+
+
+def _show_plain(side: InputSide, logs: _LogLines, until: float) -> None:
+    events_seen = logs_seen = 0
+    start = next_print = time.monotonic()
+    while True:
+        now = time.monotonic()
+        if now >= next_print:
+            snap = side.snapshot()
+            fresh = min(len(snap.events), snap.event_total - events_seen)
+            shown = dataclasses.replace(snap, events=snap.events[len(snap.events) - fresh :])
+            print(f"--- {now - start:.1f} s", flush=True)
+            print(snapshot_text(shown, logs.since(logs_seen)), flush=True)
+            events_seen, logs_seen = snap.event_total, logs.total
+            next_print += PLAIN_EVERY_S
+        if now >= until:
+            break
+        time.sleep(max(0.0, min(REFRESH_S, until - now, next_print - now)))
+
+
+def run(args: argparse.Namespace) -> int:
+    config = load_or_report(args.config)
+    if config is None:
+        return 2
+    logs = _LogLines()
+    logger = logging.getLogger("usb2rc")
+    old_level, old_propagate = logger.level, logger.propagate
+    logger.addHandler(logs)
+    logger.setLevel(logging.INFO)
+    logger.propagate = False
+    until = time.monotonic() + args.seconds if args.seconds > 0 else float("inf")
+    side = InputSide(config, make_backend(args))
+    try:
+        side.start()
+        show = _show_plain if args.plain or not sys.stdout.isatty() else _show_live
+        show(side, logs, until)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        side.stop()
+        logger.removeHandler(logs)
+        logger.setLevel(old_level)
+        logger.propagate = old_propagate
+    return 0
