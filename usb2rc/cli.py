@@ -38,6 +38,10 @@ def build_parser() -> argparse.ArgumentParser:
     for name, module_name in COMMANDS.items():
         try:
             module = importlib.import_module(f"usb2rc.commands.{module_name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"usb2rc.commands.{module_name}":
+                sys.stderr.write(f"usb2rc: the `{name}` command is unavailable: {exc!r}\n")
+            continue
         except Exception as exc:  # one broken command must not take the others down
             sys.stderr.write(f"usb2rc: the `{name}` command is unavailable: {exc!r}\n")
             continue
