@@ -355,8 +355,13 @@ class Daemon:
                 f"late {st.late_ticks}, missed {st.missed_ticks}, p99 |period error| "
                 f"{p99:.3f} ms, bytes {link.bytes_written}, queue-full skips "
                 f"{link.writes_skipped_queue_full}, write timeouts {link.write_timeouts}, "
-                f"line lost {link.losses}x"
+                f"line lost {link.losses}x, tick errors {st.tick_errors}"
             )
+            if isinstance(out.thread, C2Output):
+                line += (
+                    f", data frames {st.data_frames}, service frames {st.service_frames}, "
+                    f"round-robin deferrals {st.deferred_nodes}"
+                )
             if out.rx is not None:
                 dec = out.rx.decoder
                 line += (
