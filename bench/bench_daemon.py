@@ -1,0 +1,581 @@
+"""The running daemon, measured from the far end of a pty read by another process.
+
+    .venv/bin/python bench/bench_daemon.py [--seconds 60] [--runs 1] [--json PATH]
+
+A reader subprocess holds the pty master: it reads in 64 KiB chunks, stamps each chunk with
+CLOCK_MONOTONIC (system-wide on Linux, so its times compare with this process's and the
+daemon's) and prints one JSON line per decoded frame. What is measured:
+
+- period: in-process `Daemon` (zero config) with one replayed T.16000M; the arrival times of
+  node 0's data frames (one write per tick) over --seconds: p99 of |period - 20 ms| and the
+  mean period (least-squares slope of arrival time over tick number, so a missed tick does
+  not count as a long period). Late/missed ticks from the scheduler's own counters.
+- latency: the same run. The replayed device is wrapped so that its `read()` stamps the
+  monotonic time each report is handed to the daemon; every report carries a unique X (a ramp
+  stepping every --report-ms, 23 ms by default: longer than a tick, so every report is
+  carried by some frame, and 23 vs 20 ms walks the phase through the whole tick). Latency =
+  arrival of the first frame whose X equals the report's scaled X - the report's delivery.
+- cpu/rss: `python -m usb2rc run --replay DIR --replay-loop --port PTY` with 4 replayed
+  T.16000M at 1000 reports/s each; utime+stime from /proc/PID/stat over --cpu-seconds after
+  --warmup, VmRSS/VmHWM from /proc/PID/status; SIGUSR1 stats at the start and the end of the
+  window give each device's report rate (it must be ~1000/s) and late/missed ticks.
+- start: spawning `python -m usb2rc run ...` (one replayed device) -> the startup frame
+  (service 8) and the first data frame on the pty; median of --starts.
+- stop: SIGTERM -> the process has exited (every start trial and the cpu run).
+
+A readable table, then one JSON line ({"bench": "daemon", ...}). --runs N repeats everything
+and reports medians (max for the worst-case figures).
+"""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import itertools
+import json
+import logging
+import os
+import re
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+
+from daemon_harness import StickState, recording, scale  # noqa: E402
+
+from usb2rc.protocol import c2_16b  # noqa: E402
+
+PERIOD_S = 0.020
+X_MAX = 16383  # T.16000M X: 14 bits
+
+
+# --- the reader subprocess --------------------------------------------------------------------
+
+
+def reader_main(fd: int) -> None:
+    """Read the pty master `fd`; one JSON line per frame on stdout, stamped per chunk."""
+    decoder = c2_16b.Decoder()
+    out = sys.stdout
+    out.write('{"ready": true}\n')
+    out.flush()
+    while True:
+        try:
+            chunk = os.read(fd, 65536)
+        except OSError:  # EIO: no slave open any more (the bench closed it)
+            break
+        now = time.monotonic()
+        if not chunk:
+            break
+        lines = []
+        for frame in decoder.feed(chunk):
+            if isinstance(frame, c2_16b.DataFrame):
+                lines.append(
+                    f'{{"t":{now:.6f},"k":"d","n":{frame.node_id},"s":{frame.status},'
+                    f'"c":{frame.code},"a":{list(frame.axes)},"g1":{frame.group1},'
+                    f'"g2":{frame.group2}}}\n'
+                )
+            else:
+                lines.append(
+                    f'{{"t":{now:.6f},"k":"s","n":{frame.node_id},'
+                    f'"svc":"{frame.service.service_name}"}}\n'
+                )
+        if lines:
+            out.write("".join(lines))
+            out.flush()
+
+
+class PtyReader:
+    """A pty pair; the master goes to a reader subprocess, this process keeps the slave open
+    (so the line never hangs up between daemons). Frames are read back from its output file."""
+
+    def __init__(self, workdir: Path) -> None:
+        master, self._slave = os.openpty()
+        self.path = os.ttyname(self._slave)
+        self.out_path = workdir / f"frames-{master}.jsonl"
+        self._out = open(self.out_path, "wb")  # noqa: SIM115 - closed in close()
+        self.proc = subprocess.Popen(
+            [sys.executable, __file__, "--reader-fd", str(master)],
+            stdout=self._out,
+            stdin=subprocess.DEVNULL,
+            pass_fds=(master,),
+            cwd=ROOT,
+        )
+        os.close(master)
+        self._offset = 0
+        self.frames: list[dict[str, Any]] = []
+        self.ready = False
+        self.wait_for(lambda f: self.ready, timeout=10, what="the reader to start")
+
+    def poll(self) -> list[dict[str, Any]]:
+        """Parse what the reader wrote since the last call (whole lines only)."""
+        with open(self.out_path, "rb") as f:
+            f.seek(self._offset)
+            data = f.read()
+        end = data.rfind(b"\n") + 1
+        self._offset += end
+        for line in data[:end].splitlines():
+            item = json.loads(line)
+            if "k" in item:
+                self.frames.append(item)
+            else:
+                self.ready = True
+        return self.frames
+
+    def wait_for(
+        self, predicate: Callable[[list[dict[str, Any]]], Any], timeout: float, what: str
+    ) -> Any:
+        deadline = time.monotonic() + timeout
+        while True:
+            result = predicate(self.poll())
+            if result:
+                return result
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"timed out after {timeout} s waiting for {what}")
+            time.sleep(0.01)
+
+    def data(self, since: float = 0.0, node: int = 0) -> list[dict[str, Any]]:
+        return [f for f in self.poll() if f["k"] == "d" and f["n"] == node and f["t"] >= since]
+
+    def close(self) -> None:
+        self.proc.terminate()
+        self.proc.wait(5)
+        self._out.close()
+        os.close(self._slave)
+
+
+# --- recordings -------------------------------------------------------------------------------
+
+
+def ramp_recording(count: int, step_s: float) -> str:
+    """count reports, one every step_s, X = 0, 1, 2 ... (unique while count <= 16384)."""
+    states = [StickState(x=i % (X_MAX + 1), y=8192) for i in range(count)]
+    return recording(states, hold_s=step_s)
+
+
+def khz_recording(seconds: float, name: str) -> str:
+    """1000 reports/s, every one different (X and Y ramps)."""
+    count = int(seconds * 1000)
+    states = [StickState(x=(7 * i) % (X_MAX + 1), y=(13 * i) % (X_MAX + 1)) for i in range(count)]
+    return recording(states, hold_s=0.001, name=name)
+
+
+# --- period and latency (in-process daemon) ---------------------------------------------------
+
+
+def period_figures(times: Sequence[float]) -> dict[str, float]:
+    """p99 |period - 20 ms| over consecutive frames; mean period = slope of t over tick number
+    (a gap of k periods counts k ticks)."""
+    if len(times) < 3:
+        raise RuntimeError(f"only {len(times)} data frames seen")
+    deltas = [b - a for a, b in itertools.pairwise(times)]
+    errors = sorted(abs(d - PERIOD_S) for d in deltas)
+    ticks = [0]
+    for d in deltas:
+        ticks.append(ticks[-1] + max(1, round(d / PERIOD_S)))
+    mean_k = statistics.fmean(ticks)
+    mean_t = statistics.fmean(times)
+    num = sum((k - mean_k) * (t - mean_t) for k, t in zip(ticks, times, strict=True))
+    den = sum((k - mean_k) ** 2 for k in ticks)
+    slope = num / den
+    return {
+        "frames": len(times),
+        "gaps": sum(1 for d in deltas if d > 1.5 * PERIOD_S),
+        "period_p99_error_ms": errors[min(len(errors) - 1, int(len(errors) * 0.99))] * 1e3,
+        "period_max_error_ms": errors[-1] * 1e3,
+        "period_mean_ms": slope * 1e3,
+        "period_mean_error_pct": (slope - PERIOD_S) / PERIOD_S * 100,
+    }
+
+
+def latency_figures(
+    deliveries: Sequence[tuple[float, int]], frames: Sequence[dict[str, Any]]
+) -> dict[str, float]:
+    """For each delivered report (time, raw X): the first later frame carrying its X."""
+    times = [f["t"] for f in frames]
+    latencies = []
+    superseded = 0
+    for t_delivered, x in deliveries:
+        want = scale(x, 0, X_MAX)
+        i = bisect.bisect_left(times, t_delivered)
+        found = None
+        while i < len(frames) and times[i] < t_delivered + 1.0:
+            if frames[i]["a"][0] == want:
+                found = times[i]
+                break
+            i += 1
+        if found is None:
+            superseded += 1
+        else:
+            latencies.append(found - t_delivered)
+    if not latencies:
+        raise RuntimeError("no report was matched to a frame")
+    latencies.sort()
+    return {
+        "latency_reports": len(latencies),
+        "latency_unmatched": superseded,
+        "latency_mean_ms": statistics.fmean(latencies) * 1e3,
+        "latency_p50_ms": latencies[len(latencies) // 2] * 1e3,
+        "latency_p99_ms": latencies[min(len(latencies) - 1, int(len(latencies) * 0.99))] * 1e3,
+        "latency_max_ms": latencies[-1] * 1e3,
+        "latency_min_ms": latencies[0] * 1e3,
+    }
+
+
+def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[str, Any]:
+    from usb2rc.config import Config
+    from usb2rc.daemon import Daemon
+    from usb2rc.hid.replay import ReplayBackend, ReplayDevice
+
+    deliveries: list[tuple[float, int]] = []
+
+    class StampedDevice:
+        """A replayed device that notes when each report is handed to the daemon."""
+
+        def __init__(self, inner: ReplayDevice) -> None:
+            self.inner = inner
+            self.info = inner.info
+
+        def report_descriptor(self) -> bytes:
+            return self.inner.report_descriptor()
+
+        def read(self, timeout_s: float) -> bytes | None:
+            report = self.inner.read(timeout_s)
+            if report is not None:
+                deliveries.append((time.monotonic(), report[3] | (report[4] & 0x3F) << 8))
+            return report
+
+        def close(self) -> None:
+            self.inner.close()
+
+    class StampedBackend(ReplayBackend):
+        def open(self, info):  # type: ignore[no-untyped-def]
+            return StampedDevice(super().open(info))
+
+    replay_dir = workdir / "latency"
+    replay_dir.mkdir()
+    step = report_ms / 1000
+    count = min(X_MAX + 1, int((seconds + 10) / step) + 1)
+    (replay_dir / "stick.hid").write_text(ramp_recording(count, step))
+    reader = PtyReader(workdir)
+    try:
+        backend = StampedBackend(replay_dir, loop=True)
+        daemon = Daemon(Config.default(), backend, port_override=reader.path)
+        t_start = time.monotonic()
+        daemon.start()
+        try:
+            time.sleep(seconds)
+        finally:
+            t_end = time.monotonic()
+            stats = daemon.outputs[0].thread.stats
+            late, missed, ticks = stats.late_ticks, stats.missed_ticks, stats.ticks
+            daemon.stop()
+        time.sleep(0.2)
+        frames = [f for f in reader.data(t_start) if f["t"] <= t_end]
+    finally:
+        reader.close()
+    # Skip the first second (start-up: imports done, but the first ticks settle).
+    steady = [f for f in frames if f["t"] >= t_start + 1.0]
+    result: dict[str, Any] = period_figures([f["t"] for f in steady])
+    result.update(latency_figures([d for d in deliveries if d[0] >= t_start + 1.0], frames))
+    result.update({"ticks": ticks, "late_ticks": late, "missed_ticks": missed})
+    return result
+
+
+# --- the daemon as a subprocess ---------------------------------------------------------------
+
+STATS_OUT_RE = re.compile(r"stats: (\S+) \S+: writes (\d+), ticks (\d+), late (\d+), missed (\d+)")
+STATS_DEV_RE = re.compile(r"stats: device .*?\((replay-[^)]*)\): (\d+) reports")
+
+
+class DaemonProcess:
+    def __init__(self, replay_dir: Path, port: str, log_path: Path) -> None:
+        self.log_path = log_path
+        self._log = open(log_path, "wb")  # noqa: SIM115 - closed in stop()
+        self.spawned_at = time.monotonic()
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "usb2rc", "run", "--replay", str(replay_dir),
+             "--replay-loop", "--port", port, "--log-level", "info"],
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            cwd=ROOT,
+            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        )  # fmt: skip
+
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def cpu_s(self) -> float:
+        fields = Path(f"/proc/{self.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    def memory_kb(self) -> dict[str, int]:
+        out = {}
+        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key in ("VmRSS", "VmHWM"):
+                out[key] = int(value.split()[0])
+        return out
+
+    def stats(self, timeout: float = 5.0) -> tuple[float, dict[str, Any]]:
+        """SIGUSR1, then wait for the new stats lines; (time sent, parsed)."""
+        before = self.log().count("stats: ")
+        sent = time.monotonic()
+        self.proc.send_signal(signal.SIGUSR1)
+        deadline = sent + timeout
+        while time.monotonic() < deadline:
+            text = self.log()
+            lines = [ln for ln in text.splitlines() if "stats: " in ln][before:]
+            devices = {m[1]: int(m[2]) for ln in lines if (m := STATS_DEV_RE.search(ln))}
+            outputs = [m for ln in lines if (m := STATS_OUT_RE.search(ln))]
+            if outputs and len(lines) >= 1 + len(devices) and devices:
+                out = outputs[0]
+                return sent, {
+                    "ticks": int(out[3]),
+                    "late": int(out[4]),
+                    "missed": int(out[5]),
+                    "devices": devices,
+                }
+            time.sleep(0.02)
+        raise RuntimeError("no stats lines after SIGUSR1; log:\n" + self.log()[-2000:])
+
+    def terminate(self, timeout: float = 10.0) -> float:
+        """SIGTERM; seconds until the process has exited (blocking waitpid, no polling)."""
+        killer = threading.Timer(timeout, self.proc.kill)
+        killer.start()
+        t0 = time.monotonic()
+        self.proc.send_signal(signal.SIGTERM)
+        self.proc.wait()
+        took = time.monotonic() - t0
+        killer.cancel()
+        self._log.close()
+        if self.proc.returncode != 0:
+            raise RuntimeError(f"daemon exited {self.proc.returncode}; log:\n{self.log()[-2000:]}")
+        return took
+
+
+def run_cpu(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
+    replay_dir = workdir / "khz"
+    replay_dir.mkdir()
+    for i in range(4):
+        (replay_dir / f"stick{i}.hid").write_text(khz_recording(4.0, f"Thrustmaster T.16000M {i}"))
+    reader = PtyReader(workdir)
+    daemon = DaemonProcess(replay_dir, reader.path, workdir / "cpu.log")
+    try:
+        reader.wait_for(lambda f: {x["n"] for x in f if x["k"] == "d"} >= {0, 1, 2, 3}, 20,
+                        "data frames of 4 nodes")  # fmt: skip
+        time.sleep(warmup)
+        t0, s0 = daemon.stats()
+        cpu0 = daemon.cpu_s()
+        time.sleep(window)
+        cpu1 = daemon.cpu_s()
+        t1, s1 = daemon.stats()
+        memory = daemon.memory_kb()
+    finally:
+        stop_s = daemon.terminate()
+    frames = reader.data(t0)
+    reader.close()
+    times = [f["t"] for f in frames if f["t"] <= t1]
+    rates = {k: (s1["devices"][k] - s0["devices"].get(k, 0)) / (t1 - t0) for k in s1["devices"]}
+    period = period_figures(times)
+    return {
+        "cpu_pct": (cpu1 - cpu0) / window * 100,
+        "rss_mb": memory["VmRSS"] / 1024,
+        "rss_peak_mb": memory["VmHWM"] / 1024,
+        "devices": len(rates),
+        "reports_per_s_min": min(rates.values()),
+        "reports_per_s_total": sum(rates.values()),
+        "load_period_p99_error_ms": period["period_p99_error_ms"],
+        "load_late_ticks": s1["late"] - s0["late"],
+        "load_missed_ticks": s1["missed"] - s0["missed"],
+        "stop_s": stop_s,
+    }
+
+
+def run_starts(workdir: Path, starts: int) -> dict[str, Any]:
+    replay_dir = workdir / "start"
+    replay_dir.mkdir()
+    states = [StickState(x=i * 100) for i in range(50)]
+    (replay_dir / "stick.hid").write_text(recording(states, hold_s=0.02))
+    reader = PtyReader(workdir)
+    firsts, datas, stops = [], [], []
+    try:
+        for i in range(starts):
+            daemon = DaemonProcess(replay_dir, reader.path, workdir / f"start{i}.log")
+            t0 = daemon.spawned_at
+            try:
+                startup = reader.wait_for(
+                    lambda f, t0=t0: next(
+                        (x for x in f if x["t"] >= t0 and x.get("svc") == "startup"), None
+                    ),
+                    20,
+                    "the startup frame",
+                )
+                first = reader.wait_for(
+                    lambda f, t0=t0: next((x for x in f if x["t"] >= t0 and x["k"] == "d"), None),
+                    20,
+                    "the first data frame",
+                )
+            finally:
+                stops.append(daemon.terminate())
+            firsts.append(startup["t"] - t0)
+            datas.append(first["t"] - t0)
+            time.sleep(0.1)
+    finally:
+        reader.close()
+    return {
+        "start_first_frame_s": statistics.median(firsts),
+        "start_first_data_s": statistics.median(datas),
+        "stop_s_median": statistics.median(stops),
+        "stop_s_max": max(stops),
+    }
+
+
+# --- driver -----------------------------------------------------------------------------------
+
+GOALS = {  # figure: (limit, "<=" | "abs<=", text)
+    "period_p99_error_ms": (0.5, "<=", "≤ 0.5 ms"),
+    "period_mean_error_pct": (0.02, "abs<=", "20.000 ms ± 0.02%"),
+    "latency_mean_ms": (11.0, "<=", "≤ 11 ms"),
+    "latency_max_ms": (21.0, "<=", "≤ 21 ms"),
+    "cpu_pct": (5.0, "<=", "≤ 5% of a core"),
+    "rss_mb": (40.0, "<=", "≤ 40 MB"),
+    "stop_s_max": (1.0, "<", "< 1 s"),
+}
+
+# How runs are combined: median, except worst-case figures (max) and counts (sum).
+WORST = {"period_max_error_ms", "latency_max_ms", "stop_s_max", "rss_peak_mb"}
+LOWEST = {"reports_per_s_min"}
+SUMMED = {"late_ticks", "missed_ticks", "load_late_ticks", "load_missed_ticks", "gaps"}
+
+ROWS = [
+    ("period_p99_error_ms", "period: p99 |period - 20 ms|", "ms", 3),
+    ("period_max_error_ms", "period: max |period - 20 ms|", "ms", 3),
+    ("period_mean_ms", "period: mean", "ms", 5),
+    ("period_mean_error_pct", "period: mean error (drift)", "%", 4),
+    ("late_ticks", "late ticks (scheduler)", "", 0),
+    ("missed_ticks", "missed ticks (scheduler)", "", 0),
+    ("latency_mean_ms", "latency report -> frame: mean", "ms", 2),
+    ("latency_p99_ms", "latency: p99", "ms", 2),
+    ("latency_max_ms", "latency: max", "ms", 2),
+    ("latency_unmatched", "latency: reports never carried", "", 0),
+    ("cpu_pct", "CPU, 4 devices x 1 kHz", "%", 2),
+    ("rss_mb", "RSS, 4 x 1 kHz", "MB", 1),
+    ("rss_peak_mb", "RSS peak (VmHWM)", "MB", 1),
+    ("reports_per_s_min", "reports/s consumed (slowest dev)", "/s", 1),
+    ("load_period_p99_error_ms", "p99 |period error| at 4 x 1 kHz", "ms", 3),
+    ("load_missed_ticks", "missed ticks at 4 x 1 kHz", "", 0),
+    ("start_first_frame_s", "start -> startup frame (median)", "s", 3),
+    ("start_first_data_s", "start -> first data frame", "s", 3),
+    ("stop_s_median", "SIGTERM -> exit (median)", "s", 3),
+    ("stop_s_max", "SIGTERM -> exit (max)", "s", 3),
+]
+
+
+def goal_met(name: str, value: float) -> bool | None:
+    if name not in GOALS:
+        return None
+    limit, op, _ = GOALS[name]
+    if op == "abs<=":
+        return abs(value) <= limit
+    if op == "<":
+        return value < limit
+    return value <= limit
+
+
+def combine(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key in runs[0]:
+        values = [r[key] for r in runs if isinstance(r.get(key), int | float)]
+        if len(values) != len(runs):
+            continue
+        if key in WORST:
+            out[key] = max(values)
+        elif key in LOWEST:
+            out[key] = min(values)
+        elif key in SUMMED:
+            out[key] = sum(values)
+        else:
+            out[key] = statistics.median(values)
+    return out
+
+
+def one_run(args: argparse.Namespace) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory(prefix="usb2rc-bench-") as tmp:
+        workdir = Path(tmp)
+        result = run_period_latency(workdir, args.seconds, args.report_ms)
+        result.update(run_cpu(workdir, args.warmup, args.cpu_seconds))
+        cpu_stop = result.pop("stop_s")
+        starts = run_starts(workdir, args.starts)
+        starts["stop_s_max"] = max(starts["stop_s_max"], cpu_stop)
+        result.update(starts)
+    return result
+
+
+def print_table(figures: dict[str, Any]) -> None:
+    print(f"{'figure':36} {'value':>12}  {'goal':20} met")
+    for key, label, unit, digits in ROWS:
+        if key not in figures:
+            continue
+        met = goal_met(key, figures[key])
+        goal = GOALS[key][2] if key in GOALS else ""
+        mark = "" if met is None else ("yes" if met else "NO")
+        print(f"{label:36} {figures[key]:>9.{digits}f} {unit:2}  {goal:20} {mark}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=60.0, help="period/latency run (60)")
+    parser.add_argument("--report-ms", type=float, default=23.0, help="ramp step (23 ms)")
+    parser.add_argument("--cpu-seconds", type=float, default=30.0, help="CPU window (30)")
+    parser.add_argument("--warmup", type=float, default=5.0, help="before the CPU window (5)")
+    parser.add_argument("--starts", type=int, default=5, help="start/stop trials (5)")
+    parser.add_argument("--runs", type=int, default=1, help="repeat; medians over runs")
+    parser.add_argument("--json", metavar="PATH", help="also write the JSON result here")
+    parser.add_argument("--reader-fd", type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.reader_fd is not None:
+        reader_main(args.reader_fd)
+        return
+    logging.basicConfig(level=logging.ERROR, format="%(levelname)s %(message)s")
+    runs = []
+    for i in range(args.runs):
+        runs.append(one_run(args))
+        if args.runs > 1:
+            print(f"run {i + 1}/{args.runs}: " + json.dumps(_rounded(runs[-1])), file=sys.stderr)
+    figures = combine(runs)
+    print(
+        f"daemon bench: {args.runs} run(s), period/latency {args.seconds:g} s, CPU window "
+        f"{args.cpu_seconds:g} s, {args.starts} starts, load average "
+        f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores"
+    )
+    print_table(figures)
+    result = {
+        "bench": "daemon",
+        "runs": args.runs,
+        "seconds": args.seconds,
+        "cpu_seconds": args.cpu_seconds,
+        "loadavg": round(os.getloadavg()[0], 2),
+        "figures": _rounded(figures),
+        "goals_met": {k: goal_met(k, v) for k, v in figures.items() if k in GOALS},
+    }
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps(result))
+
+
+def _rounded(figures: dict[str, Any]) -> dict[str, Any]:
+    return {k: round(v, 6) if isinstance(v, float) else v for k, v in figures.items()}
+
+
+if __name__ == "__main__":
+    main()
