@@ -1,0 +1,191 @@
+"""Every `usb2rc ...` command shown in README.md and docs/*.md code blocks is exercised.
+
+Each command line found in a fenced code block must parse with usb2rc's own parser (with the
+default-command rule of `usb2rc.cli.main`). The ones that can run here, offline, run and
+must exit 0; the rest (hardware, root, placeholders, endless) are listed as parse-only with
+the reason. A command in the docs that is in neither list fails the test, and so does a
+listed command the docs no longer show: the lists and the docs move together.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from usb2rc import cli
+
+ROOT = Path(__file__).resolve().parent.parent
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+# Run offline from the repository root; each must exit 0.
+RUN = {
+    "usb2rc decode usb2rc/data/samples/c2-16b-sample.bin",
+    "usb2rc decode --protocol sumd usb2rc/data/samples/sumd-sample.bin",
+    "usb2rc icd --config config/hotas.yaml",
+    "usb2rc check --config config/hotas.yaml",
+    "usb2rc check --config config/hotas.yaml --replay usb2rc/data/demo",
+    "usb2rc describe usb2rc/data/demo/throttle.hid",
+    "usb2rc list --replay usb2rc/data/demo",
+    "usb2rc demo --seconds 2",
+    "usb2rc monitor --replay usb2rc/data/demo --seconds 2 --plain",
+}
+
+HARDWARE = "needs a real joystick or serial port"
+PLACEHOLDER = "names the reader's own file"
+PARSE_ONLY = {
+    "usb2rc demo --seconds 30": "30 s is too slow here; `demo --seconds 2` runs",
+    "usb2rc --port /dev/ttyUSB0": HARDWARE,
+    "usb2rc --config config/hotas.yaml": HARDWARE + " (/dev/serial0, /dev/ttyUSB0)",
+    "usb2rc run --replay DIR --port PORT": PLACEHOLDER,
+    "usb2rc decode /dev/ttyUSB1": HARDWARE,
+    "usb2rc decode --json /dev/ttyUSB1": HARDWARE,
+    "usb2rc decode --protocol sumd /dev/ttyUSB1": HARDWARE,
+    "usb2rc list": HARDWARE,
+    "usb2rc list --config hotas.yaml --json": PLACEHOLDER,
+    "usb2rc describe rec.hid": PLACEHOLDER,
+    "usb2rc describe stick.hid": PLACEHOLDER,
+    "usb2rc check --config my.yaml": PLACEHOLDER,
+    "usb2rc check --config /etc/usb2rc/usb2rc.yaml": "the installed service's config (root)",
+    "usb2rc icd --config my.yaml": PLACEHOLDER,
+    "usb2rc monitor": HARDWARE + "; runs until Ctrl-C",
+    "usb2rc monitor --config my.yaml": PLACEHOLDER,
+    "usb2rc monitor --config hotas.yaml": PLACEHOLDER,
+    "usb2rc monitor --replay recordings/ --replay-loop": PLACEHOLDER + "; runs until Ctrl-C",
+    "usb2rc record 044f:b10a --seconds 10": HARDWARE,
+    "usb2rc --config hotas.yaml --port /dev/ttyUSB0": HARDWARE,
+    "usb2rc --config hotas.yaml --port /dev/ttyUSB0 --stats-interval 10": HARDWARE,
+    "usb2rc --config hotas.yaml --port /dev/cu.usbserial-A10K1B2C": HARDWARE + " (macOS)",
+    "usb2rc --config hotas.yaml --port COM3": HARDWARE + " (Windows)",
+    "usb2rc --config hotas.yaml --port 'spy:///dev/ttyUSB0?file=/tmp/usb2rc-spy.txt'": HARDWARE,
+}
+
+FENCE = re.compile(r"^\s*(```|~~~)")
+SEPARATORS = {"|", "||", "&&", ";", "&"}
+REDIRECTS = re.compile(r"^\d*[<>]")
+
+
+def code_lines(path: Path) -> list[tuple[int, str]]:
+    lines, inside = [], False
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        if FENCE.match(line):
+            inside = not inside
+        elif inside:
+            lines.append((number, line.strip().removeprefix("$ ")))
+    return lines
+
+
+def is_usb2rc(word: str) -> bool:
+    return re.split(r"[/\\]", word)[-1] == "usb2rc"
+
+
+def commands_in(line: str) -> list[list[str]]:
+    """The argument lists of the usb2rc commands on one shell line (comments, pipes,
+    redirections, `sudo` and VAR=value prefixes taken off)."""
+    lexer = shlex.shlex(line, posix=True, punctuation_chars=True)
+    lexer.whitespace_split = True
+    tokens = list(lexer)
+    found, segment = [], []
+    for token in [*tokens, ";"]:
+        if token not in SEPARATORS:
+            segment.append(token)
+            continue
+        words = segment
+        segment = []
+        while words and (words[0] == "sudo" or re.match(r"^\w+=", words[0])):
+            words = words[1:]
+            while words and words[0].startswith("-"):  # sudo's options (-u USER)
+                words = words[2:] if words[0] in ("-u", "-g") else words[1:]
+        if not words or not is_usb2rc(words[0]):
+            continue
+        args = []
+        for word in words[1:]:
+            if REDIRECTS.match(word):
+                break
+            args.append(word)
+        found.append(args)
+    return found
+
+
+def documented() -> dict[str, list[str]]:
+    """'usb2rc ARGS' -> where it is shown (file:line)."""
+    seen: dict[str, list[str]] = {}
+    for path in DOCS:
+        for number, line in code_lines(path):
+            for args in commands_in(line):
+                key = shlex.join(["usb2rc", *args])
+                seen.setdefault(key, []).append(f"{path.relative_to(ROOT)}:{number}")
+    return seen
+
+
+def parse(command: str) -> argparse.Namespace:
+    argv = shlex.split(command)[1:]
+    parser = cli.build_parser()
+    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    argv = cli._with_default_command(argv, set(subparsers.choices))
+    try:
+        return parser.parse_args(argv)
+    except SystemExit as exc:
+        raise AssertionError(f"{command!r} does not parse (exit {exc.code})") from None
+
+
+def test_extraction_rules():
+    assert commands_in(".venv/bin/pip install -e . && .venv/bin/usb2rc demo --seconds 30") == [
+        ["demo", "--seconds", "30"]
+    ]
+    assert commands_in("usb2rc record 044f:b10a --seconds 10 > stick.hid  # note") == [
+        ["record", "044f:b10a", "--seconds", "10"]
+    ]
+    assert commands_in("sudo -u usb2rc /opt/usb2rc/venv/bin/usb2rc list") == [["list"]]
+    assert commands_in("journalctl -u usb2rc -f") == []
+    assert commands_in("sudo systemctl kill -s USR1 usb2rc") == []
+    assert commands_in("sudo install -m 0644 systemd/usb2rc.service /etc/systemd/system/") == []
+
+
+def test_every_documented_command_is_classified():
+    seen = documented()
+    assert seen, "no usb2rc command found in the docs"
+    assert not RUN & set(PARSE_ONLY)
+    unclassified = {cmd: where for cmd, where in seen.items() if cmd not in RUN | set(PARSE_ONLY)}
+    assert not unclassified, f"add these to RUN or PARSE_ONLY: {unclassified}"
+    stale = (RUN | set(PARSE_ONLY)) - set(seen)
+    assert not stale, f"no longer in the docs: {sorted(stale)}"
+
+
+@pytest.mark.parametrize("command", sorted(RUN | set(PARSE_ONLY)))
+def test_documented_command_parses(command):
+    args = parse(command)
+    assert getattr(args, "func", None), command
+
+
+def test_offline_commands_run_and_exit_0():
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    procs = {
+        command: subprocess.Popen(
+            [sys.executable, "-m", "usb2rc", *shlex.split(command)[1:]],
+            cwd=ROOT,
+            env=env,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+        )
+        for command in sorted(RUN)
+    }
+    failures = []
+    for command, proc in procs.items():
+        try:
+            out, err = proc.communicate(timeout=120)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            out, err = proc.communicate()
+        if proc.returncode != 0:
+            failures.append(f"{command}: exit {proc.returncode}\n{err.decode()[-2000:]}")
+        elif not out.strip():
+            failures.append(f"{command}: printed nothing")
+    assert not failures, "\n\n".join(failures)
