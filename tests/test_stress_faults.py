@@ -9,7 +9,6 @@ measured with time.monotonic and reported (asserted only against generous bounds
 
 from __future__ import annotations
 
-import itertools
 import os
 import random
 import signal
@@ -322,10 +321,9 @@ def test_rx_garbage_and_requests_interleaved(request, tmp_path, replay):
         assert total == 2 + 2 * sent["config"] + sent["poll_present"]  # none lost, none extra
         line.assert_clean()
     finally:
-        log = finish(daemon)
+        finish(daemon)
         line.close()
     figures(request, "fault-rx-garbage", {"requests": sent, "answer_latency": summarize(latency)})
-    del log
 
 
 CONFIG = """
@@ -468,6 +466,3 @@ def test_sighup_with_a_control_character_keeps_running(tmp_path, replay):
     finally:
         daemon.stop()
         line.close()
-
-
-del itertools
