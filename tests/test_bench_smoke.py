@@ -1,0 +1,110 @@
+"""The bench scripts run in a tiny configuration and print well-formed output.
+
+Performance is never asserted here (the machine may be busy): only that each script works
+and that what it prints is what bench/run parses.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+BENCH = ROOT / "bench"
+
+
+def run(*args: str, timeout: float = 60) -> str:
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHON=sys.executable)
+    proc = subprocess.run(
+        [*args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout, check=False
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
+def last_json(text: str) -> dict:
+    return json.loads(text.strip().splitlines()[-1])
+
+
+def test_codecs() -> None:
+    out = run(sys.executable, "bench/bench_codecs.py", "--runs", "1", "--calls", "50")
+    line = r"^(encode_data|Decoder\.feed|encode_sumd|SumdDecoder\.feed)\b.* ([0-9.]+) µs$"
+    times = re.findall(line, out, re.MULTILINE)
+    assert {name for name, _ in times} == {
+        "encode_data",
+        "Decoder.feed",
+        "encode_sumd",
+        "SumdDecoder.feed",
+    }
+
+
+def test_hid_decode() -> None:
+    pytest.importorskip("hidtools")
+    out = run(sys.executable, "bench/bench_hid_decode.py", "--reports", "20", "--runs", "1")
+    result = last_json(out)
+    assert result["bench"] == "hid_decode" and result["rows"]
+    for row in result["rows"]:
+        assert row["usb2rc_feed_state_us"] > 0 and row["hidtools_us"] > 0
+
+
+def test_hotplug() -> None:
+    out = run(sys.executable, "bench/bench_hotplug.py", "--trials", "1")
+    assert re.search(r"^plug -> \S+\s+median\s+[0-9.]+ ms\s+max", out, re.MULTILINE)
+    assert re.search(r"^unplug -> \S+\s+median\s+[0-9.]+ ms\s+max", out, re.MULTILINE)
+
+
+def test_daemon(tmp_path: Path) -> None:
+    json_path = tmp_path / "daemon.json"
+    out = run(
+        sys.executable, "bench/bench_daemon.py", "--seconds", "2", "--cpu-seconds", "1",
+        "--warmup", "0.3", "--starts", "1", "--json", str(json_path),
+    )  # fmt: skip
+    result = last_json(out)
+    assert result == json.loads(json_path.read_text())
+    figures = result["figures"]
+    for key in (
+        "period_p99_error_ms",
+        "period_mean_ms",
+        "latency_mean_ms",
+        "latency_max_ms",
+        "cpu_pct",
+        "rss_mb",
+        "reports_per_s_min",
+        "start_first_frame_s",
+        "stop_s_max",
+    ):
+        assert isinstance(figures[key], float | int), key
+    assert 15 < figures["period_mean_ms"] < 25
+    assert figures["latency_reports"] > 10
+    assert figures["devices"] == 4
+    assert "p99 |period - 20 ms|" in out
+
+
+def test_run_show_and_compare(tmp_path: Path) -> None:
+    """bench/run: a quick run of the fast scripts, then --show with --compare."""
+    out_path = tmp_path / "latest.json"
+    run(str(BENCH / "run"), "--quick", "--only", "codecs", "hotplug", "--out", str(out_path))
+    result = json.loads(out_path.read_text())
+    assert result["runs"] == 1 and "encode_c2_us" in result["figures"]
+    assert "hotplug_plug_ms" in result["figures"]
+    baseline = json.loads(json.dumps(result))
+    baseline["figures"]["encode_c2_us"] *= 2
+    (tmp_path / "base.json").write_text(json.dumps(baseline))
+    shown = run(
+        str(BENCH / "run"), "--show", str(out_path), "--compare", str(tmp_path / "base.json")
+    )
+    line = next(ln for ln in shown.splitlines() if ln.startswith("encode_data"))
+    assert "-50.0" in line
+
+
+def test_baseline_is_well_formed() -> None:
+    baseline = json.loads((BENCH / "baseline.json").read_text())
+    assert baseline["runs"] >= 1 and baseline["machine"]["cores"]
+    for key in ("period_p99_error_ms", "latency_mean_ms", "cpu_pct", "decode_us_median"):
+        assert key in baseline["figures"], key
