@@ -278,16 +278,14 @@ def test_inputs_long(request, tmp_path):
     figures(request, "fuzz-inputs", data)
 
 
-# --- config.py bugs the fuzzing found (xfail strict until fixed) ----------------------------
+# --- config.py bugs the fuzzing found (fixed) ----------------------------
 
 
-@pytest.mark.xfail(strict=True, reason="config.py: yaml ReaderError (control char) escapes")
 def test_config_with_a_control_character_is_a_config_error():
     with pytest.raises(ConfigError):
         load_config_text("devices:\n  - name: a\x01b\n", "c.yaml")
 
 
-@pytest.mark.xfail(strict=True, reason="config.py: a non-UTF-8 file raises UnicodeDecodeError")
 def test_config_file_not_utf8_is_a_config_error(tmp_path):
     path = tmp_path / "c.yaml"
     path.write_bytes(b"devices:\n  - name: a\xff\xfeb\n")
@@ -295,20 +293,17 @@ def test_config_file_not_utf8_is_a_config_error(tmp_path):
         load_config(str(path))
 
 
-@pytest.mark.xfail(strict=True, reason="config.py _Reader.scalar: bad explicit tag value escapes")
 @pytest.mark.parametrize("value", ["!!int abc", "!!float abc", "!!timestamp abc"])
 def test_config_explicit_tag_with_bad_value_is_a_config_error(value):
     with pytest.raises(ConfigError):
         load_config_text(f"outputs:\n  - protocol: c2-16b\n    baudrate: {value}\n", "c.yaml")
 
 
-@pytest.mark.xfail(strict=True, reason="config.py: deep nesting raises RecursionError")
 def test_config_nested_too_deep_is_a_config_error():
     with pytest.raises(ConfigError):
         load_config_text("devices: " + "[" * 3000 + "]" * 3000, "c.yaml")
 
 
-@pytest.mark.xfail(strict=True, reason="usb2rc check: traceback and exit 1 on a control char")
 def test_check_cli_on_a_control_character_exits_2(tmp_path):
     path = tmp_path / "c.yaml"
     path.write_text("devices:\n  - name: a\x01b\n")

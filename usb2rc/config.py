@@ -196,8 +196,8 @@ class _Reader:
             return node
         try:
             return _SCALAR.construct_object(node, deep=True)
-        except yaml.YAMLError:
-            return node.value
+        except (yaml.YAMLError, ValueError, TypeError, OverflowError):
+            return node.value  # e.g. `!!int abc`: the type check names the line
 
     def sequence(self, node: Node, path: str) -> list[Node] | None:
         if not isinstance(node, SequenceNode):
@@ -310,8 +310,15 @@ HAT_KEYS = ("usage", "occurrence", "to")
 
 def load_config(path: str) -> Config:
     """Read and validate a config file; raises ConfigError (or OSError if unreadable)."""
-    with open(path, encoding="utf-8") as fh:
-        text = fh.read()
+    with open(path, "rb") as fh:
+        data = fh.read()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise ConfigError(
+            [f"{path}:{line}: not UTF-8 text (byte 0x{data[exc.start]:02x} at offset {exc.start})"]
+        ) from None
     return load_config_text(text, str(path))
 
 
@@ -320,10 +327,20 @@ def load_config_text(text: str, source: str = "<config>") -> Config:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.MarkedYAMLError as exc:
         raise ConfigError([_yaml_error(exc, source)]) from None
+    except yaml.reader.ReaderError as exc:  # a character YAML does not allow
+        line = text[: exc.position].count("\n") + 1
+        raise ConfigError(
+            [f"{source}:{line}: not valid YAML: character {exc.character!r} is not allowed"]
+        ) from None
+    except RecursionError:
+        raise ConfigError([f"{source}:1: not valid YAML: nested too deeply"]) from None
     if root is None:
         return Config(outputs=(OutputConfig(),), source=source)
     reader = _Reader(source)
-    config = _read_config(reader, root)
+    try:
+        config = _read_config(reader, root)
+    except RecursionError:
+        raise ConfigError([f"{source}:1: nested too deeply"]) from None
     if config is not None:
         _check_clashes(reader, config)
         _check_channels(reader, config)
