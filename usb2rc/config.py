@@ -196,7 +196,7 @@ class _Reader:
             return node
         try:
             return _SCALAR.construct_object(node, deep=True)
-        except (yaml.YAMLError, ValueError, TypeError, OverflowError):
+        except (yaml.YAMLError, ValueError, TypeError, OverflowError, AttributeError):
             return node.value  # e.g. `!!int abc`: the type check names the line
 
     def sequence(self, node: Node, path: str) -> list[Node] | None:
