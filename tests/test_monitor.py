@@ -221,7 +221,13 @@ def test_config_nodes_merged_devices_and_waiting_entry():
     side = monitor.InputSide(config, ReplayBackend(ROOT / "usb2rc" / "data" / "demo"))
     side.start()
     try:
-        snap = wait_for(side, lambda s: len(s.nodes) == 2 and len(s.nodes[0].devices) == 2)
+        # live once both devices have reported (a device is not live before its first report)
+        snap = wait_for(
+            side,
+            lambda s: (
+                len(s.nodes) == 2 and len(s.nodes[0].devices) == 2 and not s.nodes[0].failsafe
+            ),
+        )
         text = monitor.snapshot_text(snap, [])
         stick, pedals = snap.nodes
         assert stick.node_id == 1 and not stick.failsafe

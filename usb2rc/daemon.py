@@ -34,7 +34,7 @@ from usb2rc.mapping import (
 )
 from usb2rc.protocol.c2_16b import AXIS_NAMES
 from usb2rc.scheduler import C2Output, C2Settings, ChannelValue, RxThread, SumdOutput, TickThread
-from usb2rc.state import NodeFrame, NodeTable
+from usb2rc.state import Expected, ExpectedEntry, NodeFrame, NodeTable
 from usb2rc.transport import SerialLink
 
 log = logging.getLogger("usb2rc")
@@ -76,30 +76,40 @@ def outputs_with_port(config: Config, port_override: str | None) -> tuple[Output
     return tuple(outputs)
 
 
-def expected_nodes(config: Config) -> dict[int, dict[str, NodeInputs]]:
+def expected_nodes(config: Config) -> Expected:
     """Config entries pinned to a Node-ID, as what they send before their device comes:
-    the configured failsafe values (0, or mid-scale for unsigned axes, without one)."""
-    nodes: dict[int, dict[str, NodeInputs]] = {}
+    the configured failsafe values, 0 for axes without one (DECISIONS.md)."""
+    nodes: Expected = {}
     for entry in config.devices:
         if entry.node_id is None:
             continue
         axes: list[int | None] = [None] * len(AXIS_NAMES)
+        unsigned = 0
         for axis in entry.axes:
-            centre = 32768 if axis.unsigned else 0
-            axes[AXIS_NAMES.index(axis.slot)] = centre if axis.failsafe is None else axis.failsafe
-        nodes.setdefault(entry.node_id, {})[entry.name] = NodeInputs(tuple(axes), 0, 0)
+            slot = AXIS_NAMES.index(axis.slot)
+            axes[slot] = 0 if axis.failsafe is None else axis.failsafe
+            unsigned |= (1 << slot) if axis.unsigned else 0
+        inputs = NodeInputs(tuple(axes), 0, 0)
+        nodes.setdefault(entry.node_id, {})[entry.name] = ExpectedEntry(inputs, unsigned)
     return nodes
 
 
 def sumd_channel(source: ChannelSource, extended: bool) -> ChannelValue:
-    """A function from the nodes' frames to (wire value, in failsafe) for one SUMD channel."""
-    absent = (None,) * len(AXIS_NAMES)
+    """A function from the nodes' frames to (wire value, in failsafe) for one SUMD channel.
+
+    Whether an axis is unsigned comes from the frame (the bindings feeding it), not from a
+    guess about the config; a node that does not exist sends the centre / released, 0x81."""
 
     def value(nodes: dict[int, NodeFrame]) -> tuple[int, bool]:
         frame = nodes.get(source.node_id)
         if frame is None:
-            return sumd_value(source, absent, 0, 0, extended), True
-        wire = sumd_value(source, frame.axes, frame.group1, frame.group2, extended)
+            absent = ChannelSource(source.node_id, source.kind, source.index, False)
+            return sumd_value(absent, (0,) * len(AXIS_NAMES), 0, 0, extended), True
+        own = source
+        if source.kind == "axis":
+            unsigned = bool(frame.unsigned_slots >> source.index & 1)
+            own = ChannelSource(source.node_id, "axis", source.index, unsigned, source.name)
+        wire = sumd_value(own, frame.axes, frame.group1, frame.group2, extended)
         return wire, frame.failsafe
 
     return value
@@ -116,12 +126,15 @@ class Daemon:
         on_ready: Callable[[], None] | None = None,
         on_tick: Callable[[], None] | None = None,
         on_status: Callable[[str], object] | None = None,
+        outputs: bool = True,
     ) -> None:
+        """outputs=False: the input side only (hot-plug, readers, mapping, node table), as
+        `usb2rc monitor` runs it; no port is needed or opened."""
         self.config = config
         self.backend = backend
         self.version = version
         self.port_override = port_override
-        self.output_configs = outputs_with_port(config, port_override)
+        self.output_configs = outputs_with_port(config, port_override) if outputs else ()
         self.mapping: Mapping = compile_mapping(config)
         self.table = NodeTable(expected_nodes(config))
         self.allocator = NodeIdAllocator(self.mapping.pinned_node_ids())
@@ -195,9 +208,18 @@ class Daemon:
 
     def _node_for(self, info: DeviceInfo, pinned: int | None) -> int:
         with self._alloc_lock:
-            return self.allocator.assign(info, pinned)
+            return self.allocator.assign(info, pinned, taken=self.table.node_ids())
 
-    def _report_unusable(self, info: DeviceInfo, code: ErrorCode, message: str) -> None:
+    def _release(self, info: DeviceInfo) -> None:
+        with self._alloc_lock:
+            self.allocator.release(info)
+
+    def _report_unusable(
+        self, info: DeviceInfo, code: ErrorCode, message: str, on_pinned: bool = True
+    ) -> None:
+        """A device usb2rc cannot use: log what to do, and send `3` on the node it would
+        have had (its pinned one, else an automatic ID it does not keep). A clash is
+        reported on an automatic ID: the pinned node's own device is fine."""
         log.error(
             "%s (%04x:%04x, port %s): %s",
             info.product or info.path,
@@ -206,10 +228,12 @@ class Daemon:
             info.port_path or "?",
             message,
         )
+        entry = self.mapping.entry_for(info) if on_pinned else None
         try:
-            node_id = self._node_for(info, None)
+            node_id = self._node_for(info, entry.node_id if entry else None)
         except NodeIdError:
             return
+        self._release(info)
         self.table.report_error(node_id, info, int(code))
 
     def _open_and_bind(self, info: DeviceInfo) -> tuple[object, DeviceLayout, DeviceBinding] | None:
@@ -255,6 +279,18 @@ class Daemon:
                 f"matches config entry {binding.name!r} like {other.product} "
                 f"(port {other.port_path}), which already feeds node {pinned}: add `serial:` or "
                 "`port:` to that entry's match so each device has its own entry",
+                on_pinned=False,
+            )
+            return
+        if pinned is not None and (auto := self.table.automatic_device_on(pinned)):
+            device.close()  # type: ignore[attr-defined]
+            self._report_unusable(
+                info,
+                ErrorCode.CONFIG_CLASH,
+                f"config entry {binding.name!r} pins node {pinned}, which {auto.product} "
+                f"(port {auto.port_path}) already has as its automatic ID since before the "
+                "config was reloaded: restart usb2rc, or pin another node",
+                on_pinned=False,
             )
             return
         if pinned is None:
@@ -277,11 +313,13 @@ class Daemon:
         if present is not None:
             present.reader.stop()
         self.table.remove_device(info.key)
+        self._release(info)  # its node stays (failsafe) in the table, which keeps the ID
 
     def _reader_ended(self, reader: DeviceReader, code: ErrorCode | None) -> None:
         with self._present_lock:
             self._present.pop(reader.info.key, None)
         self.table.remove_device(reader.info.key, int(code) if code else None)
+        self._release(reader.info)
         if code is not None:
             # A read failure on a device that is still plugged: look at it again on the next
             # hot-plug scan (a transient error recovers; a dead device fails again, counted).
@@ -294,7 +332,10 @@ class Daemon:
         for out in self.outputs:
             out.link.try_open()
         for info in self.monitor.initial_devices():
-            self._device_added(info)
+            try:
+                self._device_added(info)
+            except Exception:  # one device must not stop the others from starting
+                log.exception("%s: could not be added; going on without it", info.product)
         for out in self.outputs:
             out.thread.start()
             if out.rx is not None:
@@ -337,9 +378,11 @@ class Daemon:
                 log.error("%s: %s (keeps its previous mapping)", info.product, exc)
                 return None
 
+        with self._alloc_lock:
+            self.allocator.reserve(mapping.pinned_node_ids())
         self.table.rebind(rebind, expected_nodes(config))
         self.mapping = mapping
-        if outputs_with_port(config, self.port_override) != self.output_configs:
+        if self.outputs and outputs_with_port(config, self.port_override) != self.output_configs:
             log.warning("config reloaded; changed outputs take effect after a restart")
         self.config = config
 

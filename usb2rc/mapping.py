@@ -227,7 +227,7 @@ def sumd_value(
         value = 32768 if source.unsigned else 0
     if source.unsigned:
         value -= 32768
-    return axis_to_sumd(value, extended)
+    return axis_to_sumd(min(32767, max(-32768, value)), extended)  # never raise on a tick
 
 
 # --------------------------------------------------------------------------- compiled plans
@@ -405,11 +405,9 @@ class DeviceBinding:
         for slot, _ in self._axes:
             configured = self._failsafe[slot]
             held = last.axes[slot] if last is not None else None
-            info = self.axis_info[slot]
-            centre = 32768 if info is not None and info.unsigned else 0
             axes[slot] = configured if configured is not None else held
             if axes[slot] is None:
-                axes[slot] = centre
+                axes[slot] = 0  # DECISIONS.md: 0 for an axis with no failsafe value
         return NodeInputs(tuple(axes), 0, 0)
 
     def describe(self) -> list[str]:

@@ -8,9 +8,11 @@ answers the far end's `<` and `4` requests.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import threading
 import time
+import traceback
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -109,8 +111,7 @@ class TickThread(threading.Thread):
             if self._safe_tick():
                 self.stats.ticks += 1
                 self.last_tick_monotonic = time.monotonic()
-                if self.on_tick:
-                    self.on_tick()
+                self._safe_call(self.on_tick)
             deadline += self.period_s
             behind = time.monotonic() - deadline
             if behind >= 0:  # a whole tick lost: skip it, never burst to catch up
@@ -127,12 +128,21 @@ class TickThread(threading.Thread):
             self.tick()
         except Exception as exc:
             self.stats.tick_errors += 1
-            kind = f"{type(exc).__name__}: {exc}"
+            frame = traceback.extract_tb(exc.__traceback__)[-1]
+            kind = f"{type(exc).__name__} at {frame.filename}:{frame.lineno}"
             if kind not in self._logged_errors:
                 self._logged_errors.add(kind)
-                log.exception("%s: tick failed (%s); going on", self.name, kind)
+                log.exception("%s: tick failed (%s: %s); going on", self.name, kind, exc)
             return False
         return True
+
+    def _safe_call(self, hook: Callable[[], object] | None) -> None:
+        if hook is None:
+            return
+        try:
+            hook()
+        except Exception:
+            log.exception("%s: hook %r failed", self.name, hook)
 
     def tick(self) -> None:
         raise NotImplementedError
@@ -148,7 +158,14 @@ class TickThread(threading.Thread):
         self.stats.writes += 1
         if self.on_first_write:
             callback, self.on_first_write = self.on_first_write, None
-            callback()
+            self._safe_call(callback)
+
+
+@dataclass(frozen=True)
+class _Pending:
+    node_id: int
+    event: ServiceEvent
+    frame: bytes
 
 
 @dataclass(frozen=True)
@@ -180,7 +197,7 @@ class C2Output(TickThread):
         self.frame_len = c2_16b.FRAME_LEN + (1 if settings.line_feed else 0)
         self.capacity = frames_per_tick(settings.baudrate, settings.rate_hz, self.frame_len)
         self._codes: dict[int, int] = {}
-        self._pending: deque[tuple[int, bytes]] = deque()  # (node_id, service frame)
+        self._pending: deque[_Pending] = deque()  # service frames owed, in order
         self._round_robin = 0
         self._warned_nodes = 0
         self._startup_due = True
@@ -214,9 +231,7 @@ class C2Output(TickThread):
             c2_16b.device_type(node, event.device_type or "", **kw),
         ]
 
-    def data_frame(self, frame: NodeFrame) -> bytes:
-        code = self._codes.get(frame.node_id, 0)
-        self._codes[frame.node_id] = (code + 1) & 0xFF
+    def data_frame(self, frame: NodeFrame, code: int) -> bytes:
         status = c2_16b.FAILSAFE if frame.failsafe else c2_16b.LIVE
         return c2_16b.encode_data(
             status,
@@ -229,11 +244,14 @@ class C2Output(TickThread):
         )
 
     def _choose_nodes(self, frames: Sequence[NodeFrame], room: int) -> list[NodeFrame]:
-        held = {node for node, _ in self._pending}
+        """The nodes that get a data frame this tick: all of them when they fit, else a
+        round-robin share. A node whose service frames are still queued waits for them."""
+        held = {p.node_id for p in self._pending}
         ready = [f for f in frames if f.node_id not in held]
         if len(ready) <= room:
             return ready
-        self._warn_bandwidth([f.node_id for f in frames])
+        if len(frames) > self.capacity:
+            self._warn_bandwidth([f.node_id for f in frames])
         start = self._round_robin % len(ready)
         chosen = (ready[start:] + ready[:start])[:room]
         self._round_robin = start + room
@@ -258,6 +276,24 @@ class C2Output(TickThread):
             baud_needed(nodes, self.settings.rate_hz, self.frame_len),
         )
 
+    def _queue(self, events: Sequence[ServiceEvent]) -> None:
+        queued = {p.event for p in self._pending}
+        for event in events:
+            if event.kind is EventKind.CONNECTED and event in queued:
+                continue  # that connect sequence is still on its way: once is enough
+            queued.add(event)
+            self._pending.extend(
+                _Pending(event.node_id, event, f) for f in self.service_frames(event)
+            )
+
+    def _service_room(self, nodes: int) -> int:
+        """Service frames first, but never all the room while nodes wait for data frames:
+        a far end that keeps asking must not starve the data (at least one slot for data
+        when every node fits, at least one for service frames otherwise)."""
+        if not self._pending and not self._startup_due:
+            return 0
+        return max(1, self.capacity - nodes)
+
     def tick(self) -> None:
         if not self.link.is_open:
             self.link.try_open()
@@ -265,22 +301,30 @@ class C2Output(TickThread):
         if not self.link.is_open:
             self._pending.clear()  # the line is gone: the startup + connect sequence follow
             return
-        for event in events:
-            self._pending.extend((event.node_id, f) for f in self.service_frames(event))
+        self._queue(events)
+        service_room = self._service_room(len(frames))
         out: list[bytes] = []
         if self._startup_due:
             out.append(c2_16b.startup(self.settings.version, **self._kw()))
-        room = self.capacity - len(out)
-        while self._pending and room > 0:
-            out.append(self._pending.popleft()[1])
-            room -= 1
+        taken = list(itertools.islice(self._pending, max(0, service_room - len(out))))
+        out.extend(p.frame for p in taken)
         service_count = len(out)
-        out.extend(self.data_frame(f) for f in self._choose_nodes(frames, room))
-        if out and self.link.write(b"".join(out)):
+        for _ in taken:  # a node whose service frames are still queued waits for them
+            self._pending.popleft()
+        chosen = self._choose_nodes(frames, self.capacity - service_count)
+        codes = [self._codes.get(f.node_id, 0) for f in chosen]
+        out.extend(self.data_frame(f, code) for f, code in zip(chosen, codes, strict=True))
+        if not out:
+            return
+        if self.link.write(b"".join(out)):
             self._startup_due = False
+            for f, code in zip(chosen, codes, strict=True):
+                self._codes[f.node_id] = (code + 1) & 0xFF
             self.stats.service_frames += service_count
-            self.stats.data_frames += len(out) - service_count
+            self.stats.data_frames += len(chosen)
             self.note_write()
+        else:  # nothing went out: the service frames are owed still, the codes not used
+            self._pending.extendleft(reversed(taken))
 
     def finish(self) -> None:
         self.link.close()
@@ -343,7 +387,7 @@ class RxThread(threading.Thread):
 
     def run(self) -> None:
         while not self._stop_event.is_set():
-            if not self.link.is_open:
+            if not self.link.readable:
                 self._stop_event.wait(0.1)
                 continue
             data = self.link.read()

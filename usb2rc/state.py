@@ -46,10 +46,24 @@ class NodeFrame:
     axes: tuple[int, ...]
     group1: int
     group2: int
+    unsigned_slots: int = 0  # bit k set: axis slot k is a uint16 (`unsigned: true`)
+
+
+@dataclass(frozen=True)
+class ExpectedEntry:
+    """A config entry pinned to a node whose device has not come (yet)."""
+
+    inputs: NodeInputs  # what it sends meanwhile: its failsafe values
+    unsigned_slots: int = 0
 
 
 class SnapshotSource(Protocol):
     snapshot: InputState
+    reports: int  # reports decoded so far: 0 means the device's state is not known yet
+
+
+def unsigned_slots_of(binding: DeviceBinding) -> int:
+    return sum(1 << k for k, info in enumerate(binding.axis_info) if info and info.unsigned)
 
 
 @dataclass
@@ -61,18 +75,28 @@ class _Attached:
     source: SnapshotSource
     device_type: str
     present: bool = True
-    last_inputs: NodeInputs | None = None
+    last_inputs: NodeInputs | None = None  # held values (from before an unplug / re-plug)
+
+    @property
+    def live(self) -> bool:
+        """Present and its state known: at least one report decoded since it was plugged.
+
+        Decision: until then the node stays in failsafe with the held (or failsafe) values;
+        a re-plugged throttle must not jump to mid-scale before it has said where it is."""
+        return self.present and self.source.reports > 0
 
     def inputs(self) -> NodeInputs:
-        if self.present:
+        if self.live:
             return self.binding.apply(self.source.snapshot)
-        assert self.last_inputs is not None
         return self.binding.failsafe(self.last_inputs)
 
     def same_device(self, info: DeviceInfo, binding: DeviceBinding) -> bool:
+        """The same physical device come back: same model on the same port, or the same
+        non-empty serial number, or the same pinned config entry."""
+        same_model = (self.info.vid, self.info.pid) == (info.vid, info.pid)
         return (
-            self.info.port_path == info.port_path
-            or self.info.identity == info.identity
+            (same_model and bool(info.port_path) and self.info.port_path == info.port_path)
+            or (bool(info.serial) and self.info.identity == info.identity)
             or (binding.node_id is not None and self.binding.name == binding.name)
         )
 
@@ -81,24 +105,43 @@ class _Attached:
 class _Node:
     node_id: int
     attached: list[_Attached] = field(default_factory=list)
-    # config entries pinned here whose device has not come yet: name -> failsafe inputs
-    expected: dict[str, NodeInputs] = field(default_factory=dict)
+    # config entries pinned here whose device has not come yet
+    expected: dict[str, ExpectedEntry] = field(default_factory=dict)
+    logged_failsafe: bool | None = None  # the state last logged, to log transitions once
 
     @property
     def failsafe(self) -> bool:
-        return bool(self.expected) or any(not a.present for a in self.attached)
+        """`!` unless every device feeding the node is present and known. A node nothing
+        feeds any more (a reload removed its entry) is failsafe too, never `>` on nothing."""
+        if not self.attached and not self.expected:
+            return True
+        return bool(self.expected) or not all(a.live for a in self.attached)
 
     def frame(self) -> NodeFrame:
         axes = [0] * AXIS_COUNT
-        group1 = group2 = 0
-        for inputs in self.expected.values():
-            _merge_axes(axes, inputs)
+        group1 = group2 = unsigned = 0
+        for entry in self.expected.values():
+            _merge_axes(axes, entry.inputs)
+            unsigned |= entry.unsigned_slots
         for attached in self.attached:
             inputs = attached.inputs()
             _merge_axes(axes, inputs)
             group1 |= inputs.group1
             group2 |= inputs.group2
-        return NodeFrame(self.node_id, self.failsafe, tuple(axes), group1, group2)
+            unsigned |= unsigned_slots_of(attached.binding)
+        return NodeFrame(self.node_id, self.failsafe, tuple(axes), group1, group2, unsigned)
+
+    def failsafe_change(self) -> str | None:
+        """A log line when the node entered or left failsafe since the last call."""
+        now = self.failsafe
+        before, self.logged_failsafe = self.logged_failsafe, now
+        if before is None or before == now:
+            return None
+        if now:
+            why = [a.info.product or "device" for a in self.attached if not a.live]
+            why += [f"{name} (not plugged)" for name in self.expected]
+            return f"node {self.node_id} enters failsafe: waiting for {', '.join(why) or '-'}"
+        return f"node {self.node_id} leaves failsafe: all its devices are live"
 
 
 def _merge_axes(axes: list[int], inputs: NodeInputs) -> None:
@@ -107,10 +150,13 @@ def _merge_axes(axes: list[int], inputs: NodeInputs) -> None:
             axes[slot] = value
 
 
+Expected = dict[int, dict[str, ExpectedEntry]]
+
+
 class NodeTable:
     """Node-IDs, the devices feeding them, and the service events each output still owes."""
 
-    def __init__(self, expected: dict[int, dict[str, NodeInputs]] | None = None) -> None:
+    def __init__(self, expected: Expected | None = None) -> None:
         self._lock = threading.Lock()
         self._nodes: dict[int, _Node] = {}
         self._by_key: dict[str, tuple[int, _Attached]] = {}
@@ -130,26 +176,46 @@ class NodeTable:
         with self._lock:
             events = self._outbox[subscriber]
             self._outbox[subscriber] = []
-            frames = [self._nodes[n].frame() for n in sorted(self._nodes)]
+            frames, changes = self._frames_locked()
+        _log_changes(changes)
         return events, frames
 
     def frames(self) -> list[NodeFrame]:
         with self._lock:
-            return [self._nodes[n].frame() for n in sorted(self._nodes)]
+            frames, changes = self._frames_locked()
+        _log_changes(changes)
+        return frames
+
+    def _frames_locked(self) -> tuple[list[NodeFrame], list[str]]:
+        frames, changes = [], []
+        for node_id in sorted(self._nodes):
+            node = self._nodes[node_id]
+            frames.append(node.frame())
+            change = node.failsafe_change()
+            if change:
+                changes.append(change)
+        return frames, changes
 
     def request_connect_sequences(self, subscriber: int, node_id: int | None = None) -> int:
-        """Answer a `<` (node_id None: every present node) or a `4` poll for one node."""
+        """Answer a `<` (node_id None: every present node) or a `4` poll for one node.
+
+        A connect sequence already owed to this output is not queued twice, so a far end
+        that keeps asking cannot fill the line with service frames."""
         with self._lock:
+            box = self._outbox[subscriber]
             queued = 0
             for nid in sorted(self._nodes):
                 if node_id is not None and nid != node_id:
                     continue
                 for attached in self._nodes[nid].attached:
-                    if attached.present:
-                        self._outbox[subscriber].append(_connected(nid, attached))
+                    event = _connected(nid, attached)
+                    if attached.present and event not in box:
+                        box.append(event)
                         queued += 1
-            if node_id is not None and queued == 0:
-                self._outbox[subscriber].append(ServiceEvent(EventKind.DISCONNECTED, node_id))
+            if node_id is not None and not any(
+                a.present for a in self._nodes.get(node_id, _Node(node_id)).attached
+            ):
+                box.append(ServiceEvent(EventKind.DISCONNECTED, node_id))
             return queued
 
     # --- devices -------------------------------------------------------------------------
@@ -165,13 +231,16 @@ class NodeTable:
         attached = _Attached(info, binding, source, device_type)
         with self._lock:
             node = self._nodes.setdefault(node_id, _Node(node_id))
-            was_failsafe = node.failsafe and bool(node.attached or node.expected)
-            node.attached = [a for a in node.attached if not _replaced_by(a, info, binding)]
+            kept = []
+            for old in node.attached:
+                if not old.present and old.same_device(info, binding):
+                    attached.last_inputs = old.last_inputs  # held until it reports
+                else:
+                    kept.append(old)
+            node.attached = [*kept, attached]
             node.expected.pop(binding.name, None)
-            node.attached.append(attached)
             self._by_key[info.key] = (node_id, attached)
             self._broadcast(_connected(node_id, attached))
-            now_failsafe = node.failsafe
         log.info(
             "device plugged: %s (%04x:%04x, port %s) -> Node-ID %d",
             info.product or "?",
@@ -180,8 +249,6 @@ class NodeTable:
             info.port_path or "?",
             node_id,
         )
-        if was_failsafe and not now_failsafe:
-            log.warning("node %d leaves failsafe: all its devices are back", node_id)
 
     def remove_device(self, key: str, error_code: int | None = None) -> int | None:
         """The device is gone (unplugged, or failed to read: error_code)."""
@@ -190,14 +257,11 @@ class NodeTable:
             if entry is None:
                 return None
             node_id, attached = entry
-            node = self._nodes[node_id]
-            was_failsafe = node.failsafe
-            attached.last_inputs = attached.binding.apply(attached.source.snapshot)
+            attached.last_inputs = attached.inputs()
             attached.present = False
             if error_code:
-                self._broadcast(
-                    ServiceEvent(EventKind.ERROR, node_id, attached.info, "", error_code)
-                )
+                event = ServiceEvent(EventKind.ERROR, node_id, attached.info, "", error_code)
+                self._broadcast(event)
             self._broadcast(ServiceEvent(EventKind.DISCONNECTED, node_id, attached.info))
         info = attached.info
         how = f"failed (error code {error_code})" if error_code else "unplugged"
@@ -210,8 +274,6 @@ class NodeTable:
             info.port_path or "?",
             node_id,
         )
-        if not was_failsafe:
-            log.warning("node %d enters failsafe: %s %s", node_id, info.product or "device", how)
         return node_id
 
     def report_error(self, node_id: int, info: DeviceInfo | None, error_code: int) -> None:
@@ -228,18 +290,36 @@ class NodeTable:
                     return attached.info
         return None
 
+    def automatic_device_on(self, node_id: int) -> DeviceInfo | None:
+        """A device without a pinned entry that feeds (or fed) node_id, if any."""
+        with self._lock:
+            node = self._nodes.get(node_id)
+            for attached in node.attached if node else ():
+                if attached.binding.node_id is None:
+                    return attached.info
+        return None
+
     def lost_node_of(self, info: DeviceInfo, binding: DeviceBinding) -> int | None:
-        """The node a re-plugged device fed before it was lost (same port, serial or entry)."""
+        """The node a re-plugged device fed before it was lost (see `_Attached.same_device`)."""
         with self._lock:
             for node_id in sorted(self._nodes):
                 for attached in self._nodes[node_id].attached:
-                    if _replaced_by(attached, info, binding):
+                    if not attached.present and attached.same_device(info, binding):
                         return node_id
         return None
 
     def present_devices(self) -> list[tuple[int, DeviceInfo]]:
         with self._lock:
             return [(nid, a.info) for _key, (nid, a) in sorted(self._by_key.items())]
+
+    def attachments(self) -> list[tuple[int, DeviceInfo, DeviceBinding, bool, str]]:
+        """(node, device, binding, present, device type) for every device a node holds."""
+        with self._lock:
+            return [
+                (nid, a.info, a.binding, a.present, a.device_type)
+                for nid, node in sorted(self._nodes.items())
+                for a in node.attached
+            ]
 
     def node_ids(self) -> list[int]:
         with self._lock:
@@ -251,14 +331,15 @@ class NodeTable:
                 str(nid): {
                     "failsafe": node.failsafe,
                     "devices": [
-                        {"product": a.info.product, "present": a.present} for a in node.attached
+                        {"product": a.info.product, "present": a.present, "live": a.live}
+                        for a in node.attached
                     ],
                     "expected": sorted(node.expected),
                 }
                 for nid, node in sorted(self._nodes.items())
             }
 
-    def rebind(self, rebind_one: Any, expected: dict[int, dict[str, NodeInputs]]) -> None:
+    def rebind(self, rebind_one: Any, expected: Expected) -> None:
         """After a config reload: give every attached device its new binding (same node)."""
         with self._lock:
             for node in self._nodes.values():
@@ -267,8 +348,8 @@ class NodeTable:
                     if new_binding is not None:
                         attached.binding = new_binding
                 node.expected = {
-                    name: inputs
-                    for name, inputs in expected.get(node.node_id, {}).items()
+                    name: entry
+                    for name, entry in expected.get(node.node_id, {}).items()
                     if not any(a.binding.name == name for a in node.attached)
                 }
             for node_id, entries in expected.items():
@@ -280,9 +361,10 @@ class NodeTable:
             box.append(event)
 
 
+def _log_changes(changes: list[str]) -> None:
+    for change in changes:
+        log.warning("%s", change)
+
+
 def _connected(node_id: int, attached: _Attached) -> ServiceEvent:
     return ServiceEvent(EventKind.CONNECTED, node_id, attached.info, attached.device_type)
-
-
-def _replaced_by(old: _Attached, info: DeviceInfo, binding: DeviceBinding) -> bool:
-    return not old.present and old.same_device(info, binding)

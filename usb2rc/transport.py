@@ -67,6 +67,9 @@ class SerialLink:
         self.on_change = on_change
         self.stats = LinkStats()
         self._port: serial.SerialBase | None = None
+        # A read failure seen by the RX thread: (port, error). Only the writer thread closes
+        # the port, so a write never races a close (nor an fd number reused meanwhile).
+        self._broken: tuple[serial.SerialBase, BaseException] | None = None
         self._lock = threading.Lock()  # guards _port replacement, not I/O
         self._next_attempt = 0.0
         self._was_lost_logged = False
@@ -75,6 +78,11 @@ class SerialLink:
     @property
     def is_open(self) -> bool:
         return self._port is not None
+
+    @property
+    def readable(self) -> bool:
+        port, broken = self._port, self._broken
+        return port is not None and (broken is None or broken[0] is not port)
 
     def try_open(self) -> bool:
         """Open the port if it is closed and the retry interval has passed. Never raises."""
@@ -135,6 +143,10 @@ class SerialLink:
         port = self._port
         if port is None:
             return False
+        broken = self._broken
+        if broken is not None and broken[0] is port:
+            self._lost(broken[1])
+            return False
         if self._queued_bytes(port) + len(data) > self.max_queued_bytes:
             self.stats.writes_skipped_queue_full += 1
             return False
@@ -153,14 +165,14 @@ class SerialLink:
     def read(self) -> bytes:
         """Whatever arrived (waits up to the port's 50 ms timeout); b'' when closed."""
         port = self._port
-        if port is None:
+        if port is None or not self.readable:
             return b""
         try:
             waiting = port.in_waiting
             data = port.read(max(1, min(waiting, 4096)))
         except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
             # TypeError/AttributeError: pyserial's posix read on a port closed under it.
-            self._lost(exc)
+            self._broken = (port, exc)  # the writer closes it and reopens
             return b""
         self.stats.bytes_read += len(data)
         return data

@@ -22,11 +22,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from usb2rc.commands.run import add_common_input_args, load_or_report, make_backend
-from usb2rc.config import Config, OutputConfig
+from usb2rc.config import Config
 from usb2rc.daemon import Daemon
 from usb2rc.hid.backend import Backend, DeviceInfo, ErrorCode
-from usb2rc.hid.descriptor import DeviceLayout
-from usb2rc.mapping import DeviceBinding, Mapping, describe_button_runs
+from usb2rc.mapping import DeviceBinding, describe_button_runs
 from usb2rc.protocol.c2_16b import AXIS_NAMES
 from usb2rc.receiver import NodeView
 from usb2rc.state import EventKind, NodeFrame, ServiceEvent
@@ -35,7 +34,6 @@ REFRESH_S = 0.1  # the live view: ~10 Hz
 PLAIN_EVERY_S = 1.0  # --plain: one snapshot a second
 BAR_WIDTH = 24
 KEPT_LINES = 8  # events and log lines the live view keeps
-UNUSED_PORT = "loop://"  # the daemon wants a port for its output; monitor never opens it
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -56,40 +54,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 # --------------------------------------------------------------------------- input side
 
 
-class _BindingLog:
-    """The daemon's Mapping, remembering the binding each device got (for the view)."""
-
-    def __init__(self, inner: Mapping) -> None:
-        self._inner = inner
-        self.by_key: dict[str, DeviceBinding] = {}
-
-    def bind(self, info: DeviceInfo, layout: DeviceLayout) -> DeviceBinding | None:
-        binding = self._inner.bind(info, layout)
-        if binding is not None:
-            self.by_key[info.key] = binding
-        return binding
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._inner, name)
-
-
 class InputSide:
     """The daemon with its outputs left out: hot-plug, readers, mapping and the node table."""
 
     def __init__(self, config: Config, backend: Backend) -> None:
-        # The Daemon builds its outputs in __init__; give it one it will never start or open.
-        quiet = dataclasses.replace(config, outputs=(OutputConfig(port=UNUSED_PORT),))
-        self.daemon = Daemon(quiet, backend)
-        # Service events are queued per output subscriber: the unused output's queue is ours.
-        self.subscriber: int = self.daemon.outputs[0].thread.subscriber  # type: ignore[attr-defined]
-        self.daemon.outputs = []
-        self.bindings = _BindingLog(self.daemon.mapping)
-        self.daemon.mapping = self.bindings  # type: ignore[assignment]
+        self.daemon = Daemon(config, backend, outputs=False)
         self.table = self.daemon.table
+        self.subscriber = self.table.subscribe()  # the service events an output would send
         self.events: deque[str] = deque(maxlen=200)
         self.event_total = 0
-        # (node, product) -> the last device and binding seen there, for lost devices
-        self._seen: dict[tuple[int, str], tuple[DeviceInfo, DeviceBinding]] = {}
 
     def start(self) -> None:
         self.daemon.start()
@@ -103,32 +76,18 @@ class InputSide:
             self.events.append(event_text(event))
             self.event_total += 1
         described = self.table.describe()
-        present: dict[int, list[tuple[DeviceInfo, DeviceBinding]]] = {}
-        for node_id, info in self.table.present_devices():
-            binding = self.bindings.by_key.get(info.key)
-            if binding is not None:
-                present.setdefault(node_id, []).append((info, binding))
-                self._seen[(node_id, info.product)] = (info, binding)
-        nodes = [self._node(f, described.get(str(f.node_id), {}), present) for f in frames]
+        devices: dict[int, list[DeviceRow]] = {}
+        for node_id, info, binding, present, _type in self.table.attachments():
+            devices.setdefault(node_id, []).append(DeviceRow(info, binding, present))
+        nodes = [
+            self._node(f, described.get(str(f.node_id), {}), devices.get(f.node_id, []))
+            for f in frames
+        ]
         return Snapshot(nodes, list(self.events), self.event_total, self.daemon.stats_lines())
 
     def _node(
-        self,
-        frame: NodeFrame,
-        described: dict[str, Any],
-        present: dict[int, list[tuple[DeviceInfo, DeviceBinding]]],
+        self, frame: NodeFrame, described: dict[str, Any], devices: list[DeviceRow]
     ) -> NodeRow:
-        devices: list[DeviceRow] = []
-        live = list(present.get(frame.node_id, []))
-        for entry in described.get("devices", []):
-            if entry["present"]:
-                match = next((d for d in live if d[0].product == entry["product"]), None)
-                if match is not None:
-                    live.remove(match)
-            else:
-                match = self._seen.get((frame.node_id, entry["product"]))
-            if match is not None:
-                devices.append(DeviceRow(match[0], match[1], entry["present"]))
         view = NodeView(frame.node_id, group1=frame.group1, group2=frame.group2)
         return NodeRow(
             node_id=frame.node_id,

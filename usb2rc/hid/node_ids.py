@@ -40,11 +40,10 @@ class NodeIdAllocator:
     def assigned(self) -> dict[str, int]:
         return dict(self._assigned)
 
-    def _in_use(self) -> set[int]:
-        return set(self._assigned.values()) | self._pinned
+    def _in_use(self, taken: Iterable[int] = ()) -> set[int]:
+        return set(self._assigned.values()) | self._pinned | set(taken)
 
-    def _remembered(self, info: DeviceInfo) -> int | None:
-        in_use = self._in_use()
+    def _remembered(self, info: DeviceInfo, in_use: set[int]) -> int | None:
         candidates = []
         if info.serial:
             candidates.append(self._by_identity.get(info.identity))
@@ -52,23 +51,31 @@ class NodeIdAllocator:
             candidates.append(self._by_port.get(info.port_path))
         return next((n for n in candidates if n is not None and n not in in_use), None)
 
-    def _lowest_free(self) -> int:
-        in_use = self._in_use()
+    def _lowest_free(self, in_use: set[int]) -> int:
         free = next((n for n in range(MAX_NODE_ID + 1) if n not in in_use), None)
         if free is None:
             raise NodeIdError(f"all Node-IDs 0..{MAX_NODE_ID} are in use")
         return free
 
-    def assign(self, info: DeviceInfo, pinned: int | None = None) -> int:
-        """The device's Node-ID; the same while it stays plugged."""
+    def reserve(self, pinned: Iterable[int]) -> None:
+        """Pins of a reloaded config: automatic IDs never take them from now on."""
+        self._pinned |= {_check_range(n) for n in pinned}
+
+    def assign(
+        self, info: DeviceInfo, pinned: int | None = None, taken: Iterable[int] = ()
+    ) -> int:
+        """The device's Node-ID; the same while it stays plugged. `taken`: IDs the caller
+        knows to be busy besides those assigned here (nodes still in failsafe for a lost
+        device keep their ID; no other device may take it)."""
         if info.key in self._assigned:
             return self._assigned[info.key]
         if pinned is not None:
             node_id = _check_range(pinned)
             self._pinned.add(node_id)  # a pin not announced up front is reserved from now on
         else:
-            remembered = self._remembered(info)
-            node_id = self._lowest_free() if remembered is None else remembered
+            in_use = self._in_use(taken)
+            remembered = self._remembered(info, in_use)
+            node_id = self._lowest_free(in_use) if remembered is None else remembered
             if info.serial:
                 self._by_identity[info.identity] = node_id
             if info.port_path:

@@ -1,0 +1,171 @@
+"""NodeTable and C2Output in one process, ticked by hand: the safety rules, exactly.
+
+Each test here pins down one rule a reviewer found broken once: identical devices without a
+serial number, a device that has not reported yet, a far end flooding `<`, a write that
+fails, a node that a reload left empty, SUMD reading unsigned axes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from daemon_harness import T16000M_DESCRIPTOR, StickState
+
+from usb2rc.config import load_config_text
+from usb2rc.daemon import sumd_channel
+from usb2rc.hid.backend import DeviceInfo
+from usb2rc.hid.descriptor import InputState, parse_descriptor
+from usb2rc.mapping import ChannelSource, compile_mapping, default_binding
+from usb2rc.protocol import c2_16b
+from usb2rc.scheduler import C2Output, C2Settings
+from usb2rc.state import NodeFrame, NodeTable
+
+LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
+
+
+@dataclass
+class Source:
+    """Stands in for a DeviceReader: the snapshot and the count of reports decoded."""
+
+    snapshot: InputState
+    reports: int = 1
+
+    @classmethod
+    def of(cls, state: StickState, reports: int = 1) -> Source:
+        decoder = LAYOUT.make_decoder()
+        decoder.feed(state.report())
+        return cls(decoder.state(), reports)
+
+
+def info(key: str, port: str, serial: str = "") -> DeviceInfo:
+    return DeviceInfo(
+        key=key, path=key, vid=0x044F, pid=0xB10A, serial=serial, product="T.16000M", port_path=port
+    )
+
+
+BINDING = default_binding(LAYOUT, "T.16000M")
+LEFT, RIGHT = StickState(x=0), StickState(x=16383)
+
+
+def frame_of(table: NodeTable, node_id: int) -> NodeFrame:
+    return next(f for f in table.frames() if f.node_id == node_id)
+
+
+def test_identical_devices_without_serial_are_told_apart_by_port():
+    table = NodeTable()
+    a, b = info("hidraw0", "1-1"), info("hidraw1", "1-2")
+    table.add_device(0, a, BINDING, Source.of(LEFT), "JOYSTICK")
+    table.add_device(1, b, BINDING, Source.of(RIGHT), "JOYSTICK")
+    table.remove_device(a.key)
+    table.remove_device(b.key)
+    # B comes back on its own port: node 1, never A's node 0
+    b_again = info("hidraw2", "1-2")
+    assert table.lost_node_of(b_again, BINDING) == 1
+    # the same model on another port with no serial is another device
+    assert table.lost_node_of(info("hidraw3", "1-3"), BINDING) is None
+    # with a serial number, the serial identifies it whatever the port
+    table.add_device(2, info("hidraw4", "1-4", "SN1"), BINDING, Source.of(LEFT), "JOYSTICK")
+    table.remove_device("hidraw4")
+    assert table.lost_node_of(info("hidraw5", "1-9", "SN1"), BINDING) == 2
+
+
+def test_a_device_is_not_live_before_its_first_report():
+    table = NodeTable()
+    throttle = info("hidraw0", "1-1")
+    table.add_device(0, throttle, BINDING, Source.of(LEFT), "JOYSTICK")
+    assert not frame_of(table, 0).failsafe
+    table.remove_device(throttle.key)
+    held = frame_of(table, 0)
+    assert held.failsafe and held.axes[0] == -32768
+    # re-plugged, nothing reported yet (its snapshot is the descriptor's centre)
+    silent = Source(LAYOUT.initial_state(), reports=0)
+    table.add_device(0, info("hidraw1", "1-1"), BINDING, silent, "JOYSTICK")
+    waiting = frame_of(table, 0)
+    assert waiting.failsafe and waiting.axes[0] == -32768  # held, not mid-scale
+    silent.snapshot, silent.reports = Source.of(RIGHT).snapshot, 1
+    live = frame_of(table, 0)
+    assert not live.failsafe and live.axes[0] == 32767
+
+
+def test_a_node_that_a_reload_left_empty_is_failsafe_not_live():
+    table = NodeTable({3: {}})
+    assert frame_of(table, 3).failsafe
+
+
+@dataclass
+class FakeLink:
+    """A serial line that records writes; `accept` decides whether a write goes out."""
+
+    url: str = "fake://"
+    is_open: bool = True
+    accept: bool = True
+    writes: list[bytes] = field(default_factory=list)
+    on_change: object = None
+
+    def try_open(self) -> bool:
+        return True
+
+    def write(self, data: bytes) -> bool:
+        if self.accept:
+            self.writes.append(data)
+        return self.accept
+
+    def close(self) -> None:
+        pass
+
+
+def decode(chunks: list[bytes]) -> list:
+    decoder = c2_16b.Decoder()
+    return [f for chunk in chunks for f in decoder.feed(chunk)]
+
+
+def c2_output(table: NodeTable, link: FakeLink) -> C2Output:
+    return C2Output("test", link, table, C2Settings(version="0.1.0"))  # type: ignore[arg-type]
+
+
+def test_a_flood_of_config_requests_never_starves_the_data():
+    table = NodeTable()
+    link = FakeLink()
+    out = c2_output(table, link)
+    for n in range(2):
+        table.add_device(n, info(f"k{n}", f"1-{n}"), BINDING, Source.of(LEFT), "JOYSTICK")
+    for _ in range(100):  # the far end asks `<` every tick
+        table.request_connect_sequences(out.subscriber)
+        out.tick()
+    frames = decode(link.writes)
+    data = [f for f in frames if isinstance(f, c2_16b.DataFrame)]
+    per_node = {n: sum(f.node_id == n for f in data) for n in range(2)}
+    assert min(per_node.values()) >= 40, per_node  # each node at least every other tick
+    assert all(len(decode([w])) <= out.capacity for w in link.writes)
+
+
+def test_a_failed_write_keeps_the_service_frames_and_the_codes():
+    table = NodeTable()
+    link = FakeLink(accept=False)
+    out = c2_output(table, link)
+    table.add_device(0, info("k0", "1-1"), BINDING, Source.of(LEFT), "JOYSTICK")
+    for _ in range(3):
+        out.tick()  # nothing goes out
+    link.accept = True
+    out.tick()
+    out.tick()
+    frames = decode(link.writes)
+    names = [f.service.service_name for f in frames if isinstance(f, c2_16b.ServiceFrame)]
+    assert names == ["startup", "connected", "vid-pid", "device-string", "device-type"]
+    assert [f.code for f in frames if isinstance(f, c2_16b.DataFrame)] == [0, 1]
+
+
+def test_sumd_reads_unsigned_from_the_binding_not_from_a_guess():
+    config_text = (
+        "devices:\n  - name: pedal\n    match: {vid: 0x044f}\n"
+        "    axes:\n      x: {usage: X, unsigned: true}\n"
+    )
+    config = load_config_text(config_text, "t.yaml")
+    binding = compile_mapping(config).bind(info("k", "1-1"), LAYOUT)
+    assert binding is not None and binding.node_id is None  # automatic: no pin to guess from
+    table = NodeTable()
+    table.add_device(0, info("k", "1-1"), binding, Source.of(StickState(x=16383)), "JOYSTICK")
+    nodes = {f.node_id: f for f in table.frames()}
+    assert nodes[0].axes[0] == 65535
+    channel = sumd_channel(ChannelSource(0, "axis", 0, unsigned=False), extended=False)
+    assert channel(nodes) == (15200, False)  # full travel: 1900 µs, never an exception
