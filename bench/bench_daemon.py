@@ -171,16 +171,21 @@ def khz_recording(seconds: float, name: str) -> str:
 # --- period and latency (in-process daemon) ---------------------------------------------------
 
 
-def period_figures(times: Sequence[float]) -> dict[str, float]:
-    """p99 |period - 20 ms| over consecutive frames; mean period = slope of t over tick number
-    (a gap of k periods counts k ticks)."""
+def period_figures(times: Sequence[float], missed: int = 0) -> dict[str, float]:
+    """p99 |period - 20 ms| over consecutive frames; mean period = least-squares slope of arrival
+    time over tick number. With no missed ticks (the scheduler's counter) frame i is tick i, so
+    a frame delayed on its way (then followed by an early one) cannot shift the count; with
+    missed ticks, a gap of k periods counts k ticks."""
     if len(times) < 3:
         raise RuntimeError(f"only {len(times)} data frames seen")
     deltas = [b - a for a, b in itertools.pairwise(times)]
     errors = sorted(abs(d - PERIOD_S) for d in deltas)
-    ticks = [0]
-    for d in deltas:
-        ticks.append(ticks[-1] + max(1, round(d / PERIOD_S)))
+    if missed == 0:
+        ticks = list(range(len(times)))
+    else:
+        ticks = [0]
+        for d in deltas:
+            ticks.append(ticks[-1] + max(1, round(d / PERIOD_S)))
     mean_k = statistics.fmean(ticks)
     mean_t = statistics.fmean(times)
     num = sum((k - mean_k) * (t - mean_t) for k, t in zip(ticks, times, strict=True))
@@ -284,7 +289,7 @@ def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[
         reader.close()
     # Skip the first second (start-up: imports done, but the first ticks settle).
     steady = [f for f in frames if f["t"] >= t_start + 1.0]
-    result: dict[str, Any] = period_figures([f["t"] for f in steady])
+    result: dict[str, Any] = period_figures([f["t"] for f in steady], missed)
     result.update(latency_figures([d for d in deliveries if d[0] >= t_start + 1.0], frames))
     result.update({"ticks": ticks, "late_ticks": late, "missed_ticks": missed})
     return result
@@ -386,7 +391,7 @@ def run_cpu(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
     reader.close()
     times = [f["t"] for f in frames if f["t"] <= t1]
     rates = {k: (s1["devices"][k] - s0["devices"].get(k, 0)) / (t1 - t0) for k in s1["devices"]}
-    period = period_figures(times)
+    period = period_figures(times, s1["missed"] - s0["missed"])
     return {
         "cpu_pct": (cpu1 - cpu0) / window * 100,
         "rss_mb": memory["VmRSS"] / 1024,
