@@ -259,22 +259,25 @@ def test_ten_devices_at_115200(request, tmp_path, replay):
     try:
         line.wait_for(lambda ln: all(ln.node(n).connect_sequences for n in range(10)), timeout=20)
         line.wait_for(lambda ln: all(ln.node(n).data_frames >= 100 for n in range(10)), timeout=60)
-        counts = {n: line.node(n).data_frames for n in range(10)}
         line.assert_clean()
+        before = {n: line.node(n).data_frames for n in range(10)}
         t0, c0 = time.monotonic(), line.data_frames_total()
-        time.sleep(3)
+        time.sleep(4)
         total_rate = (line.data_frames_total() - c0) / (time.monotonic() - t0)
+        counts = {n: line.node(n).data_frames - before[n] for n in range(10)}
+        line.assert_clean()
     finally:
         log = finish(daemon)
         line.close()
     warnings = [ln for ln in log.splitlines() if "round-robin" in ln]
     assert len(warnings) == 1, warnings
     assert "230400 baud would carry them all" in warnings[0]
-    assert max(counts.values()) - min(counts.values()) <= 0.2 * max(counts.values())
+    assert min(counts.values()) > 0  # every node served in every window
+    assert max(counts.values()) - min(counts.values()) <= 0.2 * max(counts.values()) + 2
     figures(
         request,
         "fault-ten-devices-115200",
-        {"data_frames_per_s_all_nodes": round(total_rate, 1), "per_node_after_wait": counts},
+        {"data_frames_per_s_all_nodes": round(total_rate, 1), "per_node_in_4_s": counts},
     )
     assert total_rate < 6 * 50 + 5  # never more than the line carries
 
@@ -447,10 +450,8 @@ def test_sigterm_before_handlers(tmp_path, replay):
     assert code == 0
 
 
-@pytest.mark.xfail(
-    strict=True, reason="run.reload: a ReaderError from load_config kills the daemon"
-)
 def test_sighup_with_a_control_character_keeps_running(tmp_path, replay):
+    """Found by the config fuzzing: this used to kill the daemon (a ReaderError escaped)."""
     config = tmp_path / "c.yaml"
     config.write_text(CONFIG.format(invert="false"))
     install(replay / "stick.hid", recording([StickState(x=0)]))
