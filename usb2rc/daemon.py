@@ -40,6 +40,7 @@ from usb2rc.transport import SerialLink
 log = logging.getLogger("usb2rc")
 
 JOIN_TIMEOUT_S = 0.5
+READ_AHEAD_S = 0.002  # readers wake this long before a tick to drain the device's queue
 
 
 class NoPortError(ValueError):
@@ -198,6 +199,12 @@ class Daemon:
         if self._on_tick and self.all_outputs_ticking():
             self._on_tick()
 
+    def _reader_pause(self) -> float:
+        """How long a busy reader may sleep: until READ_AHEAD_S before the next tick of any
+        output, so every report that came before a tick is decoded when the tick samples."""
+        due = min(out.thread.next_deadline for out in self.outputs)
+        return due - time.monotonic() - READ_AHEAD_S
+
     def all_outputs_ticking(self, within_s: float = 1.0) -> bool:
         """True while every output thread has ticked in the last `within_s` seconds: one hung
         scheduler stops the watchdog being fed; a stuck device cannot (it has no say here)."""
@@ -301,7 +308,12 @@ class Daemon:
             device.close()  # type: ignore[attr-defined]
             log.error("%s: %s", info.product, exc)
             return
-        reader = DeviceReader(device, layout.make_decoder(), self._reader_ended)  # type: ignore[arg-type]
+        reader = DeviceReader(
+            device,  # type: ignore[arg-type]
+            layout.make_decoder(),
+            self._reader_ended,
+            pause=self._reader_pause if self.outputs else None,
+        )
         with self._present_lock:
             self._present[info.key] = _Present(reader, layout)
         self.table.add_device(node_id, info, binding, reader, device_type_name(layout.application))

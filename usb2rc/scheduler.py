@@ -92,6 +92,7 @@ class TickThread(threading.Thread):
         self.on_tick = on_tick  # after every tick, on this thread (the watchdog hook)
         self.on_first_write = on_first_write  # once, after the first successful write
         self.last_tick_monotonic = 0.0
+        self.next_deadline = 0.0  # when the next tick is due (monotonic): readers pace on it
         self._stop_event = threading.Event()
         self._last_write = 0.0
         self._logged_errors: set[str] = set()
@@ -102,6 +103,7 @@ class TickThread(threading.Thread):
     def run(self) -> None:
         deadline = time.monotonic()
         while not self._stop_event.is_set():
+            self.next_deadline = deadline
             delay = deadline - time.monotonic()
             if delay > 0 and self._stop_event.wait(delay):
                 break

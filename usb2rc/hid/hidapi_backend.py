@@ -226,7 +226,7 @@ class HidapiDevice:
         if self._pending:
             return self._pending.popleft()
         try:
-            data = self._handle.read(READ_SIZE, max(1, round(timeout_s * 1000)))
+            data = self._handle.read(READ_SIZE, max(0, round(timeout_s * 1000)))  # 0: poll
         except (OSError, ValueError) as exc:
             if self._gone():
                 raise DeviceGone(f"{self.info.path}: unplugged") from exc

@@ -6,6 +6,12 @@ never take a lock and never wait for the device. On unplug it calls `on_exit(rea
 on a read failure `on_exit(reader, ErrorCode.READ_FAILED)` — exactly once, from the reader
 thread — and ends. `stop()` ends it without calling `on_exit`. The device is closed when the
 thread ends.
+
+Pacing (optional): the outputs only sample the snapshot once per tick, so with a `pause`
+callable the reader, after a report, drains what is queued without blocking and then sleeps
+until just before the next tick (`pause()` says how long). A 1 kHz device then wakes its
+thread a few times per tick instead of twenty; the kernel queues the reports meanwhile and
+the drain decodes every one of them, in order, before the tick reads the snapshot.
 """
 
 from __future__ import annotations
@@ -41,6 +47,7 @@ class DeviceReader:
         decoder: Decoder,
         on_exit: OnExit,
         read_timeout_s: float = READ_TIMEOUT_S,
+        pause: Callable[[], float] | None = None,
     ) -> None:
         self.device = device
         self.info = device.info
@@ -53,6 +60,7 @@ class DeviceReader:
         self.error: BaseException | None = None  # what ended it, if not stop()
         self._on_exit = on_exit
         self._read_timeout_s = read_timeout_s
+        self._pause = pause
         self._stop = threading.Event()
         name = f"hid-reader {self.info.port_path or self.info.path}"
         self._thread = threading.Thread(target=self._run, name=name)
@@ -81,8 +89,16 @@ class DeviceReader:
     def _loop(self) -> None:
         while not self._stop.is_set():
             report = self.device.read(self._read_timeout_s)
-            if report is not None:
-                self._handle(report)
+            if report is None:
+                continue
+            self._handle(report)
+            if self._pause is None:
+                continue
+            while (queued := self.device.read(0.0)) is not None:
+                self._handle(queued)
+            pause = self._pause()
+            if pause > 0:
+                self._stop.wait(pause)
 
     def _run(self) -> None:
         ended: tuple[ErrorCode | None] | None = None
