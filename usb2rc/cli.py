@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
+import threading
 
 from usb2rc import __version__
 
@@ -59,7 +61,13 @@ def _with_default_command(argv: list[str], known: set[str]) -> list[str]:
     return ["run", *argv]
 
 
+def _stop_early(_signum: int, _frame: object) -> None:
+    raise SystemExit(0)  # SIGTERM before a command installs its own handler: a clean stop
+
+
 def main(argv: list[str] | None = None) -> int:
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _stop_early)
     args_list = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     subparsers = next(

@@ -14,6 +14,7 @@ Only the first device of a file is read; `D:` lines for other devices are skippe
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
@@ -58,7 +59,9 @@ def _parse_event(rest: str, lineno: int, source: str) -> RecordedEvent:
     try:
         time_s = float(stamp)
     except ValueError:
-        raise RecordingError(f"{source}:{lineno}: bad timestamp {stamp!r}") from None
+        time_s = math.nan
+    if not math.isfinite(time_s) or time_s < 0:
+        raise RecordingError(f"{source}:{lineno}: bad timestamp {stamp!r} (seconds, >= 0)")
     return RecordedEvent(time_s, _hex_payload(payload, lineno, source))
 
 
