@@ -110,6 +110,7 @@ class TickThread(threading.Thread):
             started = time.monotonic()
             if started - deadline > self.period_s / 2:
                 self.stats.late_ticks += 1
+            self.next_deadline = deadline + self.period_s  # readers sample for the next one
             if self._safe_tick():
                 self.stats.ticks += 1
                 self.last_tick_monotonic = time.monotonic()

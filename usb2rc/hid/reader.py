@@ -78,13 +78,17 @@ class DeviceReader:
     def is_alive(self) -> bool:
         return self._thread.is_alive()
 
-    def _handle(self, report: bytes) -> None:
+    def _handle(self, report: bytes, publish: bool = True) -> None:
         if self.decoder.feed(report):
             self.reports += 1
-            self.snapshot = self.decoder.state()
-            self.last_report_monotonic = time.monotonic()
+            if publish:
+                self._publish()
         else:
             self.bad_reports += 1
+
+    def _publish(self) -> None:
+        self.snapshot = self.decoder.state()
+        self.last_report_monotonic = time.monotonic()
 
     def _loop(self) -> None:
         while not self._stop.is_set():
@@ -94,8 +98,11 @@ class DeviceReader:
             self._handle(report)
             if self._pause is None:
                 continue
+            reports = self.reports
             while (queued := self.device.read(0.0)) is not None:
-                self._handle(queued)
+                self._handle(queued, publish=False)
+            if self.reports != reports:
+                self._publish()  # once for the whole batch: the tick samples the latest
             pause = self._pause()
             if pause > 0:
                 self._stop.wait(pause)
