@@ -61,9 +61,7 @@ class NodeIdAllocator:
         """Pins of a reloaded config: automatic IDs never take them from now on."""
         self._pinned |= {_check_range(n) for n in pinned}
 
-    def assign(
-        self, info: DeviceInfo, pinned: int | None = None, taken: Iterable[int] = ()
-    ) -> int:
+    def assign(self, info: DeviceInfo, pinned: int | None = None, taken: Iterable[int] = ()) -> int:
         """The device's Node-ID; the same while it stays plugged. `taken`: IDs the caller
         knows to be busy besides those assigned here (nodes still in failsafe for a lost
         device keep their ID; no other device may take it)."""
