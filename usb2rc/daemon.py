@@ -343,7 +343,13 @@ class Daemon:
         self.started_at = time.monotonic()
         for out in self.outputs:
             out.link.try_open()
-        for info in self.monitor.initial_devices():
+        present = self.monitor.initial_devices()
+        if not present:
+            log.info(
+                "no joystick, gamepad or flight control found yet: waiting for one to be "
+                "plugged in (`usb2rc list --all` shows every HID device and why it is not used)"
+            )
+        for info in present:
             try:
                 self._device_added(info)
             except Exception:  # one device must not stop the others from starting
