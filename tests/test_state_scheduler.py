@@ -100,10 +100,12 @@ class FakeLink:
     is_open: bool = True
     accept: bool = True
     writes: list[bytes] = field(default_factory=list)
-    on_change: object = None
 
     def try_open(self) -> bool:
         return True
+
+    def take_opened(self) -> bool:
+        return False
 
     def write(self, data: bytes) -> bool:
         if self.accept:

@@ -342,7 +342,7 @@ class Daemon:
     def start(self) -> None:
         self.started_at = time.monotonic()
         for out in self.outputs:
-            out.link.try_open()
+            out.link.open_now()
         present = self.monitor.initial_devices()
         if not present:
             log.info(

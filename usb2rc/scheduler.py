@@ -204,14 +204,13 @@ class C2Output(TickThread):
         self._round_robin = 0
         self._warned_nodes = 0
         self._startup_due = True
-        link.on_change = self._link_changed
 
-    def _link_changed(self, is_open: bool) -> None:
-        if is_open:  # a fresh line (or one that came back): startup, then who is here
-            self._startup_due = True
-            self._pending.clear()
-            self.table.collect(self.subscriber)  # what was queued is superseded by:
-            self.table.request_connect_sequences(self.subscriber)
+    def _line_opened(self) -> None:
+        """A fresh line (or one that came back): the startup frame, then who is here."""
+        self._startup_due = True
+        self._pending.clear()
+        self.table.collect(self.subscriber)  # what was queued is superseded by:
+        self.table.request_connect_sequences(self.subscriber)
 
     def _kw(self) -> dict[str, bool]:
         return {
@@ -300,6 +299,8 @@ class C2Output(TickThread):
     def tick(self) -> None:
         if not self.link.is_open:
             self.link.try_open()
+        if self.link.take_opened():
+            self._line_opened()
         events, frames = self.table.collect(self.subscriber)
         if not self.link.is_open:
             self._pending.clear()  # the line is gone: the startup + connect sequence follow
@@ -358,6 +359,7 @@ class SumdOutput(TickThread):
     def tick(self) -> None:
         if not self.link.is_open and not self.link.try_open():
             return
+        self.link.take_opened()
         nodes = {f.node_id: f for f in self.table.frames()}
         values: list[int] = []
         failsafe = False

@@ -2,7 +2,8 @@
 
 Any pyserial URL works (`/dev/serial0`, `socket://host:port`, `spy:///dev/ttyUSB0`,
 `loop://`). A missing or vanished port is logged once, retried every second, and reported
-back through `on_change(open: bool)`; writes never block a tick for longer than
+back through `take_opened()`; opening happens in a helper thread, so a slow open never
+blocks a tick; writes never block a tick for longer than
 `write_timeout_s`, and the OS transmit queue is never allowed to grow past `max_queued_bytes`.
 """
 
@@ -12,7 +13,6 @@ import contextlib
 import logging
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import serial
@@ -57,14 +57,15 @@ class SerialLink:
         write_timeout_s: float = 0.005,
         max_queued_bytes: int = 4096,
         reopen_interval_s: float = 1.0,
-        on_change: Callable[[bool], None] | None = None,
     ) -> None:
         self.url = url
         self.baudrate = baudrate
         self.write_timeout_s = write_timeout_s
         self.max_queued_bytes = max_queued_bytes
         self.reopen_interval_s = reopen_interval_s
-        self.on_change = on_change
+        self._opener: threading.Thread | None = None
+        self._opened = False
+        self._closing = False
         self.stats = LinkStats()
         self._port: serial.SerialBase | None = None
         # A read failure seen by the RX thread: (port, error). Only the writer thread closes
@@ -84,14 +85,36 @@ class SerialLink:
         port, broken = self._port, self._broken
         return port is not None and (broken is None or broken[0] is not port)
 
+    def open_now(self) -> bool:
+        """Open the port in this thread (at start). Never raises."""
+        if self._port is not None:
+            return True
+        self._next_attempt = time.monotonic() + self.reopen_interval_s
+        self._open()
+        self._opened = False  # the first opening: the output starts with its startup frame
+        return self._port is not None
+
     def try_open(self) -> bool:
-        """Open the port if it is closed and the retry interval has passed. Never raises."""
+        """Never blocks: if the port is closed and the retry interval has passed, open it in
+        a helper thread (a USB-serial adapter or a TCP bridge can take a while to open) and
+        return; the caller sees `is_open` once it is, and `take_opened()` once per opening."""
         if self._port is not None:
             return True
         now = time.monotonic()
-        if now < self._next_attempt:
+        opener = self._opener
+        if now < self._next_attempt or (opener is not None and opener.is_alive()):
             return False
         self._next_attempt = now + self.reopen_interval_s
+        self._opener = threading.Thread(target=self._open, name=f"open {self.url}")
+        self._opener.start()
+        return False
+
+    def take_opened(self) -> bool:
+        """True once after each successful opening: the caller starts the line afresh."""
+        opened, self._opened = self._opened, False
+        return opened
+
+    def _open(self) -> None:
         try:
             port = serial.serial_for_url(
                 self.url,
@@ -100,22 +123,23 @@ class SerialLink:
                 write_timeout=self.write_timeout_s,
                 exclusive=True,
             )
-        except (serial.SerialException, OSError, ValueError) as exc:
+        except Exception as exc:  # whatever a URL handler raises: logged, retried
             self.last_error = _describe_open_error(self.url, exc)
             if not self._was_lost_logged:
                 log.error("%s; retrying every %.0f s", self.last_error, self.reopen_interval_s)
                 self._was_lost_logged = True
-            return False
-        with self._lock:
-            self._port = port
+            return
+        if self._closing:
+            port.close()
+            return
         self.stats.opens += 1
         if self._was_lost_logged:
             log.warning("serial port %s is back", self.url)
         self._was_lost_logged = False
         self.last_error = ""
-        if self.on_change:
-            self.on_change(True)
-        return True
+        self._opened = True
+        with self._lock:
+            self._port = port
 
     def _lost(self, exc: BaseException) -> None:
         with self._lock:
@@ -129,8 +153,6 @@ class SerialLink:
         self._next_attempt = time.monotonic() + self.reopen_interval_s
         with contextlib.suppress(serial.SerialException, OSError):
             port.close()
-        if self.on_change:
-            self.on_change(False)
 
     def _queued_bytes(self, port: serial.SerialBase) -> int:
         try:
@@ -178,6 +200,10 @@ class SerialLink:
         return data
 
     def close(self) -> None:
+        self._closing = True
+        opener = self._opener
+        if opener is not None and opener is not threading.current_thread():
+            opener.join(self.reopen_interval_s)
         with self._lock:
             port, self._port = self._port, None
         if port is not None:
