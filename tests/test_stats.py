@@ -92,7 +92,14 @@ def test_sigusr1_logs_output_device_and_receive_figures(tmp_path, line, sumd_lin
         # receiver has read the garbage in front of it too
         request = c2_16b.encode_data(c2_16b.CONFIG_REQUEST, 0, 0, [0] * 10, 0, 0)
         line.send(GARBAGE + request)
-        line.wait_for(lambda fr: services(fr, 0).count("connected") >= 2, WAIT_S)
+        line.wait_for(lambda fr: services(fr, 0).count("device-type") >= 2, WAIT_S)
+
+        def data_after_answer(fr) -> int:
+            types = [i for i, f in enumerate(fr) if getattr(f, "service", None) == 7]
+            return len(data_frames(fr[types[1] :], 0)) if len(types) > 1 else 0
+
+        # two data frames after the answer: the tick that wrote it has counted it
+        line.wait_for(lambda fr: data_after_answer(fr) >= 2, WAIT_S)
         daemon.signal(signal.SIGUSR1)
         text = wait_log(daemon, lambda t: bool(DEVICE_LINE.search(t)))
         c2 = C2_LINE.search(text)

@@ -15,7 +15,7 @@ import time
 import traceback
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from usb2rc.protocol import c2_16b, sumd
 from usb2rc.state import EventKind, NodeFrame, NodeTable, ServiceEvent
@@ -200,6 +200,7 @@ class C2Output(TickThread):
         self.frame_len = c2_16b.FRAME_LEN + (1 if settings.line_feed else 0)
         self.capacity = frames_per_tick(settings.baudrate, settings.rate_hz, self.frame_len)
         self._codes: dict[int, int] = {}
+        self._on_line: set[int] = set()  # nodes whose data frames this line has seen
         self._pending: deque[_Pending] = deque()  # service frames owed, in order
         self._round_robin = 0
         self._warned_nodes = 0
@@ -209,6 +210,7 @@ class C2Output(TickThread):
         """A fresh line (or one that came back): the startup frame, then who is here."""
         self._startup_due = True
         self._pending.clear()
+        self._on_line.clear()
         self.table.collect(self.subscriber)  # what was queued is superseded by:
         self.table.request_connect_sequences(self.subscriber)
 
@@ -245,10 +247,15 @@ class C2Output(TickThread):
             line_feed=self.settings.line_feed,
         )
 
+    def _announcing(self) -> set[int]:
+        """Nodes whose connect sequence is still queued (not yet on the line)."""
+        return {p.node_id for p in self._pending if p.event.kind is EventKind.CONNECTED}
+
     def _choose_nodes(self, frames: Sequence[NodeFrame], room: int) -> list[NodeFrame]:
         """The nodes that get a data frame this tick: all of them when they fit, else a
-        round-robin share. A node whose service frames are still queued waits for them."""
-        held = {p.node_id for p in self._pending}
+        round-robin share. A node new on this line waits for its connect sequence; a node
+        already on it keeps its frames coming (as `!`, see tick) while it is re-announced."""
+        held = self._announcing() - self._on_line
         ready = [f for f in frames if f.node_id not in held]
         if len(ready) <= room:
             return ready
@@ -316,6 +323,8 @@ class C2Output(TickThread):
         for _ in taken:  # a node whose service frames are still queued waits for them
             self._pending.popleft()
         chosen = self._choose_nodes(frames, self.capacity - service_count)
+        announcing = self._announcing()  # never `>` ahead of the node's connect sequence
+        chosen = [replace(f, failsafe=True) if f.node_id in announcing else f for f in chosen]
         codes = [self._codes.get(f.node_id, 0) for f in chosen]
         out.extend(self.data_frame(f, code) for f, code in zip(chosen, codes, strict=True))
         if not out:
@@ -324,6 +333,7 @@ class C2Output(TickThread):
             self._startup_due = False
             for f, code in zip(chosen, codes, strict=True):
                 self._codes[f.node_id] = (code + 1) & 0xFF
+            self._on_line.update(f.node_id for f in chosen)
             self.stats.service_frames += service_count
             self.stats.data_frames += len(chosen)
             self.note_write()
