@@ -171,3 +171,30 @@ def test_sumd_reads_unsigned_from_the_binding_not_from_a_guess():
     assert nodes[0].axes[0] == 65535
     channel = sumd_channel(ChannelSource(0, "axis", 0, unsigned=False), extended=False)
     assert channel(nodes) == (15200, False)  # full travel: 1900 µs, never an exception
+
+
+def test_a_node_being_re_announced_keeps_sending_but_never_live_before_its_sequence():
+    table = NodeTable()
+    link = FakeLink()
+    # 57600 baud: 3 frames a tick, so a re-announcement spreads over several ticks
+    out = C2Output("test", link, table, C2Settings(baudrate=57600, version="0.1.0"))  # type: ignore[arg-type]
+    stick = info("k0", "1-1")
+    table.add_device(0, stick, BINDING, Source.of(LEFT), "JOYSTICK")
+    for _ in range(4):
+        out.tick()
+    table.remove_device(stick.key)
+    table.add_device(0, info("k1", "1-1"), BINDING, Source.of(RIGHT), "JOYSTICK")
+    link.writes.clear()
+    for _ in range(5):
+        out.tick()
+    per_tick = [decode([w]) for w in link.writes]
+    assert len(per_tick) == 5
+    assert all(any(isinstance(f, c2_16b.DataFrame) for f in tick) for tick in per_tick)  # no gap
+    frames = [f for tick in per_tick for f in tick]
+    names = [
+        f.service.service_name if isinstance(f, c2_16b.ServiceFrame) else chr(f.status)
+        for f in frames
+    ]
+    last_of_sequence = names.index("device-type")
+    assert ">" not in names[:last_of_sequence]
+    assert names[0] == "disconnected" and names[last_of_sequence + 1 :][-1] == ">"
