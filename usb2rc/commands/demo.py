@@ -23,7 +23,7 @@ from pathlib import Path
 
 from usb2rc.config import Config
 from usb2rc.daemon import Daemon
-from usb2rc.hid.replay import ReplayBackend
+from usb2rc.hid.replay import ReplayBackend, install_file
 from usb2rc.protocol.c2_16b import AXIS_NAMES
 from usb2rc.receiver import NodeView, ReceiverModel
 
@@ -83,9 +83,7 @@ class PlugScript(threading.Thread):
     def _apply(self, action: str, name: str) -> None:
         path = self.folder / name
         if action == "plug":
-            tmp = self.folder / f".{name}.tmp"
-            tmp.write_text(self.recordings[name])
-            tmp.rename(path)  # appears whole: the backend never sees half a file
+            install_file(path, self.recordings[name])  # appears whole, never half a file
         else:
             path.unlink(missing_ok=True)
 
