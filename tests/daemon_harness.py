@@ -8,6 +8,7 @@ do not compute expected frames with the code under test.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import signal
@@ -130,7 +131,10 @@ class PtyLine:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            ready, _, _ = select.select([self.master], [], [], 0.05)
+            try:
+                ready, _, _ = select.select([self.master], [], [], 0.05)
+            except (OSError, ValueError):
+                return
             if not ready:
                 continue
             try:
@@ -141,8 +145,12 @@ class PtyLine:
             frames = self.decoder.feed(data)
             if frames:
                 with self._cond:
-                    self.seen.extend(Seen(now, f) for f in frames)
+                    self._record(now, frames)
                     self._cond.notify_all()
+
+    def _record(self, now: float, frames: list[Any]) -> None:
+        """Keep what arrived (under the condition's lock); subclasses check as they keep."""
+        self.seen.extend(Seen(now, f) for f in frames)
 
     def send(self, data: bytes) -> None:
         os.write(self.master, data)
@@ -168,9 +176,10 @@ class PtyLine:
 
     def close(self) -> None:
         self._stop.set()
-        self._thread.join()
-        os.close(self.master)
-        os.close(self._slave)
+        self._thread.join(5)
+        for fd in (self.master, self._slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
 
 
 class DaemonProcess:

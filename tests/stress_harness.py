@@ -16,11 +16,9 @@ tests/test_stress_faults.py, tests/test_soak.py).
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import random
-import select
 import signal
 import threading
 import time
@@ -30,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from daemon_harness import ROOT
+from daemon_harness import ROOT, PtyLine
 
 from usb2rc.protocol import c2_16b
 
@@ -152,7 +150,7 @@ class NodeLog:
         return None
 
 
-class CheckedLine:
+class CheckedLine(PtyLine):
     """A pty pair whose master the test reads; every frame is checked as it arrives.
 
     `configured`: Node-IDs that may send data frames without a connect sequence (pinned in
@@ -161,9 +159,6 @@ class CheckedLine:
     """
 
     def __init__(self, configured: Iterable[int] = (), keep: int = 5000) -> None:
-        self.master, self._slave = os.openpty()
-        self.path = os.ttyname(self._slave)
-        self.decoder = c2_16b.Decoder()
         self.configured = set(configured)
         self.nodes: dict[int, NodeLog] = {}
         self.recent: deque[tuple[float, Any]] = deque(maxlen=keep)
@@ -174,32 +169,11 @@ class CheckedLine:
         self.first_frame_at: float | None = None
         self._pending_connect: dict[int, int] = {}  # node -> how far into 1,6,5,7
         self._announced: set[int] = set()
-        self._cond = threading.Condition()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=f"checked {self.path}", daemon=True)
-        self._thread.start()
+        super().__init__("c2-16b")  # starts the reading thread: every field exists by now
 
-    # reading -----------------------------------------------------------------------------
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                ready, _, _ = select.select([self.master], [], [], 0.05)
-            except (OSError, ValueError):
-                return
-            if not ready:
-                continue
-            try:
-                data = os.read(self.master, 65536)
-            except OSError:
-                continue
-            now = time.monotonic()
-            frames = self.decoder.feed(data)
-            if frames:
-                with self._cond:
-                    for frame in frames:
-                        self._account(now, frame)
-                    self._cond.notify_all()
+    def _record(self, now: float, frames: list[Any]) -> None:
+        for frame in frames:
+            self._account(now, frame)
 
     def node(self, node_id: int) -> NodeLog:
         log = self.nodes.get(node_id)
@@ -301,16 +275,6 @@ class CheckedLine:
             assert self.data_before_startup == 0
             assert self.decoder.bytes_skipped == 0, self.decoder.bytes_skipped
             assert self.decoder.crc_failures == 0, self.decoder.crc_failures
-
-    def send(self, data: bytes) -> None:
-        os.write(self.master, data)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(5)
-        for fd in (self.master, self._slave):
-            with contextlib.suppress(OSError):
-                os.close(fd)
 
 
 # --- daemon helpers -------------------------------------------------------------------------
