@@ -198,3 +198,10 @@ def test_a_node_being_re_announced_keeps_sending_but_never_live_before_its_seque
     last_of_sequence = names.index("device-type")
     assert ">" not in names[:last_of_sequence]
     assert names[0] == "disconnected" and names[last_of_sequence + 1 :][-1] == ">"
+
+
+def test_this_version_fits_the_startup_frame():
+    from usb2rc import __version__
+
+    frame = decode([c2_16b.startup(__version__)])[0]
+    assert frame.node_id == 0xFF and frame.text == f"usb2rc {__version__}"

@@ -205,6 +205,8 @@ class C2Output(TickThread):
         self._round_robin = 0
         self._warned_nodes = 0
         self._startup_due = True
+        # built once here: a version that does not fit the frame fails at start, loudly
+        self._startup_frame = c2_16b.startup(settings.version, **self._kw())
 
     def _line_opened(self) -> None:
         """A fresh line (or one that came back): the startup frame, then who is here."""
@@ -316,7 +318,7 @@ class C2Output(TickThread):
         service_room = self._service_room(len(frames))
         out: list[bytes] = []
         if self._startup_due:
-            out.append(c2_16b.startup(self.settings.version, **self._kw()))
+            out.append(self._startup_frame)
         taken = list(itertools.islice(self._pending, max(0, service_room - len(out))))
         out.extend(p.frame for p in taken)
         service_count = len(out)
