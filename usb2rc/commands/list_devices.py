@@ -13,7 +13,13 @@ import sys
 from dataclasses import dataclass, field
 from typing import Any
 
-from usb2rc.hid.backend import UDEV_RULES_FILE, Backend, DeviceInfo, DevicePermissionError
+from usb2rc.hid.backend import (
+    UDEV_RULES_FILE,
+    Backend,
+    DeviceInfo,
+    DevicePermissionError,
+    choose_backend,
+)
 from usb2rc.hid.hotplug import sort_by_port_path
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 
@@ -43,13 +49,7 @@ class Row:
 
 
 def make_backend(replay: str | None) -> Backend:
-    if replay:
-        from usb2rc.hid.replay import ReplayBackend
-
-        return ReplayBackend(replay)
-    from usb2rc.hid.hidapi_backend import HidapiBackend
-
-    return HidapiBackend()
+    return choose_backend(replay)
 
 
 def load_mapping(path: str | None) -> Any:

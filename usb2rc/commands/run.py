@@ -13,7 +13,7 @@ import time
 
 from usb2rc.config import Config, ConfigError, load_config
 from usb2rc.daemon import Daemon, NoPortError
-from usb2rc.hid.backend import Backend
+from usb2rc.hid.backend import Backend, choose_backend
 from usb2rc.sdnotify import Notifier
 
 log = logging.getLogger("usb2rc")
@@ -81,13 +81,7 @@ def load_or_report(path: str | None) -> Config | None:
 
 
 def make_backend(args: argparse.Namespace) -> Backend:
-    if args.replay:
-        from usb2rc.hid.replay import ReplayBackend
-
-        return ReplayBackend(args.replay, loop=args.replay_loop)
-    from usb2rc.hid.hidapi_backend import HidapiBackend
-
-    return HidapiBackend()
+    return choose_backend(args.replay, loop=args.replay_loop)
 
 
 class _WatchdogFeeder:

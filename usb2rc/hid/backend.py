@@ -165,3 +165,14 @@ class Backend(Protocol):
     def open(self, info: DeviceInfo) -> Device:
         """Raises DevicePermissionError / DeviceOpenError / DeviceGone (all OSError)."""
         ...
+
+
+def choose_backend(replay: str | None, loop: bool = False) -> Backend:
+    """The replay backend on a folder of hid-recorder files, else hidapi (real devices)."""
+    if replay:
+        from usb2rc.hid.replay import ReplayBackend
+
+        return ReplayBackend(replay, loop=loop)
+    from usb2rc.hid.hidapi_backend import HidapiBackend
+
+    return HidapiBackend()
