@@ -36,6 +36,16 @@ T16000M_DESCRIPTOR = bytes.fromhex(
 )
 HAT_NULL = 8
 
+# A T.16000M pinned to node 4 with X inverted or not: `INVERT_X_CONFIG.format(invert="true")`
+INVERT_X_CONFIG = """
+devices:
+  - name: stick
+    match: {{vid: 0x044f, pid: 0xb10a}}
+    node_id: 4
+    axes:
+      x: {{usage: X, invert: {invert}}}
+"""
+
 
 @dataclass(frozen=True)
 class StickState:

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-from daemon_harness import DaemonProcess, StickState, install, recording, scale
+from daemon_harness import INVERT_X_CONFIG, DaemonProcess, StickState, install, recording, scale
 from stress_harness import (
     CheckedLine,
     elapsed,
@@ -329,19 +329,9 @@ def test_rx_garbage_and_requests_interleaved(request, tmp_path, replay):
     figures(request, "fault-rx-garbage", {"requests": sent, "answer_latency": summarize(latency)})
 
 
-CONFIG = """
-devices:
-  - name: stick
-    match: {{vid: 0x044f, pid: 0xb10a}}
-    node_id: 4
-    axes:
-      x: {{usage: X, invert: {invert}}}
-"""
-
-
 def test_sighup_storm(request, tmp_path, replay):
     config = tmp_path / "usb2rc.yaml"
-    config.write_text(CONFIG.format(invert="false"))
+    config.write_text(INVERT_X_CONFIG.format(invert="false"))
     install(replay / "stick.hid", recording([StickState(x=0)]))
     line = CheckedLine(configured=[4])
     daemon = start(tmp_path, line.path, replay, "--config", str(config))
@@ -352,11 +342,11 @@ def test_sighup_storm(request, tmp_path, replay):
         line.wait_for(lambda ln: live(4)(ln) and ln.node(4).last_axes[0] == -32768)
         for k in range(storms):
             for j in range(20):  # a burst: bad and good configs, no pause
-                config.write_text(CONFIG.format(invert="maybe" if j % 3 == 0 else "false"))
+                config.write_text(INVERT_X_CONFIG.format(invert="maybe" if j % 3 == 0 else "false"))
                 daemon.signal(signal.SIGHUP)
                 sighups += 1
             invert = k % 2 == 0
-            config.write_text(CONFIG.format(invert="true" if invert else "false"))
+            config.write_text(INVERT_X_CONFIG.format(invert="true" if invert else "false"))
             t0 = time.monotonic()
             daemon.signal(signal.SIGHUP)
             sighups += 1
@@ -384,7 +374,7 @@ def test_sigterm_at_random_moments(request, tmp_path, replay):
     rng = random.Random(env_int("USB2RC_FUZZ_SEED", 20240601))
     runs = env_int("USB2RC_SIGTERM_RUNS", 16)
     config = tmp_path / "c.yaml"
-    config.write_text(CONFIG.format(invert="false"))
+    config.write_text(INVERT_X_CONFIG.format(invert="false"))
     exits, moments = [], {}
     t_start = time.monotonic()
     for i in range(runs):
@@ -463,13 +453,13 @@ def test_sigterm_before_handlers(tmp_path, replay):
 def test_sighup_with_a_control_character_keeps_running(tmp_path, replay):
     """Found by the config fuzzing: this used to kill the daemon (a ReaderError escaped)."""
     config = tmp_path / "c.yaml"
-    config.write_text(CONFIG.format(invert="false"))
+    config.write_text(INVERT_X_CONFIG.format(invert="false"))
     install(replay / "stick.hid", recording([StickState(x=0)]))
     line = CheckedLine(configured=[4])
     daemon = start(tmp_path, line.path, replay, "--config", str(config))
     try:
         line.wait_for(live(4))
-        config.write_text(CONFIG.format(invert="false") + "# \x01\n")
+        config.write_text(INVERT_X_CONFIG.format(invert="false") + "# \x01\n")
         daemon.signal(signal.SIGHUP)
         n = line.node(4).data_frames
         line.wait_for(lambda ln: ln.node(4).data_frames > n + 50 or daemon.proc.poll() is not None)
