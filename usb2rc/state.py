@@ -363,7 +363,8 @@ class NodeTable:
 
 def _log_changes(changes: list[str]) -> None:
     for change in changes:
-        log.warning("%s", change)
+        level = logging.WARNING if "enters failsafe" in change else logging.INFO
+        log.log(level, "%s", change)
 
 
 def _connected(node_id: int, attached: _Attached) -> ServiceEvent:

@@ -161,7 +161,8 @@ class SerialLink:
             return 0
 
     def write(self, data: bytes) -> bool:
-        """Write one tick's bytes in one call. False when the port is closed or full."""
+        """Write one tick's bytes in one call. False when nothing went out (the port is
+        closed, or its transmit queue is full); True when the bytes went (or may have gone)."""
         port = self._port
         if port is None:
             return False
@@ -175,8 +176,11 @@ class SerialLink:
         try:
             port.write(data)
         except serial.SerialTimeoutException:
+            # Some or all of the bytes may be on the line (pyserial can even time out after
+            # writing them all): count them as sent. Sending the same message codes again
+            # would duplicate frames; a frame cut short is dropped by the receiver's CRC.
             self.stats.write_timeouts += 1
-            return False
+            return True
         except (serial.SerialException, OSError) as exc:
             self._lost(exc)
             return False
