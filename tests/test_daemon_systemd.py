@@ -52,7 +52,10 @@ def test_ready_after_first_frame_watchdog_and_stopping(tmp_path, line, replay_di
     daemon = run_daemon(tmp_path, line.path, replay_dir, env=env)
     try:
         notify.wait_for("READY=1")
-        assert line.frames(), "READY=1 before any frame was written"
+        # the daemon sends READY=1 right after its first write() returned, so that frame is
+        # already in the pty: our reader thread may only not have read it yet
+        first = line.wait_for(lambda fr: fr[:1], timeout=2)
+        assert first[0].service.service_name == "startup", "READY=1 before any frame"
         notify.wait_for("WATCHDOG=1", times=5)  # fed again and again while it ticks
         line.wait_for(lambda fr: len(data_frames(fr, 0)) > 5)
     finally:
