@@ -57,8 +57,17 @@ class FakeHandle:
             raise OSError("not supported")
         return list(self.module.input_reports[report_id])[:length]
 
-    def read(self, size: int, timeout_ms: int) -> list[int]:
+    blocking = True  # cython-hidapi opens handles blocking
+
+    def set_nonblocking(self, value: int) -> int:
+        self.blocking = not value
+        return 0
+
+    def read(self, size: int, timeout_ms: int = 0) -> list[int]:
         self.module.read_timeouts.append(timeout_ms)
+        if timeout_ms == 0 and self.blocking and not self.module.reads:
+            # cython-hidapi: timeout 0 is hid_read(), which waits forever on a blocking handle
+            raise AssertionError("read(n, 0) on a blocking handle with nothing queued blocks")
         item = self.module.reads.pop(0) if self.module.reads else b""
         if isinstance(item, Exception):
             raise item
@@ -158,6 +167,20 @@ def test_open_reads_descriptor_from_sysfs_and_current_state(tmp_path: Path) -> N
     assert device.read(0.1) == current  # the state asked for at open comes first
     assert device.read(0.1) == b"\x01" * 64
     assert fake.read_timeouts == [100]
+
+
+def test_reads_never_wait_longer_than_asked(tmp_path: Path) -> None:
+    """The handle is made non-blocking: a drain (0 s) polls; a wait below 1 ms still waits
+    (rounded up), because cython-hidapi's timeout 0 is a wait for the next report."""
+    fake = FakeHid([entry("/dev/hidrawX", 0x044F, 0xB10A, 1, 4)])
+    fake.descriptors["/dev/hidrawX"] = T16000M
+    backend = HidapiBackend(fake, sysfs_root=tmp_path, linux=False)
+    device = backend.open(backend.enumerate()[0])
+    fake.reads = [b"\x02" * 64]
+    assert device.read(0.0) == b"\x02" * 64
+    assert device.read(0.0) is None  # an empty poll: not a reason to look for an unplug
+    assert device.read(0.0004) is None
+    assert fake.read_timeouts == [0, 0, 1]
 
 
 def test_current_state_with_report_ids_keeps_the_id(tmp_path: Path) -> None:

@@ -148,3 +148,54 @@ def test_unexpected_exception_still_reports_read_failed() -> None:
     reader.join(WAIT_S)
     assert exits.calls == [ErrorCode.READ_FAILED]
     assert device.closed
+
+
+class OneReport:
+    """A device with one report queued, then nothing (polls return None at once)."""
+
+    def __init__(self, report: bytes) -> None:
+        self.info = DeviceInfo(key="k", path="k", vid=1, pid=2)
+        self._queue = [report]
+
+    def report_descriptor(self) -> bytes:
+        return b""
+
+    def read(self, timeout_s: float) -> bytes | None:
+        return self._queue.pop() if self._queue else None
+
+    def close(self) -> None:
+        pass
+
+
+class StateGate(RecordingDecoder):
+    """Holds the reader thread between "the report is counted" and "its state is built"."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.inside = threading.Event()
+        self.release = threading.Event()
+
+    def state(self) -> InputState:
+        if self.reports:
+            self.inside.set()
+            assert self.release.wait(WAIT_S)
+        return super().state()
+
+
+def test_the_count_and_the_state_are_published_together() -> None:
+    """Forced interleaving: the reader has decoded a report and is building its state. A
+    table reading the reader now must see the old record whole (0 reports, not live), never
+    the new count with the initial, mid-scale state."""
+    decoder = StateGate()
+    reader = DeviceReader(OneReport(b"R1"), decoder, Exits(), read_timeout_s=0.01)
+    reader.start()
+    try:
+        assert decoder.inside.wait(WAIT_S)
+        seen = reader.record
+        assert (seen.reports, seen.state) == (0, InputState((0,), 0))
+        decoder.release.set()
+    finally:
+        decoder.release.set()
+        reader.stop()
+        reader.join(WAIT_S)
+    assert (reader.record.reports, reader.record.state) == (1, InputState((1,), 0))

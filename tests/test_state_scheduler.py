@@ -14,7 +14,8 @@ from daemon_harness import T16000M_DESCRIPTOR, StickState
 from usb2rc.config import load_config_text
 from usb2rc.daemon import sumd_channel
 from usb2rc.hid.backend import DeviceInfo
-from usb2rc.hid.descriptor import InputState, parse_descriptor
+from usb2rc.hid.descriptor import parse_descriptor
+from usb2rc.hid.reader import ReaderRecord
 from usb2rc.mapping import ChannelSource, compile_mapping, default_binding
 from usb2rc.protocol import c2_16b
 from usb2rc.scheduler import C2Output, C2Settings
@@ -25,16 +26,15 @@ LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
 
 @dataclass
 class Source:
-    """Stands in for a DeviceReader: the snapshot and the count of reports decoded."""
+    """Stands in for a DeviceReader: its published record (state and reports decoded)."""
 
-    snapshot: InputState
-    reports: int = 1
+    record: ReaderRecord
 
     @classmethod
     def of(cls, state: StickState, reports: int = 1) -> Source:
         decoder = LAYOUT.make_decoder()
         decoder.feed(state.report())
-        return cls(decoder.state(), reports)
+        return cls(ReaderRecord(decoder.state(), reports))
 
 
 def info(key: str, port: str, serial: str = "") -> DeviceInfo:
@@ -78,11 +78,11 @@ def test_a_device_is_not_live_before_its_first_report():
     held = frame_of(table, 0)
     assert held.failsafe and held.axes[0] == -32768
     # re-plugged, nothing reported yet (its snapshot is the descriptor's centre)
-    silent = Source(LAYOUT.initial_state(), reports=0)
+    silent = Source(ReaderRecord(LAYOUT.initial_state(), reports=0))
     table.add_device(0, info("hidraw1", "1-1"), BINDING, silent, "JOYSTICK")
     waiting = frame_of(table, 0)
     assert waiting.failsafe and waiting.axes[0] == -32768  # held, not mid-scale
-    silent.snapshot, silent.reports = Source.of(RIGHT).snapshot, 1
+    silent.record = Source.of(RIGHT).record
     live = frame_of(table, 0)
     assert not live.failsafe and live.axes[0] == 32767
 

@@ -3,8 +3,10 @@ the outputs (scheduler threads).
 
 Devices are attached to Node-IDs; each output subscribes and gets, per tick and under one
 lock, the service events queued for it and the current frame of every node. Readers never
-take this lock: they publish their `snapshot` by swapping one attribute, and the table reads
-it when a frame is built.
+take this lock: each publishes one immutable `ReaderRecord` by a single assignment, and the
+table reads it once per device when a frame is built. Devices are added and removed only by
+the lifecycle thread (usb2rc.lifecycle); a device is removed by its reader, not by a path
+that the kernel may already have given to another device.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from enum import Enum
 from typing import Any, Protocol
 
 from usb2rc.hid.backend import DeviceInfo
-from usb2rc.hid.descriptor import InputState
+from usb2rc.hid.reader import ReaderRecord
 from usb2rc.mapping import DeviceBinding, NodeInputs
 
 log = logging.getLogger("usb2rc.nodes")
@@ -58,8 +60,10 @@ class ExpectedEntry:
 
 
 class SnapshotSource(Protocol):
-    snapshot: InputState
-    reports: int  # reports decoded so far: 0 means the device's state is not known yet
+    """A DeviceReader, as the table sees it: its last published record, read once."""
+
+    @property
+    def record(self) -> ReaderRecord: ...
 
 
 def unsigned_slots_of(binding: DeviceBinding) -> int:
@@ -83,11 +87,15 @@ class _Attached:
 
         Decision: until then the node stays in failsafe with the held (or failsafe) values;
         a re-plugged throttle must not jump to mid-scale before it has said where it is."""
-        return self.present and self.source.reports > 0
+        return self._live(self.source.record)
+
+    def _live(self, record: ReaderRecord) -> bool:
+        return self.present and record.reports > 0
 
     def inputs(self) -> NodeInputs:
-        if self.live:
-            return self.binding.apply(self.source.snapshot)
+        record = self.source.record  # read once: liveness and values from the same record
+        if self._live(record):
+            return self.binding.apply(record.state)
         return self.binding.failsafe(self.last_inputs)
 
     def same_device(self, info: DeviceInfo, binding: DeviceBinding) -> bool:
@@ -250,12 +258,17 @@ class NodeTable:
             node_id,
         )
 
-    def remove_device(self, key: str, error_code: int | None = None) -> int | None:
-        """The device is gone (unplugged, or failed to read: error_code)."""
+    def remove_device(
+        self, key: str, error_code: int | None = None, source: SnapshotSource | None = None
+    ) -> int | None:
+        """The device is gone (unplugged, or failed to read: error_code). With `source`, only
+        if the device under `key` is still the one that reader feeds: the kernel reuses
+        hidraw paths, and a late exit must not take a newer device off its node."""
         with self._lock:
-            entry = self._by_key.pop(key, None)
-            if entry is None:
+            entry = self._by_key.get(key)
+            if entry is None or (source is not None and entry[1].source is not source):
                 return None
+            del self._by_key[key]
             node_id, attached = entry
             attached.last_inputs = attached.inputs()
             attached.present = False

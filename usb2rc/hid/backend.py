@@ -44,18 +44,27 @@ class ErrorCode(IntEnum):
     CONFIG_CLASH = 0x05  # a second device matches a config entry already feeding its node
 
 
-class DeviceGone(OSError):
+class _Plain:
+    """str() is the message alone: a user reads "permission denied on ...", not "[Errno 13]"."""
+
+    strerror: str | None
+
+    def __str__(self) -> str:
+        return self.strerror or OSError.__str__(self)  # type: ignore[arg-type]
+
+
+class DeviceGone(_Plain, OSError):
     """The device was unplugged (its node vanished); not a read failure."""
 
     def __init__(self, message: str = "device unplugged") -> None:
         super().__init__(errno.ENODEV, message)
 
 
-class DevicePermissionError(PermissionError):
+class DevicePermissionError(_Plain, PermissionError):
     """The device node exists but this user may not open it; the message says how to fix it."""
 
 
-class DeviceOpenError(OSError):
+class DeviceOpenError(_Plain, OSError):
     """The device could not be opened for another reason; the message says why."""
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import logging
+import math
 import os
 import re
 import sys
@@ -31,6 +32,9 @@ from usb2rc.hid.backend import (
 log = logging.getLogger(__name__)
 
 READ_SIZE = 1024  # hidraw returns one report per read; larger than any input report
+# cython-hidapi's read(n, timeout_ms): 0 (its default) means hid_read(), which waits for a
+# report on a blocking handle; > 0 means hid_read_timeout() (poll for that long). Handles are
+# blocking when opened, so open() makes them non-blocking: hid_read() then polls.
 _USB_DEVICE_DIR = re.compile(r"^\d+-\d+(\.\d+)*$")  # "1-1.2"; not "usb1", not "1-1.2:1.0"
 
 
@@ -154,6 +158,12 @@ class HidapiBackend:
             handle.open_path(info.path.encode())
         except (OSError, ValueError) as exc:
             raise self._open_error(info, exc) from exc
+        try:
+            handle.set_nonblocking(1)
+        except (OSError, ValueError) as exc:
+            with contextlib.suppress(Exception):
+                handle.close()
+            raise self._open_error(info, exc) from exc
         return HidapiDevice(info, handle, self._hid, self._sysfs)
 
     def _open_error(self, info: DeviceInfo, exc: Exception) -> OSError:
@@ -223,19 +233,28 @@ class HidapiDevice:
         return all(_text(e.get("path")) != self.info.path for e in present)
 
     def read(self, timeout_s: float) -> bytes | None:
+        """A report, or None after at most `timeout_s` (0: poll, never wait)."""
         if self._pending:
             return self._pending.popleft()
         try:
-            data = self._handle.read(READ_SIZE, max(0, round(timeout_s * 1000)))  # 0: poll
+            data = self._read_handle(timeout_s)
         except (OSError, ValueError) as exc:
             if self._gone():
                 raise DeviceGone(f"{self.info.path}: unplugged") from exc
             raise OSError(errno.EIO, f"{self.info.path}: read failed: {exc}") from exc
         if data:
             return bytes(data)
-        if self._gone():
+        # A poll that finds nothing is the normal end of a drain; only a wait that timed out
+        # is worth a look at whether the device is still there.
+        if timeout_s > 0 and self._gone():
             raise DeviceGone(f"{self.info.path}: unplugged")
         return None
+
+    def _read_handle(self, timeout_s: float) -> Any:
+        if timeout_s <= 0:
+            return self._handle.read(READ_SIZE)  # non-blocking handle: hid_read() polls
+        # Round up: a timeout that rounds to 0 ms would mean hid_read(), not a short wait.
+        return self._handle.read(READ_SIZE, max(1, math.ceil(timeout_s * 1000)))
 
     def close(self) -> None:
         with contextlib.suppress(Exception):

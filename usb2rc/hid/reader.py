@@ -1,11 +1,12 @@
 """DeviceReader: one thread per open device, the only owner of that device.
 
 It blocks in `device.read(timeout)`, feeds each report to the device's decoder and publishes
-the decoded `InputState` by swapping one attribute (`snapshot`), so readers of the snapshot
-never take a lock and never wait for the device. On unplug it calls `on_exit(reader, None)`,
-on a read failure `on_exit(reader, ErrorCode.READ_FAILED)` — exactly once, from the reader
-thread — and ends. `stop()` ends it without calling `on_exit`. The device is closed when the
-thread ends.
+one immutable `ReaderRecord` (state, report count, time) by a single assignment (`record`), so
+whoever reads it never takes a lock, never waits for the device, and never sees a count that
+belongs to another state (a node goes live on the count: it must come with its state).
+On unplug it calls `on_exit(reader, None)`, on a read failure
+`on_exit(reader, ErrorCode.READ_FAILED)` — exactly once, from the reader thread — and ends.
+`stop()` ends it without calling `on_exit`. The device is closed when the thread ends.
 
 Pacing (optional): the outputs only sample the snapshot once per tick, so with a `pause`
 callable the reader, after a report, drains what is queued without blocking and then sleeps
@@ -21,6 +22,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol
 
 from usb2rc.hid.backend import Device, DeviceGone, ErrorCode
@@ -40,6 +42,17 @@ class Decoder(Protocol):
 OnExit = Callable[["DeviceReader", ErrorCode | None], None]
 
 
+@dataclass(frozen=True, slots=True)
+class ReaderRecord:
+    """What a reader published last, as one value: never a state from one batch with the
+    count of another."""
+
+    state: InputState
+    reports: int = 0  # reports the decoder accepted; 0: the device's state is not known yet
+    bad_reports: int = 0  # reports it refused (unknown ID, short)
+    at: float | None = None  # monotonic time of the last published report
+
+
 class DeviceReader:
     def __init__(
         self,
@@ -52,10 +65,9 @@ class DeviceReader:
         self.device = device
         self.info = device.info
         self.decoder = decoder
-        self.snapshot: InputState = decoder.state()
-        self.reports = 0  # reports the decoder accepted
-        self.bad_reports = 0  # reports it refused (unknown ID, short)
-        self.last_report_monotonic: float | None = None
+        self.record = ReaderRecord(decoder.state())
+        self._reports = 0  # counted by the reader thread; published with the state
+        self._bad_reports = 0
         self.exit_code: ErrorCode | None = None
         self.error: BaseException | None = None  # what ended it, if not stop()
         self._on_exit = on_exit
@@ -78,17 +90,37 @@ class DeviceReader:
     def is_alive(self) -> bool:
         return self._thread.is_alive()
 
-    def _handle(self, report: bytes, publish: bool = True) -> None:
+    # Views of the record, for statistics and tests.
+    @property
+    def snapshot(self) -> InputState:
+        return self.record.state
+
+    @property
+    def reports(self) -> int:
+        return self.record.reports
+
+    @property
+    def bad_reports(self) -> int:
+        return self.record.bad_reports
+
+    @property
+    def last_report_monotonic(self) -> float | None:
+        return self.record.at
+
+    def _handle(self, report: bytes) -> None:
         if self.decoder.feed(report):
-            self.reports += 1
-            if publish:
-                self._publish()
+            self._reports += 1
         else:
-            self.bad_reports += 1
+            self._bad_reports += 1
 
     def _publish(self) -> None:
-        self.snapshot = self.decoder.state()
-        self.last_report_monotonic = time.monotonic()
+        """One assignment: the state, its counts and its time are seen together or not at all.
+        Only when something changed (a refused report changes the counts, not the state)."""
+        last = self.record
+        if (last.reports, last.bad_reports) == (self._reports, self._bad_reports):
+            return
+        at = time.monotonic() if self._reports != last.reports else last.at
+        self.record = ReaderRecord(self.decoder.state(), self._reports, self._bad_reports, at)
 
     def _loop(self) -> None:
         while not self._stop.is_set():
@@ -97,12 +129,11 @@ class DeviceReader:
                 continue
             self._handle(report)
             if self._pause is None:
+                self._publish()
                 continue
-            reports = self.reports
             while (queued := self.device.read(0.0)) is not None:
-                self._handle(queued, publish=False)
-            if self.reports != reports:
-                self._publish()  # once for the whole batch: the tick samples the latest
+                self._handle(queued)
+            self._publish()  # once for the whole batch: the tick samples the latest
             pause = self._pause()
             if pause > 0:
                 self._stop.wait(pause)
