@@ -1,9 +1,11 @@
 """The daemon: wires HID sources, the compiled mapping, node state and the outputs together.
 
-    hotplug/readers ──> NodeTable <── C2Output / SumdOutput threads ──> SerialLink
+    hotplug ──events──> DeviceLifecycle ──> readers ──records──> NodeTable
+                                                     C2Output / SumdOutput <── NodeTable
+                                                     C2Output / SumdOutput ──> SerialLink
 
-Device callbacks run on the hot-plug and reader threads and only take the NodeTable's lock
-briefly; the scheduler threads never wait on a device.
+Devices come and go only on the lifecycle thread (usb2rc.lifecycle); readers publish records
+that the table reads without waiting; the scheduler threads never wait on a device.
 """
 
 from __future__ import annotations
@@ -17,17 +19,14 @@ from dataclasses import dataclass
 
 from usb2rc import __version__
 from usb2rc.config import Config, OutputConfig
-from usb2rc.hid.backend import Backend, DeviceInfo, DevicePermissionError, ErrorCode
-from usb2rc.hid.descriptor import DescriptorError, DeviceLayout, parse_descriptor
+from usb2rc.hid.backend import Backend, Device
+from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor
-from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
-from usb2rc.hid.reader import DeviceReader
-from usb2rc.hid.usages import device_type_name
+from usb2rc.hid.reader import DeviceReader, OnExit
+from usb2rc.lifecycle import DeviceLifecycle
 from usb2rc.mapping import (
     ChannelSource,
-    DeviceBinding,
     Mapping,
-    MappingError,
     NodeInputs,
     compile_mapping,
     sumd_value,
@@ -53,12 +52,6 @@ class _Output:
     link: SerialLink
     thread: TickThread
     rx: RxThread | None = None
-
-
-@dataclass
-class _Present:
-    reader: DeviceReader
-    layout: DeviceLayout
 
 
 def outputs_with_port(config: Config, port_override: str | None) -> tuple[OutputConfig, ...]:
@@ -138,16 +131,15 @@ class Daemon:
         self.output_configs = outputs_with_port(config, port_override) if outputs else ()
         self.mapping: Mapping = compile_mapping(config)
         self.table = NodeTable(expected_nodes(config))
-        self.allocator = NodeIdAllocator(self.mapping.pinned_node_ids())
-        self._alloc_lock = threading.Lock()
-        self._present: dict[str, _Present] = {}
-        self._present_lock = threading.Lock()
         self._on_ready = on_ready
         self._on_tick = on_tick
         self._on_status = on_status
         self._ready_once = threading.Event()
         self.outputs = [self._make_output(i, out) for i, out in enumerate(self.output_configs)]
-        self.monitor = HotplugMonitor(backend, self._device_added, self._device_removed)
+        self.lifecycle = DeviceLifecycle(
+            backend, self.table, self.mapping, self._make_reader, forget=self._forget
+        )
+        self.monitor = HotplugMonitor(backend, self.lifecycle.plugged, self.lifecycle.unplugged)
         self.started_at = 0.0
 
     # --- outputs ---------------------------------------------------------------------------
@@ -199,6 +191,9 @@ class Daemon:
         if self._on_tick and self.all_outputs_ticking():
             self._on_tick()
 
+    def _forget(self, key: str) -> None:
+        self.monitor.forget(key)
+
     def _reader_pause(self) -> float:
         """How long a busy reader may sleep: until READ_AHEAD_S before the next tick of any
         output, so every report that came before a tick is decoded when the tick samples."""
@@ -213,129 +208,9 @@ class Daemon:
 
     # --- devices ---------------------------------------------------------------------------
 
-    def _node_for(self, info: DeviceInfo, pinned: int | None) -> int:
-        with self._alloc_lock:
-            return self.allocator.assign(info, pinned, taken=self.table.node_ids())
-
-    def _release(self, info: DeviceInfo) -> None:
-        with self._alloc_lock:
-            self.allocator.release(info)
-
-    def _report_unusable(
-        self, info: DeviceInfo, code: ErrorCode, message: str, on_pinned: bool = True
-    ) -> None:
-        """A device usb2rc cannot use: log what to do, and send `3` on the node it would
-        have had (its pinned one, else an automatic ID it does not keep). A clash is
-        reported on an automatic ID: the pinned node's own device is fine."""
-        log.error(
-            "%s (%04x:%04x, port %s): %s",
-            info.product or info.path,
-            info.vid,
-            info.pid,
-            info.port_path or "?",
-            message,
-        )
-        entry = self.mapping.entry_for(info) if on_pinned else None
-        try:
-            node_id = self._node_for(info, entry.node_id if entry else None)
-        except NodeIdError:
-            return
-        self._release(info)
-        self.table.report_error(node_id, info, int(code))
-
-    def _open_and_bind(self, info: DeviceInfo) -> tuple[object, DeviceLayout, DeviceBinding] | None:
-        try:
-            device = self.backend.open(info)
-        except DevicePermissionError as exc:
-            self._report_unusable(info, ErrorCode.PERMISSION_DENIED, str(exc))
-            return None
-        except OSError as exc:
-            self._report_unusable(info, ErrorCode.OPEN_FAILED, f"cannot open: {exc}")
-            return None
-        try:
-            layout = parse_descriptor(device.report_descriptor())
-            binding = self.mapping.bind(info, layout)
-        except (DescriptorError, MappingError, OSError) as exc:
-            device.close()
-            self._report_unusable(
-                info, ErrorCode.DESCRIPTOR_UNUSABLE, f"not used: {exc}; usb2rc goes on without it"
-            )
-            return None
-        if binding is None:
-            device.close()
-            log.info(
-                "%s (%04x:%04x): ignored (`defaults: false` and no config entry matches)",
-                info.product,
-                info.vid,
-                info.pid,
-            )
-            return None
-        return device, layout, binding
-
-    def _device_added(self, info: DeviceInfo) -> None:
-        opened = self._open_and_bind(info)
-        if opened is None:
-            return
-        device, layout, binding = opened
-        pinned = binding.node_id
-        if pinned is not None and (other := self.table.entry_in_use(pinned, binding.name)):
-            device.close()  # type: ignore[attr-defined]
-            self._report_unusable(
-                info,
-                ErrorCode.CONFIG_CLASH,
-                f"matches config entry {binding.name!r} like {other.product} "
-                f"(port {other.port_path}), which already feeds node {pinned}: add `serial:` or "
-                "`port:` to that entry's match so each device has its own entry",
-                on_pinned=False,
-            )
-            return
-        if pinned is not None and (auto := self.table.automatic_device_on(pinned)):
-            device.close()  # type: ignore[attr-defined]
-            self._report_unusable(
-                info,
-                ErrorCode.CONFIG_CLASH,
-                f"config entry {binding.name!r} pins node {pinned}, which {auto.product} "
-                f"(port {auto.port_path}) already has as its automatic ID since before the "
-                "config was reloaded: restart usb2rc, or pin another node",
-                on_pinned=False,
-            )
-            return
-        if pinned is None:
-            pinned = self.table.lost_node_of(info, binding)
-        try:
-            node_id = self._node_for(info, pinned)
-        except NodeIdError as exc:
-            device.close()  # type: ignore[attr-defined]
-            log.error("%s: %s", info.product, exc)
-            return
-        reader = DeviceReader(
-            device,  # type: ignore[arg-type]
-            layout.make_decoder(),
-            self._reader_ended,
-            pause=self._reader_pause if self.outputs else None,
-        )
-        with self._present_lock:
-            self._present[info.key] = _Present(reader, layout)
-        self.table.add_device(node_id, info, binding, reader, device_type_name(layout.application))
-        reader.start()
-
-    def _device_removed(self, info: DeviceInfo) -> None:
-        with self._present_lock:
-            present = self._present.pop(info.key, None)
-        if present is not None:
-            present.reader.stop()
-        self.table.remove_device(info.key)
-        self._release(info)  # its node stays (failsafe) in the table, which keeps the ID
-
-    def _reader_ended(self, reader: DeviceReader, code: ErrorCode | None) -> None:
-        with self._present_lock:
-            self._present.pop(reader.info.key, None)
-        self.table.remove_device(reader.info.key, int(code) if code else None)
-        self._release(reader.info)
-        if code is not None:
-            # A read failure on a device that is still plugged: look at it again on the next
-            # hot-plug scan (a transient error recovers; a dead device fails again, counted).
-            self.monitor.forget(reader.info.key)
+    def _make_reader(self, device: Device, layout: DeviceLayout, on_exit: OnExit) -> DeviceReader:
+        pause = self._reader_pause if self.outputs else None
+        return DeviceReader(device, layout.make_decoder(), on_exit, pause=pause)
 
     # --- life cycle ------------------------------------------------------------------------
 
@@ -350,23 +225,18 @@ class Daemon:
                 "plugged in (`usb2rc list --all` shows every HID device and why it is not used)"
             )
         for info in present:
-            try:
-                self._device_added(info)
-            except Exception:  # one device must not stop the others from starting
-                log.exception("%s: could not be added; going on without it", info.product)
+            self.lifecycle.plugged(info)
+        self.lifecycle.handle_queued()  # before the outputs start: no thread owns them yet
         for out in self.outputs:
             out.thread.start()
             if out.rx is not None:
                 out.rx.start()
+        self.lifecycle.start()
         self.monitor.start()
 
     def stop(self) -> None:
         self.monitor.stop()
-        with self._present_lock:
-            readers = [p.reader for p in self._present.values()]
-            self._present.clear()
-        for reader in readers:
-            reader.stop()
+        readers = self.lifecycle.stop(JOIN_TIMEOUT_S)
         for out in self.outputs:
             out.thread.stop()
             if out.rx is not None:
@@ -381,24 +251,12 @@ class Daemon:
             out.link.close()
 
     def reload(self, config: Config) -> None:
-        """Take a new, already validated config: the mapping changes without a tick lost."""
+        """Take a new, already validated config: the mapping changes without a tick lost.
+        The lifecycle thread applies it between two device events, so a device plugged
+        meanwhile is bound with the new mapping either way."""
         mapping = compile_mapping(config)
-        with self._present_lock:
-            layouts = {key: p.layout for key, p in self._present.items()}
-
-        def rebind(info: DeviceInfo) -> DeviceBinding | None:
-            layout = layouts.get(info.key)
-            if layout is None:
-                return None
-            try:
-                return mapping.bind(info, layout)
-            except MappingError as exc:
-                log.error("%s: %s (keeps its previous mapping)", info.product, exc)
-                return None
-
-        with self._alloc_lock:
-            self.allocator.reserve(mapping.pinned_node_ids())
-        self.table.rebind(rebind, expected_nodes(config))
+        if not self.lifecycle.reload(mapping, expected_nodes(config)):
+            log.error("config reload: the device thread did not take it within 5 s")
         self.mapping = mapping
         if self.outputs and outputs_with_port(config, self.port_override) != self.output_configs:
             log.warning("config reloaded; changed outputs take effect after a restart")
@@ -431,15 +289,13 @@ class Daemon:
                 )
             lines.append(line)
         now = time.monotonic()
-        with self._present_lock:
-            present = list(self._present.values())
-        for p in present:
-            r = p.reader
-            age = f"{now - r.last_report_monotonic:.2f} s" if r.last_report_monotonic else "never"
-            uptime = max(1e-9, now - self.started_at)
+        uptime = max(1e-9, now - self.started_at)
+        for reader in self.lifecycle.readers:
+            info, record = reader.info, reader.record
+            age = f"{now - record.at:.2f} s" if record.at is not None else "never"
             lines.append(
-                f"device {r.info.product or r.info.path} ({r.info.port_path}): "
-                f"{r.reports} reports ({r.reports / uptime:.1f}/s avg), bad {r.bad_reports}, "
-                f"last report {age} ago"
+                f"device {info.product or info.path} ({info.port_path}): "
+                f"{record.reports} reports ({record.reports / uptime:.1f}/s avg), "
+                f"bad {record.bad_reports}, last report {age} ago"
             )
         return lines
