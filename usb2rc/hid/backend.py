@@ -72,7 +72,7 @@ def permission_message(node: str) -> str:
     return (
         f"permission denied on {node}: install the udev rule {UDEV_RULES_FILE} to "
         f"{UDEV_RULES_INSTALLED} and run `sudo udevadm control --reload && "
-        "sudo udevadm trigger` (then re-plug the device), or add your user to the group that "
+        "sudo udevadm trigger --subsystem-match=hidraw`, or add your user to the group that "
         f"owns {node} (see `ls -l {node}`) and log in again"
     )
 
