@@ -28,7 +28,7 @@ def _check_range(node_id: int) -> int:
 
 
 class NodeIdAllocator:
-    """Not thread-safe: the caller (state.NodeTable) holds its lock around every call."""
+    """Not thread-safe: only the lifecycle thread (usb2rc.lifecycle) calls it."""
 
     def __init__(self, pinned: Iterable[int] = ()) -> None:
         self._pinned = {_check_range(n) for n in pinned}
