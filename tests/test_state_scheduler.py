@@ -20,6 +20,7 @@ from usb2rc.mapping import ChannelSource, compile_mapping, default_binding
 from usb2rc.protocol import c2_16b
 from usb2rc.scheduler import C2Output, C2Settings
 from usb2rc.state import NodeFrame, NodeTable
+from usb2rc.transport import LineEvent, Written
 
 LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
 
@@ -100,16 +101,24 @@ class FakeLink:
     is_open: bool = True
     accept: bool = True
     writes: list[bytes] = field(default_factory=list)
+    _adopted: bool = False
 
     def try_open(self) -> bool:
         return True
 
-    def take_opened(self) -> bool:
-        return False
+    def line_event(self) -> LineEvent | None:
+        if self._adopted:
+            return None
+        self._adopted = True
+        return LineEvent.OPENED
 
-    def write(self, data: bytes) -> bool:
+    def write(self, data: bytes) -> Written:
         if self.accept:
             self.writes.append(data)
+            return Written(len(data))
+        return Written(0)
+
+    def drained(self) -> bool:
         return self.accept
 
     def close(self) -> None:

@@ -7,7 +7,7 @@ import threading
 import serial
 
 from usb2rc import transport
-from usb2rc.transport import SerialLink
+from usb2rc.transport import LineEvent, SerialLink
 
 
 def test_a_slow_open_runs_aside_and_is_reported_once(monkeypatch):
@@ -28,8 +28,8 @@ def test_a_slow_open_runs_aside_and_is_reported_once(monkeypatch):
     release.set()
     link._opener.join(10)
     assert link.is_open
-    assert link.take_opened() is True and link.take_opened() is False
-    assert link.write(b"H-") and link.stats.opens == 1
+    assert link.line_event() is LineEvent.OPENED and link.line_event() is None
+    assert link.write(b"H-").sent == 2 and link.stats.opens == 1
     link.close()
 
 
@@ -45,4 +45,4 @@ def test_a_failing_open_is_logged_once_with_what_to_do(monkeypatch, caplog):
         link._opener.join(10)
     errors = [r.message for r in caplog.records if "ttyUSB9" in r.message]
     assert len(errors) == 1 and "--port" in errors[0]
-    assert not link.take_opened()
+    assert link.line_event() is None

@@ -31,8 +31,18 @@ from usb2rc.mapping import (
     compile_mapping,
     sumd_value,
 )
+from usb2rc.protocol import c2_16b, sumd
 from usb2rc.protocol.c2_16b import AXIS_NAMES
-from usb2rc.scheduler import C2Output, C2Settings, ChannelValue, RxThread, SumdOutput, TickThread
+from usb2rc.scheduler import (
+    C2Output,
+    C2Settings,
+    ChannelValue,
+    RxThread,
+    SumdOutput,
+    TickThread,
+    queue_cap,
+)
+from usb2rc.session import frames_per_tick
 from usb2rc.state import Expected, ExpectedEntry, NodeFrame, NodeTable
 from usb2rc.transport import SerialLink
 
@@ -146,10 +156,11 @@ class Daemon:
 
     def _make_output(self, index: int, out: OutputConfig) -> _Output:
         assert out.port
-        link = SerialLink(out.port, out.baudrate)
         name = f"output{index + 1}-{out.protocol}"
         if out.protocol == "sumd":
             channels = [sumd_channel(s, out.extended) for s in self.mapping.sumd_channels(out)]
+            frame_len = sumd.frame_length(max(sumd.MIN_CHANNELS, len(channels)))
+            link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(frame_len))
             thread: TickThread = SumdOutput(
                 name, link, self.table, channels, out.rate_hz, self._tick, self._first_write
             )
@@ -161,8 +172,11 @@ class Daemon:
             binary_status=out.service_status == "binary",
             version=self.version,
         )
+        frame_len = c2_16b.FRAME_LEN + (1 if out.line_feed else 0)
+        tick_bytes = frames_per_tick(out.baudrate, out.rate_hz, frame_len) * frame_len
+        link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(tick_bytes))
         c2 = C2Output(name, link, self.table, settings, self._tick, self._first_write)
-        rx = RxThread(f"{name}-rx", link, self.table, c2.subscriber)
+        rx = RxThread(f"{name}-rx", link, c2.received.put)
         return _Output(out, link, c2, rx)
 
     def _first_write(self) -> None:
@@ -274,6 +288,7 @@ class Daemon:
                 f"late {st.late_ticks}, missed {st.missed_ticks}, p99 |period error| "
                 f"{p99:.3f} ms, bytes {link.bytes_written}, queue-full skips "
                 f"{link.writes_skipped_queue_full}, write timeouts {link.write_timeouts}, "
+                f"short writes {link.short_writes}, stalls {st.stalls}, "
                 f"line lost {link.losses}x, tick errors {st.tick_errors}"
             )
             if isinstance(out.thread, C2Output):

@@ -1,64 +1,55 @@
 """The scheduler: one thread per output, ticking against absolute monotonic deadlines.
 
-A C2-16B tick writes, in one `write()`, the pending service frames and then one data frame
-per node (round-robin when the baud rate cannot carry them all). A SUMD tick writes one
-frame. A late tick is counted, never caught up with a burst. An RX thread per C2-16B output
-answers the far end's `<` and `4` requests.
+Each output thread is a thin loop around its line session (`usb2rc.session`): once a tick it
+follows the link (`line_event()`: a new port, a lost one; `drained()` after a stall), takes
+the node table's events and snapshot, asks the session for the tick's bytes, writes them in
+one `write()` and tells the session how many went out. A late tick is counted, never caught
+up with a burst. An RX thread per C2-16B output decodes what the far end sends and hands the
+frames to the output thread, whose session answers `<` and `4` requests.
 """
 
 from __future__ import annotations
 
-import itertools
 import logging
+import queue
 import threading
 import time
 import traceback
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
-from usb2rc.protocol import c2_16b, sumd
-from usb2rc.state import EventKind, NodeFrame, NodeTable, ServiceEvent
-from usb2rc.transport import SerialLink
+from usb2rc.protocol import c2_16b
+from usb2rc.session import (  # noqa: F401 - re-exported: their home used to be here
+    BITS_PER_BYTE_ON_WIRE,
+    C2Session,
+    C2Settings,
+    Delivered,
+    SumdSession,
+    baud_needed,
+    device_string_text,
+    frames_per_tick,
+)
+from usb2rc.state import NodeFrame, NodeTable
+from usb2rc.transport import LineEvent, SerialLink, Written
 
 log = logging.getLogger("usb2rc.scheduler")
 
-BITS_PER_BYTE_ON_WIRE = 10  # 8N1: start + 8 data + stop
+PERIODS_KEPT = 3000
 
 
-def frames_per_tick(baudrate: int, rate_hz: float, frame_len: int) -> int:
-    """How many frames of frame_len bytes the line carries in one tick (at least 1)."""
-    bytes_per_tick = baudrate / BITS_PER_BYTE_ON_WIRE / rate_hz
-    return max(1, int(bytes_per_tick // frame_len))
-
-
-def baud_needed(frames: int, rate_hz: float, frame_len: int) -> int:
-    """The smallest standard baud rate that carries `frames` frames per tick."""
-    needed = frames * frame_len * BITS_PER_BYTE_ON_WIRE * rate_hz
-    for baud in (115200, 230400, 460800, 500000, 921600, 1000000, 1500000, 2000000):
-        if baud >= needed:
-            return baud
-    return int(needed)
-
-
-def device_string_text(product: str, manufacturer: str = "", limit: int = 12) -> str:
-    """The product name for service frame `5`: without the maker's name in front.
-
-    Kernel and hid-recorder names are "Manufacturer Product" ("Thrustmaster T.16000M"); the
-    12 bytes the frame carries are better spent on the product. With no manufacturer known,
-    the first word goes when the name does not fit.
-    """
-    name = product.strip()
-    if manufacturer and name.lower().startswith(manufacturer.lower() + " "):
-        return name[len(manufacturer) :].strip()
-    _, _, rest = name.partition(" ")
-    if not manufacturer and len(name) > limit and rest:
-        return rest.strip()
-    return name
+def queue_cap(tick_bytes: int) -> int:
+    """At most two ticks of frames wait in an OS transmit queue that reports its size:
+    what comes out after a stall is never older than that (docs/ICD.md)."""
+    return 2 * tick_bytes
 
 
 @dataclass
 class OutputStats:
+    """Counters of one output. The output thread writes them; `stats_lines` reads them from
+    another thread, so the periods are only read through `periods()` (a copy under a lock:
+    iterating the deque while the writer appends would raise)."""
+
     ticks: int = 0
     late_ticks: int = 0
     missed_ticks: int = 0
@@ -67,12 +58,23 @@ class OutputStats:
     service_frames: int = 0
     deferred_nodes: int = 0
     tick_errors: int = 0
-    periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=3000))
+    stalls: int = 0
+    periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
+    _periods_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def add_period(self, period_s: float) -> None:
+        with self._periods_lock:
+            self.periods_s.append(period_s)
+
+    def periods(self) -> list[float]:
+        with self._periods_lock:
+            return list(self.periods_s)
 
     def period_p99_error_ms(self, nominal_s: float) -> float:
-        if not self.periods_s:
+        periods = self.periods()
+        if not periods:
             return 0.0
-        errors = sorted(abs(p - nominal_s) for p in self.periods_s)
+        errors = sorted(abs(p - nominal_s) for p in periods)
         return errors[min(len(errors) - 1, int(len(errors) * 0.99))] * 1000.0
 
 
@@ -156,7 +158,7 @@ class TickThread(threading.Thread):
     def note_write(self) -> None:
         now = time.monotonic()
         if self._last_write:
-            self.stats.periods_s.append(now - self._last_write)
+            self.stats.add_period(now - self._last_write)
         self._last_write = now
         self.stats.writes += 1
         if self.on_first_write:
@@ -164,23 +166,57 @@ class TickThread(threading.Thread):
             self._safe_call(callback)
 
 
-@dataclass(frozen=True)
-class _Pending:
-    node_id: int
-    event: ServiceEvent
-    frame: bytes
+class _LineThread(TickThread):
+    """An output thread: follows its link and feeds the session what the line did."""
+
+    def __init__(
+        self,
+        name: str,
+        link: SerialLink,
+        session: C2Session | SumdSession,
+        rate_hz: float,
+        on_tick: Callable[[], None] | None,
+        on_first_write: Callable[[], None] | None,
+    ) -> None:
+        super().__init__(name, rate_hz, on_tick, on_first_write)
+        self.link = link
+        self.session = session
+
+    def follow_link(self) -> None:
+        """The line's events, in this thread only: a new port is adopted (and the session
+        told) before anything is written on it; a stalled line is resumed once drained."""
+        if not self.link.is_open:
+            self.link.try_open()
+        event = self.link.line_event()
+        if event is LineEvent.OPENED:
+            self.line_opened()
+        elif event is LineEvent.LOST:
+            self.session.line_lost()
+        if self.session.stalled and self.link.drained():
+            self.session.line_drained()
+
+    def line_opened(self) -> None:
+        self.session.line_opened()
+
+    def send(self, data: bytes) -> Delivered | None:
+        """Write the session's bytes and tell it what went out."""
+        if not data:
+            return None
+        written: Written = self.link.write(data)
+        if written.lost:
+            self.session.line_lost()
+            return None
+        delivered = self.session.wrote(written.sent, written.unsure)
+        self.stats.stalls = self.session.stalls
+        if written.sent or written.unsure:
+            self.note_write()
+        return delivered
+
+    def finish(self) -> None:
+        self.link.close()
 
 
-@dataclass(frozen=True)
-class C2Settings:
-    rate_hz: float = 50.0
-    baudrate: int = 115200
-    line_feed: bool = True
-    binary_status: bool = False
-    version: str = "0.0.0"
-
-
-class C2Output(TickThread):
+class C2Output(_LineThread):
     """SERaero C2-16B: startup, service frames, one data frame per node per tick."""
 
     def __init__(
@@ -192,164 +228,46 @@ class C2Output(TickThread):
         on_tick: Callable[[], None] | None = None,
         on_first_write: Callable[[], None] | None = None,
     ) -> None:
-        super().__init__(name, settings.rate_hz, on_tick, on_first_write)
-        self.link = link
+        session = C2Session(settings, name=link.url)
+        super().__init__(name, link, session, settings.rate_hz, on_tick, on_first_write)
+        self.c2 = session
         self.table = table
         self.settings = settings
         self.subscriber = table.subscribe()
-        self.frame_len = c2_16b.FRAME_LEN + (1 if settings.line_feed else 0)
-        self.capacity = frames_per_tick(settings.baudrate, settings.rate_hz, self.frame_len)
-        self._codes: dict[int, int] = {}
-        self._on_line: set[int] = set()  # nodes whose data frames this line has seen
-        self._pending: deque[_Pending] = deque()  # service frames owed, in order
-        self._round_robin = 0
-        self._warned_nodes = 0
-        self._startup_due = True
-        # built once here: a version that does not fit the frame fails at start, loudly
-        self._startup_frame = c2_16b.startup(settings.version, **self._kw())
+        self.frame_len = session.frame_len
+        self.capacity = session.capacity
+        # frames the far end sent (RX thread -> this thread): the session answers them
+        self.received: queue.SimpleQueue[c2_16b.Frame] = queue.SimpleQueue()
 
-    def _line_opened(self) -> None:
-        """A fresh line (or one that came back): the startup frame, then who is here."""
-        self._startup_due = True
-        self._pending.clear()
-        self._on_line.clear()
+    def line_opened(self) -> None:
+        """A fresh line: the startup frame, then the connect sequence of every device."""
+        self.c2.line_opened()
         self.table.collect(self.subscriber)  # what was queued is superseded by:
         self.table.request_connect_sequences(self.subscriber)
 
-    def _kw(self) -> dict[str, bool]:
-        return {
-            "binary_status": self.settings.binary_status,
-            "line_feed": self.settings.line_feed,
-        }
-
-    def service_frames(self, event: ServiceEvent) -> list[bytes]:
-        kw, node = self._kw(), event.node_id
-        if event.kind is EventKind.DISCONNECTED:
-            return [c2_16b.disconnected(node, **kw)]
-        if event.kind is EventKind.ERROR:
-            return [c2_16b.device_error(node, event.error_code, **kw)]
-        info = event.info
-        assert info is not None
-        return [
-            c2_16b.connected(node, **kw),
-            c2_16b.vid_pid(node, info.vid, info.pid, **kw),
-            c2_16b.device_string(node, device_string_text(info.product, info.manufacturer), **kw),
-            c2_16b.device_type(node, event.device_type or "", **kw),
-        ]
-
-    def data_frame(self, frame: NodeFrame, code: int) -> bytes:
-        status = c2_16b.FAILSAFE if frame.failsafe else c2_16b.LIVE
-        return c2_16b.encode_data(
-            status,
-            frame.node_id,
-            code,
-            frame.axes,
-            frame.group1,
-            frame.group2,
-            line_feed=self.settings.line_feed,
-        )
-
-    def _announcing(self) -> set[int]:
-        """Nodes whose connect sequence is still queued (not yet on the line)."""
-        return {p.node_id for p in self._pending if p.event.kind is EventKind.CONNECTED}
-
-    def _choose_nodes(self, frames: Sequence[NodeFrame], room: int) -> list[NodeFrame]:
-        """The nodes that get a data frame this tick: all of them when they fit, else a
-        round-robin share. A node new on this line waits for its connect sequence; a node
-        already on it keeps its frames coming (as `!`, see tick) while it is re-announced."""
-        held = self._announcing() - self._on_line
-        ready = [f for f in frames if f.node_id not in held]
-        if len(ready) <= room:
-            return ready
-        if len(frames) > self.capacity:
-            self._warn_bandwidth([f.node_id for f in frames])
-        start = self._round_robin % len(ready)
-        chosen = (ready[start:] + ready[:start])[:room]
-        self._round_robin = start + room
-        self.stats.deferred_nodes += len(ready) - len(chosen)
-        return sorted(chosen, key=lambda f: f.node_id)
-
-    def _warn_bandwidth(self, node_ids: list[int]) -> None:
-        nodes = len(node_ids)
-        if nodes <= self._warned_nodes:
-            return
-        self._warned_nodes = nodes
-        log.warning(
-            "%s: nodes %s need %d frames per %.0f ms tick but %d baud carries %d; sending "
-            "nodes round-robin (each node every %.1f ticks). %d baud would carry them all.",
-            self.link.url,
-            ", ".join(map(str, node_ids)),
-            nodes,
-            self.period_s * 1000,
-            self.settings.baudrate,
-            self.capacity,
-            nodes / max(1, self.capacity),
-            baud_needed(nodes, self.settings.rate_hz, self.frame_len),
-        )
-
-    def _queue(self, events: Sequence[ServiceEvent]) -> None:
-        queued = {p.event for p in self._pending}
-        for event in events:
-            if event.kind is EventKind.CONNECTED and event in queued:
-                continue  # that connect sequence is still on its way: once is enough
-            queued.add(event)
-            self._pending.extend(
-                _Pending(event.node_id, event, f) for f in self.service_frames(event)
-            )
-
-    def _service_room(self, nodes: int) -> int:
-        """Service frames first, but never all the room while nodes wait for data frames:
-        a far end that keeps asking must not starve the data (at least one slot for data
-        when every node fits, at least one for service frames otherwise)."""
-        if not self._pending and not self._startup_due:
-            return 0
-        return max(1, self.capacity - nodes)
-
     def tick(self) -> None:
-        if not self.link.is_open:
-            self.link.try_open()
-        if self.link.take_opened():
-            self._line_opened()
+        self.follow_link()
         events, frames = self.table.collect(self.subscriber)
-        if not self.link.is_open:
-            self._pending.clear()  # the line is gone: the startup + connect sequence follow
-            return
-        self._queue(events)
-        service_room = self._service_room(len(frames))
-        out: list[bytes] = []
-        if self._startup_due:
-            out.append(self._startup_frame)
-        taken = list(itertools.islice(self._pending, max(0, service_room - len(out))))
-        out.extend(p.frame for p in taken)
-        service_count = len(out)
-        for _ in taken:  # a node whose service frames are still queued waits for them
-            self._pending.popleft()
-        chosen = self._choose_nodes(frames, self.capacity - service_count)
-        announcing = self._announcing()  # never `>` ahead of the node's connect sequence
-        chosen = [replace(f, failsafe=True) if f.node_id in announcing else f for f in chosen]
-        codes = [self._codes.get(f.node_id, 0) for f in chosen]
-        out.extend(self.data_frame(f, code) for f, code in zip(chosen, codes, strict=True))
-        if not out:
-            return
-        if self.link.write(b"".join(out)):
-            self._startup_due = False
-            for f, code in zip(chosen, codes, strict=True):
-                self._codes[f.node_id] = (code + 1) & 0xFF
-            self._on_line.update(f.node_id for f in chosen)
-            self.stats.service_frames += service_count
-            self.stats.data_frames += len(chosen)
-            self.note_write()
-        else:  # nothing went out: the service frames are owed still, the codes not used
-            self._pending.extendleft(reversed(taken))
+        self._take_received()
+        delivered = self.send(self.c2.tick(events, frames))
+        self.stats.deferred_nodes = self.c2.deferred_nodes
+        if delivered is not None:
+            self.stats.service_frames += delivered.service_frames
+            self.stats.data_frames += delivered.data_frames
 
-    def finish(self) -> None:
-        self.link.close()
+    def _take_received(self) -> None:
+        while True:
+            try:
+                frame = self.received.get_nowait()
+            except queue.Empty:
+                return
+            self.c2.received(frame)
 
 
 ChannelValue = Callable[[dict[int, NodeFrame]], tuple[int, bool]]
 
 
-class SumdOutput(TickThread):
+class SumdOutput(_LineThread):
     """HoTT SUMD: one frame of the configured channels per tick (100 Hz)."""
 
     def __init__(
@@ -362,16 +280,16 @@ class SumdOutput(TickThread):
         on_tick: Callable[[], None] | None = None,
         on_first_write: Callable[[], None] | None = None,
     ) -> None:
-        super().__init__(name, rate_hz, on_tick, on_first_write)
-        self.link = link
+        self.sumd = SumdSession()
+        super().__init__(name, link, self.sumd, rate_hz, on_tick, on_first_write)
         self.table = table
         self.channels = list(channels)
         self.frames_sent = 0
 
     def tick(self) -> None:
-        if not self.link.is_open and not self.link.try_open():
+        self.follow_link()
+        if not self.sumd.line_open or self.sumd.stalled:
             return
-        self.link.take_opened()
         nodes = {f.node_id: f for f in self.table.frames()}
         values: list[int] = []
         failsafe = False
@@ -379,22 +297,21 @@ class SumdOutput(TickThread):
             value, channel_failsafe = channel(nodes)
             values.append(value)
             failsafe = failsafe or channel_failsafe
-        if self.link.write(sumd.encode_sumd(values, failsafe=failsafe)):
-            self.frames_sent += 1
-            self.note_write()
-
-    def finish(self) -> None:
-        self.link.close()
+        delivered = self.send(self.sumd.tick(values, failsafe))
+        if delivered is not None:
+            self.frames_sent += delivered.data_frames
 
 
 class RxThread(threading.Thread):
-    """Reads what the far end sends on a C2-16B line and answers `<` and `4` requests."""
+    """Reads what the far end sends on a C2-16B line and hands each frame to `on_frame`
+    (the output thread's queue: its session answers `<` and `4` requests)."""
 
-    def __init__(self, name: str, link: SerialLink, table: NodeTable, subscriber: int) -> None:
+    def __init__(
+        self, name: str, link: SerialLink, on_frame: Callable[[c2_16b.Frame], None]
+    ) -> None:
         super().__init__(name=name)
         self.link = link
-        self.table = table
-        self.subscriber = subscriber
+        self.on_frame = on_frame
         self.decoder = c2_16b.Decoder()
         self.requests = 0
         self._stop_event = threading.Event()
@@ -410,12 +327,16 @@ class RxThread(threading.Thread):
             data = self.link.read()
             if data:
                 for frame in self.decoder.feed(data):
-                    self._answer(frame)
+                    self._hand_over(frame)
 
-    def _answer(self, frame: c2_16b.DataFrame | c2_16b.ServiceFrame) -> None:
-        if isinstance(frame, c2_16b.DataFrame) and frame.status == c2_16b.CONFIG_REQUEST:
+    def _hand_over(self, frame: c2_16b.Frame) -> None:
+        if is_request(frame):
             self.requests += 1
-            self.table.request_connect_sequences(self.subscriber)
-        elif isinstance(frame, c2_16b.ServiceFrame) and frame.service == c2_16b.Service.POLL:
-            self.requests += 1
-            self.table.request_connect_sequences(self.subscriber, frame.node_id)
+            self.on_frame(frame)
+
+
+def is_request(frame: c2_16b.Frame) -> bool:
+    """A `<` config request or a `4` poll request: what the far end may ask."""
+    if isinstance(frame, c2_16b.DataFrame):
+        return frame.status == c2_16b.CONFIG_REQUEST
+    return frame.service is c2_16b.Service.POLL

@@ -1,23 +1,45 @@
 """The serial line: pyserial's `serial_for_url`, reopened every second while it is gone.
 
 Any pyserial URL works (`/dev/serial0`, `socket://host:port`, `spy:///dev/ttyUSB0`,
-`loop://`). A missing or vanished port is logged once, retried every second, and reported
-back through `take_opened()`; opening happens in a helper thread, so a slow open never
-blocks a tick; writes never block a tick for longer than
-`write_timeout_s`, and the OS transmit queue is never allowed to grow past `max_queued_bytes`.
+`loop://`). A missing or vanished port is logged once and retried every second; opening
+happens in a helper thread, so a slow open never blocks a tick.
+
+Two threads use a link: the output's writer thread and its RX thread. Only the writer thread
+writes, closes and *adopts* a port: the opener publishes a new port, and the writer learns
+of it from `line_event()` (OPENED) before it writes anything on it, so the output session
+always hears of a new line before its first byte goes out.
+
+A write never blocks a tick and says how many bytes went out (`Written`):
+- posix ports (serial ports, ptys): one non-blocking `os.write` on the port's fd;
+- `socket://`: one non-blocking `send` on its socket (whose send buffer is kept small);
+- other URLs (`loop://`, `rfc2217://`, ...): `port.write` in pieces that fit the write
+  timeout; a piece that times out may or may not have gone (`Written.unsure`).
+Where the OS reports its transmit queue (serial ports, `loop://`), a write that would push
+it past `max_queued_bytes` is skipped (0 bytes); where it does not (ptys, sockets), a write
+the OS does not take whole says the far end stopped reading. Either way the writer waits
+for `drained()` before it writes again.
 """
 
 from __future__ import annotations
 
 import contextlib
+import enum
 import logging
+import os
+import queue
+import select
+import socket
 import threading
 import time
 from dataclasses import dataclass
 
 import serial
+import serial.serialposix
 
 log = logging.getLogger("usb2rc.serial")
+
+PTY_SLAVE_MAJORS = range(136, 144)  # Linux UNIX98 pty slaves: TIOCOUTQ always reads 0
+SOCKET_SEND_BUFFER = 4096  # bytes: what a stalled TCP bridge can hold back from us
 
 
 @dataclass
@@ -26,9 +48,25 @@ class LinkStats:
     writes: int = 0
     writes_skipped_queue_full: int = 0
     write_timeouts: int = 0
+    short_writes: int = 0  # the OS took less than the whole write (the far end stalls)
     bytes_read: int = 0
     losses: int = 0
     opens: int = 0
+
+
+@dataclass(frozen=True)
+class Written:
+    """What one write put out: `sent` bytes surely (a prefix), then `unsure` bytes that may
+    or may not have gone; `lost`: the write failed and the port is closed."""
+
+    sent: int
+    unsure: int = 0
+    lost: bool = False
+
+
+class LineEvent(enum.Enum):
+    OPENED = "opened"  # the writer adopted a new port: a fresh line
+    LOST = "lost"  # the port failed and is closed
 
 
 def _describe_open_error(url: str, exc: Exception) -> str:
@@ -44,6 +82,29 @@ def _describe_open_error(url: str, exc: Exception) -> str:
             "(ls /dev/serial* /dev/ttyUSB* /dev/ttyACM*) or give another one with --port."
         )
     return f"serial port {url}: {text}"
+
+
+def _posix_fd(port: serial.SerialBase) -> int | None:
+    """The fd to write on directly: a plain posix port (not a `spy://` wrapper, whose own
+    write logs what goes out)."""
+    if not isinstance(port, serial.serialposix.Serial):
+        return None
+    if type(port).write is not serial.serialposix.Serial.write:
+        return None
+    fd = getattr(port, "fd", None)
+    return fd if isinstance(fd, int) else None
+
+
+def _socket_of(port: serial.SerialBase) -> socket.socket | None:
+    sock = getattr(port, "_socket", None)  # pyserial's socket:// keeps it non-blocking
+    return sock if isinstance(sock, socket.socket) else None
+
+
+def _is_pty(fd: int) -> bool:
+    try:
+        return os.major(os.fstat(fd).st_rdev) in PTY_SLAVE_MAJORS
+    except OSError:
+        return False
 
 
 class SerialLink:
@@ -64,10 +125,11 @@ class SerialLink:
         self.max_queued_bytes = max_queued_bytes
         self.reopen_interval_s = reopen_interval_s
         self._opener: threading.Thread | None = None
-        self._opened = False
         self._closing = False
         self.stats = LinkStats()
-        self._port: serial.SerialBase | None = None
+        self._port: serial.SerialBase | None = None  # published by the opener
+        self._adopted: serial.SerialBase | None = None  # the writer's port (writer thread)
+        self._queue_known = False  # the adopted port reports its transmit queue
         # A read failure seen by the RX thread: (port, error). Only the writer thread closes
         # the port, so a write never races a close (nor an fd number reused meanwhile).
         self._broken: tuple[serial.SerialBase, BaseException] | None = None
@@ -85,19 +147,21 @@ class SerialLink:
         port, broken = self._port, self._broken
         return port is not None and (broken is None or broken[0] is not port)
 
+    # --- opening (any thread) ------------------------------------------------------------
+
     def open_now(self) -> bool:
-        """Open the port in this thread (at start). Never raises."""
+        """Open the port in this thread (at start). Never raises. The writer still adopts it
+        through `line_event()`, so its first tick starts the line with the startup frame."""
         if self._port is not None:
             return True
         self._next_attempt = time.monotonic() + self.reopen_interval_s
         self._open()
-        self._opened = False  # the first opening: the output starts with its startup frame
         return self._port is not None
 
     def try_open(self) -> bool:
         """Never blocks: if the port is closed and the retry interval has passed, open it in
         a helper thread (a USB-serial adapter or a TCP bridge can take a while to open) and
-        return; the caller sees `is_open` once it is, and `take_opened()` once per opening."""
+        return; the writer adopts it with `line_event()` once it is open."""
         if self._port is not None:
             return True
         now = time.monotonic()
@@ -108,11 +172,6 @@ class SerialLink:
         self._opener = threading.Thread(target=self._open, name=f"open {self.url}")
         self._opener.start()
         return False
-
-    def take_opened(self) -> bool:
-        """True once after each successful opening: the caller starts the line afresh."""
-        opened, self._opened = self._opened, False
-        return opened
 
     def _open(self) -> None:
         try:
@@ -132,18 +191,134 @@ class SerialLink:
         if self._closing:
             port.close()
             return
+        self._limit_socket_buffer(port)
         self.stats.opens += 1
         if self._was_lost_logged:
             log.warning("serial port %s is back", self.url)
         self._was_lost_logged = False
         self.last_error = ""
-        self._opened = True
         with self._lock:
-            self._port = port
+            self._port = port  # one step: the writer adopts it whole, or not yet
+
+    def _limit_socket_buffer(self, port: serial.SerialBase) -> None:
+        """A TCP bridge that stops reading holds back what the send buffer holds: keep it
+        small, so what comes out after a stall is not seconds old."""
+        sock = _socket_of(port)
+        if sock is not None:
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SOCKET_SEND_BUFFER)
+
+    # --- the writer thread ---------------------------------------------------------------
+
+    def line_event(self) -> LineEvent | None:
+        """Writer thread, once a tick: OPENED when a new port is there (from now on writes
+        go to it), LOST when the RX thread found the adopted port broken; else None."""
+        adopted, broken = self._adopted, self._broken
+        if adopted is not None and broken is not None and broken[0] is adopted:
+            self._lost(broken[1])
+            return LineEvent.LOST
+        port = self._port
+        if port is None or port is adopted:
+            return None
+        self._adopted = port
+        self._queue_known = self._reports_queue(port)
+        return LineEvent.OPENED
+
+    def write(self, data: bytes) -> Written:
+        """Write one tick's bytes on the adopted port, without blocking the tick."""
+        port = self._adopted
+        if port is None or not data:
+            return Written(0)
+        queued = self._queued_bytes(port)
+        if queued is not None and queued + len(data) > self.max_queued_bytes:
+            self.stats.writes_skipped_queue_full += 1
+            return Written(0)
+        try:
+            result = self._put(port, data)
+        except (serial.SerialException, OSError) as exc:
+            self._lost(exc)
+            return Written(0, lost=True)
+        self.stats.writes += 1
+        self.stats.bytes_written += result.sent
+        if result.sent < len(data):
+            self.stats.short_writes += 1
+        return result
+
+    def drained(self) -> bool:
+        """After a stall: may the writer write again? With a reported transmit queue, once it
+        holds at most half of `max_queued_bytes`; otherwise once the OS takes bytes again
+        (the port's fd or socket is writable)."""
+        port = self._adopted
+        if port is None:
+            return False
+        queued = self._queued_bytes(port)
+        if queued is not None:
+            return queued <= self.max_queued_bytes // 2
+        handle: int | socket.socket | None = _posix_fd(port)
+        if handle is None:
+            handle = _socket_of(port)
+        if handle is None:
+            return True  # nothing to ask: try again
+        try:
+            return bool(select.select([], [handle], [], 0)[1])
+        except (OSError, ValueError):
+            return True  # the next write finds out what is wrong
+
+    def _put(self, port: serial.SerialBase, data: bytes) -> Written:
+        fd = _posix_fd(port)
+        if fd is not None:
+            try:
+                return Written(os.write(fd, data))
+            except BlockingIOError:
+                return Written(0)
+        sock = _socket_of(port)
+        if sock is not None:
+            try:
+                return Written(sock.send(data))
+            except BlockingIOError:
+                return Written(0)
+        return self._put_in_pieces(port, data)
+
+    def _put_in_pieces(self, port: serial.SerialBase, data: bytes) -> Written:
+        """`port.write` in pieces the write timeout allows at the baud rate (pyserial's
+        `loop://` refuses a longer write outright); a piece that times out is unsure."""
+        piece = max(1, int(self.baudrate / 10 * self.write_timeout_s))
+        sent = 0
+        while sent < len(data):
+            chunk = data[sent : sent + piece]
+            try:
+                port.write(chunk)
+            except (serial.SerialTimeoutException, queue.Full):
+                self.stats.write_timeouts += 1
+                return Written(sent, len(chunk))
+            sent += len(chunk)
+        return Written(sent)
+
+    def _reports_queue(self, port: serial.SerialBase) -> bool:
+        fd = _posix_fd(port)
+        if fd is not None and _is_pty(fd):
+            return False  # a pty's TIOCOUTQ reads 0 whatever waits in it
+        if _socket_of(port) is not None:
+            return False
+        try:
+            int(port.out_waiting)
+        except (AttributeError, NotImplementedError, serial.SerialException, OSError):
+            return False
+        return True
+
+    def _queued_bytes(self, port: serial.SerialBase) -> int | None:
+        """Bytes in the OS transmit queue, or None where the OS does not tell."""
+        if not self._queue_known:
+            return None
+        try:
+            return int(port.out_waiting)
+        except (AttributeError, NotImplementedError, serial.SerialException, OSError):
+            return None
 
     def _lost(self, exc: BaseException) -> None:
         with self._lock:
             port, self._port = self._port, None
+            self._adopted = None
         if port is None:
             return
         self.stats.losses += 1
@@ -154,39 +329,7 @@ class SerialLink:
         with contextlib.suppress(serial.SerialException, OSError):
             port.close()
 
-    def _queued_bytes(self, port: serial.SerialBase) -> int:
-        try:
-            return int(port.out_waiting)
-        except (AttributeError, NotImplementedError, serial.SerialException, OSError):
-            return 0
-
-    def write(self, data: bytes) -> bool:
-        """Write one tick's bytes in one call. False when nothing went out (the port is
-        closed, or its transmit queue is full); True when the bytes went (or may have gone)."""
-        port = self._port
-        if port is None:
-            return False
-        broken = self._broken
-        if broken is not None and broken[0] is port:
-            self._lost(broken[1])
-            return False
-        if self._queued_bytes(port) + len(data) > self.max_queued_bytes:
-            self.stats.writes_skipped_queue_full += 1
-            return False
-        try:
-            port.write(data)
-        except serial.SerialTimeoutException:
-            # Some or all of the bytes may be on the line (pyserial can even time out after
-            # writing them all): count them as sent. Sending the same message codes again
-            # would duplicate frames; a frame cut short is dropped by the receiver's CRC.
-            self.stats.write_timeouts += 1
-            return True
-        except (serial.SerialException, OSError) as exc:
-            self._lost(exc)
-            return False
-        self.stats.writes += 1
-        self.stats.bytes_written += len(data)
-        return True
+    # --- the RX thread -------------------------------------------------------------------
 
     def read(self) -> bytes:
         """Whatever arrived (waits up to the port's 50 ms timeout); b'' when closed."""
@@ -210,6 +353,7 @@ class SerialLink:
             opener.join(self.reopen_interval_s)
         with self._lock:
             port, self._port = self._port, None
+            self._adopted = None
         if port is not None:
             with contextlib.suppress(serial.SerialException, OSError):
                 port.close()

@@ -1,0 +1,441 @@
+"""The line sessions: what goes on one output line, as sans-IO state machines.
+
+A `C2Session` is one C2-16B output's line protocol (h11's `Connection` is the model): it owns
+the startup frame, the service frames owed, the message codes, the round-robin and who is
+announced on the line. It takes events and returns the bytes to write; it has no thread, no
+port and no clock, so every interleaving can be driven from a test:
+
+    line_opened()                        a fresh line: the startup frame goes first
+    line_lost()                          the port is gone: nothing is owed to a dead line
+    tick(events, frames) -> bytes        one tick: the node table's events and snapshot
+    wrote(sent, unsure=0)                how many bytes of the last output went out
+    line_drained()                       after a stall, the line takes bytes again
+    received(frame)                      a frame from the far end (`<`, `4` requests)
+
+The output thread (`scheduler.C2Output`) is a thin loop around it. `SumdSession` is the same
+shape for a SUMD output, which has no state beyond the line's.
+
+It lives here, not in `protocol/`: `protocol/` holds the frame codecs and knows nothing of
+devices, while a session speaks in `state.ServiceEvent` and `state.NodeFrame`.
+
+Invariants, whatever the line does (docs/ICD.md, "Service frames" and "A stalled line"):
+- the startup frame is the first thing on every (re)opened line;
+- a node's `>` goes out only after its whole `1,6,5,7` went out on the current line (and no
+  `2` of that node since);
+- a node whose device left has its `2` out before the node's next frame of any kind;
+- a node's message code advances by one per data frame that went out whole;
+- a service frame cut short is sent again.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, replace
+
+from usb2rc.protocol import c2_16b, sumd
+from usb2rc.state import EventKind, NodeFrame, ServiceEvent
+
+log = logging.getLogger("usb2rc.session")
+
+BITS_PER_BYTE_ON_WIRE = 10  # 8N1: start + 8 data + stop
+
+
+def frames_per_tick(baudrate: int, rate_hz: float, frame_len: int) -> int:
+    """How many frames of frame_len bytes the line carries in one tick (at least 1)."""
+    bytes_per_tick = baudrate / BITS_PER_BYTE_ON_WIRE / rate_hz
+    return max(1, int(bytes_per_tick // frame_len))
+
+
+def baud_needed(frames: int, rate_hz: float, frame_len: int) -> int:
+    """The smallest standard baud rate that carries `frames` frames per tick."""
+    needed = frames * frame_len * BITS_PER_BYTE_ON_WIRE * rate_hz
+    for baud in (115200, 230400, 460800, 500000, 921600, 1000000, 1500000, 2000000):
+        if baud >= needed:
+            return baud
+    return int(needed)
+
+
+def device_string_text(product: str, manufacturer: str = "", limit: int = 12) -> str:
+    """The product name for service frame `5`: without the maker's name in front.
+
+    Kernel and hid-recorder names are "Manufacturer Product" ("Thrustmaster T.16000M"); the
+    12 bytes the frame carries are better spent on the product. With no manufacturer known,
+    the first word goes when the name does not fit.
+    """
+    name = product.strip()
+    if manufacturer and name.lower().startswith(manufacturer.lower() + " "):
+        return name[len(manufacturer) :].strip()
+    _, _, rest = name.partition(" ")
+    if not manufacturer and len(name) > limit and rest:
+        return rest.strip()
+    return name
+
+
+@dataclass(frozen=True)
+class C2Settings:
+    rate_hz: float = 50.0
+    baudrate: int = 115200
+    line_feed: bool = True
+    binary_status: bool = False
+    version: str = "0.0.0"
+
+
+@dataclass(frozen=True)
+class _Owed:
+    """One service frame owed to the line, and the event it comes from."""
+
+    event: ServiceEvent
+    service: c2_16b.Service
+    frame: bytes
+
+    @property
+    def node_id(self) -> int:
+        return self.event.node_id
+
+    @property
+    def ends_connect_sequence(self) -> bool:
+        return self.service is c2_16b.Service.DEVICE_TYPE
+
+    @property
+    def is_disconnect(self) -> bool:
+        return self.service is c2_16b.Service.DISCONNECTED
+
+
+@dataclass(frozen=True)
+class _Slot:
+    """One frame of the last output: where its 35 frame bytes end, and what it was."""
+
+    end: int  # offset of the frame's last byte + 1 (its LF, if any, does not count)
+    startup: bool = False
+    owed: _Owed | None = None
+    data_node: int | None = None
+
+
+@dataclass(frozen=True)
+class Delivered:
+    """What `wrote()` found went out: frames counted once, as the stats want them."""
+
+    service_frames: int = 0
+    data_frames: int = 0
+    stalled: bool = False
+
+
+def _announced_after(announced: set[int], owed: Iterable[_Owed]) -> set[int]:
+    """Who is announced once `owed` went out in order: a `7` closes a `1,6,5,7` (the queue
+    sends each sequence whole and in order), a `2` opens the node's announcement again."""
+    result = set(announced)
+    for item in owed:
+        if item.ends_connect_sequence:
+            result.add(item.node_id)
+        elif item.is_disconnect:
+            result.discard(item.node_id)
+    return result
+
+
+class C2Session:
+    """The C2-16B line session of one output. See the module docstring for the events."""
+
+    def __init__(self, settings: C2Settings, name: str = "c2-16b") -> None:
+        self.settings = settings
+        self.name = name  # for log lines: the port
+        self.frame_len = c2_16b.FRAME_LEN + (1 if settings.line_feed else 0)
+        self.capacity = frames_per_tick(settings.baudrate, settings.rate_hz, self.frame_len)
+        # built once here: a version that does not fit the frame fails at start, loudly
+        self._startup_frame = c2_16b.startup(settings.version, **self._kw())
+        self.line_open = False
+        self.stalled = False  # a write put out less than it was given: wait for the drain
+        self.stalls = 0
+        self.deferred_nodes = 0
+        self._startup_due = True
+        self._owed: deque[_Owed] = deque()
+        self._codes: dict[int, int] = {}
+        self._on_line: set[int] = set()  # nodes whose data frames this line has seen
+        self._announced: set[int] = set()  # nodes whose whole 1,6,5,7 went out on this line
+        self._present: dict[int, dict[str, ServiceEvent]] = {}  # node -> device -> CONNECTED
+        self._last: list[_Slot] = []
+        self._last_len = 0
+        self._round_robin = 0
+        self._warned_nodes = 0
+
+    # --- events from the line ------------------------------------------------------------
+
+    def line_opened(self) -> None:
+        """A fresh line (or one that came back): the startup frame first, then the caller
+        feeds the connect events of every device present (`NodeTable` does)."""
+        self._reset_line()
+        self.line_open = True
+        self._present.clear()  # rebuilt from the connect events that follow
+
+    def line_lost(self) -> None:
+        """The port is gone: nothing is owed to a dead line; the next one starts afresh."""
+        self._reset_line()
+        self.line_open = False
+
+    def line_drained(self) -> None:
+        """After a stall, the line takes bytes again: the next tick sends fresh frames (the
+        owed service frames are still owed: none of them was lost)."""
+        self.stalled = False
+
+    def _reset_line(self) -> None:
+        self.stalled = False
+        self._startup_due = True
+        self._owed.clear()
+        self._on_line.clear()
+        self._announced.clear()
+        self._last, self._last_len = [], 0
+
+    # --- events from the far end ---------------------------------------------------------
+
+    def received(self, frame: c2_16b.Frame) -> bool:
+        """A frame from the far end; True when it was a request (answered in the next ticks).
+
+        `<` (any Node-ID): the connect sequence of every device present, in Node-ID order.
+        `4` for node N: the connect sequence of each device present on N, else `2`.
+        A sequence still owed is not queued twice, so a far end that keeps asking cannot
+        fill the line with service frames."""
+        if isinstance(frame, c2_16b.DataFrame) and frame.status == c2_16b.CONFIG_REQUEST:
+            self._answer(sorted(self._present))
+            return True
+        if isinstance(frame, c2_16b.ServiceFrame) and frame.service is c2_16b.Service.POLL:
+            if self._present.get(frame.node_id):
+                self._answer([frame.node_id])
+            else:
+                self._queue_once(ServiceEvent(EventKind.DISCONNECTED, frame.node_id))
+            return True
+        return False
+
+    def _answer(self, node_ids: Sequence[int]) -> None:
+        for node_id in node_ids:
+            for event in self._present.get(node_id, {}).values():
+                self._queue_once(event)
+
+    # --- ticks ---------------------------------------------------------------------------
+
+    def tick(
+        self,
+        events: Sequence[ServiceEvent],
+        frames: Sequence[NodeFrame],
+        room_frames: int | None = None,
+    ) -> bytes:
+        """The bytes of one tick (b"" when there is nothing to send, no line, or a stall).
+        `room_frames`: how many frames the line carries this tick (default: the baud rate's
+        share of a tick). Call `wrote()` with what went out before the next tick."""
+        self._track_presence(events)
+        self._last, self._last_len = [], 0
+        if not self.line_open:
+            return b""  # nothing is queued for a dead line: it starts afresh when back
+        for event in events:
+            self._queue(event)
+        if self.stalled:
+            return b""  # the service state waits; the data frames would be stale by then
+        room = self.capacity if room_frames is None else max(1, room_frames)
+        return self._compose(frames, room)
+
+    def _compose(self, frames: Sequence[NodeFrame], room: int) -> bytes:
+        out: list[bytes] = []
+        slots: list[_Slot] = []
+        if self._startup_due:
+            self._add(out, slots, self._startup_frame, _Slot(0, startup=True))
+        taken = list(self._owed)[: max(0, self._service_room(len(frames), room) - len(out))]
+        for item in taken:
+            self._add(out, slots, item.frame, _Slot(0, owed=item))
+        owed_after = list(self._owed)[len(taken) :]
+        announcing = {o.node_id for o in owed_after if o.event.kind is EventKind.CONNECTED}
+        leaving = {o.node_id for o in owed_after if o.is_disconnect}
+        announced = _announced_after(self._announced, taken) - announcing
+        # a node new on this line waits for its connect sequence; a node whose `2` is still
+        # owed waits for it (its next frame of any kind comes after the `2`)
+        held = (announcing - self._on_line) | leaving
+        ready = [f for f in frames if f.node_id not in held]
+        for frame in self._choose_nodes(ready, len(frames), room - len(out)):
+            live = not frame.failsafe and frame.node_id in announced
+            data = self._data_frame(frame, self._codes.get(frame.node_id, 0), live)
+            self._add(out, slots, data, _Slot(0, data_node=frame.node_id))
+        self._last = slots
+        self._last_len = sum(map(len, out))
+        return b"".join(out)
+
+    def _add(self, out: list[bytes], slots: list[_Slot], frame: bytes, slot: _Slot) -> None:
+        start = sum(map(len, out))
+        out.append(frame)
+        slots.append(replace(slot, end=start + c2_16b.FRAME_LEN))
+
+    def _service_room(self, nodes: int, room: int) -> int:
+        """Service frames first, but never all the room while nodes wait for data frames:
+        a far end that keeps asking must not starve the data (at least one slot for data
+        when every node fits, at least one for service frames otherwise)."""
+        if not self._owed and not self._startup_due:
+            return 0
+        return max(1, room - nodes)
+
+    def _choose_nodes(self, ready: list[NodeFrame], nodes: int, room: int) -> list[NodeFrame]:
+        """The nodes that get a data frame this tick: all of them when they fit, else a
+        round-robin share (each tick starts where the previous one stopped)."""
+        if len(ready) <= room:
+            return ready
+        if nodes > self.capacity:
+            self._warn_bandwidth(nodes, [f.node_id for f in ready])
+        start = self._round_robin % len(ready)
+        chosen = (ready[start:] + ready[:start])[: max(0, room)]
+        self._round_robin = start + len(chosen)
+        self.deferred_nodes += len(ready) - len(chosen)
+        return sorted(chosen, key=lambda f: f.node_id)
+
+    def _warn_bandwidth(self, nodes: int, node_ids: list[int]) -> None:
+        if nodes <= self._warned_nodes:
+            return
+        self._warned_nodes = nodes
+        rate = self.settings.rate_hz
+        log.warning(
+            "%s: nodes %s need %d frames per %.0f ms tick but %d baud carries %d; sending "
+            "nodes round-robin (each node every %.1f ticks). %d baud would carry them all.",
+            self.name,
+            ", ".join(map(str, node_ids)),
+            nodes,
+            1000.0 / rate,
+            self.settings.baudrate,
+            self.capacity,
+            nodes / max(1, self.capacity),
+            baud_needed(nodes, rate, self.frame_len),
+        )
+
+    # --- what went out -------------------------------------------------------------------
+
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
+        """`sent` bytes of the last output surely went out (a prefix); the `unsure` bytes
+        after them may or may not have (a write that timed out in the middle).
+
+        A frame is out when its 35 frame bytes are (its LF is not needed to decode it).
+        A service frame that is not surely out stays owed and is sent again; a data frame
+        that may be out uses its message code (a receiver never sees a code twice; with an
+        exact count, which posix ports and sockets give, the codes it sees advance by one).
+        Anything less than the whole output is a stall: no frames until `line_drained()`."""
+        service = data = 0
+        for slot in self._last:
+            if slot.end <= sent:
+                service += self._confirm(slot)
+            if slot.data_node is not None and slot.end <= sent + unsure:
+                node = slot.data_node
+                self._codes[node] = (self._codes.get(node, 0) + 1) & 0xFF
+                self._on_line.add(node)
+                data += 1
+        stalled = sent < self._last_len and self.line_open
+        if stalled and not self.stalled:
+            self.stalls += 1
+        self.stalled = self.stalled or stalled
+        self._last, self._last_len = [], 0
+        return Delivered(service, data, stalled)
+
+    def _confirm(self, slot: _Slot) -> int:
+        """A startup or service frame that went out whole: 1 (counted), else 0."""
+        if slot.startup:
+            self._startup_due = False
+            return 1
+        if slot.owed is None:
+            return 0
+        assert self._owed and self._owed[0] is slot.owed, "owed frames go out in order"
+        self._owed.popleft()
+        self._announced = _announced_after(self._announced, [slot.owed])
+        return 1
+
+    # --- service events ------------------------------------------------------------------
+
+    def _track_presence(self, events: Sequence[ServiceEvent]) -> None:
+        """Which devices are present, from the events: for the far end's requests."""
+        for event in events:
+            key = event.info.key if event.info is not None else ""
+            if event.kind is EventKind.CONNECTED:
+                self._present.setdefault(event.node_id, {})[key] = event
+            elif event.kind is EventKind.DISCONNECTED:
+                self._present.get(event.node_id, {}).pop(key, None)
+
+    def _queue(self, event: ServiceEvent) -> None:
+        if event.kind is EventKind.CONNECTED:
+            self._queue_once(event)  # that connect sequence is on its way: once is enough
+        else:
+            self._owed.extend(self._owed_frames(event))
+
+    def _queue_once(self, event: ServiceEvent) -> None:
+        if not self.line_open or any(o.event == event for o in self._owed):
+            return
+        self._owed.extend(self._owed_frames(event))
+
+    def _owed_frames(self, event: ServiceEvent) -> list[_Owed]:
+        kw, node = self._kw(), event.node_id
+        Service = c2_16b.Service
+        if event.kind is EventKind.DISCONNECTED:
+            return [_Owed(event, Service.DISCONNECTED, c2_16b.disconnected(node, **kw))]
+        if event.kind is EventKind.ERROR:
+            frame = c2_16b.device_error(node, event.error_code, **kw)
+            return [_Owed(event, Service.ERROR, frame)]
+        info = event.info
+        assert info is not None
+        text = device_string_text(info.product, info.manufacturer)
+        return [
+            _Owed(event, Service.CONNECTED, c2_16b.connected(node, **kw)),
+            _Owed(event, Service.VID_PID, c2_16b.vid_pid(node, info.vid, info.pid, **kw)),
+            _Owed(event, Service.DEVICE_STRING, c2_16b.device_string(node, text, **kw)),
+            _Owed(event, Service.DEVICE_TYPE, c2_16b.device_type(node, event.device_type, **kw)),
+        ]
+
+    def _data_frame(self, frame: NodeFrame, code: int, live: bool) -> bytes:
+        return c2_16b.encode_data(
+            c2_16b.LIVE if live else c2_16b.FAILSAFE,
+            frame.node_id,
+            code,
+            frame.axes,
+            frame.group1,
+            frame.group2,
+            line_feed=self.settings.line_feed,
+        )
+
+    def _kw(self) -> dict[str, bool]:
+        return {
+            "binary_status": self.settings.binary_status,
+            "line_feed": self.settings.line_feed,
+        }
+
+    @property
+    def owed_frames(self) -> int:
+        return len(self._owed)
+
+
+class SumdSession:
+    """The SUMD line: one frame a tick while the line is open and not stalled.
+
+    SUMD has no service state, so a stall only stops the frames (the values would be stale);
+    a frame cut short fails the receiver's CRC and is not sent again."""
+
+    def __init__(self) -> None:
+        self.line_open = False
+        self.stalled = False
+        self.stalls = 0
+        self._last_len = 0
+
+    def line_opened(self) -> None:
+        self.line_open, self.stalled = True, False
+
+    def line_lost(self) -> None:
+        self.line_open, self.stalled = False, False
+
+    def line_drained(self) -> None:
+        self.stalled = False
+
+    def tick(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        self._last_len = 0
+        if not self.line_open or self.stalled:
+            return b""
+        frame = sumd.encode_sumd(channels, failsafe=failsafe)
+        self._last_len = len(frame)
+        return frame
+
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
+        whole = self._last_len > 0 and sent >= self._last_len
+        stalled = self.line_open and sent < self._last_len
+        if stalled and not self.stalled:
+            self.stalls += 1
+        self.stalled = self.stalled or stalled
+        self._last_len = 0
+        return Delivered(0, 1 if whole else 0, stalled)
