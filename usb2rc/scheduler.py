@@ -203,10 +203,9 @@ class _LineThread(TickThread):
         if not data:
             return None
         written: Written = self.link.write(data)
-        if written.lost:
-            self.session.line_lost()
-            return None
         delivered = self.session.wrote(written.sent, written.unsure)
+        if written.lost:  # what went out before the failure counts; the line is gone
+            self.session.line_lost()
         self.stats.stalls = self.session.stalls
         if written.sent or written.unsure:
             self.note_write()
@@ -238,12 +237,19 @@ class C2Output(_LineThread):
         self.capacity = session.capacity
         # frames the far end sent (RX thread -> this thread): the session answers them
         self.received: queue.SimpleQueue[c2_16b.Frame] = queue.SimpleQueue()
+        self._lines_opened = 0
 
     def line_opened(self) -> None:
-        """A fresh line: the startup frame, then the connect sequence of every device."""
+        """A fresh line: the startup frame, then the connect sequence of every device.
+
+        On the first line the table's queue holds every event since the start (an unusable
+        device's `3` too): it goes out as it is. On a line that came back, what was queued
+        for the dead line is superseded by the connect sequences of the devices present."""
         self.c2.line_opened()
-        self.table.collect(self.subscriber)  # what was queued is superseded by:
-        self.table.request_connect_sequences(self.subscriber)
+        if self._lines_opened:
+            self.table.collect(self.subscriber)
+            self.table.request_connect_sequences(self.subscriber)
+        self._lines_opened += 1
 
     def tick(self) -> None:
         self.follow_link()

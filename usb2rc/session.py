@@ -10,7 +10,8 @@ port and no clock, so every interleaving can be driven from a test:
     tick(events, frames) -> bytes        one tick: the node table's events and snapshot
     wrote(sent, unsure=0)                how many bytes of the last output went out
     line_drained()                       after a stall, the line takes bytes again
-    received(frame)                      a frame from the far end (`<`, `4` requests)
+    received(frame)                      a frame from the far end (`<`, `4` requests,
+                                         answered in the next tick)
 
 The output thread (`scheduler.C2Output`) is a thin loop around it. `SumdSession` is the same
 shape for a SUMD output, which has no state beyond the line's.
@@ -154,6 +155,7 @@ class C2Session:
         self._on_line: set[int] = set()  # nodes whose data frames this line has seen
         self._announced: set[int] = set()  # nodes whose whole 1,6,5,7 went out on this line
         self._present: dict[int, dict[str, ServiceEvent]] = {}  # node -> device -> CONNECTED
+        self._requests: list[int | None] = []  # `<` (None) and `4` (node) to answer
         self._last: list[_Slot] = []
         self._last_len = 0
         self._round_robin = 0
@@ -196,17 +198,26 @@ class C2Session:
         A sequence still owed is not queued twice, so a far end that keeps asking cannot
         fill the line with service frames."""
         if isinstance(frame, c2_16b.DataFrame) and frame.status == c2_16b.CONFIG_REQUEST:
-            self._answer(sorted(self._present))
+            self._requests.append(None)
             return True
         if isinstance(frame, c2_16b.ServiceFrame) and frame.service is c2_16b.Service.POLL:
-            if self._present.get(frame.node_id):
-                self._answer([frame.node_id])
-            else:
-                self._queue_once(ServiceEvent(EventKind.DISCONNECTED, frame.node_id))
+            self._requests.append(frame.node_id)
             return True
         return False
 
-    def _answer(self, node_ids: Sequence[int]) -> None:
+    def _answer_requests(self) -> None:
+        """Answered in the tick, after its events: a device that left meanwhile is not
+        announced again ahead of its `2`."""
+        requests, self._requests = self._requests, []
+        for node_id in requests:
+            if node_id is None:
+                self._announce(sorted(self._present))
+            elif self._present.get(node_id):
+                self._announce([node_id])
+            else:
+                self._queue_once(ServiceEvent(EventKind.DISCONNECTED, node_id))
+
+    def _announce(self, node_ids: Sequence[int]) -> None:
         for node_id in node_ids:
             for event in self._present.get(node_id, {}).values():
                 self._queue_once(event)
@@ -225,9 +236,11 @@ class C2Session:
         self._track_presence(events)
         self._last, self._last_len = [], 0
         if not self.line_open:
+            self._requests.clear()
             return b""  # nothing is queued for a dead line: it starts afresh when back
         for event in events:
             self._queue(event)
+        self._answer_requests()
         if self.stalled:
             return b""  # the service state waits; the data frames would be stale by then
         room = self.capacity if room_frames is None else max(1, room_frames)

@@ -233,11 +233,9 @@ class SerialLink:
         if queued is not None and queued + len(data) > self.max_queued_bytes:
             self.stats.writes_skipped_queue_full += 1
             return Written(0)
-        try:
-            result = self._put(port, data)
-        except (serial.SerialException, OSError) as exc:
-            self._lost(exc)
-            return Written(0, lost=True)
+        result = self._put(port, data)
+        if result.lost:
+            return result
         self.stats.writes += 1
         self.stats.bytes_written += result.sent
         if result.sent < len(data):
@@ -265,18 +263,18 @@ class SerialLink:
             return True  # the next write finds out what is wrong
 
     def _put(self, port: serial.SerialBase, data: bytes) -> Written:
-        fd = _posix_fd(port)
-        if fd is not None:
-            try:
-                return Written(os.write(fd, data))
-            except BlockingIOError:
-                return Written(0)
-        sock = _socket_of(port)
-        if sock is not None:
-            try:
+        """One write; a failure closes the port (`lost`), after what went out before it."""
+        fd, sock = _posix_fd(port), _socket_of(port)
+        try:
+            if fd is not None:
+                return Written(os.write(fd, data))  # a failing write(2) writes nothing
+            if sock is not None:
                 return Written(sock.send(data))
-            except BlockingIOError:
-                return Written(0)
+        except BlockingIOError:
+            return Written(0)
+        except OSError as exc:
+            self._lost(exc)
+            return Written(0, lost=True)
         return self._put_in_pieces(port, data)
 
     def _put_in_pieces(self, port: serial.SerialBase, data: bytes) -> Written:
@@ -291,6 +289,9 @@ class SerialLink:
             except (serial.SerialTimeoutException, queue.Full):
                 self.stats.write_timeouts += 1
                 return Written(sent, len(chunk))
+            except (serial.SerialException, OSError) as exc:
+                self._lost(exc)
+                return Written(sent, len(chunk), lost=True)
             sent += len(chunk)
         return Written(sent)
 

@@ -1,0 +1,407 @@
+"""C2Session driven by random event sequences against a receiver model.
+
+A fake world plugs, unplugs and fails devices, opens and loses the line, asks `<` and `4`,
+and decides for every write how much of it went out (all, nothing, a cut anywhere, a cut
+with an unsure piece, a failure). The receiver decodes the bytes that went out with the
+C2-16B stream decoder, a fresh one per line opening, and checks every invariant of
+docs/ICD.md, "A stalled line":
+
+- the startup frame is the first frame on every (re)opened line;
+- a node's `>` comes only after its whole `1,6,5,7` on the current line (and no `2` since);
+- a device that left a node live has its `2` out before the node's next frame of any kind;
+- a node's message code advances by one per data frame that went out whole (an unsure
+  write may skip codes, never repeat one);
+- a service frame cut short is sent again: once the line is well, every owed `2` arrives
+  and every live node is announced and `>`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from usb2rc.hid.backend import DeviceInfo
+from usb2rc.protocol import c2_16b
+from usb2rc.session import C2Session, C2Settings
+from usb2rc.state import EventKind, NodeFrame, ServiceEvent
+
+Service = c2_16b.Service
+CONNECT = (Service.CONNECTED, Service.VID_PID, Service.DEVICE_STRING, Service.DEVICE_TYPE)
+NODES = 3
+
+
+@dataclass
+class LineView:
+    """What a receiver knows about one line opening."""
+
+    decoder: c2_16b.Decoder = field(default_factory=c2_16b.Decoder)
+    frames: int = 0
+    announced: set[int] = field(default_factory=set)
+    progress: dict[int, tuple[int, Service | None]] = field(default_factory=dict)
+    owes_disconnect: set[int] = field(default_factory=set)
+    last_status: dict[int, int] = field(default_factory=dict)
+    sequences: dict[int, int] = field(default_factory=dict)  # whole 1,6,5,7 seen per node
+    disconnects: dict[int, int] = field(default_factory=dict)  # `2` seen per node
+
+
+class Receiver:
+    """The far end: decodes what went out and checks the invariants frame by frame."""
+
+    def __init__(self) -> None:
+        self.line: LineView | None = None
+        self.codes: dict[int, int] = {}  # across lines: codes keep counting
+        self.unsure_writes = 0
+        self.unsure_at_code: dict[int, int] = {}
+        self.lines = 0
+
+    def opened(self) -> None:
+        self.line = LineView()
+        self.lines += 1
+
+    def lost(self) -> None:
+        self.line = None
+
+    def deliver(self, data: bytes, cut: bool) -> None:
+        assert self.line is not None, "bytes on a line that is not open"
+        for frame in self.line.decoder.feed(data):
+            self._check(self.line, frame)
+        if cut:  # a frame cut short fails the receiver's CRC: model it without 2^-16 luck
+            self.line.decoder.flush()
+
+    def device_left(self, node: int) -> None:
+        line = self.line
+        if line is not None and line.last_status.get(node) == c2_16b.LIVE:
+            line.owes_disconnect.add(node)
+
+    def _check(self, line: LineView, frame: c2_16b.Frame) -> None:
+        line.frames += 1
+        if line.frames == 1:
+            assert isinstance(frame, c2_16b.ServiceFrame), f"first frame {frame}"
+            assert frame.service is Service.STARTUP, f"first frame {frame}"
+        if isinstance(frame, c2_16b.ServiceFrame):
+            self._service(line, frame)
+        else:
+            self._data(line, frame)
+
+    def _service(self, line: LineView, frame: c2_16b.ServiceFrame) -> None:
+        node, service = frame.node_id, frame.service
+        if service is Service.STARTUP:
+            return
+        if node in line.owes_disconnect and service is not Service.ERROR:
+            assert service is Service.DISCONNECTED, f"node {node}: {service} before its `2`"
+            line.owes_disconnect.discard(node)
+        if service is Service.DISCONNECTED:
+            line.disconnects[node] = line.disconnects.get(node, 0) + 1
+        if service in (Service.DISCONNECTED, Service.CONNECTED):
+            line.announced.discard(node)  # never `>` while (re-)announced: ICD Decision
+        step, previous = line.progress.get(node, (0, None))
+        if service is previous and step:
+            return  # a frame sent again (its first copy may or may not have gone whole)
+        if service is CONNECT[0]:
+            step = 1
+        elif step and service is CONNECT[step]:
+            step += 1
+        else:
+            step = 0
+        if step == len(CONNECT):
+            line.announced.add(node)
+            line.sequences[node] = line.sequences.get(node, 0) + 1
+            step = 0
+        line.progress[node] = (step, service)
+
+    def _data(self, line: LineView, frame: c2_16b.DataFrame) -> None:
+        node = frame.node_id
+        assert node not in line.owes_disconnect, f"node {node} sent data before its `2`"
+        if frame.status == c2_16b.LIVE:
+            assert node in line.announced, f"node {node} `>` before its 1,6,5,7"
+        line.last_status[node] = frame.status
+        if node in self.codes:
+            skipped = (frame.code - self.codes[node] - 1) & 0xFF
+            allowed = self.unsure_writes - self.unsure_at_code[node]
+            assert skipped <= allowed, f"node {node}: code {frame.code} after {self.codes[node]}"
+        self.codes[node] = frame.code
+        self.unsure_at_code[node] = self.unsure_writes
+
+
+@dataclass
+class World:
+    """The node table's side, kept tiny: one device at most per node."""
+
+    session: C2Session
+    receiver: Receiver
+    present: dict[int, DeviceInfo] = field(default_factory=dict)
+    live: set[int] = field(default_factory=set)
+    known: set[int] = field(default_factory=set)
+    events: list[ServiceEvent] = field(default_factory=list)
+    plugs: int = 0
+    ticks: int = 0
+
+    def plug(self, node: int) -> None:
+        if node in self.present:
+            return
+        self.plugs += 1
+        key = f"dev{self.plugs}"
+        info = DeviceInfo(key=key, path=key, vid=0x044F, pid=0xB10A, product="T.16000M")
+        self.present[node] = info
+        self.known.add(node)
+        self.events.append(ServiceEvent(EventKind.CONNECTED, node, info, "JOYSTICK"))
+
+    def unplug(self, node: int, failed: bool) -> None:
+        info = self.present.pop(node, None)
+        if info is None:
+            return
+        self.live.discard(node)
+        if failed:
+            self.events.append(ServiceEvent(EventKind.ERROR, node, info, "", 1))
+        self.events.append(ServiceEvent(EventKind.DISCONNECTED, node, info))
+        self.receiver.device_left(node)
+
+    def report(self, node: int) -> None:
+        if node in self.present:
+            self.live.add(node)
+
+    def open(self) -> None:
+        if self.session.line_open:
+            return
+        self.session.line_opened()
+        self.receiver.opened()
+        # NodeTable: what was queued is superseded by the connect events of every device
+        self.events = [
+            ServiceEvent(EventKind.CONNECTED, node, info, "JOYSTICK")
+            for node, info in sorted(self.present.items())
+        ]
+
+    def lose(self) -> None:
+        if self.session.line_open:
+            self.session.line_lost()
+            self.receiver.lost()
+
+    def frames(self) -> list[NodeFrame]:
+        axes = (self.ticks % 1000,) + (0,) * 9
+        return [NodeFrame(node, node not in self.live, axes, 0, 0) for node in sorted(self.known)]
+
+    def tick(self, outcome: tuple[str, int, object]) -> None:
+        self.ticks += 1
+        events, self.events = self.events, []
+        out = self.session.tick(events, self.frames())
+        if not out:
+            return
+        kind, first, second = outcome
+        cut = first % (len(out) + 1)
+        if kind == "all":
+            self._went(out, len(out), len(out), 0)
+        elif kind == "cut":
+            self._went(out, cut, cut, 0)
+        elif kind == "unsure":  # `cut` bytes surely, some of the next `unsure` really
+            length, really = second  # type: ignore[misc]
+            unsure = length % (len(out) - cut + 1)
+            self.receiver.unsure_writes += 1
+            self._went(out, cut + really % (unsure + 1), cut, unsure)
+        else:  # the write failed: what went before the failure, then the line is gone
+            self._went(out, cut, cut, 0)
+            self.lose()
+
+    def _went(self, out: bytes, really: int, sent: int, unsure: int) -> None:
+        if self.receiver.line is not None and really:
+            self.receiver.deliver(out[:really], cut=really < len(out))
+        self.session.wrote(sent, unsure)
+
+    def request(self, node: int | None) -> None:
+        if node is None:
+            frame = c2_16b.DataFrame(c2_16b.CONFIG_REQUEST, 0x10, 0, (0,) * 10, 0, 0)
+            assert self.session.received(frame)
+        else:
+            assert self.session.received(c2_16b.ServiceFrame(Service.POLL, node))
+
+    def heal(self) -> None:
+        """The line is well again: open, drained, every write goes out whole."""
+        self.open()
+        for _ in range(80):
+            if self.session.stalled:
+                self.session.line_drained()
+            self.tick(("all", 0, 0))
+
+
+# Where a write is cut: a number taken modulo the write's length + 1, so every position is
+# as likely (hypothesis favours the ends of a float range).
+positions = st.integers(min_value=0, max_value=2**20)
+outcomes = st.one_of(
+    st.tuples(st.just("cut"), positions, st.just(0)),
+    st.tuples(st.just("unsure"), positions, st.tuples(positions, positions)),
+    st.tuples(st.just("fail"), positions, st.just(0)),
+)
+nodes = st.integers(min_value=0, max_value=NODES - 1)
+whole = st.tuples(st.just("tick"), st.just(("all", 0, 0)))
+actions = st.one_of(
+    whole,  # most writes go out whole: the others interleave with real progress
+    whole,
+    whole,
+    st.tuples(st.just("tick"), outcomes),
+    st.tuples(st.just("plug"), nodes),
+    st.tuples(st.just("plug live"), nodes),
+    st.tuples(st.just("unplug"), nodes),
+    st.tuples(st.just("replug"), nodes),
+    st.tuples(st.just("fail"), nodes),
+    st.tuples(st.just("report"), nodes),
+    st.tuples(st.sampled_from(["open", "lose", "drain"]), st.none()),
+    st.tuples(st.just("request"), st.one_of(st.none(), nodes)),
+)
+
+
+def run(world: World, action: tuple[str, object]) -> None:
+    name, arg = action
+    if name == "tick":
+        world.tick(arg)  # type: ignore[arg-type]
+    elif name == "plug":
+        world.plug(arg)  # type: ignore[arg-type]
+    elif name == "plug live":  # plugged and its state known at once (hidapi reads it)
+        world.plug(arg)  # type: ignore[arg-type]
+        world.report(arg)  # type: ignore[arg-type]
+    elif name in ("unplug", "fail"):
+        world.unplug(arg, failed=name == "fail")  # type: ignore[arg-type]
+    elif name == "replug":  # unplugged and back between two ticks
+        world.unplug(arg, failed=False)  # type: ignore[arg-type]
+        world.plug(arg)  # type: ignore[arg-type]
+        world.report(arg)  # type: ignore[arg-type]
+    elif name == "report":
+        world.report(arg)  # type: ignore[arg-type]
+    elif name == "open":
+        world.open()
+    elif name == "lose":
+        world.lose()
+    elif name == "drain":
+        if world.session.stalled:
+            world.session.line_drained()
+    elif name == "request" and world.session.line_open:
+        world.request(arg)  # type: ignore[arg-type]
+
+
+@settings(max_examples=1000, deadline=None)
+@given(
+    baudrate=st.sampled_from([19200, 57600, 115200]),
+    line_feed=st.booleans(),
+    actions=st.lists(actions, max_size=200),
+)
+def test_every_invariant_holds_whatever_the_line_does(baudrate, line_feed, actions):
+    session = C2Session(C2Settings(baudrate=baudrate, line_feed=line_feed, version="0.1.0"))
+    world = World(session, Receiver())
+    world.open()
+    for action in actions:
+        run(world, action)
+    world.heal()
+    line = world.receiver.line
+    assert line is not None
+    assert not line.owes_disconnect, f"`2` never sent for {line.owes_disconnect}"
+    for node in world.live:
+        assert line.last_status.get(node) == c2_16b.LIVE, f"node {node} never back to `>`"
+    # the far end asks: every device present is announced again, an empty node says `2`
+    sequences, disconnects = dict(line.sequences), dict(line.disconnects)
+    world.request(None)
+    world.request(NODES)
+    world.heal()
+    for node in world.present:
+        assert line.sequences[node] == sequences[node] + 1, f"`<` not answered for {node}"
+    assert line.disconnects.get(NODES, 0) == disconnects.get(NODES, 0) + 1
+
+
+def ticked(world: World, outcome: tuple[str, int, int] = ("all", 0, 0)) -> None:
+    world.tick(outcome)
+
+
+def names(data: bytes) -> list[str]:
+    decoder = c2_16b.Decoder()
+    return [
+        f.service.service_name if isinstance(f, c2_16b.ServiceFrame) else chr(f.status)
+        for f in decoder.feed(data)
+    ]
+
+
+def fresh_world(baudrate: int = 115200) -> World:
+    session = C2Session(C2Settings(baudrate=baudrate, version="0.1.0"))
+    world = World(session, Receiver())
+    world.open()
+    return world
+
+
+def test_a_stall_holds_the_frames_and_resumes_with_what_is_owed():
+    world = fresh_world()
+    world.plug(0)
+    world.report(0)
+    for _ in range(3):
+        ticked(world)
+    world.tick(("cut", 0, 0))  # nothing went out: a stall
+    assert world.session.stalled and world.session.stalls == 1
+    world.unplug(0, failed=False)
+    world.plug(1)
+    world.report(1)
+    assert world.session.tick(world.events, world.frames()) == b""  # held while stalled
+    world.events = []
+    world.session.line_drained()
+    out = world.session.tick([], world.frames())
+    # the `2` first, then node 1's sequence (service frames leave a slot per node for
+    # data: 4 of 6 here); node 1 waits for the rest of it; node 0 sends `!`
+    assert names(out) == ["disconnected", "connected", "vid-pid", "device-string", "!"]
+    world.session.wrote(len(out))
+    assert names(world.session.tick([], world.frames())) == ["device-type", "!", ">"]
+
+
+def test_a_service_frame_cut_short_is_sent_again_and_a_cut_data_frame_keeps_its_code():
+    world = fresh_world()
+    world.plug(0)
+    world.report(0)
+    out = world.session.tick(world.events, world.frames())
+    world.events = []
+    assert names(out)[:2] == ["startup", "connected"]
+    world.session.wrote(c2_16b.FRAME_LEN + 1 + 10)  # the startup whole, `1` cut short
+    world.session.line_drained()
+    again = world.session.tick([], world.frames())
+    assert names(again)[:4] == ["connected", "vid-pid", "device-string", "device-type"]
+    data_at = len(again) - 36
+    world.session.wrote(data_at + 20)  # the data frame cut short: its code is not used
+    world.session.line_drained()
+    third = c2_16b.Decoder().feed(world.session.tick([], world.frames()))
+    assert [(chr(f.status), f.code) for f in third] == [(">", 0)]
+
+
+def test_a_live_node_not_announced_on_this_line_sends_failsafe():
+    world = fresh_world()
+    world.plug(0)
+    world.report(0)
+    ticked(world)
+    world.lose()
+    world.session.line_opened()  # a line whose connect events never came (a table bug)
+    out = world.session.tick([], world.frames())
+    assert names(out) == ["startup", "!"]
+
+
+def test_frames_of_a_line_that_is_gone_are_never_written_on_the_next():
+    world = fresh_world()
+    world.plug(0)
+    world.report(0)
+    ticked(world)
+    world.session.tick([], world.frames())  # composed, then the port fails before writing
+    world.lose()
+    world.open()
+    out = world.session.tick(world.events, world.frames())
+    assert names(out)[:5] == ["startup", "connected", "vid-pid", "device-string", "device-type"]
+
+
+@pytest.mark.parametrize("binary", [False, True])
+def test_requests_are_answered_from_the_devices_present(binary):
+    session = C2Session(C2Settings(version="0.1.0", binary_status=binary))
+    world = World(session, Receiver())
+    world.open()
+    world.plug(2)
+    ticked(world)
+    world.request(None)
+    world.request(None)  # asked twice before the answer went: answered once
+    world.request(3)  # nobody on node 3
+    out = session.tick([], world.frames())
+    sequence = ["connected", "vid-pid", "device-string", "device-type"]
+    assert names(out) == [*sequence, "disconnected", "!"]
+    session.wrote(len(out))
+    world.request(2)  # asked again once the answer went: answered again
+    assert names(session.tick([], world.frames())) == [*sequence, "!"]
