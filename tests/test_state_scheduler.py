@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import pytest
 from daemon_harness import T16000M_DESCRIPTOR, StickState
 
 from usb2rc.config import load_config_text
@@ -214,3 +215,34 @@ def test_this_version_fits_the_startup_frame():
 
     frame = decode([c2_16b.startup(__version__)])[0]
     assert frame.node_id == 0xFF and frame.text == f"usb2rc {__version__}"
+
+
+def test_stats_are_read_while_the_output_thread_adds_periods():
+    """`stats_lines` (another thread) once died with 'deque mutated during iteration'. Here
+    the writer appends exactly while the reader goes through the periods: the reader works
+    on a copy, so the append neither waits for it nor breaks it."""
+    import threading
+
+    from usb2rc.scheduler import OutputStats
+
+    stats = OutputStats()
+    appended = threading.Event()
+
+    def writer() -> None:
+        stats.add_period(0.02)
+        appended.set()
+
+    class Period(float):
+        """A period whose arithmetic lets the writer thread in, mid-iteration."""
+
+        def __sub__(self, other: float) -> float:
+            if not appended.is_set():
+                threading.Thread(target=writer).start()
+                assert appended.wait(5), "the writer was kept waiting by the reader"
+            return float(self) - other
+
+    for _ in range(10):
+        stats.add_period(0.02)
+    stats.add_period(Period(0.021))
+    assert stats.period_p99_error_ms(0.02) == pytest.approx(1.0)
+    assert appended.is_set() and len(stats.periods()) == 12

@@ -46,3 +46,112 @@ def test_a_failing_open_is_logged_once_with_what_to_do(monkeypatch, caplog):
     errors = [r.message for r in caplog.records if "ttyUSB9" in r.message]
     assert len(errors) == 1 and "--port" in errors[0]
     assert link.line_event() is None
+
+
+class PausingTable:
+    """A NodeTable whose next `collect` stops until the test lets it go on: the writer
+    thread is held in the middle of a tick, at the point of the test's choosing."""
+
+    def __init__(self, table) -> None:
+        self.table = table
+        self.in_collect = threading.Event()
+        self.go_on = threading.Event()
+        self.pause_next = False
+
+    def __getattr__(self, name):
+        return getattr(self.table, name)
+
+    def collect(self, subscriber):
+        if self.pause_next:
+            self.pause_next = False
+            self.in_collect.set()
+            assert self.go_on.wait(10), "never let go on"
+        return self.table.collect(subscriber)
+
+
+def test_a_port_opened_in_the_middle_of_a_tick_carries_nothing_before_the_startup(monkeypatch):
+    """The bad interleaving of issue 11: the opener publishes the new port while the writer
+    is in the middle of a tick (after it looked at the line, before it writes). That tick
+    must not write on the new port; the next one starts it with `8` and the connect
+    sequence, and no `>` comes before them."""
+    from daemon_harness import StickState
+    from test_state_scheduler import BINDING, Source, info
+
+    from usb2rc.protocol import c2_16b
+    from usb2rc.scheduler import C2Output, C2Settings
+    from usb2rc.state import NodeTable
+
+    release_open = threading.Event()
+    ports = []
+    real_open = serial.serial_for_url
+
+    def held_open(url, **kwargs):
+        assert release_open.wait(10), "never released"
+        ports.append(real_open("loop://", **kwargs))
+        return ports[-1]
+
+    monkeypatch.setattr(transport.serial, "serial_for_url", held_open)
+    table = PausingTable(NodeTable())
+    table.add_device(0, info("k0", "1-1"), BINDING, Source.of(StickState()), "JOYSTICK")
+    link = SerialLink("held://", reopen_interval_s=0.0)
+    out = C2Output("test", link, table, C2Settings(version="0.1.0"))  # type: ignore[arg-type]
+    table.pause_next = True
+    ticking = threading.Thread(target=out.tick)
+    ticking.start()  # starts the opener (held), finds no line, then stops in collect
+    assert table.in_collect.wait(10)
+    release_open.set()
+    link._opener.join(10)
+    assert link.is_open  # the port is there while the tick is still going on
+    table.go_on.set()
+    ticking.join(10)
+    assert ports[0].out_waiting == 0, "the tick wrote on a port it was not told of"
+    for _ in range(3):
+        out.tick()
+    frames = c2_16b.Decoder().feed(ports[0].read(ports[0].in_waiting))
+    names = [
+        f.service.service_name if isinstance(f, c2_16b.ServiceFrame) else chr(f.status)
+        for f in frames
+    ]
+    assert names[:5] == ["startup", "connected", "vid-pid", "device-string", "device-type"]
+    assert names[5:] == [">"] * 3
+    link.close()
+
+
+def test_a_line_lost_and_reopened_starts_again_with_the_startup_frame(monkeypatch):
+    """The RX thread finds the port broken; the writer closes it and opens another, whose
+    line starts with `8` and the connect sequence before any `>`."""
+    from daemon_harness import StickState
+    from test_state_scheduler import BINDING, Source, info
+
+    from usb2rc.protocol import c2_16b
+    from usb2rc.scheduler import C2Output, C2Settings
+    from usb2rc.state import NodeTable
+
+    ports = []
+    real_open = serial.serial_for_url
+
+    def open_loop(url, **kwargs):
+        ports.append(real_open("loop://", **kwargs))
+        return ports[-1]
+
+    monkeypatch.setattr(transport.serial, "serial_for_url", open_loop)
+    table = PausingTable(NodeTable())
+    table.add_device(0, info("k0", "1-1"), BINDING, Source.of(StickState()), "JOYSTICK")
+    link = SerialLink("again://", reopen_interval_s=0.0)
+    assert link.open_now()
+    out = C2Output("test", link, table, C2Settings(version="0.1.0"))  # type: ignore[arg-type]
+    for _ in range(3):
+        out.tick()
+    link._broken = (ports[0], OSError("gone"))  # what RxThread records on a read failure
+    out.tick()  # the writer closes it ...
+    out.tick()  # ... and starts the opener
+    link._opener.join(10)
+    assert link.is_open and len(ports) == 2
+    for _ in range(2):
+        out.tick()
+    frames = c2_16b.Decoder().feed(ports[1].read(ports[1].in_waiting))
+    assert frames[0].service is c2_16b.Service.STARTUP
+    first_live = next(i for i, f in enumerate(frames) if getattr(f, "status", 0) == c2_16b.LIVE)
+    sequence = [f.service.service_name for f in frames[1:first_live]]
+    assert sequence == ["connected", "vid-pid", "device-string", "device-type"]
+    link.close()

@@ -181,6 +181,7 @@ class _LineThread(TickThread):
         super().__init__(name, rate_hz, on_tick, on_first_write)
         self.link = link
         self.session = session
+        self._stalled_since = 0.0
 
     def follow_link(self) -> None:
         """The line's events, in this thread only: a new port is adopted (and the session
@@ -194,6 +195,12 @@ class _LineThread(TickThread):
             self.session.line_lost()
         if self.session.stalled and self.link.drained():
             self.session.line_drained()
+            log.info(
+                "%s: %s takes bytes again after %.1f s; resumed with fresh frames",
+                self.name,
+                self.link.url,
+                time.monotonic() - self._stalled_since,
+            )
 
     def line_opened(self) -> None:
         self.session.line_opened()
@@ -206,6 +213,16 @@ class _LineThread(TickThread):
         delivered = self.session.wrote(written.sent, written.unsure)
         if written.lost:  # what went out before the failure counts; the line is gone
             self.session.line_lost()
+        elif delivered.stalled:
+            self._stalled_since = time.monotonic()
+            log.warning(
+                "%s: %s stalled: the far end takes no more bytes (%d of %d went out); "
+                "no frames are added until it drains",
+                self.name,
+                self.link.url,
+                written.sent,
+                len(data),
+            )
         self.stats.stalls = self.session.stalls
         if written.sent or written.unsure:
             self.note_write()
@@ -242,13 +259,13 @@ class C2Output(_LineThread):
     def line_opened(self) -> None:
         """A fresh line: the startup frame, then the connect sequence of every device.
 
-        On the first line the table's queue holds every event since the start (an unusable
-        device's `3` too): it goes out as it is. On a line that came back, what was queued
-        for the dead line is superseded by the connect sequences of the devices present."""
+        On the first line what the table queued since the start goes out too (an unusable
+        device's `3`, say); a connect sequence still queued is not asked twice. On a line
+        that came back, what was queued for the dead line is superseded."""
         self.c2.line_opened()
         if self._lines_opened:
             self.table.collect(self.subscriber)
-            self.table.request_connect_sequences(self.subscriber)
+        self.table.request_connect_sequences(self.subscriber)
         self._lines_opened += 1
 
     def tick(self) -> None:
