@@ -95,6 +95,7 @@ class Receiver:
             line.owes_disconnect.discard(node)
         if service is Service.DISCONNECTED:
             line.disconnects[node] = line.disconnects.get(node, 0) + 1
+            line.last_status.pop(node, None)  # not live any more until its next `>`
         if service in (Service.DISCONNECTED, Service.CONNECTED):
             line.announced.discard(node)  # never `>` while (re-)announced: ICD Decision
         step, previous = line.progress.get(node, (0, None))
@@ -405,3 +406,23 @@ def test_requests_are_answered_from_the_devices_present(binary):
     session.wrote(len(out))
     world.request(2)  # asked again once the answer went: answered again
     assert names(session.tick([], world.frames())) == [*sequence, "!"]
+
+
+def test_round_robin_serves_every_node_and_warns_once_per_node_count(caplog):
+    world = fresh_world(baudrate=57600)  # 3 frames a tick
+    for node in range(NODES + 2):
+        world.plug(node)
+        world.report(node)
+    seen: dict[int, int] = {}
+    for tick in range(60):  # 5 sequences at one service frame a tick, then data only
+        out = world.session.tick(world.events, world.frames())
+        world.events = []
+        world.session.wrote(len(out))
+        for frame in c2_16b.Decoder().feed(out):
+            if isinstance(frame, c2_16b.DataFrame) and tick >= 30:
+                seen[frame.node_id] = seen.get(frame.node_id, 0) + 1
+    assert world.session.owed_frames == 0
+    assert seen == {node: 18 for node in range(NODES + 2)}  # 30 ticks x 3 frames / 5 nodes
+    warnings = [r.message for r in caplog.records if "round-robin" in r.message]
+    assert len(warnings) == 1 and "nodes 0, 1, 2, 3, 4" in warnings[0]
+    assert "115200 baud would carry them all" in warnings[0]

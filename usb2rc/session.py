@@ -262,7 +262,7 @@ class C2Session:
         # owed waits for it (its next frame of any kind comes after the `2`)
         held = (announcing - self._on_line) | leaving
         ready = [f for f in frames if f.node_id not in held]
-        for frame in self._choose_nodes(ready, len(frames), room - len(out)):
+        for frame in self._choose_nodes(ready, frames, room - len(out)):
             live = not frame.failsafe and frame.node_id in announced
             data = self._data_frame(frame, self._codes.get(frame.node_id, 0), live)
             self._add(out, slots, data, _Slot(0, data_node=frame.node_id))
@@ -283,20 +283,23 @@ class C2Session:
             return 0
         return max(1, room - nodes)
 
-    def _choose_nodes(self, ready: list[NodeFrame], nodes: int, room: int) -> list[NodeFrame]:
+    def _choose_nodes(
+        self, ready: list[NodeFrame], frames: Sequence[NodeFrame], room: int
+    ) -> list[NodeFrame]:
         """The nodes that get a data frame this tick: all of them when they fit, else a
         round-robin share (each tick starts where the previous one stopped)."""
         if len(ready) <= room:
             return ready
-        if nodes > self.capacity:
-            self._warn_bandwidth(nodes, [f.node_id for f in ready])
+        if len(frames) > self.capacity:
+            self._warn_bandwidth([f.node_id for f in frames])
         start = self._round_robin % len(ready)
         chosen = (ready[start:] + ready[:start])[: max(0, room)]
         self._round_robin = start + len(chosen)
         self.deferred_nodes += len(ready) - len(chosen)
         return sorted(chosen, key=lambda f: f.node_id)
 
-    def _warn_bandwidth(self, nodes: int, node_ids: list[int]) -> None:
+    def _warn_bandwidth(self, node_ids: list[int]) -> None:
+        nodes = len(node_ids)
         if nodes <= self._warned_nodes:
             return
         self._warned_nodes = nodes
