@@ -426,3 +426,21 @@ def test_round_robin_serves_every_node_and_warns_once_per_node_count(caplog):
     warnings = [r.message for r in caplog.records if "round-robin" in r.message]
     assert len(warnings) == 1 and "nodes 0, 1, 2, 3, 4" in warnings[0]
     assert "115200 baud would carry them all" in warnings[0]
+
+
+def test_a_stalled_sumd_line_gets_no_frames_until_it_drains():
+    from usb2rc.protocol import sumd
+    from usb2rc.session import SumdSession
+
+    session = SumdSession()
+    assert session.tick([12000] * 8, False) == b""  # no line yet
+    session.line_opened()
+    frame = session.tick([12000] * 8, False)
+    assert sumd.SumdDecoder().feed(frame)
+    assert session.wrote(len(frame)).data_frames == 1
+    cut = session.tick([12000] * 8, False)
+    delivered = session.wrote(len(cut) // 2)
+    assert delivered.stalled and delivered.data_frames == 0 and session.stalls == 1
+    assert session.tick([12000] * 8, True) == b""
+    session.line_drained()
+    assert sumd.SumdDecoder().feed(session.tick([9000] * 8, True))[0].failsafe

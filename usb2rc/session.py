@@ -337,12 +337,25 @@ class C2Session:
                 self._codes[node] = (self._codes.get(node, 0) + 1) & 0xFF
                 self._on_line.add(node)
                 data += 1
+        if unsure:
+            self._restart_cut_sequence()
         stalled = sent < self._last_len and self.line_open
         if stalled and not self.stalled:
             self.stalls += 1
         self.stalled = self.stalled or stalled
         self._last, self._last_len = [], 0
         return Delivered(service, data, stalled)
+
+    def _restart_cut_sequence(self) -> None:
+        """After an unsure write, a connect sequence whose rest is owed is sent again from
+        its `1`: part of that rest may have gone, and a receiver must see the sequence
+        whole and in order (`1,6,5,1,6,5,7`, never `1,6,5,6,5,7`)."""
+        if not self._owed or self._owed[0].event.kind is not EventKind.CONNECTED:
+            return
+        head = self._owed[0]
+        sequence = self._owed_frames(head.event)
+        done = next(i for i, item in enumerate(sequence) if item.service is head.service)
+        self._owed.extendleft(reversed(sequence[:done]))
 
     def _confirm(self, slot: _Slot) -> int:
         """A startup or service frame that went out whole: 1 (counted), else 0."""
