@@ -155,3 +155,32 @@ def test_a_line_lost_and_reopened_starts_again_with_the_startup_frame(monkeypatc
     sequence = [f.service.service_name for f in frames[1:first_live]]
     assert sequence == ["connected", "vid-pid", "device-string", "device-type"]
     link.close()
+
+
+def test_a_pty_says_how_much_went_and_when_it_drains():
+    """A pty's TIOCOUTQ reads 0 whatever waits in it: the link counts what the OS took
+    (a non-blocking write) and asks the fd whether it takes bytes again."""
+    import os
+    import select
+
+    master, slave = os.openpty()
+    link = SerialLink(os.ttyname(slave))
+    try:
+        assert link.open_now() and link.line_event() is LineEvent.OPENED
+        assert link._queued_bytes(link._adopted) is None  # not reported on a pty
+        chunk = bytes(216)
+        written = [link.write(chunk) for _ in range(400)]  # far more than a pty holds
+        short = next(i for i, w in enumerate(written) if w.sent < len(chunk))
+        assert all(w.sent == 0 for w in written[short + 1 :])  # nothing more is taken
+        assert link.stats.bytes_written == sum(w.sent for w in written)
+        assert not link.drained()
+        got = 0
+        while select.select([master], [], [], 0.5)[0] and got < link.stats.bytes_written:
+            got += len(os.read(master, 65536))
+            if link.drained():
+                break
+        assert link.drained() and got > 0
+    finally:
+        link.close()
+        os.close(master)
+        os.close(slave)
