@@ -196,13 +196,18 @@ class DaemonProcess:
     """`python -m usb2rc run ...` as a subprocess; its log goes to a file the test can read."""
 
     def __init__(
-        self, args: Sequence[str], log_path: Path, env: dict[str, str] | None = None
+        self,
+        args: Sequence[str],
+        log_path: Path,
+        env: dict[str, str] | None = None,
+        prefix: Sequence[str] = (),
     ) -> None:
+        """`prefix`: a command that runs the daemon (e.g. setpriv dropping capabilities)."""
         self.log_path = log_path
         self._log = open(log_path, "wb")  # noqa: SIM115 - closed in stop()
         env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "usb2rc", "run", "--log-level", "debug", *args],
+            [*prefix, sys.executable, "-m", "usb2rc", "run", "--log-level", "debug", *args],
             stdout=self._log,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,

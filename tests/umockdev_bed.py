@@ -1,0 +1,294 @@
+"""A umockdev testbed of USB HID joysticks, driven over stdin/stdout (JSON lines).
+
+Run by Debian's python3 (it needs `gi` and the UMockdev typelib, which the project venv does
+not have): `/usr/bin/python3 tests/umockdev_bed.py`. It prints `{"ok": true, "root": DIR}`
+once the testbed exists; programs started with `UMOCKDEV_DIR=DIR` and
+`LD_PRELOAD=libumockdev-preload.so.0` then see its /sys and /dev instead of the real ones.
+
+Commands, one JSON object a line; each gets one JSON line back (`{"ok": false, "error": ...}`
+on failure, never an exception that ends the bed):
+
+    {"cmd": "add", "port": "1-1.2", "vid": 1103, "pid": 45322, "product": "T.16000M",
+     "manufacturer": "Thrustmaster", "serial": "", "descriptor": "0501..."}
+        -> {"ok": true, "hidraw": "/dev/hidraw0", "syspath": "/sys/devices/..."}
+    {"cmd": "report", "hidraw": "/dev/hidraw0", "data": "0100..."}  -> {"ok": true, "t": T}
+    {"cmd": "remove", "hidraw": "/dev/hidraw0"}                        -> {"ok": true, "t": T}
+    {"cmd": "chmod", "hidraw": "/dev/hidraw0", "mode": 0}              -> {"ok": true}
+    {"cmd": "quit"}
+
+T is time.monotonic() (CLOCK_MONOTONIC, system-wide: comparable with the test's clock) taken
+right after the report was written / the device node vanished and its pty master closed.
+
+What the kernel does and this copies (see ../shared/notes/umockdev.md):
+- the sysfs chain PCI controller -> usbB root hub -> hubs -> the USB device at the port path
+  (idVendor, idProduct, manufacturer, product, serial) -> interface :1.0 -> the hid device
+  (HID_ID, HID_NAME, HID_PHYS, HID_UNIQ, binary report_descriptor) -> hidraw/hidrawN with a
+  `device` link back to the hid device (hidapi reads the usage page through it, usb2rc the
+  port path) and `dev` = major:minor;
+- the node is a pty (umockdev's char device emulation); set raw here, so report bytes such
+  as 0x03, 0x11, 0x13 or 0x16 reach the reader unchanged instead of being taken as signal,
+  flow-control or literal-next characters by the tty line discipline;
+- ioctl replies for HIDIOCGRDESCSIZE and HIDIOCGRDESC (hidapi's open_path needs the first,
+  get_report_descriptor the second: the whole 4100-byte struct);
+- unplug: remove uevents and sysfs removal bottom-up (hidraw, hid, interface, USB device),
+  then the pty master is closed so a reader blocked in poll() wakes with POLLHUP, as a real
+  hidraw reader wakes when the kernel marks the device gone;
+- a node added later never reuses a minor number or name (umockdev keeps a table of the pty
+  masters by node name and refuses a second one of the same name).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import struct
+import sys
+import tempfile
+import time
+import tty
+from dataclasses import dataclass
+from typing import Any
+
+import gi
+
+gi.require_version("UMockdev", "1.0")
+from gi.repository import UMockdev  # noqa: E402
+
+HIDRAW_MAJOR = 240
+HID_MAX_DESCRIPTOR_SIZE = 4096
+CONTROLLER = "/devices/pci0000:00/0000:00:14.0"
+
+
+@dataclass
+class Plugged:
+    usb: str  # sysfs paths without /sys, top to bottom
+    interface: str
+    hid: str
+    hidraw: str
+    node: str  # /dev/hidrawN
+    master: int  # the pty master: the device's side of the node
+
+
+def record(path: str, lines: list[str]) -> str:
+    """One device in umockdev-record format (P: line, then properties/attributes)."""
+    return "\n".join([f"P: {path}", *lines]) + "\n\n"
+
+
+def ioctl_record(node: str, descriptor: bytes) -> str:
+    size = struct.pack("<i", len(descriptor))
+    desc = struct.pack("<I", len(descriptor)) + descriptor.ljust(HID_MAX_DESCRIPTOR_SIZE, b"\0")
+    return f"@DEV {node}\nHIDIOCGRDESCSIZE 0 {size.hex()}\nHIDIOCGRDESC 0 {desc.hex()}\n"
+
+
+class Bed:
+    def __init__(self) -> None:
+        self.testbed = UMockdev.Testbed.new()
+        self.root = self.testbed.get_root_dir()
+        self.work = tempfile.mkdtemp(prefix="usb2rc-bed-")
+        self.hubs: set[str] = set()  # sysfs paths of root hubs and hubs already made
+        self.plugged: dict[str, Plugged] = {}
+        self.next_minor = 0
+        self.next_hid = 1
+
+    # --- building the sysfs chain -------------------------------------------------------------
+
+    def _add(self, text: str) -> None:
+        self.testbed.add_from_string(text)
+
+    def _uevent(self, syspath: str, action: str) -> None:
+        self.testbed.uevent("/sys" + syspath, action)
+
+    def _hub_chain(self, port: str) -> str:
+        """Make the root hub and the hubs above `port` ("1-1.2": usb1, 1-1); their path."""
+        bus, _, ports = port.partition("-")
+        parent = f"{CONTROLLER}/usb{bus}"
+        if parent not in self.hubs:
+            self._add(
+                record(
+                    parent,
+                    [
+                        "E: SUBSYSTEM=usb",
+                        "E: DEVTYPE=usb_device",
+                        f"A: busnum={bus}",
+                        "A: devnum=1",
+                        "A: idVendor=1d6b",
+                        "A: idProduct=0002",
+                        "A: bDeviceClass=09",
+                    ],
+                )
+            )
+            self.hubs.add(parent)
+        steps = ports.split(".")
+        for depth in range(1, len(steps)):
+            name = f"{bus}-{'.'.join(steps[:depth])}"
+            path = f"{parent}/{name}"
+            if path not in self.hubs:
+                self._add(
+                    record(
+                        path,
+                        [
+                            "E: SUBSYSTEM=usb",
+                            "E: DEVTYPE=usb_device",
+                            f"A: busnum={bus}",
+                            f"A: devnum={10 + len(self.hubs)}",
+                            "A: idVendor=05e3",
+                            "A: idProduct=0610",
+                            "A: product=USB2.0 Hub",
+                            "A: bDeviceClass=09",
+                        ],
+                    )
+                )
+                self.hubs.add(path)
+            parent = path
+        return parent
+
+    def add(self, cmd: dict[str, Any]) -> dict[str, Any]:
+        port: str = cmd["port"]
+        vid, pid = int(cmd["vid"]), int(cmd["pid"])
+        product, maker = cmd.get("product", ""), cmd.get("manufacturer", "")
+        serial: str = cmd.get("serial", "")
+        descriptor = bytes.fromhex(cmd["descriptor"])
+        if any(p.usb.endswith(f"/{port}") for p in self.plugged.values()):
+            raise ValueError(f"port {port} already has a device")
+        hub = self._hub_chain(port)
+        bus = port.partition("-")[0]
+        minor, hid_no = self.next_minor, self.next_hid
+        self.next_minor += 1
+        self.next_hid += 1
+        usb = f"{hub}/{port}"
+        usb_lines = [
+            "E: SUBSYSTEM=usb",
+            "E: DEVTYPE=usb_device",
+            f"A: busnum={bus}",
+            f"A: devnum={100 + minor}",
+            f"A: idVendor={vid:04x}",
+            f"A: idProduct={pid:04x}",
+        ]
+        usb_lines += [f"A: manufacturer={maker}"] if maker else []
+        usb_lines += [f"A: product={product}"] if product else []
+        usb_lines += [f"A: serial={serial}"] if serial else []  # no serial: no attribute
+        interface = f"{usb}/{port}:1.0"
+        hid = f"{interface}/0003:{vid:04X}:{pid:04X}.{hid_no:04X}"
+        name = f"hidraw{minor}"
+        hidraw = f"{hid}/hidraw/{name}"
+        node = f"/dev/{name}"
+        hid_name = f"{maker} {product}".strip()
+        text = (
+            record(usb, usb_lines)
+            + record(
+                interface,
+                [
+                    "E: SUBSYSTEM=usb",
+                    "E: DEVTYPE=usb_interface",
+                    "E: INTERFACE=3/0/0",
+                    "A: bInterfaceNumber=00",
+                    "A: bInterfaceClass=03",
+                ],
+            )
+            + record(
+                hid,
+                [
+                    "E: SUBSYSTEM=hid",
+                    f"E: HID_ID=0003:0000{vid:04X}:0000{pid:04X}",
+                    f"E: HID_NAME={hid_name}",
+                    f"E: HID_PHYS=usb-0000:00:14.0-{port.partition('-')[2]}/input0",
+                    f"E: HID_UNIQ={serial}",
+                    f"H: report_descriptor={descriptor.hex().upper()}",
+                ],
+            )
+            + record(
+                hidraw,
+                [
+                    f"N: {name}",
+                    "L: device=../..",
+                    "E: SUBSYSTEM=hidraw",
+                    f"E: DEVNAME={node}",
+                    f"E: MAJOR={HIDRAW_MAJOR}",
+                    f"E: MINOR={minor}",
+                    f"A: dev={HIDRAW_MAJOR}:{minor}",
+                ],
+            )
+        )
+        ioctl_file = os.path.join(self.work, f"{name}.ioctl")
+        with open(ioctl_file, "w") as f:
+            f.write(ioctl_record(node, descriptor))
+        self.testbed.load_ioctl(node, ioctl_file)
+        self._add(text)
+        master = self.testbed.get_dev_fd(node)
+        if master < 0:
+            raise RuntimeError(f"umockdev made no pty for {node}")
+        tty.setraw(master)  # the node's termios are the pty's: raw, no ISIG/IXON/IEXTEN
+        os.set_blocking(master, True)
+        self.plugged[node] = Plugged(usb, interface, hid, hidraw, node, master)
+        for path in (usb, interface, hid, hidraw):
+            self._uevent(path, "add")
+        return {"hidraw": node, "syspath": "/sys" + usb}
+
+    # --- what a device does -------------------------------------------------------------------
+
+    def _plugged(self, cmd: dict[str, Any]) -> Plugged:
+        node = cmd["hidraw"]
+        if node not in self.plugged:
+            raise KeyError(f"{node} is not plugged")
+        return self.plugged[node]
+
+    def report(self, cmd: dict[str, Any]) -> dict[str, Any]:
+        dev = self._plugged(cmd)
+        data = bytes.fromhex(cmd["data"])
+        written = os.write(dev.master, data)
+        if written != len(data):
+            raise OSError(f"short write to {dev.node}: {written} of {len(data)} bytes")
+        return {"t": time.monotonic()}
+
+    def remove(self, cmd: dict[str, Any]) -> dict[str, Any]:
+        dev = self.plugged.pop(cmd["hidraw"]) if cmd["hidraw"] in self.plugged else None
+        if dev is None:
+            raise KeyError(f"{cmd['hidraw']} is not plugged")
+        for path in (dev.hidraw, dev.hid, dev.interface, dev.usb):  # children first
+            self._uevent(path, "remove")
+            self.testbed.remove_device("/sys" + path)
+        os.close(dev.master)  # readers blocked in poll() wake with POLLHUP
+        return {"t": time.monotonic()}
+
+    def chmod(self, cmd: dict[str, Any]) -> dict[str, Any]:
+        dev = self._plugged(cmd)
+        # /dev/hidrawN in the testbed is a symlink to the pty slave: chmod follows it
+        os.chmod(os.path.join(self.root, dev.node.lstrip("/")), int(cmd["mode"]))
+        return {}
+
+    def close(self) -> None:
+        shutil.rmtree(self.root, ignore_errors=True)
+        shutil.rmtree(self.work, ignore_errors=True)
+
+
+def serve(bed: Bed) -> None:
+    handlers = {"add": bed.add, "report": bed.report, "remove": bed.remove, "chmod": bed.chmod}
+    for line in sys.stdin:
+        if not line.strip():
+            continue
+        try:
+            cmd = json.loads(line)
+            if cmd.get("cmd") == "quit":
+                break
+            reply: dict[str, Any] = {"ok": True, **handlers[cmd["cmd"]](cmd)}
+        except Exception as exc:  # a bad command is answered, never fatal
+            reply = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+        print(json.dumps(reply), flush=True)
+
+
+def main() -> None:
+    bed = Bed()
+    print(json.dumps({"ok": True, "root": bed.root}), flush=True)
+    try:
+        serve(bed)
+    finally:
+        bed.close()
+    sys.stdout.flush()
+    # No Testbed destructor: it would close the pty masters closed at unplug a second time
+    # (by then those numbers may belong to other files) and the root is already removed.
+    os._exit(0)
+
+
+if __name__ == "__main__":
+    main()
