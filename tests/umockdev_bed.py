@@ -68,6 +68,7 @@ class Plugged:
     hidraw: str
     node: str  # /dev/hidrawN
     master: int  # the pty master: the device's side of the node
+    pty: str  # the pty slave the node stands for: /dev/pts/N
 
 
 def record(path: str, lines: list[str]) -> str:
@@ -220,7 +221,8 @@ class Bed:
             raise RuntimeError(f"umockdev made no pty for {node}")
         tty.setraw(master)  # the node's termios are the pty's: raw, no ISIG/IXON/IEXTEN
         os.set_blocking(master, True)
-        self.plugged[node] = Plugged(usb, interface, hid, hidraw, node, master)
+        pty = os.readlink(self._in_root(node))
+        self.plugged[node] = Plugged(usb, interface, hid, hidraw, node, master, pty)
         for path in (usb, interface, hid, hidraw):
             self._uevent(path, "add")
         return {"hidraw": node, "syspath": "/sys" + usb}
@@ -249,13 +251,22 @@ class Bed:
             self._uevent(path, "remove")
             self.testbed.remove_device("/sys" + path)
         os.close(dev.master)  # readers blocked in poll() wake with POLLHUP
-        return {"t": time.monotonic()}
+        t = time.monotonic()
+        # umockdev maps each pty to its node's major:minor in dev/.ptymap and asserts when a
+        # new node gets a pty number it has seen: the closed pty's number is free again.
+        stale = self._in_root("/dev/.ptymap/" + dev.pty.replace("/", "_"))
+        if os.path.lexists(stale):
+            os.unlink(stale)
+        return {"t": t}
 
     def chmod(self, cmd: dict[str, Any]) -> dict[str, Any]:
         dev = self._plugged(cmd)
         # /dev/hidrawN in the testbed is a symlink to the pty slave: chmod follows it
-        os.chmod(os.path.join(self.root, dev.node.lstrip("/")), int(cmd["mode"]))
+        os.chmod(self._in_root(dev.node), int(cmd["mode"]))
         return {}
+
+    def _in_root(self, path: str) -> str:
+        return os.path.join(self.root, path.lstrip("/"))
 
     def close(self) -> None:
         shutil.rmtree(self.root, ignore_errors=True)

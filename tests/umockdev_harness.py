@@ -131,7 +131,10 @@ class Testbed:
         if not line:
             err = self.proc.stderr.read() if self.proc.stderr else ""
             raise BedError(f"umockdev bed ended: {err.strip()[-2000:]}")
-        reply = json.loads(line)
+        try:
+            reply = json.loads(line)
+        except ValueError:
+            raise BedError(f"umockdev bed said: {line!r}") from None
         if not reply.get("ok"):
             raise BedError(reply.get("error", "bed refused the command"))
         return reply
@@ -226,3 +229,47 @@ def wait_until(predicate: Any, timeout: float, what: str, interval: float = 0.01
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         time.sleep(interval)
+
+
+def run_real_contract(bed: Testbed, timeout: float = 60.0) -> list[dict[str, Any]]:
+    """tests/hidapi_contract.py against the real `hidraw` module in a process under the
+    preload library; this process plugs, sends and unplugs for it on the testbed."""
+    from hidapi_contract import DESCRIPTOR, PID, VID
+
+    proc = subprocess.Popen(
+        [sys.executable, str(ROOT / "tests" / "hidapi_contract.py"), "--stdio"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+        env=dict(os.environ, **bed.env()),
+    )
+    assert proc.stdin is not None and proc.stdout is not None
+    ports = (f"1-{n}" for n in range(1, 100))
+    watchdog = threading.Timer(timeout, proc.kill)  # a read that never returns ends here
+    watchdog.start()
+    try:
+        for line in proc.stdout:
+            message = json.loads(line)
+            if "results" in message:
+                return list(message["results"])
+            request = message["request"]
+            try:
+                if request["op"] == "plug":
+                    path = bed.add(FakeStick(next(ports), VID, PID, DESCRIPTOR, "T.16000M"))
+                    reply: dict[str, Any] = {"path": path}
+                elif request["op"] == "report":
+                    bed.report(request["path"], bytes.fromhex(request["data"]))
+                    reply = {}
+                else:
+                    bed.remove(request["path"])
+                    reply = {}
+            except BedError as exc:
+                reply = {"error": str(exc)}
+            proc.stdin.write(json.dumps(reply) + "\n")
+            proc.stdin.flush()
+        raise AssertionError(f"the contract process ended without results (exit {proc.wait()})")
+    finally:
+        watchdog.cancel()
+        proc.kill()
+        proc.wait()
