@@ -171,10 +171,14 @@ class PtyLine:
 
     def wait_for(self, predicate: Callable[[list[Any]], Any], timeout: float = 10.0) -> Any:
         """Wait until predicate(frames) is truthy; return its value. Fails after timeout."""
+        return self.wait_seen(lambda seen: predicate([s.frame for s in seen]), timeout)
+
+    def wait_seen(self, predicate: Callable[[list[Seen]], Any], timeout: float = 10.0) -> Any:
+        """wait_for with each frame's arrival time (`Seen`), for tests that time frames."""
         deadline = time.monotonic() + timeout
         with self._cond:
             while True:
-                result = predicate([s.frame for s in self.seen])
+                result = predicate(self.seen)
                 if result:
                     return result
                 left = deadline - time.monotonic()

@@ -9,7 +9,7 @@ Commands, one JSON object a line; each gets one JSON line back (`{"ok": false, "
 on failure, never an exception that ends the bed):
 
     {"cmd": "add", "port": "1-1.2", "vid": 1103, "pid": 45322, "product": "T.16000M",
-     "manufacturer": "Thrustmaster", "serial": "", "descriptor": "0501..."}
+     "manufacturer": "Thrustmaster", "serial": "", "descriptor": "0501...", "mode": 0}
         -> {"ok": true, "hidraw": "/dev/hidraw0", "syspath": "/sys/devices/..."}
     {"cmd": "report", "hidraw": "/dev/hidraw0", "data": "0100..."}  -> {"ok": true, "t": T}
     {"cmd": "remove", "hidraw": "/dev/hidraw0"}                        -> {"ok": true, "t": T}
@@ -25,16 +25,17 @@ What the kernel does and this copies (see ../shared/notes/umockdev.md):
   (HID_ID, HID_NAME, HID_PHYS, HID_UNIQ, binary report_descriptor) -> hidraw/hidrawN with a
   `device` link back to the hid device (hidapi reads the usage page through it, usb2rc the
   port path) and `dev` = major:minor;
-- the node is a pty (umockdev's char device emulation); set raw here, so report bytes such
-  as 0x03, 0x11, 0x13 or 0x16 reach the reader unchanged instead of being taken as signal,
-  flow-control or literal-next characters by the tty line discipline;
+- the node is a pty, as umockdev makes it for an emulated char device, but made here: it is
+  set raw, so report bytes such as 0x03, 0x11, 0x13 or 0x16 reach the reader unchanged
+  instead of being taken as signal, flow-control or literal-next characters by the tty line
+  discipline, and it exists with its mode (`"mode"` in `add`) before sysfs lists the device;
 - ioctl replies for HIDIOCGRDESCSIZE and HIDIOCGRDESC (hidapi's open_path needs the first,
   get_report_descriptor the second: the whole 4100-byte struct);
 - unplug: remove uevents and sysfs removal bottom-up (hidraw, hid, interface, USB device),
   then the pty master is closed so a reader blocked in poll() wakes with POLLHUP, as a real
   hidraw reader wakes when the kernel marks the device gone;
-- a node added later never reuses a minor number or name (umockdev keeps a table of the pty
-  masters by node name and refuses a second one of the same name).
+- a node added later never reuses a minor number or name (a reader still holding the old
+  node must never find a new device behind it).
 """
 
 from __future__ import annotations
@@ -201,7 +202,6 @@ class Bed:
             + record(
                 hidraw,
                 [
-                    f"N: {name}",
                     "L: device=../..",
                     "E: SUBSYSTEM=hidraw",
                     f"E: DEVNAME={node}",
@@ -215,17 +215,31 @@ class Bed:
         with open(ioctl_file, "w") as f:
             f.write(ioctl_record(node, descriptor))
         self.testbed.load_ioctl(node, ioctl_file)
+        master, pty = self._make_node(node, minor, cmd.get("mode"))
         self._add(text)
-        master = self.testbed.get_dev_fd(node)
-        if master < 0:
-            raise RuntimeError(f"umockdev made no pty for {node}")
-        tty.setraw(master)  # the node's termios are the pty's: raw, no ISIG/IXON/IEXTEN
-        os.set_blocking(master, True)
-        pty = os.readlink(self._in_root(node))
         self.plugged[node] = Plugged(usb, interface, hid, hidraw, node, master, pty)
         for path in (usb, interface, hid, hidraw):
             self._uevent(path, "add")
         return {"hidraw": node, "syspath": "/sys" + usb}
+
+    def _make_node(self, node: str, minor: int, mode: int | None) -> tuple[int, str]:
+        """The device node, made here rather than by umockdev (an `N:` line) so that it
+        exists, with its final mode, before sysfs lists the device: a program that finds
+        the device never finds its node missing or about to change its permissions."""
+        master, slave = os.openpty()
+        pty = os.ttyname(slave)
+        os.close(slave)  # the device side is the master; the reader opens the slave
+        tty.setraw(master)  # termios of the node: raw, no ISIG/IXON/IEXTEN on report bytes
+        if mode is not None:
+            os.chmod(pty, mode)
+        # what umockdev's own node creation records: pty -> major:minor, for stat()
+        ptymap = self._in_root("/dev/.ptymap")
+        os.makedirs(ptymap, exist_ok=True)
+        os.symlink(f"{HIDRAW_MAJOR}:{minor}", os.path.join(ptymap, pty.replace("/", "_")))
+        tmp = self._in_root(node + ".new")
+        os.symlink(pty, tmp)
+        os.rename(tmp, self._in_root(node))  # appears whole
+        return master, pty
 
     # --- what a device does -------------------------------------------------------------------
 

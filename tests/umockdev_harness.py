@@ -1,7 +1,7 @@
 """The real hidapi path on fake USB devices: umockdev, driven from the tests.
 
-`Testbed` runs tests/umockdev_bed.py under Debian's python3 (the one with `gi`) and talks to
-it over a pipe; `Testbed.env()` is what a process needs to see the fake /sys and /dev
+`UsbBed` runs tests/umockdev_bed.py under Debian's python3 (the one with `gi`) and talks to
+it over a pipe; `UsbBed.env()` is what a process needs to see the fake /sys and /dev
 (`UMOCKDEV_DIR`, `LD_PRELOAD=libumockdev-preload.so.0`). Nothing else here needs umockdev,
 so this module imports anywhere; `require_umockdev()` decides between running, skipping
 (with a one-line reason) and failing: under CI (`CI` set) a missing umockdev is a failure,
@@ -85,7 +85,7 @@ def require_umockdev() -> None:
 
 @dataclass(frozen=True)
 class FakeStick:
-    """What `Testbed.add` plugs: a USB HID device at a port path."""
+    """What `UsbBed.add` plugs: a USB HID device at a port path."""
 
     port: str
     vid: int
@@ -109,7 +109,7 @@ def bed_env() -> dict[str, str]:
     return env
 
 
-class Testbed:
+class UsbBed:
     """The bed subprocess. Every command waits for its reply (the bed answers in order)."""
 
     def __init__(self) -> None:
@@ -151,8 +151,10 @@ class Testbed:
         preload = " ".join(p for p in (PRELOAD, os.environ.get("LD_PRELOAD", "")) if p)
         return {"UMOCKDEV_DIR": self.root, "LD_PRELOAD": preload}
 
-    def add(self, stick: FakeStick) -> str:
-        """Plug `stick`; its /dev/hidrawN (as seen inside the testbed)."""
+    def add(self, stick: FakeStick, mode: int | None = None) -> str:
+        """Plug `stick`; its /dev/hidrawN (as seen inside the testbed). `mode`: the node's
+        permissions from the start (it never exists with others)."""
+        extra = {} if mode is None else {"mode": mode}
         reply = self.command(
             "add",
             port=stick.port,
@@ -162,6 +164,7 @@ class Testbed:
             manufacturer=stick.manufacturer,
             serial=stick.serial,
             descriptor=stick.descriptor.hex(),
+            **extra,
         )
         return str(reply["hidraw"])
 
@@ -195,20 +198,12 @@ class Testbed:
 
 
 @contextlib.contextmanager
-def testbed() -> Iterator[Testbed]:
-    bed = Testbed()
+def usb_bed() -> Iterator[UsbBed]:
+    bed = UsbBed()
     try:
         yield bed
     finally:
         bed.close()
-
-
-@pytest.fixture
-def bed() -> Iterator[Testbed]:
-    """A fresh, empty testbed (skips, or fails under CI, without umockdev)."""
-    require_umockdev()
-    with testbed() as tb:
-        yield tb
 
 
 def serial_port_link(tmp_path: Path, pty_path: str) -> str:
@@ -231,7 +226,7 @@ def wait_until(predicate: Any, timeout: float, what: str, interval: float = 0.01
         time.sleep(interval)
 
 
-def run_real_contract(bed: Testbed, timeout: float = 60.0) -> list[dict[str, Any]]:
+def run_real_contract(bed: UsbBed, timeout: float = 60.0) -> list[dict[str, Any]]:
     """tests/hidapi_contract.py against the real `hidraw` module in a process under the
     preload library; this process plugs, sends and unplugs for it on the testbed."""
     from hidapi_contract import DESCRIPTOR, PID, VID
