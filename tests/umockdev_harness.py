@@ -23,8 +23,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import pytest
-
 ROOT = Path(__file__).resolve().parent.parent
 BED = ROOT / "tests" / "umockdev_bed.py"
 SYSTEM_PYTHON = os.environ.get("USB2RC_GI_PYTHON", "/usr/bin/python3")
@@ -73,6 +71,8 @@ _reason_cache: list[str | None] = []
 
 def require_umockdev() -> None:
     """Skip the calling test with a one-line reason when umockdev is missing; under CI fail."""
+    import pytest  # here: the bench scripts use this module without pytest installed
+
     if not _reason_cache:
         _reason_cache.append(missing_reason())
     reason = _reason_cache[0]
