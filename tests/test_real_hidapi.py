@@ -641,3 +641,39 @@ def distinct_live(frames: list[Any], node: int) -> list[tuple[tuple[int, ...], i
         if f.status == LIVE and (not out or out[-1] != value):
             out.append(value)
     return out
+
+
+UDEV_WAKER = """
+import sys, time
+from usb2rc.hid.hotplug import _UdevWaker
+waker = _UdevWaker.create()
+print("ready" if waker else "no udev monitor", flush=True)
+sys.stdin.readline()
+start = time.monotonic()
+waker.wait(10.0)
+print(f"{time.monotonic() - start:.3f}", flush=True)
+"""
+
+
+def test_the_hotplug_udev_monitor_sees_the_testbeds_uevents(bed: UsbBed) -> None:
+    """pyudev's netlink monitor, under the preload library, gets the testbed's uevents: the
+    hot-plug thread wakes at a plug, it does not wait for its 0.1 s poll."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", UDEV_WAKER],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+        env=dict(os.environ, **bed.env()),
+    )
+    try:
+        assert proc.stdout is not None and proc.stdin is not None
+        assert proc.stdout.readline().strip() == "ready"
+        bed.add(stick("1-1.2"))  # its uevent is queued on the monitor's socket from now on
+        proc.stdin.write("\n")
+        proc.stdin.flush()
+        waited = float(proc.stdout.readline())
+    finally:
+        proc.kill()
+        proc.wait()
+    assert waited < 1.0  # the 10 s wait ended on the uevent

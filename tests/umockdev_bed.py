@@ -12,12 +12,13 @@ on failure, never an exception that ends the bed):
      "manufacturer": "Thrustmaster", "serial": "", "descriptor": "0501...", "mode": 0}
         -> {"ok": true, "hidraw": "/dev/hidraw0", "syspath": "/sys/devices/..."}
     {"cmd": "report", "hidraw": "/dev/hidraw0", "data": "0100..."}  -> {"ok": true, "t": T}
-    {"cmd": "remove", "hidraw": "/dev/hidraw0"}                        -> {"ok": true, "t": T}
+    {"cmd": "remove", "hidraw": "/dev/hidraw0"}          -> {"ok": true, "t": T, "closed": T2}
     {"cmd": "chmod", "hidraw": "/dev/hidraw0", "mode": 0}              -> {"ok": true}
     {"cmd": "quit"}
 
 T is time.monotonic() (CLOCK_MONOTONIC, system-wide: comparable with the test's clock) taken
-right after the report was written / the device node vanished and its pty master closed.
+right after the report was written / just before the unplug began (its first uevent); T2
+once the device is gone from sysfs and /dev and its pty master is closed.
 
 What the kernel does and this copies (see ../shared/notes/umockdev.md):
 - the sysfs chain PCI controller -> usbB root hub -> hubs -> the USB device at the port path
@@ -31,6 +32,9 @@ What the kernel does and this copies (see ../shared/notes/umockdev.md):
   discipline, and it exists with its mode (`"mode"` in `add`) before sysfs lists the device;
 - ioctl replies for HIDIOCGRDESCSIZE and HIDIOCGRDESC (hidapi's open_path needs the first,
   get_report_descriptor the second: the whole 4100-byte struct);
+- uevents (seen by pyudev's netlink monitor in the preloaded process, so the daemon's
+  hot-plug thread wakes on them as on a real system): "add" from umockdev itself when the
+  chain is added, "remove" from here;
 - unplug: remove uevents and sysfs removal bottom-up (hidraw, hid, interface, USB device),
   then the pty master is closed so a reader blocked in poll() wakes with POLLHUP, as a real
   hidraw reader wakes when the kernel marks the device gone;
@@ -217,9 +221,9 @@ class Bed:
         self.testbed.load_ioctl(node, ioctl_file)
         master, pty = self._make_node(node, minor, cmd.get("mode"))
         self._add(text)
+        # add_from_string sends the "add" uevents itself (umockdev >= 0.13); sending them
+        # again would announce every device twice
         self.plugged[node] = Plugged(usb, interface, hid, hidraw, node, master, pty)
-        for path in (usb, interface, hid, hidraw):
-            self._uevent(path, "add")
         return {"hidraw": node, "syspath": "/sys" + usb}
 
     def _make_node(self, node: str, minor: int, mode: int | None) -> tuple[int, str]:
@@ -261,17 +265,18 @@ class Bed:
         dev = self.plugged.pop(cmd["hidraw"]) if cmd["hidraw"] in self.plugged else None
         if dev is None:
             raise KeyError(f"{cmd['hidraw']} is not plugged")
+        yanked = time.monotonic()  # the unplug starts: a watcher of uevents may act at once
         for path in (dev.hidraw, dev.hid, dev.interface, dev.usb):  # children first
-            self._uevent(path, "remove")
+            self._uevent(path, "remove")  # remove_device sends none itself
             self.testbed.remove_device("/sys" + path)
         os.close(dev.master)  # readers blocked in poll() wake with POLLHUP
-        t = time.monotonic()
+        closed = time.monotonic()
         # umockdev maps each pty to its node's major:minor in dev/.ptymap and asserts when a
         # new node gets a pty number it has seen: the closed pty's number is free again.
         stale = self._in_root("/dev/.ptymap/" + dev.pty.replace("/", "_"))
         if os.path.lexists(stale):
             os.unlink(stale)
-        return {"t": t}
+        return {"t": yanked, "closed": closed}
 
     def chmod(self, cmd: dict[str, Any]) -> dict[str, Any]:
         dev = self._plugged(cmd)

@@ -173,7 +173,8 @@ class UsbBed:
         return float(self.command("report", hidraw=hidraw, data=data.hex())["t"])
 
     def remove(self, hidraw: str) -> float:
-        """Unplug; the monotonic time once the node is gone and its readers were woken."""
+        """Unplug; the monotonic time the unplug began (a uevent watcher may act from then
+        on). When this returns the node is gone and its readers were woken."""
         return float(self.command("remove", hidraw=hidraw)["t"])
 
     def chmod(self, hidraw: str, mode: int) -> None:
