@@ -169,6 +169,11 @@ class PtyLine:
         with self._cond:
             return [s.frame for s in self.seen]
 
+    def seen_now(self) -> list[Seen]:
+        """What arrived so far, with arrival times (a copy)."""
+        with self._cond:
+            return list(self.seen)
+
     def wait_for(self, predicate: Callable[[list[Any]], Any], timeout: float = 10.0) -> Any:
         """Wait until predicate(frames) is truthy; return its value. Fails after timeout."""
         return self.wait_seen(lambda seen: predicate([s.frame for s in seen]), timeout)

@@ -58,6 +58,7 @@ LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
 UNPLUG_TO_FAILSAFE_S = 0.100  # issue 10: `2` then `!` within 100 ms of the unplug
 STOP_S = 1.0  # SIGTERM -> exit
 CONNECT = ["connected", "vid-pid", "device-string", "device-type"]
+HOLD_TICKS = 6
 
 
 def stick(port: str, serial: str = "", pid: int = 0xB10A) -> FakeStick:
@@ -118,6 +119,11 @@ def node_services(seen: list[Seen], node: int, after: float = 0.0) -> list[Seen]
         for s in seen
         if isinstance(s.frame, c2_16b.ServiceFrame) and s.frame.node_id == node and s.time >= after
     ]
+
+
+def first_n(items: list[Seen], n: int) -> list[Seen] | None:
+    """The first n, once there are n (for wait_seen)."""
+    return items[:n] if len(items) >= n else None
 
 
 def carries(frame: c2_16b.DataFrame, state: StickState) -> bool:
@@ -401,10 +407,8 @@ def test_scripted_reports_followed_frame_by_frame(
         assert_within_one_tick(deliveries)
         last, since = script()[-1], deliveries[-1].frame.time
         # and the node holds the last value: the ticks after it repeat it
-        held = line.wait_seen(
-            lambda seen: node_data(seen, 0, since)[5:] and node_data(seen, 0, since)
-        )
-        assert all(carries(s.frame, last) for s in held[:6])
+        held = line.wait_seen(lambda seen: first_n(node_data(seen, 0, since), HOLD_TICKS))
+        assert all(carries(s.frame, last) for s in held)
     finally:
         assert daemon.stop() == 0, daemon.log()[-3000:]
 
@@ -436,7 +440,7 @@ def test_unplug_then_replug_on_the_same_port(bed: UsbBed, line: PtyLine, tmp_pat
         assert bye.time - unplugged <= UNPLUG_TO_FAILSAFE_S
         assert failsafe.time - unplugged <= UNPLUG_TO_FAILSAFE_S
         # no live frame for the node once it said it was disconnected
-        assert all(s.frame.status == FAILSAFE for s in node_data(line.seen, 0, bye.time))
+        assert all(s.frame.status == FAILSAFE for s in node_data(line.seen_now(), 0, bye.time))
 
         again = bed.add(stick("1-1.2"))
         assert again != hidraw  # a new node, as the kernel makes one
@@ -462,7 +466,7 @@ def test_a_stick_plugged_while_running_is_announced(
             f for f in service_frames(line.frames(), 1) if f.service == c2_16b.Service.VID_PID
         )
         assert (vid_pid.vid, vid_pid.pid) == (0x044F, 0xB10B)
-        announced = node_services(line.seen, 1)[0].time
+        announced = node_services(line.seen_now(), 1)[0].time
         assert announced - plugged_at < 1.0  # udev wakes the monitor, or its 0.1 s poll does
         go_live(bed, line, second, 1, StickState(y=42))
         go_live(bed, line, first, 0, StickState(x=200))  # the first one is unaffected

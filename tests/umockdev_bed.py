@@ -87,6 +87,97 @@ def ioctl_record(node: str, descriptor: bytes) -> str:
     return f"@DEV {node}\nHIDIOCGRDESCSIZE 0 {size.hex()}\nHIDIOCGRDESC 0 {desc.hex()}\n"
 
 
+ROOT_HUB = ["A: idVendor=1d6b", "A: idProduct=0002", "A: bDeviceClass=09"]
+HUB = ["A: idVendor=05e3", "A: idProduct=0610", "A: product=USB2.0 Hub", "A: bDeviceClass=09"]
+
+
+@dataclass(frozen=True)
+class Stick:
+    """What an `add` command plugs."""
+
+    port: str
+    vid: int
+    pid: int
+    product: str
+    manufacturer: str
+    serial: str
+    descriptor: bytes
+
+    @classmethod
+    def from_command(cls, cmd: dict[str, Any]) -> Stick:
+        return cls(
+            port=cmd["port"],
+            vid=int(cmd["vid"]),
+            pid=int(cmd["pid"]),
+            product=cmd.get("product", ""),
+            manufacturer=cmd.get("manufacturer", ""),
+            serial=cmd.get("serial", ""),
+            descriptor=bytes.fromhex(cmd["descriptor"]),
+        )
+
+
+@dataclass(frozen=True)
+class Chain:
+    """The sysfs paths (without /sys) of one plugged stick, top to bottom, and its node."""
+
+    usb: str
+    interface: str
+    hid: str
+    hidraw: str
+    node: str
+
+    @classmethod
+    def at(cls, hub: str, stick: Stick, minor: int, hid_no: int) -> Chain:
+        usb = f"{hub}/{stick.port}"
+        interface = f"{usb}/{stick.port}:1.0"
+        hid = f"{interface}/0003:{stick.vid:04X}:{stick.pid:04X}.{hid_no:04X}"
+        return cls(usb, interface, hid, f"{hid}/hidraw/hidraw{minor}", f"/dev/hidraw{minor}")
+
+    def records(self, stick: Stick, minor: int) -> str:
+        """The four devices in umockdev-record format."""
+        bus, _, ports = stick.port.partition("-")
+        usb = [
+            "E: SUBSYSTEM=usb",
+            "E: DEVTYPE=usb_device",
+            f"A: busnum={bus}",
+            f"A: devnum={100 + minor}",
+            f"A: idVendor={stick.vid:04x}",
+            f"A: idProduct={stick.pid:04x}",
+        ]
+        usb += [f"A: manufacturer={stick.manufacturer}"] if stick.manufacturer else []
+        usb += [f"A: product={stick.product}"] if stick.product else []
+        usb += [f"A: serial={stick.serial}"] if stick.serial else []  # none: no attribute
+        interface = [
+            "E: SUBSYSTEM=usb",
+            "E: DEVTYPE=usb_interface",
+            "E: INTERFACE=3/0/0",
+            "A: bInterfaceNumber=00",
+            "A: bInterfaceClass=03",
+        ]
+        hid = [
+            "E: SUBSYSTEM=hid",
+            f"E: HID_ID=0003:0000{stick.vid:04X}:0000{stick.pid:04X}",
+            "E: HID_NAME=" + f"{stick.manufacturer} {stick.product}".strip(),
+            f"E: HID_PHYS=usb-0000:00:14.0-{ports}/input0",
+            f"E: HID_UNIQ={stick.serial}",
+            f"H: report_descriptor={stick.descriptor.hex().upper()}",
+        ]
+        hidraw = [
+            "L: device=../..",  # the kernel's link back to the hid device
+            "E: SUBSYSTEM=hidraw",
+            f"E: DEVNAME={self.node}",
+            f"E: MAJOR={HIDRAW_MAJOR}",
+            f"E: MINOR={minor}",
+            f"A: dev={HIDRAW_MAJOR}:{minor}",
+        ]
+        return (
+            record(self.usb, usb)
+            + record(self.interface, interface)
+            + record(self.hid, hid)
+            + record(self.hidraw, hidraw)
+        )
+
+
 class Bed:
     def __init__(self) -> None:
         self.testbed = UMockdev.Testbed.new()
@@ -105,126 +196,43 @@ class Bed:
     def _uevent(self, syspath: str, action: str) -> None:
         self.testbed.uevent("/sys" + syspath, action)
 
+    def _hub(self, path: str, lines: list[str]) -> None:
+        if path not in self.hubs:
+            self._add(record(path, ["E: SUBSYSTEM=usb", "E: DEVTYPE=usb_device", *lines]))
+            self.hubs.add(path)
+
     def _hub_chain(self, port: str) -> str:
         """Make the root hub and the hubs above `port` ("1-1.2": usb1, 1-1); their path."""
         bus, _, ports = port.partition("-")
         parent = f"{CONTROLLER}/usb{bus}"
-        if parent not in self.hubs:
-            self._add(
-                record(
-                    parent,
-                    [
-                        "E: SUBSYSTEM=usb",
-                        "E: DEVTYPE=usb_device",
-                        f"A: busnum={bus}",
-                        "A: devnum=1",
-                        "A: idVendor=1d6b",
-                        "A: idProduct=0002",
-                        "A: bDeviceClass=09",
-                    ],
-                )
-            )
-            self.hubs.add(parent)
+        self._hub(parent, [f"A: busnum={bus}", "A: devnum=1", *ROOT_HUB])
         steps = ports.split(".")
         for depth in range(1, len(steps)):
-            name = f"{bus}-{'.'.join(steps[:depth])}"
-            path = f"{parent}/{name}"
-            if path not in self.hubs:
-                self._add(
-                    record(
-                        path,
-                        [
-                            "E: SUBSYSTEM=usb",
-                            "E: DEVTYPE=usb_device",
-                            f"A: busnum={bus}",
-                            f"A: devnum={10 + len(self.hubs)}",
-                            "A: idVendor=05e3",
-                            "A: idProduct=0610",
-                            "A: product=USB2.0 Hub",
-                            "A: bDeviceClass=09",
-                        ],
-                    )
-                )
-                self.hubs.add(path)
+            path = f"{parent}/{bus}-{'.'.join(steps[:depth])}"
+            self._hub(path, [f"A: busnum={bus}", f"A: devnum={10 + len(self.hubs)}", *HUB])
             parent = path
         return parent
 
     def add(self, cmd: dict[str, Any]) -> dict[str, Any]:
-        port: str = cmd["port"]
-        vid, pid = int(cmd["vid"]), int(cmd["pid"])
-        product, maker = cmd.get("product", ""), cmd.get("manufacturer", "")
-        serial: str = cmd.get("serial", "")
-        descriptor = bytes.fromhex(cmd["descriptor"])
-        if any(p.usb.endswith(f"/{port}") for p in self.plugged.values()):
-            raise ValueError(f"port {port} already has a device")
-        hub = self._hub_chain(port)
-        bus = port.partition("-")[0]
+        stick = Stick.from_command(cmd)
+        if any(p.usb.endswith(f"/{stick.port}") for p in self.plugged.values()):
+            raise ValueError(f"port {stick.port} already has a device")
         minor, hid_no = self.next_minor, self.next_hid
         self.next_minor += 1
         self.next_hid += 1
-        usb = f"{hub}/{port}"
-        usb_lines = [
-            "E: SUBSYSTEM=usb",
-            "E: DEVTYPE=usb_device",
-            f"A: busnum={bus}",
-            f"A: devnum={100 + minor}",
-            f"A: idVendor={vid:04x}",
-            f"A: idProduct={pid:04x}",
-        ]
-        usb_lines += [f"A: manufacturer={maker}"] if maker else []
-        usb_lines += [f"A: product={product}"] if product else []
-        usb_lines += [f"A: serial={serial}"] if serial else []  # no serial: no attribute
-        interface = f"{usb}/{port}:1.0"
-        hid = f"{interface}/0003:{vid:04X}:{pid:04X}.{hid_no:04X}"
-        name = f"hidraw{minor}"
-        hidraw = f"{hid}/hidraw/{name}"
-        node = f"/dev/{name}"
-        hid_name = f"{maker} {product}".strip()
-        text = (
-            record(usb, usb_lines)
-            + record(
-                interface,
-                [
-                    "E: SUBSYSTEM=usb",
-                    "E: DEVTYPE=usb_interface",
-                    "E: INTERFACE=3/0/0",
-                    "A: bInterfaceNumber=00",
-                    "A: bInterfaceClass=03",
-                ],
-            )
-            + record(
-                hid,
-                [
-                    "E: SUBSYSTEM=hid",
-                    f"E: HID_ID=0003:0000{vid:04X}:0000{pid:04X}",
-                    f"E: HID_NAME={hid_name}",
-                    f"E: HID_PHYS=usb-0000:00:14.0-{port.partition('-')[2]}/input0",
-                    f"E: HID_UNIQ={serial}",
-                    f"H: report_descriptor={descriptor.hex().upper()}",
-                ],
-            )
-            + record(
-                hidraw,
-                [
-                    "L: device=../..",
-                    "E: SUBSYSTEM=hidraw",
-                    f"E: DEVNAME={node}",
-                    f"E: MAJOR={HIDRAW_MAJOR}",
-                    f"E: MINOR={minor}",
-                    f"A: dev={HIDRAW_MAJOR}:{minor}",
-                ],
-            )
-        )
-        ioctl_file = os.path.join(self.work, f"{name}.ioctl")
+        chain = Chain.at(self._hub_chain(stick.port), stick, minor, hid_no)
+        ioctl_file = os.path.join(self.work, f"hidraw{minor}.ioctl")
         with open(ioctl_file, "w") as f:
-            f.write(ioctl_record(node, descriptor))
-        self.testbed.load_ioctl(node, ioctl_file)
-        master, pty = self._make_node(node, minor, cmd.get("mode"))
-        self._add(text)
-        # add_from_string sends the "add" uevents itself (umockdev >= 0.13); sending them
-        # again would announce every device twice
-        self.plugged[node] = Plugged(usb, interface, hid, hidraw, node, master, pty)
-        return {"hidraw": node, "syspath": "/sys" + usb}
+            f.write(ioctl_record(chain.node, stick.descriptor))
+        self.testbed.load_ioctl(chain.node, ioctl_file)
+        master, pty = self._make_node(chain.node, minor, cmd.get("mode"))
+        # add_from_string sends the "add" uevents itself (umockdev >= 0.13): none from here,
+        # or every device would be announced twice
+        self._add(chain.records(stick, minor))
+        self.plugged[chain.node] = Plugged(
+            chain.usb, chain.interface, chain.hid, chain.hidraw, chain.node, master, pty
+        )
+        return {"hidraw": chain.node, "syspath": "/sys" + chain.usb}
 
     def _make_node(self, node: str, minor: int, mode: int | None) -> tuple[int, str]:
         """The device node, made here rather than by umockdev (an `N:` line) so that it
