@@ -169,12 +169,21 @@ class PtyLine:
         with self._cond:
             return [s.frame for s in self.seen]
 
+    def seen_now(self) -> list[Seen]:
+        """What arrived so far, with arrival times (a copy)."""
+        with self._cond:
+            return list(self.seen)
+
     def wait_for(self, predicate: Callable[[list[Any]], Any], timeout: float = 10.0) -> Any:
         """Wait until predicate(frames) is truthy; return its value. Fails after timeout."""
+        return self.wait_seen(lambda seen: predicate([s.frame for s in seen]), timeout)
+
+    def wait_seen(self, predicate: Callable[[list[Seen]], Any], timeout: float = 10.0) -> Any:
+        """wait_for with each frame's arrival time (`Seen`), for tests that time frames."""
         deadline = time.monotonic() + timeout
         with self._cond:
             while True:
-                result = predicate([s.frame for s in self.seen])
+                result = predicate(self.seen)
                 if result:
                     return result
                 left = deadline - time.monotonic()
@@ -196,13 +205,18 @@ class DaemonProcess:
     """`python -m usb2rc run ...` as a subprocess; its log goes to a file the test can read."""
 
     def __init__(
-        self, args: Sequence[str], log_path: Path, env: dict[str, str] | None = None
+        self,
+        args: Sequence[str],
+        log_path: Path,
+        env: dict[str, str] | None = None,
+        prefix: Sequence[str] = (),
     ) -> None:
+        """`prefix`: a command that runs the daemon (e.g. setpriv dropping capabilities)."""
         self.log_path = log_path
         self._log = open(log_path, "wb")  # noqa: SIM115 - closed in stop()
         env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "usb2rc", "run", "--log-level", "debug", *args],
+            [*prefix, sys.executable, "-m", "usb2rc", "run", "--log-level", "debug", *args],
             stdout=self._log,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,

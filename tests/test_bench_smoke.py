@@ -86,6 +86,20 @@ def test_daemon(tmp_path: Path) -> None:
     assert "p99 |period - 20 ms|" in out
 
 
+def test_umockdev() -> None:
+    """Figures on the real hidapi path, or (no umockdev here) why not; never a crash."""
+    from umockdev_harness import require_umockdev
+
+    require_umockdev()  # skips with a reason, or fails under CI
+    out = run(sys.executable, "bench/bench_umockdev.py", "--reports", "15")
+    result = last_json(out)
+    assert result["bench"] == "umockdev" and "skipped" not in result
+    figures = result["figures"]
+    assert figures["umockdev_latency_reports"] >= 10
+    assert 0 < figures["umockdev_latency_mean_ms"] <= figures["umockdev_latency_max_ms"]
+    assert re.search(r"^report -> frame \(real hidapi, umockdev\)\s+mean [0-9.]+ ms", out, re.M)
+
+
 def test_run_show_and_compare(tmp_path: Path) -> None:
     """bench/run: a quick run of the fast scripts, then --show with --compare."""
     out_path = tmp_path / "latest.json"

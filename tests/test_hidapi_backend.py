@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import errno
+import threading
 from pathlib import Path
 from typing import Any
 
+import hidapi_contract as contract
 import pytest
 
 from usb2rc.hid import hidapi_backend
@@ -26,58 +28,105 @@ TWCS = bytes.fromhex(
 
 
 def entry(path: str, vid: int, pid: int, page: int, usage: int, **kw: Any) -> dict[str, Any]:
+    """One enumerate() dict, with the keys and types cython-hidapi 0.15 gives (the contract
+    checks them against the real library)."""
     return {
         "path": path.encode(),
         "vendor_id": vid,
         "product_id": pid,
         "serial_number": kw.get("serial", ""),
+        "release_number": 0,
         "manufacturer_string": kw.get("manufacturer", "Thrustmaster"),
         "product_string": kw.get("product", "Stick"),
-        "interface_number": 0,
         "usage_page": page,
         "usage": usage,
+        "interface_number": 0,
+        "bus_type": 1,
     }
 
 
+BLOCK_LIMIT_S = 10.0  # a blocking read the real library would never end fails after this
+
+
 class FakeHandle:
+    """cython-hidapi's `device` (tests/hidapi_contract.py says what that is, measured):
+    blocking after open; read(n) and read(n, 0) wait for a report, read(n, ms > 0) waits at
+    most ms; set_nonblocking(1) makes read(n) / read(n, 0) poll; at unplug a waiting read
+    wakes and every read raises OSError("read error"); errors carry no errno."""
+
     def __init__(self, module: FakeHid) -> None:
         self.module = module
+        self.path: str | None = None
         self.closed = False
+        self.blocking = True
 
     def open_path(self, path: bytes) -> None:
-        if path.decode() in self.module.refuse:
+        if not isinstance(path, bytes):
+            raise TypeError(
+                f"Argument 'path' has incorrect type (expected bytes, got {type(path).__name__})"
+            )
+        name = path.decode()
+        if name in self.module.refuse or not self.module.present(name):
             raise OSError("open failed")
-        self.path = path.decode()
+        self.path, self.closed, self.blocking = name, False, True
+
+    def _open_path(self) -> str:
+        if self.path is None or self.closed:
+            raise ValueError("not open")
+        return self.path
 
     def get_report_descriptor(self) -> list[int]:
-        return list(self.module.descriptors[self.path])
+        return list(self.module.descriptors[self._open_path()])
 
     def get_input_report(self, report_id: int, length: int) -> list[int]:
+        self._open_path()
         if report_id not in self.module.input_reports:
-            raise OSError("not supported")
+            raise OSError("read error")  # the device does not answer GET_REPORT
         return list(self.module.input_reports[report_id])[:length]
 
-    blocking = True  # cython-hidapi opens handles blocking
-
     def set_nonblocking(self, value: int) -> int:
+        self._open_path()
         self.blocking = not value
         return 0
 
-    def read(self, size: int, timeout_ms: int = 0) -> list[int]:
+    def _wait_s(self, timeout_ms: int) -> float | None:
+        """hid_read_timeout(ms) for ms > 0, else hid_read(): forever, or a poll."""
+        if timeout_ms > 0:
+            return timeout_ms / 1000
+        return None if self.blocking else 0.0
+
+    def read(self, max_length: int, timeout_ms: int = 0) -> list[int]:
+        path = self._open_path()
         self.module.read_timeouts.append(timeout_ms)
-        if timeout_ms == 0 and self.blocking and not self.module.reads:
-            # cython-hidapi: timeout 0 is hid_read(), which waits forever on a blocking handle
-            raise AssertionError("read(n, 0) on a blocking handle with nothing queued blocks")
-        item = self.module.reads.pop(0) if self.module.reads else b""
+        wait = self._wait_s(timeout_ms)
+        module = self.module
+        with module.changed:
+            module.changed.wait_for(
+                lambda: path in module.gone or module.reads,
+                BLOCK_LIMIT_S if wait is None else wait,
+            )
+            if path in module.gone:
+                raise OSError("read error")  # even with reports still queued
+            if not module.reads:
+                if wait is None:
+                    raise AssertionError(
+                        f"read({max_length}, {timeout_ms}) on a blocking handle waited "
+                        f"{BLOCK_LIMIT_S} s: the real library would wait forever"
+                    )
+                return []
+            item = module.reads.pop(0)
         if isinstance(item, Exception):
             raise item
-        return list(item)
+        return list(item)[:max_length]  # b"": a scripted empty read (a timeout)
 
     def close(self) -> None:
         self.closed = True
 
 
 class FakeHid:
+    """The `hidraw` module. `reads`: what the open device sends, in order (bytes, or an
+    exception its read raises); `push()` adds one and wakes a waiting read."""
+
     def __init__(self, entries: list[dict[str, Any]]) -> None:
         self.entries = entries
         self.refuse: set[str] = set()
@@ -85,12 +134,59 @@ class FakeHid:
         self.input_reports: dict[int, bytes] = {}
         self.reads: list[bytes | Exception] = []
         self.read_timeouts: list[int] = []
+        self.gone: set[str] = set()
+        self.changed = threading.Condition()
 
-    def enumerate(self, vid: int = 0, pid: int = 0) -> list[dict[str, Any]]:
-        return [e for e in self.entries if vid in (0, e["vendor_id"])]
+    def enumerate(self, vendor_id: int = 0, product_id: int = 0) -> list[dict[str, Any]]:
+        return [
+            e
+            for e in self.entries
+            if vendor_id in (0, e["vendor_id"]) and product_id in (0, e["product_id"])
+        ]
 
     def device(self) -> FakeHandle:
         return FakeHandle(self)
+
+    def present(self, path: str) -> bool:
+        return path not in self.gone and any(e["path"] == path.encode() for e in self.entries)
+
+    def push(self, item: bytes | Exception) -> None:
+        with self.changed:
+            self.reads.append(item)
+            self.changed.notify_all()
+
+    def unplug(self, path: str) -> None:
+        with self.changed:
+            self.entries[:] = [e for e in self.entries if e["path"] != path.encode()]
+            self.gone.add(path)
+            self.changed.notify_all()
+
+
+class FakeRig:
+    """tests/hidapi_contract.py's Rig on the fake module."""
+
+    def __init__(self) -> None:
+        self.hid = FakeHid([])
+        self._plugged = 0
+
+    def plug(self) -> bytes:
+        self._plugged += 1
+        path = f"/dev/hidraw{self._plugged}"
+        self.hid.entries.append(entry(path, contract.VID, contract.PID, 1, 4, serial=""))
+        self.hid.descriptors[path] = contract.DESCRIPTOR
+        self.hid.reads.clear()
+        return path.encode()
+
+    def report(self, path: bytes, data: bytes) -> None:
+        self.hid.push(data)
+
+    def unplug(self, path: bytes) -> None:
+        self.hid.unplug(path.decode())
+
+
+def test_the_fake_keeps_the_real_librarys_contract() -> None:
+    """The same checks pass on the real library over umockdev (test_real_hidapi.py)."""
+    assert contract.failures(contract.run_contract(FakeRig())) == []
 
 
 def make_sysfs(root: Path, hidraw: str, usb_dir: str, descriptor: bytes | None) -> None:
