@@ -15,7 +15,7 @@ from daemon_harness import INVERT_X_CONFIG, StickState, install, recording
 
 from usb2rc.config import load_config_text
 from usb2rc.daemon import expected_nodes
-from usb2rc.hid.backend import Device, DeviceInfo, DevicePermissionError, ErrorCode
+from usb2rc.hid.backend import Device, DeviceGone, DeviceInfo, DevicePermissionError, ErrorCode
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.hid.replay import ReplayBackend
@@ -178,3 +178,26 @@ def test_an_unplug_ends_the_retries(tmp_path: Path) -> None:
     opens = backend.opens
     lifecycle._retry_due()
     assert backend.opens == opens == 1
+
+
+def test_a_device_without_its_node_yet_is_looked_at_again(tmp_path: Path) -> None:
+    """sysfs can list a device before its /dev node exists: the open finds it gone. It is
+    not reported, but the monitor must report it again on its next scan, or it stays ignored
+    for as long as it is plugged."""
+    mapping, expected = mapping_of("false")
+    table = NodeTable(expected)
+    subscriber = table.subscribe()
+    forgotten: list[str] = []
+
+    class NoNodeYet(ScriptedBackend):
+        def open(self, info: DeviceInfo) -> Device:
+            raise DeviceGone(f"{info.path}: no node")
+
+    lifecycle = DeviceLifecycle(
+        NoNodeYet(tmp_path), table, mapping, make_reader, forget=forgotten.append
+    )
+    info = plug_stick(tmp_path)
+    lifecycle.plugged(info)
+    lifecycle.handle_queued()
+    assert forgotten == [info.key]
+    assert table.collect(subscriber)[0] == []

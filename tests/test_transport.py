@@ -170,8 +170,11 @@ def test_a_pty_says_how_much_went_and_when_it_drains():
         assert link._queued_bytes(link._adopted) is None  # not reported on a pty
         chunk = bytes(216)
         written = [link.write(chunk) for _ in range(400)]  # far more than a pty holds
-        short = next(i for i, w in enumerate(written) if w.sent < len(chunk))
-        assert all(w.sent == 0 for w in written[short + 1 :])  # nothing more is taken
+        assert any(w.sent < len(chunk) for w in written)  # the OS said: no more
+        # The kernel moves a pty's bytes on to the reader's side in the background, so room
+        # can come back for a while without a read: fill until it stays full.
+        while select.select([], [slave], [], 0.2)[1]:
+            written.append(link.write(chunk))
         assert link.stats.bytes_written == sum(w.sent for w in written)
         assert not link.drained()
         got = 0

@@ -271,6 +271,10 @@ class DeviceLifecycle:
         try:
             return self.backend.open(info)
         except DeviceGone:
+            # Listed but without a node: unplugged meanwhile, or a scan that came between
+            # the kernel's sysfs entry and its /dev node. Let the monitor report it again if
+            # it is still listed on its next scan (not an error: nothing to tell the far end).
+            self._forget(info.key)
             return None
         except DevicePermissionError as exc:
             code, message = ErrorCode.PERMISSION_DENIED, str(exc)
