@@ -20,12 +20,12 @@ from typing import Any
 import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
-AXIS_SLOTS: tuple[str, ...] = (
-    "x", "y", "z", "slider", "rx", "ry", "rz", "dial", "aux1", "aux2",
-)  # fmt: skip
-NODE_BUTTONS = 56  # node buttons 1..24 -> group 1 bits 0..23, 25..56 -> group 2 bits 0..31
+from usb2rc.hid.usages import GD_HAT_SWITCH
+from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
+from usb2rc.protocol.c2_16b import MAX_NODE_ID as NODE_ID_MAX
+from usb2rc.protocol.c2_16b import NODE_BUTTONS
+
 MAX_HID_BUTTON = 65535
-NODE_ID_MAX = 254  # 0xFF is the controller's own ID (startup frame)
 HAT_DIRECTIONS = ("up", "up-right", "right", "down-right", "down", "down-left", "left", "up-left")
 PROTOCOLS = ("c2-16b", "sumd")
 DEFAULT_RATE_HZ = {"c2-16b": 50, "sumd": 100}
@@ -754,7 +754,7 @@ def _read_hat(reader: _Reader, node: Node, path: str) -> HatConfig | None:
     items = reader.mapping(node, path, HAT_KEYS)
     if items is None:
         return None
-    usage: int | None = 0x00010039  # Generic Desktop HatSwitch
+    usage: int | None = GD_HAT_SWITCH
     if "usage" in items:
         usage = reader.usage(items["usage"][1], f"{path}.usage")
     occurrence = 0

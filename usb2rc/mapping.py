@@ -20,9 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from usb2rc.config import (
-    AXIS_SLOTS,
     HAT_DIRECTIONS,
-    NODE_BUTTONS,
     SUMD_DEFAULT_SLOTS,
     AxisConfig,
     ButtonRoute,
@@ -36,16 +34,26 @@ from usb2rc.config import (
 )
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DeviceLayout, InputField, InputState
+from usb2rc.hid.usages import (
+    GD_DIAL,
+    GD_HAT_SWITCH,
+    GD_RX,
+    GD_RY,
+    GD_RZ,
+    GD_SLIDER,
+    GD_WHEEL,
+    GD_X,
+    GD_Y,
+    GD_Z,
+    SIMULATION_PAGE,
+)
+from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
+from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT, NODE_BUTTONS
 
 NUM_AXES = len(AXIS_SLOTS)
-GROUP1_BUTTONS = 24  # node buttons 1..24 are group 1 bits 0..23; 25..56 group 2 bits 0..31
-HAT1_SHIFT = 24  # hat1: group 1 bits 24..31, one per direction
 INT16_MIN, INT16_MAX, UINT16_MAX = -32768, 32767, 65535
 
-# Usages the default layout knows, (page << 16) | id.
-GD_X, GD_Y, GD_Z, GD_RX, GD_RY, GD_RZ = (0x00010030 + i for i in range(6))
-GD_SLIDER, GD_DIAL, GD_WHEEL, GD_HAT_SWITCH = 0x00010036, 0x00010037, 0x00010038, 0x00010039
-SIMULATION_PAGE = 0x02
+# Usages the default layout knows.
 DEFAULT_SLOT_OF = {
     GD_X: "x", GD_Y: "y", GD_Z: "z", GD_SLIDER: "slider",
     GD_RX: "rx", GD_RY: "ry", GD_RZ: "rz", GD_DIAL: "dial",

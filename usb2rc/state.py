@@ -20,10 +20,9 @@ from typing import Any, Protocol
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.mapping import DeviceBinding, NodeInputs
+from usb2rc.protocol.c2_16b import AXIS_COUNT
 
 log = logging.getLogger("usb2rc.nodes")
-
-AXIS_COUNT = 10
 
 
 class EventKind(Enum):

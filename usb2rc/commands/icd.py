@@ -22,14 +22,13 @@ from usb2rc.config import (
     OutputConfig,
 )
 from usb2rc.mapping import (
-    GROUP1_BUTTONS,
-    HAT1_SHIFT,
     Mapping,
     compile_mapping,
     node_button_bit,
     shaping_text,
     usage_label,
 )
+from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT
 
 FORMATS = ("markdown", "text")
 

@@ -13,8 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 from usb2rc.hid.backend import DeviceInfo
-
-MAX_NODE_ID = 254
+from usb2rc.protocol.c2_16b import MAX_NODE_ID
 
 
 class NodeIdError(ValueError):

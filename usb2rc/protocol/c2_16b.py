@@ -44,9 +44,14 @@ DATA_STATUS_NAMES: dict[int, str] = {
 }
 DATA_STATUSES = frozenset(DATA_STATUS_NAMES)
 
+# The one home of the node layout on the wire (every other module imports these).
 AXIS_NAMES = ("x", "y", "z", "slider", "rx", "ry", "rz", "dial", "aux1", "aux2")
 AXIS_COUNT = len(AXIS_NAMES)
+NODE_BUTTONS = 56  # node buttons 1..24 -> group 1 bits 0..23, 25..56 -> group 2 bits 0..31
+GROUP1_BUTTONS = 24
+HAT1_SHIFT = 24  # hat1: group 1 bits 24..31, one per direction
 STARTUP_NODE_ID = 0xFF
+MAX_NODE_ID = STARTUP_NODE_ID - 1  # 0xFF is the controller's own ID (startup frame)
 PAYLOAD_LEN = 28  # bytes 5-32 of a service frame
 TEXT_LEN = 12  # device string, device type and startup text: at most 12 ASCII bytes
 ASCII_SERVICE_OFFSET = 0x30  # service n is sent as the character '0' + n by default
