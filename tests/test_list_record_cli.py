@@ -12,7 +12,8 @@ from test_replay import JOYSTICK, numbered, recording_text
 
 from usb2rc.cli import main
 from usb2rc.commands import list_devices
-from usb2rc.hid.backend import DeviceInfo, DevicePermissionError, permission_message
+from usb2rc.hid.backend import DeviceInfo, DevicePermissionError
+from usb2rc.hid.permissions import permission_message
 from usb2rc.hid.recording import parse_recording
 from usb2rc.hid.replay import ReplayBackend, install_file
 

@@ -13,15 +13,11 @@ import sys
 from dataclasses import dataclass, field
 from typing import Any
 
-from usb2rc.hid.backend import (
-    UDEV_RULES_FILE,
-    Backend,
-    DeviceInfo,
-    DevicePermissionError,
-    choose_backend,
-)
+from usb2rc.hid.backend import Backend, DeviceInfo, DevicePermissionError
+from usb2rc.hid.choose import choose_backend
 from usb2rc.hid.hotplug import sort_by_port_path
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
+from usb2rc.hid.permissions import UDEV_RULES_FILE
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

@@ -13,7 +13,8 @@ import time
 
 from usb2rc.config import Config, ConfigError, load_config
 from usb2rc.daemon import Daemon, NoPortError
-from usb2rc.hid.backend import Backend, choose_backend
+from usb2rc.hid.backend import Backend
+from usb2rc.hid.choose import choose_backend
 from usb2rc.sdnotify import Notifier
 
 log = logging.getLogger("usb2rc")

@@ -1,5 +1,8 @@
 """What every HID backend offers: device identity, the Device / Backend protocols, errors.
 
+This module knows none of the backends (hid/hidapi_backend.py, hid/replay.py); the factory
+that picks one is hid/choose.py, and the help text for permission problems hid/permissions.py.
+
 A backend enumerates devices (`DeviceInfo`) and opens them (`Device`). A reader thread owns an
 open device and blocks in `read(timeout_s)`. `DeviceGone` from `read` means the device was
 unplugged; any other `OSError` is a read failure (`ErrorCode.READ_FAILED`).
@@ -12,26 +15,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Protocol, runtime_checkable
 
-UDEV_RULES_FILE = "systemd/70-usb2rc.rules"
-UDEV_RULES_INSTALLED = "/etc/udev/rules.d/70-usb2rc.rules"
-
-# Top-level collections usb2rc uses: (usage page, usage); page 0x02 (Simulation Controls) whole.
-GENERIC_DESKTOP = 0x01
-SIMULATION_CONTROLS = 0x02
-USABLE_DESKTOP_USAGES = {
-    0x04: "Joystick",
-    0x05: "Gamepad",
-    0x08: "Multi-axis Controller",
-}
-DESKTOP_USAGE_NAMES = {
-    0x01: "Pointer",
-    0x02: "Mouse",
-    0x06: "Keyboard",
-    0x07: "Keypad",
-    0x80: "System Control",
-    **USABLE_DESKTOP_USAGES,
-}
-PAGE_NAMES = {0x0C: "Consumer", 0x0D: "Digitizer"}
+from usb2rc.hid.usages import is_joystick_like, make_usage, top_level_usage_name
 
 
 class ErrorCode(IntEnum):
@@ -68,57 +52,6 @@ class DeviceOpenError(_Plain, OSError):
     """The device could not be opened for another reason; the message says why."""
 
 
-def permission_message(node: str) -> str:
-    return (
-        f"permission denied on {node}: install the udev rule {UDEV_RULES_FILE} to "
-        f"{UDEV_RULES_INSTALLED} and run `sudo udevadm control --reload && "
-        "sudo udevadm trigger --subsystem-match=hidraw`, or add your user to the group that "
-        f"owns {node} (see `ls -l {node}`) and log in again"
-    )
-
-
-def is_usable_usage(usage_page: int, usage: int) -> bool:
-    """Joystick-like top-level collections: Joystick, Gamepad, Multi-axis, Simulation page."""
-    if usage_page == SIMULATION_CONTROLS:
-        return True
-    return usage_page == GENERIC_DESKTOP and usage in USABLE_DESKTOP_USAGES
-
-
-def top_level_usage_name(usage_page: int, usage: int) -> str:
-    if usage_page == GENERIC_DESKTOP and usage in DESKTOP_USAGE_NAMES:
-        return DESKTOP_USAGE_NAMES[usage]
-    if usage_page == SIMULATION_CONTROLS:
-        return f"Simulation Controls 0x{usage:02X}"
-    if usage_page in PAGE_NAMES:
-        return PAGE_NAMES[usage_page]
-    return f"0x{usage_page:04X}{usage:04X}"
-
-
-def top_level_usage(descriptor: bytes) -> tuple[int, int]:
-    """(usage page, usage) of the first top-level collection, from the items before it.
-
-    Only the leading Usage Page / Usage items are read; field layout is descriptor.py's job.
-    Returns (0, 0) when the descriptor opens no collection.
-    """
-    page = usage = 0
-    pos = 0
-    while pos < len(descriptor):
-        prefix = descriptor[pos]
-        if prefix == 0xFE:  # long item: never used for usages
-            return 0, 0
-        size = (0, 1, 2, 4)[prefix & 0x03]
-        value = int.from_bytes(descriptor[pos + 1 : pos + 1 + size], "little")
-        tag = prefix & 0xFC
-        if tag == 0x04:  # Usage Page
-            page = value
-        elif tag == 0x08:  # Usage (4-byte form carries its own page)
-            page, usage = (value >> 16, value & 0xFFFF) if size == 4 else (page, value)
-        elif tag == 0xA0:  # Collection
-            return page, usage
-        pos += 1 + size
-    return 0, 0
-
-
 @dataclass(frozen=True)
 class DeviceInfo:
     key: str  # unique while plugged: hidraw path, replay file path + inode + mtime
@@ -139,12 +72,17 @@ class DeviceInfo:
         return f"{self.vid:04x}:{self.pid:04x}:{self.serial}"
 
     @property
+    def application(self) -> int:
+        """The top-level collection's usage, `(page << 16) | id` (hid/usages.py)."""
+        return make_usage(self.usage_page, self.usage)
+
+    @property
     def usable(self) -> bool:
-        return is_usable_usage(self.usage_page, self.usage)
+        return is_joystick_like(self.application)
 
     @property
     def usage_name(self) -> str:
-        return top_level_usage_name(self.usage_page, self.usage)
+        return top_level_usage_name(self.application)
 
 
 @runtime_checkable
@@ -174,14 +112,3 @@ class Backend(Protocol):
     def open(self, info: DeviceInfo) -> Device:
         """Raises DevicePermissionError / DeviceOpenError / DeviceGone (all OSError)."""
         ...
-
-
-def choose_backend(replay: str | None, loop: bool = False) -> Backend:
-    """The replay backend on a folder of hid-recorder files, else hidapi (real devices)."""
-    if replay:
-        from usb2rc.hid.replay import ReplayBackend
-
-        return ReplayBackend(replay, loop=loop)
-    from usb2rc.hid.hidapi_backend import HidapiBackend
-
-    return HidapiBackend()

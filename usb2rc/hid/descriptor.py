@@ -207,6 +207,26 @@ def _items(data: bytes) -> Iterator[_Item]:
         pos += 1 + size
 
 
+def top_level_usage(data: bytes) -> tuple[int, int]:
+    """(usage page, usage) of the first top-level collection, from the items before it;
+    (0, 0) when the descriptor opens no collection or breaks off before one. Enough to
+    name a device (`usb2rc list`) whose descriptor `parse_descriptor` might refuse."""
+    page = usage = 0
+    try:
+        for item in _items(data):
+            if item.tag == USAGE_PAGE:
+                page = item.value
+            elif item.tag == USAGE and item.size == 4:  # the 4-byte form carries its page
+                page, usage = item.value >> 16, item.value & 0xFFFF
+            elif item.tag == USAGE:
+                usage = item.value
+            elif item.tag == COLLECTION:
+                return page, usage
+    except DescriptorError:
+        pass
+    return 0, 0
+
+
 def _signed(value: int, size: int) -> int:
     if size and value & (1 << (8 * size - 1)):
         return value - (1 << (8 * size))

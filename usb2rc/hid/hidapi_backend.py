@@ -25,9 +25,9 @@ from usb2rc.hid.backend import (
     DeviceInfo,
     DeviceOpenError,
     DevicePermissionError,
-    is_usable_usage,
-    permission_message,
 )
+from usb2rc.hid.permissions import permission_message
+from usb2rc.hid.usages import is_joystick_like, make_usage
 
 log = logging.getLogger(__name__)
 
@@ -147,7 +147,7 @@ class HidapiBackend:
             usages.setdefault(path, []).append(pair)
         infos = []
         for path, pairs in usages.items():
-            usable = [p for p in pairs if is_usable_usage(*p)]
+            usable = [p for p in pairs if is_joystick_like(make_usage(*p))]
             if usable or all:
                 infos.append(self._info(entries[path], *(usable or pairs)[0]))
         return infos

@@ -21,7 +21,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from usb2rc.hid.backend import DeviceGone, DeviceInfo, DeviceOpenError, top_level_usage
+from usb2rc.hid.backend import DeviceGone, DeviceInfo, DeviceOpenError
+from usb2rc.hid.descriptor import top_level_usage
 from usb2rc.hid.recording import Recording, RecordingError, parse_recording
 
 log = logging.getLogger(__name__)

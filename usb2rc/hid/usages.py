@@ -11,6 +11,8 @@ import re
 GENERIC_DESKTOP_PAGE = 0x01
 SIMULATION_PAGE = 0x02
 BUTTON_PAGE = 0x09
+CONSUMER_PAGE = 0x0C
+DIGITIZER_PAGE = 0x0D
 VENDOR_PAGE_FIRST = 0xFF00
 
 
@@ -342,3 +344,29 @@ def is_joystick_like(application: int) -> bool:
 
 def is_axis(usage: int) -> bool:
     return usage in AXIS_USAGES
+
+
+# How `usb2rc list` names a device's top-level collection (words, for people).
+_TOP_LEVEL_NAMES: dict[int, str] = {
+    GD_POINTER: "Pointer",
+    GD_MOUSE: "Mouse",
+    GD_KEYBOARD: "Keyboard",
+    GD_KEYPAD: "Keypad",
+    GD_SYSTEM_CONTROL: "System Control",
+    GD_JOYSTICK: "Joystick",
+    GD_GAMEPAD: "Gamepad",
+    GD_MULTI_AXIS: "Multi-axis Controller",
+}
+_TOP_LEVEL_PAGE_NAMES = {CONSUMER_PAGE: "Consumer", DIGITIZER_PAGE: "Digitizer"}
+
+
+def top_level_usage_name(application: int) -> str:
+    """'Joystick', 'Simulation Controls 0x04', 'Consumer', else '0xPPPPUUUU'."""
+    if application in _TOP_LEVEL_NAMES:
+        return _TOP_LEVEL_NAMES[application]
+    page = usage_page(application)
+    if page == SIMULATION_PAGE:
+        return f"Simulation Controls 0x{usage_id(application):02X}"
+    if page in _TOP_LEVEL_PAGE_NAMES:
+        return _TOP_LEVEL_PAGE_NAMES[page]
+    return f"0x{application:08X}"
