@@ -320,10 +320,6 @@ class NodeTable:
                         return node_id
         return None
 
-    def present_devices(self) -> list[tuple[int, DeviceInfo]]:
-        with self._lock:
-            return [(nid, a.info) for _key, (nid, a) in sorted(self._by_key.items())]
-
     def attachments(self) -> list[tuple[int, DeviceInfo, DeviceBinding, bool, str]]:
         """(node, device, binding, present, device type) for every device a node holds."""
         with self._lock:

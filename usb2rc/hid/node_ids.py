@@ -35,10 +35,6 @@ class NodeIdAllocator:
         self._by_port: dict[str, int] = {}  # port path -> last automatic id
         self._by_identity: dict[str, int] = {}  # vid:pid:serial -> last automatic id
 
-    @property
-    def assigned(self) -> dict[str, int]:
-        return dict(self._assigned)
-
     def _in_use(self, taken: Iterable[int] = ()) -> set[int]:
         return set(self._assigned.values()) | self._pinned | set(taken)
 
