@@ -19,7 +19,7 @@ from usb2rc.hid.replay import ReplayBackend
 from usb2rc.mapping import DeviceBinding, Mapping, MappingError, compile_mapping
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "check",
         help="validate a config file (exit 0 ok, 2 with every error)",

@@ -13,7 +13,7 @@ import os
 import stat
 import sys
 from collections import Counter
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Generator, Iterable
 from contextlib import closing
 from typing import Any, BinaryIO
 
@@ -26,7 +26,7 @@ READ_SIZE = 65536
 PORT_TIMEOUT_S = 0.5
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "decode",
         help="print the frames in a C2-16B / SUMD capture, stdin or serial port",
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
 # --- sources -------------------------------------------------------------------------------
 
 
-def open_source(name: str, baudrate: int) -> Iterator[bytes]:
+def open_source(name: str, baudrate: int) -> Generator[bytes, None, None]:
     """Open SOURCE now (so errors surface before reading) and return its chunks."""
     if name == "-":
         return _read_stream(sys.stdin.buffer, close=False)
@@ -85,7 +85,7 @@ def _is_character_device(path: str) -> bool:
         return False
 
 
-def _read_stream(stream: BinaryIO, close: bool) -> Iterator[bytes]:
+def _read_stream(stream: BinaryIO, close: bool) -> Generator[bytes, None, None]:
     try:
         while chunk := stream.read1(READ_SIZE):  # type: ignore[attr-defined]
             yield chunk
@@ -102,7 +102,7 @@ def _open_port(name: str, baudrate: int) -> Any:
     return port
 
 
-def _read_port(port: Any) -> Iterator[bytes]:
+def _read_port(port: Any) -> Generator[bytes, None, None]:
     try:
         while True:
             chunk = port.read(port.in_waiting or 1)

@@ -41,7 +41,7 @@ SCRIPT: tuple[tuple[float, str, str], ...] = (
 CYCLE_S = 24.0
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "demo", help="run usb2rc on built-in replayed devices and show what a receiver decodes"
     )

@@ -19,7 +19,7 @@ from usb2rc.hid.usages import device_type_name, usage_name
 from usb2rc.mapping import default_binding
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "describe",
         help="show a HID descriptor's fields and the default mapping it gets",
@@ -78,7 +78,7 @@ def layout_dict(layout: DeviceLayout) -> dict[str, Any]:
     }
 
 
-def decoded_reports(layout: DeviceLayout, recording: Recording, limit: int) -> list[dict]:
+def decoded_reports(layout: DeviceLayout, recording: Recording, limit: int) -> list[dict[str, Any]]:
     decoder = layout.make_decoder()
     out = []
     for event in recording.events[: max(limit, 0)]:
@@ -93,7 +93,9 @@ def decoded_reports(layout: DeviceLayout, recording: Recording, limit: int) -> l
     return out
 
 
-def text_lines(info: dict[str, Any], mapping: list[str], reports: list[dict]) -> list[str]:
+def text_lines(
+    info: dict[str, Any], mapping: list[str], reports: list[dict[str, Any]]
+) -> list[str]:
     lines = [
         f"application: {info['application']} (device type {info['device_type']})",
         f"report IDs: {'yes' if info['uses_report_ids'] else 'no'}; input reports "

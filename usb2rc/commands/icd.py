@@ -33,7 +33,7 @@ from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT
 FORMATS = ("markdown", "text")
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "icd",
         help="write the application ICD (axes, buttons, hats, SUMD channels) for a config",
@@ -51,8 +51,11 @@ def table(headers: Sequence[str], rows: Sequence[Sequence[object]], fmt: str) ->
         lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
         return lines + ["| " + " | ".join(row) + " |" for row in cells] + [""]
     widths = [max(len(h), *(len(r[i]) for r in cells)) for i, h in enumerate(headers)]
-    fmt_row = lambda row: "  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True))  # noqa: E731
-    return [fmt_row(headers).rstrip(), *(fmt_row(r).rstrip() for r in cells), ""]
+
+    def fmt_row(row: Sequence[str]) -> str:
+        return "  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip()
+
+    return [fmt_row(headers), *(fmt_row(r) for r in cells), ""]
 
 
 def heading(text: str, level: int, fmt: str) -> list[str]:
@@ -100,7 +103,7 @@ def button_rows(devices: Sequence[DeviceConfig]) -> list[list[object]]:
             group, bit = node_button_bit(route.node)
             rows.append([route.node, group + 1, bit, device.name, f"HID button {route.hid}"])
         for hat in device.hats:
-            if hat.to == "hat1":
+            if isinstance(hat.to, str):  # "hat1": no node buttons
                 continue
             label = usage_label(hat.usage, hat.occurrence)
             for direction, node in zip(HAT_DIRECTIONS, hat.to, strict=True):

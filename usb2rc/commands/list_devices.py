@@ -20,7 +20,7 @@ from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.hid.permissions import UDEV_RULES_FILE
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "list",
         help="list the HID joysticks present and the Node-IDs they would get",

@@ -36,7 +36,7 @@ BAR_WIDTH = 24
 KEPT_LINES = 8  # events and log lines the live view keeps
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "monitor",
         help="live view of the nodes, axes, buttons and hats (no serial port needed)",
@@ -250,7 +250,7 @@ def render_live(snap: Snapshot, log_lines: list[str]) -> Any:
         table = Table(box=None, show_header=False, pad_edge=False, padding=(0, 1))
         for column in ("slot", "bar", "value", "source"):
             table.add_column(
-                column, no_wrap=True, overflow="ellipsis" if column == "source" else None
+                column, no_wrap=True, overflow="ellipsis" if column == "source" else "fold"
             )
         for axis in node.axes:
             table.add_row(

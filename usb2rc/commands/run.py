@@ -30,7 +30,7 @@ def add_common_input_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--replay-loop", action="store_true", help="replay each recording forever")
 
 
-def add_parser(subparsers: argparse._SubParsersAction) -> None:
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser("run", help="run the daemon (the default command)")
     add_common_input_args(parser)
     parser.add_argument("--port", help="serial port or pyserial URL (overrides the first output)")

@@ -709,8 +709,8 @@ def _compile_report(layout: DeviceLayout, rid: int) -> _ReportPlan:
     }
     exec(compile(source, f"<usb2rc decode plan, report {rid}>", "exec"), namespace)
     owned = 0
-    for b in [*buttons, *arrays]:
-        owned |= b.mask
+    for mask in [b.mask for b in buttons] + [a.mask for a in arrays]:
+        owned |= mask
     length = layout.input_report_lengths[rid] + id_bits // 8
     decode: _DecodeFn = namespace["decode"]  # type: ignore[assignment]
     return _ReportPlan(length, decode, ~owned, source)

@@ -42,10 +42,12 @@ def load_hid_module() -> ModuleType:
     if sys.platform.startswith("linux"):
         import hidraw
 
-        return hidraw
-    import hid
+        module: ModuleType = hidraw
+    else:
+        import hid
 
-    return hid
+        module = hid
+    return module
 
 
 def port_path_from_sysfs(hidraw_name: str, sysfs_root: Path) -> str:

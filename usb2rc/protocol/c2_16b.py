@@ -127,14 +127,16 @@ class ServiceFrame:
         """Vendor ID of a VID_PID frame (bytes 5-6), else None."""
         if self.service is not Service.VID_PID:
             return None
-        return _VID_PID.unpack_from(self.payload)[0]
+        vid: int = _VID_PID.unpack_from(self.payload)[0]
+        return vid
 
     @property
     def pid(self) -> int | None:
         """Product ID of a VID_PID frame (bytes 7-8), else None."""
         if self.service is not Service.VID_PID:
             return None
-        return _VID_PID.unpack_from(self.payload)[1]
+        pid: int = _VID_PID.unpack_from(self.payload)[1]
+        return pid
 
     @property
     def text(self) -> str | None:
@@ -261,12 +263,12 @@ def ascii_field(text: str, limit: int = TEXT_LEN) -> bytes:
 
 def connected(node_id: int, **options: bool) -> bytes:
     """Service '1': a USB device on this node connected."""
-    return encode_service(Service.CONNECTED, node_id, **options)
+    return encode_service(Service.CONNECTED, node_id, b"", **options)
 
 
 def disconnected(node_id: int, **options: bool) -> bytes:
     """Service '2': the node's USB device disconnected."""
-    return encode_service(Service.DISCONNECTED, node_id, **options)
+    return encode_service(Service.DISCONNECTED, node_id, b"", **options)
 
 
 def device_error(node_id: int, code: int, **options: bool) -> bytes:
@@ -277,7 +279,7 @@ def device_error(node_id: int, code: int, **options: bool) -> bytes:
 
 def poll_request(node_id: int, **options: bool) -> bytes:
     """Service '4': request a device poll of this node."""
-    return encode_service(Service.POLL, node_id, **options)
+    return encode_service(Service.POLL, node_id, b"", **options)
 
 
 def device_string(node_id: int, text: str, **options: bool) -> bytes:

@@ -135,7 +135,7 @@ class SumdDecoder:
             if not complete and not at_end:
                 break  # wait for the rest of this candidate
             frame = self._frame_at(buffer, start, length) if complete and length else None
-            if frame is None:
+            if frame is None or length is None:
                 self.bytes_skipped += 1
                 pos = start + 1
                 continue
