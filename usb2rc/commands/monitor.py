@@ -249,9 +249,10 @@ def render_live(snap: Snapshot, log_lines: list[str]) -> Any:
             parts.append(Text(line, style="red" if "LOST" in line else "dim"))
         table = Table(box=None, show_header=False, pad_edge=False, padding=(0, 1))
         for column in ("slot", "bar", "value", "source"):
-            table.add_column(
-                column, no_wrap=True, overflow="ellipsis" if column == "source" else "fold"
-            )
+            if column == "source":
+                table.add_column(column, no_wrap=True, overflow="ellipsis")
+            else:
+                table.add_column(column, no_wrap=True)
         for axis in node.axes:
             table.add_row(
                 axis.slot,
