@@ -74,7 +74,8 @@ class StickState:
 
 
 def scale(v: int, lo: int, hi: int) -> int:
-    """DECISIONS.md: round((v - min) * 65535 / (max - min)) - 32768, in exact integers."""
+    """round((v - min) * 65535 / (max - min)) - 32768, in exact integers
+    (docs/ICD.md, "Axis scaling")."""
     return (2 * (v - lo) * 65535 + (hi - lo)) // (2 * (hi - lo)) - 32768
 
 
@@ -82,7 +83,8 @@ HAT_BITS = {n: 1 << (24 + n) for n in range(8)}  # UP, UP-RIGHT ... UP-LEFT -> g
 
 
 def expected_frame(state: StickState) -> tuple[tuple[int, ...], int, int]:
-    """The default layout (DECISIONS.md) of a T.16000M state: axes, group1, group2."""
+    """The default layout of a T.16000M state: axes, group1, group2
+    (docs/ICD.md, "Default axis layout" and "Default button layout")."""
     axes = [0] * 10
     axes[0] = scale(state.x, 0, 16383)
     axes[1] = scale(state.y, 0, 16383)

@@ -4,7 +4,7 @@
     python tests/make_demo_recordings.py --check  # exit 1 if they differ
 
 Reports are packed by hand from the field layout of each device's real report descriptor
-(/work/shared/descriptors/real-devices.json), not by usb2rc's own parser, so the demo files
+(tests/data/real-devices.json), not by usb2rc's own parser, so the demo files
 also test that parser (tests/test_demo_recordings.py decodes them).
 """
 

@@ -73,7 +73,8 @@ def test_plug_states_unplug_replug_and_sigterm(tmp_path, line, replay_dir):
         end_of_connect = connect_sequence_at(frames, 0)
         assert not data_frames(frames[:end_of_connect], 0)
 
-        # every replayed state reaches the line, in order, as DECISIONS.md's default layout
+        # every replayed state reaches the line, in order, in the default layout
+        # (docs/ICD.md, "Default axis layout" and "Default button layout")
         wanted = [expected_frame(s) for s in STATES]
         line.wait_for(
             lambda fr: (

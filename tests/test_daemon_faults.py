@@ -186,7 +186,8 @@ def test_sumd_output_and_its_failsafe(tmp_path, line, replay_dir):
     daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(config))
     try:
         assert expected_frame(state)[0][6] == -32768
-        want = [8800, 15200, 8800, 15200, 8800]  # 1100 / 1900 µs ×8, DECISIONS.md
+        # 1100 / 1900 µs × 8 (docs/ICD.md, "SUMD (HoTT) output")
+        want = [8800, 15200, 8800, 15200, 8800]
         sumd_line.wait_for(lambda fr: any(f.channels == tuple(want) and not f.failsafe for f in fr))
         os.unlink(replay_dir / "stick.hid")
         sumd_line.wait_for(lambda fr: fr[-1].failsafe)

@@ -13,7 +13,7 @@ from usb2rc.hid.recording import read_recording
 from usb2rc.hid.replay import ReplayBackend
 from usb2rc.hid.usages import usage_name
 
-REAL = Path(__file__).parent / "data" / "real-devices.json"  # copied from /work/shared
+REAL = Path(__file__).parent / "data" / "real-devices.json"  # real devices' descriptors
 DEVICES = {(d["vid"], d["pid"]): d for d in json.loads(REAL.read_text())}
 
 

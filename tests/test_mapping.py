@@ -54,7 +54,7 @@ devices:
 
 
 def exact(v: int, lo: int, hi: int) -> int:
-    """DECISIONS.md's formula in exact rationals (Python's round: halves to even)."""
+    """docs/ICD.md, "Axis scaling", in exact rationals (Python's round: halves to even)."""
     v = min(max(v, lo), hi)
     return round(Fraction((v - lo) * 65535, hi - lo)) - 32768
 

@@ -20,7 +20,7 @@ T is time.monotonic() (CLOCK_MONOTONIC, system-wide: comparable with the test's 
 right after the report was written / just before the unplug began (its first uevent); T2
 once the device is gone from sysfs and /dev and its pty master is closed.
 
-What the kernel does and this copies (see ../shared/notes/umockdev.md):
+What the kernel does and this copies:
 - the sysfs chain PCI controller -> usbB root hub -> hubs -> the USB device at the port path
   (idVendor, idProduct, manufacturer, product, serial) -> interface :1.0 -> the hid device
   (HID_ID, HID_NAME, HID_PHYS, HID_UNIQ, binary report_descriptor) -> hidraw/hidrawN with a

@@ -82,7 +82,7 @@ def outputs_with_port(config: Config, port_override: str | None) -> tuple[Output
 
 def expected_nodes(config: Config) -> Expected:
     """Config entries pinned to a Node-ID, as what they send before their device comes:
-    the configured failsafe values, 0 for axes without one (DECISIONS.md)."""
+    the configured failsafe values, 0 for axes without one (docs/ICD.md, "Failsafe")."""
     nodes: Expected = {}
     for entry in config.devices:
         if entry.node_id is None:

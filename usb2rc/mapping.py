@@ -5,9 +5,10 @@ the default layout) plus a device's DeviceLayout into a `DeviceBinding`, whose `
 is the per-report hot path: a few precomputed closures, shift-and-mask button runs and hat
 lookup tables, nothing read from the config per tick.
 
-Axis scaling (DECISIONS.md): `out = round((v - lo) * 65535 / (hi - lo)) - 32768` after
-clamping, exact in integers (round half to even, as Python's `round`). With calibration,
-deadband, expo or trim set, the value goes through a normalized x in [-1, 1] and back with
+Axis scaling (docs/ICD.md, "Axis scaling"): after clamping,
+`out = round((v - lo) * 65535 / (hi - lo)) - 32768`, exact in integers (round half to even, as
+Python's `round`). With calibration, deadband, expo or trim set, the value goes through a
+normalized x in [-1, 1] and back with
 `to_wire(x) = floor((x + 1) * 32767.5 + 0.5) - 32768`: -1 → -32768, 0 → 0, +1 → +32767.
 `unsigned: true` drops the `- 32768`. docs/CONFIG.md has the full pipeline.
 """
@@ -126,7 +127,8 @@ def round_div(num: int, den: int) -> int:
 
 
 def scale_linear(v: int, lo: int, hi: int, unsigned: bool = False) -> int:
-    """DECISIONS.md: clamp to [lo, hi], `round((v - lo) * 65535 / (hi - lo)) - 32768`."""
+    """Clamp to [lo, hi], `round((v - lo) * 65535 / (hi - lo)) - 32768`
+    (docs/ICD.md, "Axis scaling")."""
     if hi <= lo:
         return 32768 if unsigned else 0
     v = lo if v < lo else hi if v > hi else v
@@ -415,7 +417,7 @@ class DeviceBinding:
             held = last.axes[slot] if last is not None else None
             axes[slot] = configured if configured is not None else held
             if axes[slot] is None:
-                axes[slot] = 0  # DECISIONS.md: 0 for an axis with no failsafe value
+                axes[slot] = 0  # docs/ICD.md, "Failsafe": 0 without a failsafe value
         return NodeInputs(tuple(axes), 0, 0)
 
     def describe(self) -> list[str]:
@@ -482,7 +484,8 @@ def _field_axis(field: InputField, axis: AxisConfig | None, slot: str) -> tuple[
 
 
 def default_axis_fields(layout: DeviceLayout) -> list[tuple[str, InputField]]:
-    """DECISIONS.md's default axis layout, plus Simulation-page values into a free aux slot.
+    """The default axis layout (docs/ICD.md, "Default axis layout"), plus Simulation-page
+    values into a free aux slot.
 
     X, Y, Z, Slider, Rx, Ry, Rz, Dial → the slot of the same name (the first of each); then
     Wheel and a second Slider / Dial → aux1, aux2 in descriptor order; then (usb2rc's own

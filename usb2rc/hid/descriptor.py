@@ -45,7 +45,7 @@ class InputField:
     bit_offset: int  # from the first data byte (after the report-ID byte)
     bit_size: int
     logical_min: int
-    logical_max: int  # signed when logical_min < 0 (DECISIONS.md)
+    logical_max: int  # signed when logical_min < 0 (docs/ICD.md, "Axis scaling")
     has_null: bool
     occurrence: int  # 0 for the first field with this usage in the device, 1 for the second ...
 

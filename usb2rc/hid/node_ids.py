@@ -1,4 +1,4 @@
-"""Node-ID allocation (DECISIONS.md "Node-ID").
+"""Node-ID allocation (docs/ICD.md, "Node-IDs").
 
 - A device whose config entry pins `node_id:` gets that ID; pinned IDs are reserved from the
   start, so automatic IDs never take them (several devices may share one pinned ID).
