@@ -115,6 +115,37 @@ def recording(
     return "\n".join(lines) + "\n"
 
 
+def real_device_recordings(count: int, seconds: float, rate_hz: float) -> list[str]:
+    """`count` recordings of real descriptors (tests/data/real-devices.json; no T.16000M, so
+    each is another model), each with random reports of every input report ID at `rate_hz`."""
+    import json
+    import random
+
+    from usb2rc.hid.descriptor import parse_descriptor
+    from usb2rc.hid.recording import RecordedEvent, Recording, format_recording
+
+    rng = random.Random(11)
+    devices = json.loads((ROOT / "tests" / "data" / "real-devices.json").read_text())
+    texts = []
+    for device in devices:
+        descriptor = bytes.fromhex(device["hex"])
+        layout = parse_descriptor(descriptor)
+        if not layout.inputs or device["name"].startswith("Thrustmaster T.16000M"):
+            continue
+        ids = sorted(layout.input_report_lengths.items())
+        events = []
+        for i in range(int(seconds * rate_hz)):
+            rid, length = ids[i % len(ids)]
+            head = bytes([rid]) if layout.uses_report_ids else b""
+            events.append(RecordedEvent(i / rate_hz, head + rng.randbytes(length)))
+        vid, pid = int(device["vid"], 16), int(device["pid"], 16)
+        rec = Recording(descriptor, device["name"], "", 3, vid, pid, tuple(events))
+        texts.append(format_recording(rec))
+        if len(texts) == count:
+            break
+    return texts
+
+
 def install(path: Path, text: str) -> None:
     """Plug: the file appears whole (written aside, then renamed)."""
     tmp = path.with_name(f".{path.name}.tmp")

@@ -50,6 +50,7 @@ log = logging.getLogger("usb2rc")
 
 JOIN_TIMEOUT_S = 0.5
 READ_AHEAD_S = 0.002  # readers wake this long before a tick to drain the device's queue
+LAST_CALL_S = 0.00025  # and once more this long before it, for what came in meanwhile
 
 
 class NoPortError(ValueError):
@@ -210,9 +211,16 @@ class Daemon:
 
     def _reader_pause(self) -> float:
         """How long a busy reader may sleep: until READ_AHEAD_S before the next tick of any
-        output, so every report that came before a tick is decoded when the tick samples."""
-        due = min(out.thread.next_deadline for out in self.outputs)
-        return due - time.monotonic() - READ_AHEAD_S
+        output (the bulk of a tick's reports), then until LAST_CALL_S before it (the one or
+        two since), then until READ_AHEAD_S before the tick after. Two wake-ups per tick
+        instead of one per report in the last READ_AHEAD_S; a report in the last LAST_CALL_S
+        goes with the next tick (the tick's own wake-up is not more precise than that)."""
+        out = min(self.outputs, key=lambda o: o.thread.next_deadline).thread
+        due, now = out.next_deadline, time.monotonic()
+        for wake in (due - READ_AHEAD_S, due - LAST_CALL_S, due + out.period_s - READ_AHEAD_S):
+            if wake > now:
+                return wake - now
+        return 0.0  # the outputs have not started, or stopped ticking: read as reports come
 
     def all_outputs_ticking(self, within_s: float = 1.0) -> bool:
         """True while every output thread has ticked in the last `within_s` seconds: one hung
@@ -308,9 +316,13 @@ class Daemon:
         for reader in self.lifecycle.readers:
             info, record = reader.info, reader.record
             age = f"{now - record.at:.2f} s" if record.at is not None else "never"
-            lines.append(
+            line = (
                 f"device {info.product or info.path} ({info.port_path}): "
                 f"{record.reports} reports ({record.reports / uptime:.1f}/s avg), "
                 f"bad {record.bad_reports}, last report {age} ago"
             )
+            busy_s = getattr(reader.device, "busy_s", None)  # the replay backend's own work
+            if busy_s is not None:
+                line += f", backend busy {busy_s * 1000:.1f} ms"
+            lines.append(line)
         return lines

@@ -27,6 +27,7 @@ from typing import Protocol
 
 from usb2rc.hid.backend import Device, DeviceGone, ErrorCode
 from usb2rc.hid.descriptor import InputState
+from usb2rc.hid.flag import WakeFlag
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +74,7 @@ class DeviceReader:
         self._on_exit = on_exit
         self._read_timeout_s = read_timeout_s
         self._pause = pause
-        self._stop = threading.Event()
+        self._stop = WakeFlag()  # stop() also ends a pause at once
         name = f"hid-reader {self.info.port_path or self.info.path}"
         self._thread = threading.Thread(target=self._run, name=name)
 
@@ -113,6 +114,20 @@ class DeviceReader:
         else:
             self._bad_reports += 1
 
+    def _drain(self) -> None:
+        """Decode what the device has queued, without blocking. At 1 kHz this runs ~20 times
+        per tick per device: locals instead of a method call and two attribute writes per
+        report."""
+        read, feed = self.device.read, self.decoder.feed
+        accepted = refused = 0
+        while (report := read(0.0)) is not None:
+            if feed(report):
+                accepted += 1
+            else:
+                refused += 1
+        self._reports += accepted
+        self._bad_reports += refused
+
     def _publish(self) -> None:
         """One assignment: the state, its counts and its time are seen together or not at all.
         Only when something changed (a refused report changes the counts, not the state)."""
@@ -131,8 +146,7 @@ class DeviceReader:
             if self._pause is None:
                 self._publish()
                 continue
-            while (queued := self.device.read(0.0)) is not None:
-                self._handle(queued)
+            self._drain()
             self._publish()  # once for the whole batch: the tick samples the latest
             pause = self._pause()
             if pause > 0:

@@ -23,12 +23,14 @@ from pathlib import Path
 
 from usb2rc.hid.backend import DeviceGone, DeviceInfo, DeviceOpenError
 from usb2rc.hid.descriptor import top_level_usage
-from usb2rc.hid.recording import Recording, RecordingError, parse_recording
+from usb2rc.hid.flag import WakeFlag
+from usb2rc.hid.recording import RecordedEvent, Recording, RecordingError, parse_recording
 
 log = logging.getLogger(__name__)
 
 FAULT_RE = re.compile(r"^\s*#\s*usb2rc-fault:\s*read-error\s+at\s+([0-9.]+)\s*$", re.MULTILINE)
-GONE_CHECK_S = 0.02  # how often an idle or busy device looks whether its file is still there
+# How often a device looks whether its file is still there (a stat): the unplug latency.
+GONE_CHECK_S = 0.05
 
 
 @dataclass(frozen=True)
@@ -43,8 +45,12 @@ class ReplayFile:
 
 
 def _stat_id(path: Path) -> tuple[int, int, int] | None:
+    return _stat_id_of(str(path))
+
+
+def _stat_id_of(path: str) -> tuple[int, int, int] | None:
     try:
-        st = path.stat()
+        st = os.stat(path)
     except OSError:
         return None
     return st.st_ino, st.st_mtime_ns, st.st_size
@@ -159,66 +165,100 @@ class ReplayBackend:
 
 
 class ReplayDevice:
-    """Plays one recording; `read` waits on an Event with absolute monotonic deadlines."""
+    """Plays one recording; `read` sleeps until absolute monotonic deadlines (or close()).
+
+    `read` is on the daemon's hot path (a reader drains ~20 due reports per tick at 1 kHz), so
+    the next report's due time is kept ready (`_due`) and a due report costs one clock read
+    and a few attribute loads. `busy_s` is the time spent in `read` other than waiting: the
+    replay backend's own cost, which a real device (the kernel) does not put on the daemon.
+    """
 
     def __init__(self, source: ReplayFile, loop: bool = False, speed: float = 1.0) -> None:
         self.info = source.info
         self._source = source
-        self._events = source.recording.events
-        self._loop = loop and bool(self._events)
-        self._speed = speed
-        self._period = self._loop_period()
-        self._closed = threading.Event()
+        self._path = str(source.path)
+        self._reports = tuple(event.report for event in source.recording.events)
+        self._times = tuple(event.time_s / speed for event in source.recording.events)
+        self._loop = loop and bool(self._reports)
+        self._lap_s = self._loop_period(source.recording.events) / speed
+        self._closed = WakeFlag()  # close() wakes a read waiting for the next report
         self._t0 = time.monotonic()
-        self._index = 0  # events delivered, counting over loops
+        self._lap = 0
+        self._i = 0  # the next event of this lap
+        self._due = self._due_of(0, 0)  # when events[_i] of lap _lap is due; inf: none left
         self._fault_due = (
             math.inf if source.fault_at is None else self._t0 + source.fault_at / speed
         )
         self._next_gone_check = 0.0
+        self._quiet_until = 0.0  # before this, read needs neither a gone check nor a fault
+        self.busy_s = 0.0
 
-    def _loop_period(self) -> float:
-        if not self._events:
+    @staticmethod
+    def _loop_period(events: tuple[RecordedEvent, ...]) -> float:
+        if not events:
             return 0.0
-        last = self._events[-1].time_s
-        step = last / (len(self._events) - 1) if len(self._events) > 1 else 0.01
+        last = events[-1].time_s
+        step = last / (len(events) - 1) if len(events) > 1 else 0.01
         return max(last + step, 0.001)
 
     def report_descriptor(self) -> bytes:
         return self._source.recording.descriptor
 
-    def _next_due(self) -> float:
-        n = len(self._events)
-        if n == 0 or (self._index >= n and not self._loop):
-            return math.inf
-        lap, i = divmod(self._index, n)
-        return self._t0 + (lap * self._period + self._events[i].time_s) / self._speed
+    def _due_of(self, lap: int, i: int) -> float:
+        if i >= len(self._times):
+            if not self._loop:
+                return math.inf
+            lap, i = lap + 1, 0
+            self._lap, self._i = lap, i
+        # From t0 each time (not a running sum): a device looped for hours does not drift.
+        return self._t0 + lap * self._lap_s + self._times[i]
 
     def _check_gone(self, now: float) -> None:
+        """A stat at most every GONE_CHECK_S: unplug is seen within that, and a 1 kHz device
+        does not pay a system call per report."""
         if now < self._next_gone_check:
             return
         self._next_gone_check = now + GONE_CHECK_S
-        if _stat_id(self._source.path) != self._source.stat_id:
+        self._quiet_until = min(self._next_gone_check, self._fault_due)
+        if _stat_id_of(self._path) != self._source.stat_id:
             raise DeviceGone(f"{self._source.path}: replay file removed or replaced")
 
     def read(self, timeout_s: float) -> bytes | None:
+        started = time.perf_counter()
         now = time.monotonic()
-        end = now + max(timeout_s, 0.0)
-        while True:
-            if self._closed.is_set():
-                raise OSError(errno.EBADF, f"{self.info.path}: device is closed")
-            due = self._next_due()
-            if now >= self._fault_due and due >= self._fault_due:
-                raise OSError(errno.EIO, f"{self.info.path}: injected read error")
-            self._check_gone(now)
-            if due <= now:
-                report = self._events[self._index % len(self._events)].report
-                self._index += 1
-                return report
-            if now >= end:
-                return None
-            wake = min(end, due, self._fault_due, self._next_gone_check)
-            self._closed.wait(max(wake - now, 0.0))
-            now = time.monotonic()
+        if self._due <= now < self._quiet_until and not self._closed.is_set():
+            # The drain's case: a report is due and neither a gone check nor a fault is.
+            report = self._deliver()
+            self.busy_s += time.perf_counter() - started
+            return report
+        waited = 0.0
+        try:
+            end = now + timeout_s if timeout_s > 0 else now
+            while True:
+                if self._closed.is_set():
+                    raise OSError(errno.EBADF, f"{self.info.path}: device is closed")
+                due = self._due
+                if now >= self._fault_due and due >= self._fault_due:
+                    raise OSError(errno.EIO, f"{self.info.path}: injected read error")
+                self._check_gone(now)
+                if due <= now:
+                    return self._deliver()
+                if now >= end:
+                    return None
+                wake = min(end, due, self._quiet_until)
+                before = time.perf_counter()
+                self._closed.wait(max(wake - now, 0.0))
+                waited += time.perf_counter() - before
+                now = time.monotonic()
+        finally:
+            self.busy_s += time.perf_counter() - started - waited
+
+    def _deliver(self) -> bytes:
+        i = self._i
+        report = self._reports[i]
+        self._i = i + 1
+        self._due = self._due_of(self._lap, i + 1)
+        return report
 
     def close(self) -> None:
         self._closed.set()
