@@ -443,12 +443,45 @@ def stick_breaks(frames: Sequence[dict[str, Any]]) -> int:
     return breaks
 
 
-def run_plug_while_live(workdir: Path, window: float) -> dict[str, Any]:
-    """A 1 kHz stick live; a quiet window, then a window of the same length in which five
-    devices are plugged one after another (each once the last one's connect sequence is on
-    the line): the longest interval between the stick's frames in each."""
+def plug_round(
+    reader: PtyReader, replay_dir: Path, texts: Sequence[str], window: float
+) -> list[float]:
+    """Plug the devices one after another over `window` seconds (each once the last one's
+    connect sequence is on the line); the plug -> `connected` times. Ends at `window`."""
     from usb2rc.hid.replay import install_file
 
+    start = time.monotonic()
+    connect_s: list[float] = []
+    for k, text in enumerate(texts):
+        plugged = time.monotonic()
+        install_file(replay_dir / f"dev{k}.hid", text)
+        seen = reader.wait_for(
+            lambda f, t=plugged: [x for x in f if x.get("svc") == "connected" and x["n"] != 0
+                                  and x["t"] >= t],
+            20, f"device {k + 1}'s connect sequence",
+        )  # fmt: skip
+        connect_s.append(seen[0]["t"] - plugged)
+        time.sleep(max(0.0, start + (k + 1) * window / (len(texts) + 1) - time.monotonic()))
+    time.sleep(max(0.0, start + window - time.monotonic()))
+    return connect_s
+
+
+def unplug_all(reader: PtyReader, replay_dir: Path, count: int) -> None:
+    since = time.monotonic()
+    for k in range(count):
+        (replay_dir / f"dev{k}.hid").unlink()
+    reader.wait_for(
+        lambda f: sum(1 for x in f if x.get("svc") == "disconnected" and x["t"] >= since) >= count,
+        20, "the disconnects",
+    )  # fmt: skip
+    time.sleep(1.0)
+
+
+def run_plug_while_live(workdir: Path, window: float, rounds: int) -> dict[str, Any]:
+    """A 1 kHz stick live. Each round: a quiet window, then a window of the same length in
+    which five devices (real descriptors, 250 reports/s) are plugged one after another, then
+    they are unplugged. The longest interval between the stick's frames over the quiet
+    windows against the same over the plug windows."""
     replay_dir = workdir / "plug"
     replay_dir.mkdir()
     (replay_dir / "stick.hid").write_text(khz_recording(4.0, "Thrustmaster T.16000M"))
@@ -457,41 +490,43 @@ def run_plug_while_live(workdir: Path, window: float) -> dict[str, Any]:
     texts = real_device_recordings(PLUG_DEVICES, 4.0, PLUG_REPORT_HZ)
     reader = PtyReader(workdir)
     daemon = DaemonProcess(replay_dir, reader.path, workdir / "plug.log", ["--config", str(config)])
+    windows: list[tuple[float, float, bool]] = []  # start, end, plugging
     connect_s: list[float] = []
     try:
         reader.wait_for(lambda f: any(x["k"] == "d" and x["n"] == 0 for x in f), 20, "the stick")
         time.sleep(2.0)  # past start-up
-        quiet0 = time.monotonic()
-        time.sleep(window)
-        plug0 = time.monotonic()
-        for k, text in enumerate(texts):
-            plugged = time.monotonic()
-            install_file(replay_dir / f"dev{k}.hid", text)
-            seen = reader.wait_for(
-                lambda f, k=k, t=plugged: [x for x in f if x.get("svc") == "connected"
-                                           and x["n"] != 0 and x["t"] >= t],
-                20, f"device {k + 1}'s connect sequence",
-            )  # fmt: skip
-            connect_s.append(seen[0]["t"] - plugged)
-            time.sleep(max(0.0, plug0 + (k + 1) * window / (len(texts) + 1) - time.monotonic()))
-        time.sleep(max(0.0, plug0 + window - time.monotonic()))
-        plug1 = time.monotonic()
+        for _ in range(rounds):
+            quiet = time.monotonic()
+            time.sleep(window)
+            plug = time.monotonic()
+            connect_s += plug_round(reader, replay_dir, texts, window)
+            windows += [(quiet, plug, False), (plug, time.monotonic(), True)]
+            unplug_all(reader, replay_dir, len(texts))
     finally:
         daemon.terminate()
-    stick = reader.data(quiet0)
+    stick = reader.data(windows[0][0])
     reader.close()
-    quiet = frame_intervals(stick, quiet0, plug0)
-    live = frame_intervals(stick, plug0, plug1)
+    quiet_dt = [d for a, b, p in windows if not p for d in frame_intervals(stick, a, b)]
+    live_dt = [d for a, b, p in windows if p for d in frame_intervals(stick, a, b)]
     return {
-        "plug_devices": len(texts),
-        "plug_quiet_max_interval_ms": max(quiet) * 1e3,
-        "plug_live_max_interval_ms": max(live) * 1e3,
-        "plug_live_excess_ms": (max(live) - max(quiet)) * 1e3,
-        "plug_live_gaps": sum(1 for d in live if d > 1.5 * PERIOD_S),
-        "plug_live_stick_breaks": stick_breaks([f for f in stick if plug0 <= f["t"] <= plug1]),
+        "plug_devices": len(texts) * rounds,
+        "plug_quiet_max_interval_ms": max(quiet_dt) * 1e3,
+        "plug_live_max_interval_ms": max(live_dt) * 1e3,
+        "plug_live_excess_ms": (max(live_dt) - max(quiet_dt)) * 1e3,
+        "plug_quiet_p99_interval_ms": percentile(quiet_dt, 0.99) * 1e3,
+        "plug_live_p99_interval_ms": percentile(live_dt, 0.99) * 1e3,
+        "plug_live_gaps": sum(1 for d in live_dt if d > 1.5 * PERIOD_S),
+        "plug_live_stick_breaks": sum(
+            stick_breaks([f for f in stick if a <= f["t"] <= b]) for a, b, p in windows if p
+        ),
         "plug_connect_ms_median": statistics.median(connect_s) * 1e3,
         "plug_connect_ms_max": max(connect_s) * 1e3,
     }
+
+
+def percentile(values: Sequence[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(len(ordered) * q))]
 
 
 def run_starts(workdir: Path, starts: int) -> dict[str, Any]:
@@ -590,6 +625,8 @@ ROWS = [
     ("plug_quiet_max_interval_ms", "stick frames: max interval, quiet", "ms", 2),
     ("plug_live_max_interval_ms", "  ... while 5 devices are plugged", "ms", 2),
     ("plug_live_excess_ms", "  plugging - quiet", "ms", 2),
+    ("plug_quiet_p99_interval_ms", "stick frames: p99 interval, quiet", "ms", 2),
+    ("plug_live_p99_interval_ms", "  ... while plugging", "ms", 2),
     ("plug_live_gaps", "  stick gaps (> 30 ms) while plugging", "", 0),
     ("plug_live_stick_breaks", "  stick frames not live / out of order", "", 0),
     ("plug_connect_ms_median", "plug -> connect sequence, median", "ms", 1),
@@ -643,7 +680,7 @@ def one_run(args: argparse.Namespace) -> dict[str, Any]:
             result.update(run_cpu(workdir, args.warmup, args.cpu_seconds))
         cpu_stop = result.pop("stop_s", 0.0)
         if "plug" in parts:
-            result.update(run_plug_while_live(workdir, args.plug_seconds))
+            result.update(run_plug_while_live(workdir, args.plug_seconds, args.plug_rounds))
         if "starts" in parts:
             starts = run_starts(workdir, args.starts)
             starts["stop_s_max"] = max(starts["stop_s_max"], cpu_stop)
@@ -669,7 +706,8 @@ def main() -> None:
     parser.add_argument("--cpu-seconds", type=float, default=30.0, help="CPU window (30)")
     parser.add_argument("--warmup", type=float, default=5.0, help="before the CPU window (5)")
     parser.add_argument("--starts", type=int, default=5, help="start/stop trials (5)")
-    parser.add_argument("--plug-seconds", type=float, default=6.0, help="plug windows (6)")
+    parser.add_argument("--plug-seconds", type=float, default=5.0, help="plug windows (5)")
+    parser.add_argument("--plug-rounds", type=int, default=3, help="plug rounds (3)")
     parser.add_argument("--only", nargs="+", choices=PARTS, help="run only these parts")
     parser.add_argument("--runs", type=int, default=1, help="repeat; medians over runs")
     parser.add_argument("--json", metavar="PATH", help="also write the JSON result here")
@@ -687,7 +725,8 @@ def main() -> None:
     figures = combine(runs)
     print(
         f"daemon bench: {args.runs} run(s), period/latency {args.seconds:g} s, CPU window "
-        f"{args.cpu_seconds:g} s, plug windows {args.plug_seconds:g} s, {args.starts} starts, "
+        f"{args.cpu_seconds:g} s, plug windows {args.plug_rounds} x {args.plug_seconds:g} s, "
+        f"{args.starts} starts, "
         "load average "
         f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores"
     )

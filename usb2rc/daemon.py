@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -51,6 +52,13 @@ log = logging.getLogger("usb2rc")
 JOIN_TIMEOUT_S = 0.5
 READ_AHEAD_S = 0.002  # readers wake this long before a tick to drain the device's queue
 LAST_CALL_S = 0.00025  # and once more this long before it, for what came in meanwhile
+# A thread that wants the GIL asks the running one to drop it after this long (Python's
+# default: 5 ms). Plugging a device runs Python for milliseconds on the lifecycle and hot-plug
+# threads (descriptor parse, decoder plan, a replayed recording); the scheduler thread needs
+# the GIL after its wake-up and after each system call of a tick (~3 times), and may wait a
+# whole slice each time: 5 ms slices made the stick's frames 6-9 ms late while devices were
+# plugged (bench/bench_daemon.py, plug figures). Idle threads never hold the GIL that long.
+GIL_SWITCH_S = 0.0005
 
 
 class NoPortError(ValueError):
@@ -152,6 +160,7 @@ class Daemon:
         )
         self.monitor = HotplugMonitor(backend, self.lifecycle.plugged, self.lifecycle.unplugged)
         self.started_at = 0.0
+        self._switch_interval: float | None = None  # the GIL's, to restore on stop()
 
     # --- outputs ---------------------------------------------------------------------------
 
@@ -238,6 +247,9 @@ class Daemon:
 
     def start(self) -> None:
         self.started_at = time.monotonic()
+        if self.outputs:
+            self._switch_interval = sys.getswitchinterval()
+            sys.setswitchinterval(GIL_SWITCH_S)
         for out in self.outputs:
             out.link.open_now()
         present = self.monitor.initial_devices()
@@ -271,6 +283,9 @@ class Daemon:
             if out.rx is not None:
                 out.rx.join(JOIN_TIMEOUT_S)
             out.link.close()
+        if self._switch_interval is not None:
+            sys.setswitchinterval(self._switch_interval)
+            self._switch_interval = None
 
     def reload(self, config: Config) -> None:
         """Take a new, already validated config: the mapping changes without a tick lost.
