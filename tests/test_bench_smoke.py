@@ -63,7 +63,8 @@ def test_daemon(tmp_path: Path) -> None:
     json_path = tmp_path / "daemon.json"
     out = run(
         sys.executable, "bench/bench_daemon.py", "--seconds", "2", "--cpu-seconds", "1",
-        "--warmup", "0.3", "--starts", "1", "--json", str(json_path),
+        "--warmup", "0.3", "--starts", "1", "--plug-seconds", "1", "--plug-rounds", "1",
+        "--json", str(json_path),
     )  # fmt: skip
     result = last_json(out)
     assert result == json.loads(json_path.read_text())
@@ -74,15 +75,21 @@ def test_daemon(tmp_path: Path) -> None:
         "latency_mean_ms",
         "latency_max_ms",
         "cpu_pct",
+        "cpu_replay_pct",
+        "cpu_without_replay_pct",
         "rss_mb",
         "reports_per_s_min",
         "start_first_frame_s",
         "stop_s_max",
+        "plug_quiet_max_interval_ms",
+        "plug_live_max_interval_ms",
+        "plug_live_excess_ms",
     ):
         assert isinstance(figures[key], float | int), key
     assert 15 < figures["period_mean_ms"] < 25
     assert figures["latency_reports"] > 10
     assert figures["devices"] == 4
+    assert figures["plug_devices"] == 5 and figures["plug_live_stick_breaks"] == 0
     assert "p99 |period - 20 ms|" in out
 
 
