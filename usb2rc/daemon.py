@@ -56,8 +56,8 @@ LAST_CALL_S = 0.00025  # and once more this long before it, for what came in mea
 # default: 5 ms). Plugging a device runs Python for milliseconds on the lifecycle and hot-plug
 # threads (descriptor parse, decoder plan, a replayed recording); the scheduler thread needs
 # the GIL after its wake-up and after each system call of a tick (~3 times), and may wait a
-# whole slice each time: 5 ms slices made the stick's frames 6-9 ms late while devices were
-# plugged (bench/bench_daemon.py, plug figures). Idle threads never hold the GIL that long.
+# whole slice each time: up to ~15 ms late with 5 ms slices (bench/bench_daemon.py, plug
+# figures). Busy readers hold the GIL ~0.1 ms per wake-up: they are not sliced more often.
 GIL_SWITCH_S = 0.0005
 
 
