@@ -5,15 +5,21 @@ descriptors) are plugged one after another, each once the last one's connect seq
 the line. No timing is asserted (bench/bench_daemon.py measures the intervals): only that
 the stick stays live, its message codes run on without a hole, every tick that carried
 another node carried the stick too, and each device's connect sequence comes in plug order.
+If this test's own reader fell behind and the daemon left bytes out (its stats say so), the
+hole and tick checks are skipped: a full pty drops frames by design.
 """
 
 from __future__ import annotations
 
 import itertools
+import re
+import signal
+import time
 from pathlib import Path
 
 import pytest
 from daemon_harness import (
+    DaemonProcess,
     PtyLine,
     StickState,
     data_frames,
@@ -31,6 +37,7 @@ pytestmark = pytest.mark.slow
 PLUGGED = 5
 # Room for every node and connect sequence in each tick: no round-robin deferral.
 CONFIG = "outputs:\n  - protocol: c2-16b\n    baudrate: 921600\n"
+LOSSES = re.compile(r"queue-full skips (\d+), write timeouts (\d+), short writes (\d+)")
 
 
 def connected_nodes(frames: list[object]) -> list[int]:
@@ -39,6 +46,20 @@ def connected_nodes(frames: list[object]) -> list[int]:
         for f in service_frames(frames)  # type: ignore[arg-type]
         if f.service is c2_16b.Service.CONNECTED and f.node_id != 0
     ]
+
+
+def wait_for_log(daemon: DaemonProcess, text: str, timeout: float = 20.0) -> str:
+    deadline = time.monotonic() + timeout
+    while text not in (log := daemon.log()) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return log
+
+
+def line_dropped(log: str) -> bool:
+    """Did the daemon leave bytes out because the pty was full (a loaded test machine)?"""
+    found = LOSSES.search(log)
+    assert found, "no stats line in the log"
+    return any(int(n) for n in found.groups())
 
 
 def test_stick_keeps_every_tick_while_five_devices_are_plugged(tmp_path: Path) -> None:
@@ -51,20 +72,25 @@ def test_stick_keeps_every_tick_while_five_devices_are_plugged(tmp_path: Path) -
     line = PtyLine()
     daemon = run_daemon(tmp_path, line.path, replay_dir, "--replay-loop", "--config", str(config))
     try:
-        line.wait_for(lambda f: len(data_frames(f, 0)) >= 10, timeout=20)
+        line.wait_for(lambda fr: any(f.status == c2_16b.LIVE for f in data_frames(fr, 0)), 20)
         for k, text in enumerate(real_device_recordings(PLUGGED, 2.0, 250)):
             install(replay_dir / f"dev{k}.hid", text)
             line.wait_for(lambda f, k=k: len(connected_nodes(f)) > k, timeout=20)
         line.wait_for(lambda f: all(data_frames(f, n) for n in range(1, PLUGGED + 1)), 20)
         count = len(data_frames(line.frames(), 0))
         line.wait_for(lambda f: len(data_frames(f, 0)) >= count + 10, timeout=20)
+        daemon.signal(signal.SIGUSR1)
+        log = wait_for_log(daemon, "stats: output1")
     finally:
         assert daemon.stop() == 0, daemon.log()[-2000:]
         line.close()
     frames = line.frames()
     assert connected_nodes(frames) == list(range(1, PLUGGED + 1)), "plug order, once each"
     ours = data_frames(frames, 0)
-    assert all(f.status == c2_16b.LIVE for f in ours), "the stick never left live"
+    live = next(i for i, f in enumerate(ours) if f.status == c2_16b.LIVE)  # `!` until then
+    assert all(f.status == c2_16b.LIVE for f in ours[live:]), "the stick never left live"
+    if line_dropped(log):
+        return  # this test's reader fell behind and the pty filled: frames left out on purpose
     holes = [(a.code, b.code) for a, b in itertools.pairwise(ours) if b.code != (a.code + 1) % 256]
     assert holes == [], "a stick frame lost or sent twice"
     data = data_frames(frames)
