@@ -105,7 +105,7 @@ def test_a_reload_during_a_plug_binds_the_device_with_the_new_mapping(tmp_path: 
         wait_until(lambda: not table.frames()[0].failsafe)
         assert table.frames()[0].axes[0] == -32768  # X at full right, inverted: new mapping
     finally:
-        for reader in lifecycle.stop(WAIT_S):
+        for reader in lifecycle.shutdown(WAIT_S):
             reader.join(WAIT_S)
 
 
@@ -128,7 +128,7 @@ def test_a_late_exit_of_an_old_reader_leaves_the_new_device_alone(tmp_path: Path
         assert lifecycle.readers == (new_reader,)
         assert [present for _n, _i, _b, present, _t in table.attachments()] == [True]
     finally:
-        for reader in lifecycle.stop(WAIT_S):
+        for reader in lifecycle.shutdown(WAIT_S):
             reader.join(WAIT_S)
 
 
@@ -149,7 +149,7 @@ def test_an_open_refused_is_retried_while_plugged_and_reported_once(tmp_path: Pa
         errors = [e for e in table.collect(subscriber)[0] if e.kind is EventKind.ERROR]
         assert errors == []
     finally:
-        for reader in lifecycle.stop(WAIT_S):
+        for reader in lifecycle.shutdown(WAIT_S):
             reader.join(WAIT_S)
 
 

@@ -270,7 +270,7 @@ class Daemon:
 
     def stop(self) -> None:
         self.monitor.stop()
-        readers = self.lifecycle.stop(JOIN_TIMEOUT_S)
+        readers = self.lifecycle.shutdown(JOIN_TIMEOUT_S)
         for out in self.outputs:
             out.thread.stop()
             if out.rx is not None:

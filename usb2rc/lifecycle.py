@@ -39,6 +39,7 @@ from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.hid.usages import device_type_name
 from usb2rc.mapping import DeviceBinding, Mapping, MappingError
 from usb2rc.state import Expected, NodeTable
+from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc")
 
@@ -108,7 +109,7 @@ class _OpenFailed(Exception):
         self.code = code
 
 
-class DeviceLifecycle:
+class DeviceLifecycle(Worker):
     def __init__(
         self,
         backend: Backend,
@@ -132,7 +133,7 @@ class DeviceLifecycle:
         self._failed: dict[str, _Failed] = {}
         # Published for other threads (statistics) by one assignment; never mutated.
         self.readers: tuple[DeviceReader, ...] = ()
-        self._thread = threading.Thread(target=self._run, name="device-lifecycle")
+        super().__init__("device-lifecycle")
 
     # --- what other threads call: they only post events ----------------------------------
 
@@ -152,18 +153,18 @@ class DeviceLifecycle:
         """Queue a reload and wait until this thread has applied it (True), or timeout."""
         done = threading.Event()
         self.post(Reload(mapping, expected, done))
-        if not self._thread.is_alive():
+        if not self.is_alive():
             self.handle_queued()  # not started, or stopped: nobody else owns the devices
         return done.wait(timeout_s)
 
-    def start(self) -> None:
-        self._thread.start()
+    def stop(self) -> None:
+        super().stop()
+        self.post(_Stop())  # wakes the thread out of its wait for the next event
 
-    def stop(self, join_s: float) -> list[DeviceReader]:
+    def shutdown(self, join_s: float) -> list[DeviceReader]:
         """End the thread, then stop every reader; returns them so the caller can join."""
-        self.post(_Stop())
-        if self._thread.ident is not None and self._thread is not threading.current_thread():
-            self._thread.join(join_s)
+        self.stop()
+        self.join(join_s)
         readers = [p.reader for p in self._present.values()]
         self._present.clear()
         self.readers = ()
@@ -185,7 +186,7 @@ class DeviceLifecycle:
                 return
             self._handle_safely(event)
 
-    def _run(self) -> None:
+    def run(self) -> None:
         while True:
             try:
                 event = self._events.get(timeout=self._wait_s())

@@ -26,6 +26,7 @@ from usb2rc.daemon import Daemon
 from usb2rc.hid.replay import ReplayBackend, install_file
 from usb2rc.protocol.c2_16b import AXIS_NAMES
 from usb2rc.receiver import NodeView, ReceiverModel
+from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc.demo")
 
@@ -39,6 +40,7 @@ SCRIPT: tuple[tuple[float, str, str], ...] = (
     (21.0, "plug", "throttle.hid"),
 )
 CYCLE_S = 24.0
+JOIN_S = 1.0  # how long stop waits for each demo thread
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -57,25 +59,21 @@ def demo_recordings() -> dict[str, str]:
     return {name: (folder / name).read_text() for name in ("stick.hid", "throttle.hid")}
 
 
-class PlugScript(threading.Thread):
+class PlugScript(Worker):
     """Copies recordings into (and removes them from) the replay folder on a schedule."""
 
     def __init__(self, folder: Path, recordings: dict[str, str]) -> None:
-        super().__init__(name="demo-plugs")
+        super().__init__("demo-plugs")
         self.folder = folder
         self.recordings = recordings
-        self._stop_event = threading.Event()
-
-    def stop(self) -> None:
-        self._stop_event.set()
 
     def run(self) -> None:
         start = time.monotonic()
         cycle = 0
-        while not self._stop_event.is_set():
+        while not self.stopping:
             for at, action, name in SCRIPT:
                 due = start + cycle * CYCLE_S + at
-                if self._stop_event.wait(max(0.0, due - time.monotonic())):
+                if self.sleep(max(0.0, due - time.monotonic())):
                     return
                 self._apply(action, name)
             cycle += 1
@@ -88,28 +86,24 @@ class PlugScript(threading.Thread):
             path.unlink(missing_ok=True)
 
 
-class PtyReceiver(threading.Thread):
+class PtyReceiver(Worker):
     """Reads the far end of the pty and folds what it decodes into a ReceiverModel."""
 
     def __init__(self, master_fd: int, model: ReceiverModel) -> None:
-        super().__init__(name="demo-receiver")
+        super().__init__("demo-receiver")
         self.master_fd = master_fd
         self.model = model
         self.lock = threading.Lock()
-        self._stop_event = threading.Event()
-
-    def stop(self) -> None:
-        self._stop_event.set()
 
     def run(self) -> None:
-        while not self._stop_event.is_set():
+        while not self.stopping:
             ready, _, _ = select.select([self.master_fd], [], [], 0.1)
             if not ready:
                 continue
             try:
                 data = os.read(self.master_fd, 4096)
             except OSError:  # the daemon closed its end for a moment
-                self._stop_event.wait(0.05)
+                self.sleep(0.05)
                 continue
             with self.lock:
                 self.model.feed(data)
@@ -207,8 +201,8 @@ def run(args: argparse.Namespace) -> int:
             plugs.stop()
             daemon.stop()
             receiver.stop()
-            plugs.join()
-            receiver.join()
+            plugs.join(JOIN_S)
+            receiver.join(JOIN_S)
             os.close(master_fd)
             os.close(slave_fd)
     return 0

@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from usb2rc.hid.backend import Backend, DeviceInfo
+from usb2rc.worker import Worker
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +72,7 @@ class _UdevWaker:
             self._monitor.stop()
 
 
-class HotplugMonitor:
+class HotplugMonitor(Worker):
     def __init__(
         self,
         backend: Backend,
@@ -89,8 +90,7 @@ class HotplugMonitor:
         self._use_udev = use_udev
         self._known: dict[str, DeviceInfo] | None = None
         self._lock = threading.Lock()  # guards _known: forget() comes from reader threads
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="hid-hotplug")
+        super().__init__("hid-hotplug")
 
     def initial_devices(self) -> list[DeviceInfo]:
         """Take the present devices (port-path order); `start()` then reports only changes."""
@@ -105,16 +105,6 @@ class HotplugMonitor:
         with self._lock:
             if self._known is not None:
                 self._known.pop(key, None)
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-
-    def join(self, timeout: float | None = None) -> None:
-        if self._thread.ident is not None:
-            self._thread.join(timeout)
 
     def _enumerate(self) -> list[DeviceInfo] | None:
         try:
@@ -145,15 +135,15 @@ class HotplugMonitor:
         for info in sort_by_port_path(added):
             self._call(self._on_added, info)
 
-    def _run(self) -> None:
+    def run(self) -> None:
         waker = _UdevWaker.create() if self._use_udev else None
         try:
-            while not self._stop.is_set():
+            while not self.stopping:
                 self.scan()
                 if waker is not None:
                     waker.wait(self._poll_s)
                 else:
-                    self._stop.wait(self._poll_s)
+                    self.sleep(self._poll_s)
         finally:
             if waker is not None:
                 waker.close()

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -27,7 +26,7 @@ from typing import Protocol
 
 from usb2rc.hid.backend import Device, DeviceGone, ErrorCode
 from usb2rc.hid.descriptor import InputState
-from usb2rc.hid.flag import WakeFlag
+from usb2rc.worker import Worker
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +53,7 @@ class ReaderRecord:
     at: float | None = None  # monotonic time of the last published report
 
 
-class DeviceReader:
+class DeviceReader(Worker):
     def __init__(
         self,
         device: Device,
@@ -74,22 +73,7 @@ class DeviceReader:
         self._on_exit = on_exit
         self._read_timeout_s = read_timeout_s
         self._pause = pause
-        self._stop = WakeFlag()  # stop() also ends a pause at once
-        name = f"hid-reader {self.info.port_path or self.info.path}"
-        self._thread = threading.Thread(target=self._run, name=name)
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-
-    def join(self, timeout: float | None = None) -> None:
-        if threading.current_thread() is not self._thread and self._thread.ident is not None:
-            self._thread.join(timeout)
-
-    def is_alive(self) -> bool:
-        return self._thread.is_alive()
+        super().__init__(f"hid-reader {self.info.port_path or self.info.path}")
 
     # Views of the record, for statistics and tests.
     @property
@@ -138,7 +122,7 @@ class DeviceReader:
         self.record = ReaderRecord(self.decoder.state(), self._reports, self._bad_reports, at)
 
     def _loop(self) -> None:
-        while not self._stop.is_set():
+        while not self.stopping:
             report = self.device.read(self._read_timeout_s)
             if report is None:
                 continue
@@ -150,9 +134,9 @@ class DeviceReader:
             self._publish()  # once for the whole batch: the tick samples the latest
             pause = self._pause()
             if pause > 0:
-                self._stop.wait(pause)
+                self.sleep(pause)  # stop() ends it at once
 
-    def _run(self) -> None:
+    def run(self) -> None:
         ended: tuple[ErrorCode | None] | None = None
         try:
             self._loop()
@@ -167,7 +151,7 @@ class DeviceReader:
         finally:
             with contextlib.suppress(Exception):
                 self.device.close()
-        if ended is not None and not self._stop.is_set():
+        if ended is not None and not self.stopping:
             self.exit_code = ended[0]
             self._call_on_exit(ended[0])
 

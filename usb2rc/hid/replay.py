@@ -21,9 +21,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from usb2rc.flag import WakeFlag
 from usb2rc.hid.backend import DeviceGone, DeviceInfo, DeviceOpenError
 from usb2rc.hid.descriptor import top_level_usage
-from usb2rc.hid.flag import WakeFlag
 from usb2rc.hid.recording import RecordedEvent, Recording, RecordingError, parse_recording
 
 log = logging.getLogger(__name__)
