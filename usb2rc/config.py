@@ -154,15 +154,18 @@ class Config:
 # --------------------------------------------------------------------------- reader
 
 
-_SCALAR = yaml.constructor.SafeConstructor()
-
-
 class _Reader:
-    """Walks the YAML node tree, converting and checking; collects every error."""
+    """Walks the YAML node tree, converting and checking; collects every error.
+
+    One per load, with its own constructor: a SafeConstructor remembers every node it has
+    built (`constructed_objects`) until a whole document is constructed, which we never do.
+    A shared one kept every config ever loaded alive (~100 KB per SIGHUP, issue 11).
+    """
 
     def __init__(self, source: str) -> None:
         self.source = source
         self.errors: list[str] = []
+        self._constructor = yaml.constructor.SafeConstructor()
 
     def where(self, node: Node, path: str) -> Where:
         return Where(self.source, node.start_mark.line + 1, path)
@@ -195,7 +198,7 @@ class _Reader:
         if not isinstance(node, ScalarNode):
             return node
         try:
-            return _SCALAR.construct_object(node, deep=True)
+            return self._constructor.construct_object(node, deep=True)
         except (yaml.YAMLError, ValueError, TypeError, OverflowError, AttributeError):
             return node.value  # e.g. `!!int abc`: the type check names the line
 
