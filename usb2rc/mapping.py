@@ -25,13 +25,13 @@ from usb2rc.config import (
     SUMD_DEFAULT_SLOTS,
     AxisConfig,
     ButtonRoute,
+    ChannelRef,
     Config,
     DeviceConfig,
     HatConfig,
     MatchConfig,
     OutputConfig,
     Where,
-    parse_channel_name,
 )
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DeviceLayout, InputField, InputState
@@ -637,29 +637,23 @@ class Mapping:
     def sumd_channels(self, output: OutputConfig) -> list[ChannelSource]:
         """The output's channel sources; without `channels`, the lowest configured node's
         x, y, z, rz, slider, rx, ry, dial (node 0 when no node is pinned)."""
-        names = output.channels
-        if names is None:
+        refs = output.channels
+        if refs is None:
             node = min(self.pinned_node_ids(), default=0)
-            names = tuple(f"node{node}.{slot}" for slot in SUMD_DEFAULT_SLOTS)
-        return [self._channel(name) for name in names]
+            refs = tuple(ChannelRef.axis(node, slot) for slot in SUMD_DEFAULT_SLOTS)
+        return [self._channel(ref) for ref in refs]
 
-    def _channel(self, name: str) -> ChannelSource:
-        parsed = parse_channel_name(name)
-        if parsed is None:
-            raise ValueError(f"bad SUMD channel name {name!r}")
-        node_id, kind, what = parsed
-        if kind == "button":
-            assert isinstance(what, int)
-            return ChannelSource(node_id, "button", what, False, name)
-        assert isinstance(what, str)
+    def _channel(self, ref: ChannelRef) -> ChannelSource:
+        if ref.kind == "button":
+            return ChannelSource(ref.node_id, "button", ref.index, False, ref.name)
         unsigned = any(
             axis.unsigned
             for d in self.devices
-            if d.node_id == node_id
+            if d.node_id == ref.node_id
             for axis in d.axes
-            if axis.slot == what
+            if axis.slot == ref.slot
         )
-        return ChannelSource(node_id, "axis", AXIS_SLOTS.index(what), unsigned, name)
+        return ChannelSource(ref.node_id, "axis", ref.index, unsigned, ref.name)
 
 
 def compile_mapping(config: Config) -> Mapping:

@@ -11,7 +11,14 @@ import argparse
 import sys
 from dataclasses import dataclass
 
-from usb2rc.config import Config, ConfigError, DeviceConfig, OutputConfig, load_config
+from usb2rc.config import (
+    Config,
+    ConfigError,
+    DeviceConfig,
+    OutputConfig,
+    Problem,
+    load_config,
+)
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DescriptorError, parse_descriptor
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
@@ -39,7 +46,8 @@ def load_or_default(path: str | None) -> Config:
     try:
         return load_config(path)
     except OSError as exc:
-        raise ConfigError([f"{path}: cannot read: {exc.strerror or exc}"]) from None
+        problem = Problem(path, None, None, f"cannot read: {exc.strerror or exc}")
+        raise ConfigError([problem]) from None
 
 
 @dataclass(frozen=True)
