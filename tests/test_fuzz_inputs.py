@@ -196,6 +196,8 @@ def _classify(text: str, tally: dict[str, int]) -> None:
         for error in exc.errors:
             assert ERROR_LINE.match(error), f"not file:line: message: {error!r}"
             assert error.startswith("fuzz.yaml:")
+        for problem in exc.problems:
+            assert problem.source == "fuzz.yaml" and problem.line is not None, problem
         tally["config_errors"] += 1
         return
     except Exception as exc:
