@@ -1,6 +1,6 @@
 """Read the `devices:` entries of a config: match, node_id, axes, buttons, hats.
 
-Part of config.py's schema (docs/CONFIG.md, "devices[]"); config.py calls `read_devices`.
+Part of config.py's schema (docs/CONFIG.md describes each key); config.py calls `read_devices`.
 Every problem goes to the NodeReader, which keeps reading after one.
 """
 
