@@ -1,13 +1,10 @@
 import signal
 
+# First thing, before usb2rc.cli and its imports: a SIGTERM while starting is a clean stop.
+# `cli.main` then installs the handlers of the command (usb2rc.signals for the daemon).
+from usb2rc.signals import stop_at_once
 
-def _stop_early(_signum: int, _frame: object) -> None:
-    # A SIGTERM while usb2rc is still starting (imports, config) is a clean stop too; the
-    # daemon installs its own handler once it runs.
-    raise SystemExit(0)
-
-
-signal.signal(signal.SIGTERM, _stop_early)
+signal.signal(signal.SIGTERM, stop_at_once)
 
 from usb2rc.cli import main  # noqa: E402 - after the handler, so the imports are covered
 

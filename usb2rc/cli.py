@@ -15,6 +15,7 @@ import sys
 import threading
 
 from usb2rc import __version__
+from usb2rc.signals import install_daemon_signals, stop_at_once
 
 # Subcommand name -> module in usb2rc.commands. `run` is the default when none is given.
 COMMANDS: dict[str, str] = {
@@ -62,14 +63,23 @@ def _with_default_command(argv: list[str], known: set[str]) -> list[str]:
     return ["run", *argv]
 
 
-def _stop_early(_signum: int, _frame: object) -> None:
-    raise SystemExit(0)  # SIGTERM before a command installs its own handler: a clean stop
+def _install_early_signals(args_list: list[str]) -> None:
+    """Before anything slow (build_parser imports every command, then the config is read).
+
+    The daemon gets its handlers for good (usb2rc.signals); the other commands keep the
+    usual Ctrl-C (KeyboardInterrupt) and SIGHUP, and only SIGTERM becomes a clean stop.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return
+    if _with_default_command(args_list, set(COMMANDS))[:1] == ["run"]:
+        install_daemon_signals()
+    else:
+        signal.signal(signal.SIGTERM, stop_at_once)
 
 
 def main(argv: list[str] | None = None) -> int:
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _stop_early)
     args_list = list(sys.argv[1:] if argv is None else argv)
+    _install_early_signals(args_list)
     parser = build_parser()
     subparsers = next(
         action for action in parser._actions if isinstance(action, argparse._SubParsersAction)

@@ -3,19 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import atexit
 import logging
 import os
 import queue
-import signal
 import sys
-import threading
 import time
+from collections import Counter
 
 from usb2rc.config import Config, ConfigError, load_config
 from usb2rc.daemon import Daemon, NoPortError
 from usb2rc.hid.backend import Backend
 from usb2rc.hid.choose import choose_backend
 from usb2rc.sdnotify import Notifier
+from usb2rc.signals import DaemonSignals, install_daemon_signals
 
 log = logging.getLogger("usb2rc")
 
@@ -107,44 +108,71 @@ def serve(
     config_path: str | None,
     stats_interval: float,
     notifier: Notifier | None = None,
+    signals: DaemonSignals | None = None,
 ) -> int:
-    """Run until SIGTERM/SIGINT; SIGHUP reloads the config, SIGUSR1 logs statistics."""
-    requests: queue.SimpleQueue[str] = queue.SimpleQueue()  # put() is safe in a handler
-    names = {signal.SIGTERM: "stop", signal.SIGINT: "stop", signal.SIGHUP: "reload"}
-    if hasattr(signal, "SIGUSR1"):
-        names[signal.SIGUSR1] = "stats"
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for signum, what in names.items():
-            previous[signum] = signal.signal(signum, lambda _s, _f, w=what: requests.put(w))
+    """Run until SIGTERM/SIGINT; SIGHUP reloads the config, SIGUSR1 logs statistics.
+
+    Every stop returns 0. The handlers stay installed to the end (usb2rc.signals): a signal
+    while stopping is logged and ignored, never the default action that kills the process.
+    """
+    if signals is None:
+        signals = install_daemon_signals()
+    signals.running()
     daemon.start()
-    next_stats = time.monotonic() + stats_interval if stats_interval > 0 else None
     try:
-        while True:
-            timeout = 1.0 if next_stats is None else max(0.0, next_stats - time.monotonic())
-            try:
-                what = requests.get(timeout=timeout)
-            except queue.Empty:
-                what = "stats" if next_stats is not None else ""
-                if next_stats is not None:
-                    next_stats = time.monotonic() + stats_interval
-            if what == "stop":
-                break
-            if what == "reload":
-                if notifier is not None:
-                    notifier.reloading()
-                reload(daemon, config_path)
-                if notifier is not None:
-                    notifier.ready()
-            elif what == "stats":
-                for line in daemon.stats_lines():
-                    log.info("stats: %s", line)
+        _main_loop(daemon, config_path, stats_interval, notifier, signals)
     finally:
+        signals.stopping()
         daemon.stop()
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+        _log_ignored(signals)
     log.info("stopped")
+    # Signals still come while the interpreter winds down; log those too (atexit runs this
+    # before logging's own shutdown, which was registered earlier).
+    atexit.register(_log_ignored, signals)
     return 0
+
+
+def _main_loop(
+    daemon: Daemon,
+    config_path: str | None,
+    stats_interval: float,
+    notifier: Notifier | None,
+    signals: DaemonSignals,
+) -> None:
+    """Serve the signals' requests until a stop; stats every `stats_interval` s (if > 0)."""
+    next_stats = time.monotonic() + stats_interval if stats_interval > 0 else None
+    while True:
+        timeout = 1.0 if next_stats is None else max(0.0, next_stats - time.monotonic())
+        try:
+            what = signals.requests.get(timeout=timeout)
+        except queue.Empty:
+            what = "stats" if next_stats is not None else ""
+            if next_stats is not None:
+                next_stats = time.monotonic() + stats_interval
+        # CPython runs pending handlers in signal-number order, so a SIGHUP that came just
+        # after a SIGTERM may be queued first: once a stop is asked for, nothing else runs.
+        if what == "stop" or signals.stop_requested:
+            return
+        if what == "reload":
+            _reload_notified(daemon, config_path, notifier)
+        elif what == "stats":
+            for line in daemon.stats_lines():
+                log.info("stats: %s", line)
+
+
+def _reload_notified(daemon: Daemon, config_path: str | None, notifier: Notifier | None) -> None:
+    if notifier is not None:
+        notifier.reloading()
+    reload(daemon, config_path)
+    if notifier is not None:
+        notifier.ready()
+
+
+def _log_ignored(signals: DaemonSignals) -> None:
+    """One line per signal name: a stream of signals while stopping is not a stream of lines."""
+    for name, count in Counter(signals.take_ignored()).items():
+        times = f" ({count} times)" if count > 1 else ""
+        log.info("%s while stopping: ignored%s", name, times)
 
 
 def reload(daemon: Daemon, config_path: str | None) -> None:
@@ -164,6 +192,7 @@ def reload(daemon: Daemon, config_path: str | None) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    signals = install_daemon_signals()  # already done by cli.main, unless called directly
     setup_logging(args.log_level)
     config_path = config_path_for(args)
     config = load_or_report(config_path)
@@ -186,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"usb2rc: {exc}", file=sys.stderr)
         return 1
     try:
-        return serve(daemon, config_path, args.stats_interval, notifier)
+        return serve(daemon, config_path, args.stats_interval, notifier, signals)
     finally:
         notifier.stopping()
         notifier.close()

@@ -1,0 +1,135 @@
+"""The daemon's signals, from the first line of usb2rc's code to the process's exit.
+
+`install_daemon_signals()` runs first thing in `cli.main` for `usb2rc run`, before the slow
+imports and the config. From then on SIGTERM, SIGINT, SIGHUP and SIGUSR1 never get their
+default action (which is to kill the process) again:
+
+- starting (until the main loop runs): SIGTERM / SIGINT stop at once with exit status 0
+  (SystemExit: nothing that needs stopping has been started yet); SIGHUP and SIGUSR1 are
+  kept for the main loop (a reload then re-reads the config, which may have changed after
+  start-up read it).
+- running: each signal becomes a request in `requests`, read by the main loop.
+- stopping (from the first SIGTERM / SIGINT on): all four are ignored; each one is noted and
+  logged by the main loop (`take_ignored`), never from the handler itself, since writing to a
+  stream from a handler can fail with a reentrant-call error on the stream.
+- exit: the handlers are never given back. CPython resets each signal that has a Python
+  handler to SIG_DFL while it finalizes (after atexit), which let a late SIGHUP kill a
+  process that had already decided to exit 0; an atexit hook sets them to SIG_IGN instead,
+  which finalization leaves alone.
+
+A signal that arrives before the interpreter runs usb2rc's code (while Python itself starts,
+some tens of milliseconds after exec) gets the default action: nothing in the process can
+catch it yet.
+
+Imports stay light (no logging, no typing): this module loads before anything slow.
+"""
+
+from __future__ import annotations
+
+import atexit
+import enum
+import queue
+import signal
+import threading
+from types import FrameType
+
+__all__ = ["DaemonSignals", "Phase", "install_daemon_signals", "stop_at_once"]
+
+
+class Phase(enum.Enum):
+    STARTING = "starting"
+    RUNNING = "running"
+    STOPPING = "stopping"
+
+
+# What each signal asks the main loop for. SIGUSR1 does not exist on Windows.
+REQUESTS: dict[int, str] = {
+    signal.SIGTERM: "stop",
+    signal.SIGINT: "stop",
+    **({signal.SIGHUP: "reload"} if hasattr(signal, "SIGHUP") else {}),
+    **({signal.SIGUSR1: "stats"} if hasattr(signal, "SIGUSR1") else {}),
+}
+
+
+class DaemonSignals:
+    """The phase the daemon is in and what its signals asked for.
+
+    `handle` is the signal handler; it only touches the queues and the phase (both safe in a
+    handler), except in the starting phase, where a stop raises SystemExit(0).
+    """
+
+    def __init__(self) -> None:
+        self.phase = Phase.STARTING
+        self.requests: queue.SimpleQueue[str] = queue.SimpleQueue()  # put() is reentrant
+        self.ignored: queue.SimpleQueue[int] = queue.SimpleQueue()
+
+    def handle(self, signum: int, _frame: FrameType | None = None) -> None:
+        if self.phase is Phase.STOPPING:
+            self.ignored.put(signum)
+            return
+        what = REQUESTS.get(signum, "")
+        if what == "stop":
+            starting = self.phase is Phase.STARTING
+            self.phase = Phase.STOPPING  # from here on, any further signal is ignored
+            if starting:
+                raise SystemExit(0)
+        self.requests.put(what)
+
+    @property
+    def stop_requested(self) -> bool:
+        return self.phase is Phase.STOPPING
+
+    def running(self) -> None:
+        """The main loop is about to start the daemon: stops are requests from now on."""
+        if self.phase is Phase.STARTING:
+            self.phase = Phase.RUNNING
+
+    def stopping(self) -> None:
+        """The main loop is stopping (a request, or an error): ignore every signal."""
+        self.phase = Phase.STOPPING
+
+    def take_ignored(self) -> list[str]:
+        """The names of the signals ignored while stopping since the last call, to log."""
+        names = []
+        while True:
+            try:
+                names.append(signal.Signals(self.ignored.get_nowait()).name)
+            except queue.Empty:
+                return names
+
+    def install(self) -> None:
+        """Handle every signal in REQUESTS in this process, until it exits. Main thread only."""
+        for signum in REQUESTS:
+            signal.signal(signum, self.handle)
+        atexit.register(_ignore_for_good)
+
+
+def _ignore_for_good() -> None:
+    # Runs at exit, before CPython would put the default (fatal) actions back.
+    for signum in REQUESTS:
+        signal.signal(signum, signal.SIG_IGN)
+
+
+def stop_at_once(_signum: int, _frame: FrameType | None) -> None:
+    """SIGTERM handler until a command has its own: a clean stop, and no signal after it
+    may turn that into a death by signal."""
+    _ignore_for_good()
+    raise SystemExit(0)
+
+
+_installed: DaemonSignals | None = None
+
+
+def install_daemon_signals() -> DaemonSignals:
+    """The process's DaemonSignals, installed on the first call (idempotent; once a process).
+
+    On another thread than the main one (a test running the main loop) no signal can be
+    handled: a fresh, uninstalled DaemonSignals, whose `handle` the caller may call itself.
+    """
+    global _installed
+    if threading.current_thread() is not threading.main_thread():
+        return DaemonSignals()
+    if _installed is None:
+        _installed = DaemonSignals()
+        _installed.install()
+    return _installed
