@@ -1,0 +1,210 @@
+"""Signals at every moment of the daemon's life (issue 11): every stop exits 0.
+
+The real daemon runs as a subprocess (daemon_harness). A second signal follows a stop at a
+given spacing, or as a flood (one every millisecond until the process is gone), so it also
+lands in the last moments of the stop and of the interpreter's exit, where the old code had
+already given the default (fatal) actions back. Start-up moments are found from
+/proc/PID/status (SigCgt: which signals the process catches), not guessed with sleeps.
+
+A signal that arrives before the interpreter runs usb2rc's code (between exec and the first
+line of `usb2rc/__main__.py` or `cli.main`) gets the default action: no test can expect
+otherwise, so they start at the first moment the process catches SIGTERM.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+from daemon_harness import DaemonProcess, PtyLine, StickState, install, recording, run_daemon
+
+EXIT_TIMEOUT_S = 15.0
+
+
+def caught(pid: int, signum: int) -> bool:
+    """Whether the process has a handler for signum (SigCgt in /proc/PID/status)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return False
+    line = next(ln for ln in status.splitlines() if ln.startswith("SigCgt:"))
+    return bool(int(line.split()[1], 16) >> (signum - 1) & 1)
+
+
+def wait_until_caught(daemon: DaemonProcess, signum: int) -> None:
+    """Spin (no sleep: the point is the first moment) until the daemon catches signum."""
+    deadline = time.monotonic() + EXIT_TIMEOUT_S
+    while not caught(daemon.proc.pid, signum):
+        assert daemon.proc.poll() is None, daemon.log()
+        assert time.monotonic() < deadline, "the daemon never caught the signal"
+
+
+def wait_log(daemon: DaemonProcess, text: str) -> None:
+    deadline = time.monotonic() + EXIT_TIMEOUT_S
+    while text not in daemon.log():
+        assert daemon.proc.poll() is None, daemon.log()
+        assert time.monotonic() < deadline, f"no {text!r} in the log"
+        time.sleep(0.005)  # polling a file; what we wait for is in it or not
+
+
+def spin(seconds: float) -> None:
+    """Wait exactly this long without giving the scheduler a reason to oversleep."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        pass
+
+
+def send(proc: subprocess.Popen[bytes], signum: int) -> bool:
+    """Send signum unless the process is gone; poll() reaps, so the PID cannot be reused."""
+    if proc.poll() is not None:
+        return False
+    try:
+        os.kill(proc.pid, signum)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def flood(proc: subprocess.Popen[bytes], signum: int, every_s: float = 0.001) -> int:
+    """signum every `every_s` until the process has exited; how many were sent."""
+    sent = 0
+    deadline = time.monotonic() + EXIT_TIMEOUT_S
+    while send(proc, signum):
+        sent += 1
+        assert time.monotonic() < deadline, "the daemon does not exit"
+        spin(every_s)
+    return sent
+
+
+def exit_code(daemon: DaemonProcess) -> int:
+    try:
+        code = daemon.proc.wait(EXIT_TIMEOUT_S)
+    finally:
+        daemon.stop()  # kills it if it hangs, closes the log
+    return code
+
+
+def running_daemon(tmp_path: Path, line: PtyLine, replay_dir: Path) -> DaemonProcess:
+    """The daemon with a plugged stick, once its first frames are on the line."""
+    install(replay_dir / "stick.hid", recording([StickState()]))
+    daemon = run_daemon(tmp_path, line.path, replay_dir)
+    seen = len(line.frames())
+    line.wait_for(lambda frames: len(frames) > seen + 3)
+    return daemon
+
+
+def assert_clean_stop(daemon: DaemonProcess, what: str) -> None:
+    code = exit_code(daemon)
+    log = daemon.log()
+    assert code == 0, f"{what}: exit {code}\n{log[-2000:]}"
+    assert "Traceback" not in log, log[-4000:]
+
+
+# --- while running: a stop, then more signals -----------------------------------------------
+
+PAIRS = [(signal.SIGTERM, signal.SIGHUP), (signal.SIGINT, signal.SIGINT)]
+PAIR_IDS = ["TERM+HUP", "INT+INT"]
+
+
+@pytest.mark.parametrize(("first", "then"), PAIRS, ids=PAIR_IDS)
+def test_signals_flooding_a_stop_exit_0(tmp_path, line, replay_dir, first, then):
+    daemon = running_daemon(tmp_path, line, replay_dir)
+    assert send(daemon.proc, first)
+    flood(daemon.proc, then)
+    assert_clean_stop(daemon, f"{first.name} then a flood of {then.name}")
+    assert "stopped" in daemon.log()
+
+
+@pytest.mark.parametrize("spacing_ms", [0, 20, 90])
+@pytest.mark.parametrize(("first", "then"), PAIRS, ids=PAIR_IDS)
+def test_a_second_signal_after_a_stop_exits_0(tmp_path, line, replay_dir, first, then, spacing_ms):
+    daemon = running_daemon(tmp_path, line, replay_dir)
+    assert send(daemon.proc, first)
+    spin(spacing_ms / 1000)
+    send(daemon.proc, then)
+    assert_clean_stop(daemon, f"{first.name}, {spacing_ms} ms, {then.name}")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("spacing_ms", [0, 1, 5, 20, 50, 90, 200])
+@pytest.mark.parametrize(("first", "then"), PAIRS, ids=PAIR_IDS)
+def test_a_second_signal_after_a_stop_exits_0_sweep(
+    tmp_path, line, replay_dir, first, then, spacing_ms
+):
+    for run in range(3):
+        (tmp_path / str(run)).mkdir()
+        daemon = running_daemon(tmp_path / str(run), line, replay_dir)
+        assert send(daemon.proc, first)
+        spin(spacing_ms / 1000)
+        send(daemon.proc, then)
+        assert_clean_stop(daemon, f"run {run}: {first.name}, {spacing_ms} ms, {then.name}")
+
+
+@pytest.mark.slow
+def test_random_spacings_and_pairs_exit_0(tmp_path, line, replay_dir):
+    rng = random.Random(int(os.environ.get("USB2RC_FUZZ_SEED", "20261123")))
+    stops, others = (signal.SIGTERM, signal.SIGINT), (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
+    for run in range(20):
+        first, then, spacing = rng.choice(stops), rng.choice(others), rng.uniform(0, 0.25)
+        (tmp_path / str(run)).mkdir()
+        daemon = running_daemon(tmp_path / str(run), line, replay_dir)
+        assert send(daemon.proc, first)
+        spin(spacing)
+        send(daemon.proc, then)
+        what = f"run {run}: {first.name}, {spacing * 1000:.1f} ms, {then.name}"
+        assert_clean_stop(daemon, what)
+
+
+# --- while starting -------------------------------------------------------------------------
+
+
+def test_sigterm_at_the_first_moment_it_is_caught_then_sighups_exit_0(tmp_path, line, replay_dir):
+    """Start-up (imports, config): the stop is at once, and the SIGHUPs after it are ignored."""
+    daemon = run_daemon(tmp_path, line.path, replay_dir)
+    wait_until_caught(daemon, signal.SIGTERM)
+    assert send(daemon.proc, signal.SIGTERM)
+    flood(daemon.proc, signal.SIGHUP)
+    assert_clean_stop(daemon, "SIGTERM while starting, then SIGHUPs")
+
+
+def test_sigterm_at_the_first_log_line_then_sighups_exit_0(tmp_path, line, replay_dir):
+    install(replay_dir / "stick.hid", recording([StickState()]))
+    daemon = run_daemon(tmp_path, line.path, replay_dir)
+    deadline = time.monotonic() + EXIT_TIMEOUT_S
+    while not daemon.log().strip():  # spin: the first moment there is a line
+        assert daemon.proc.poll() is None and time.monotonic() < deadline, daemon.log()
+    assert send(daemon.proc, signal.SIGTERM)
+    flood(daemon.proc, signal.SIGHUP)
+    assert_clean_stop(daemon, "SIGTERM at the first log line, then SIGHUPs")
+
+
+def test_sighup_while_starting_is_kept_for_later(tmp_path, line, replay_dir):
+    """The daemon's handlers come before the slow imports; a SIGHUP then is no death."""
+    install(replay_dir / "stick.hid", recording([StickState()]))
+    daemon = run_daemon(tmp_path, line.path, replay_dir)
+    wait_until_caught(daemon, signal.SIGHUP)
+    assert send(daemon.proc, signal.SIGHUP)
+    wait_log(daemon, "no config file to re-read")  # the main loop got it, once running
+    line.wait_for(lambda frames: len(frames) > 3)
+    assert send(daemon.proc, signal.SIGTERM)
+    assert_clean_stop(daemon, "SIGHUP while starting, SIGTERM later")
+
+
+@pytest.mark.slow
+def test_sigterm_at_random_moments_of_start_up_then_floods_exit_0(tmp_path, line, replay_dir):
+    rng = random.Random(int(os.environ.get("USB2RC_FUZZ_SEED", "20261123")))
+    install(replay_dir / "stick.hid", recording([StickState()]))
+    for run in range(20):
+        (tmp_path / str(run)).mkdir()
+        daemon = run_daemon(tmp_path / str(run), line.path, replay_dir)
+        wait_until_caught(daemon, signal.SIGTERM)
+        delay = rng.uniform(0, 0.6)  # from the first handler to well after the first frame
+        spin(delay)
+        send(daemon.proc, signal.SIGTERM)
+        flood(daemon.proc, rng.choice((signal.SIGHUP, signal.SIGINT, signal.SIGTERM)))
+        assert_clean_stop(daemon, f"run {run}: SIGTERM {delay * 1000:.0f} ms into start-up")
