@@ -17,6 +17,7 @@ import os
 import random
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -170,6 +171,33 @@ def test_sigterm_at_the_first_moment_it_is_caught_then_sighups_exit_0(tmp_path, 
     assert send(daemon.proc, signal.SIGTERM)
     flood(daemon.proc, signal.SIGHUP)
     assert_clean_stop(daemon, "SIGTERM while starting, then SIGHUPs")
+
+
+def test_the_usb2rc_script_too(tmp_path, line, replay_dir):
+    """The installed `usb2rc` script (what the systemd unit runs) goes through cli.main."""
+    script = Path(sys.executable).with_name("usb2rc")
+    if not script.exists():
+        pytest.skip("no usb2rc script next to the interpreter (not pip-installed)")
+    log = (tmp_path / "script.log").open("wb")
+    proc = subprocess.Popen(
+        [str(script), "run", "--port", line.path, "--replay", str(replay_dir)],
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + EXIT_TIMEOUT_S
+        while not caught(proc.pid, signal.SIGTERM):
+            assert proc.poll() is None and time.monotonic() < deadline
+        assert send(proc, signal.SIGTERM)
+        flood(proc, signal.SIGHUP)
+        code = proc.wait(EXIT_TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        log.close()
+    assert code == 0, (tmp_path / "script.log").read_text()
 
 
 def test_sigterm_at_the_first_log_line_then_sighups_exit_0(tmp_path, line, replay_dir):

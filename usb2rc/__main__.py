@@ -1,11 +1,10 @@
-import signal
+# First thing, before usb2rc.cli and its imports, and before the command is known: the
+# daemon's handlers (usb2rc.signals), so no signal from here on kills `usb2rc run`.
+# `cli.main` gives the other commands their usual handlers back.
+from usb2rc.signals import install_daemon_signals
 
-# First thing, before usb2rc.cli and its imports: a SIGTERM while starting is a clean stop.
-# `cli.main` then installs the handlers of the command (usb2rc.signals for the daemon).
-from usb2rc.signals import stop_at_once
+install_daemon_signals()
 
-signal.signal(signal.SIGTERM, stop_at_once)
-
-from usb2rc.cli import main  # noqa: E402 - after the handler, so the imports are covered
+from usb2rc.cli import main  # noqa: E402 - after the handlers, so the imports are covered
 
 raise SystemExit(main())

@@ -10,12 +10,11 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
-import signal
 import sys
 import threading
 
 from usb2rc import __version__
-from usb2rc.signals import install_daemon_signals, stop_at_once
+from usb2rc.signals import install_command_signals, install_daemon_signals
 
 # Subcommand name -> module in usb2rc.commands. `run` is the default when none is given.
 COMMANDS: dict[str, str] = {
@@ -74,7 +73,7 @@ def _install_early_signals(args_list: list[str]) -> None:
     if _with_default_command(args_list, set(COMMANDS))[:1] == ["run"]:
         install_daemon_signals()
     else:
-        signal.signal(signal.SIGTERM, stop_at_once)
+        install_command_signals()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,8 +1,10 @@
 """The daemon's signals, from the first line of usb2rc's code to the process's exit.
 
-`install_daemon_signals()` runs first thing in `cli.main` for `usb2rc run`, before the slow
-imports and the config. From then on SIGTERM, SIGINT, SIGHUP and SIGUSR1 never get their
-default action (which is to kill the process) again:
+`install_daemon_signals()` runs first thing: on the first line of `usb2rc/__main__.py`
+(`python -m usb2rc`, before the command is known) and of `cli.main` (the `usb2rc` script), so
+before the slow imports and the config. For `usb2rc run` SIGTERM, SIGINT, SIGHUP and SIGUSR1
+never get their default action (which is to kill the process) again; the other commands get
+theirs back from `install_command_signals()` as soon as `cli.main` knows the command.
 
 - starting (until the main loop runs): SIGTERM / SIGINT stop at once with exit status 0
   (SystemExit: nothing that needs stopping has been started yet); SIGHUP and SIGUSR1 are
@@ -33,7 +35,13 @@ import signal
 import threading
 from types import FrameType
 
-__all__ = ["DaemonSignals", "Phase", "install_daemon_signals", "stop_at_once"]
+__all__ = [
+    "DaemonSignals",
+    "Phase",
+    "install_command_signals",
+    "install_daemon_signals",
+    "stop_at_once",
+]
 
 
 class Phase(enum.Enum):
@@ -133,3 +141,17 @@ def install_daemon_signals() -> DaemonSignals:
         _installed = DaemonSignals()
         _installed.install()
     return _installed
+
+
+def install_command_signals() -> None:
+    """For the other commands (main thread): SIGTERM is a clean stop, Ctrl-C the usual
+    KeyboardInterrupt, SIGHUP / SIGUSR1 their default action. Hands back what
+    `usb2rc/__main__.py` installed before the command was known."""
+    global _installed
+    if _installed is not None:
+        atexit.unregister(_ignore_for_good)
+        _installed = None
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    for signum in REQUESTS.keys() - {signal.SIGTERM, signal.SIGINT}:
+        signal.signal(signum, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, stop_at_once)
