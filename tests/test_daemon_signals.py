@@ -164,13 +164,26 @@ def test_random_spacings_and_pairs_exit_0(tmp_path, line, replay_dir):
 # --- while starting -------------------------------------------------------------------------
 
 
+def sigterm_at_the_first_moment(tmp_path: Path, line: PtyLine, replay_dir: Path, runs: int):
+    """SIGTERM the moment the process catches it, then SIGHUPs every 0.2 ms: the handlers
+    went in one at a time once, and a SIGHUP in between (~4 % of runs) was fatal."""
+    for run in range(runs):
+        (tmp_path / str(run)).mkdir()
+        daemon = run_daemon(tmp_path / str(run), line.path, replay_dir)
+        wait_until_caught(daemon, signal.SIGTERM)
+        assert send(daemon.proc, signal.SIGTERM)
+        flood(daemon.proc, signal.SIGHUP, every_s=0.0002)
+        assert_clean_stop(daemon, f"run {run}: SIGTERM while starting, then SIGHUPs")
+
+
 def test_sigterm_at_the_first_moment_it_is_caught_then_sighups_exit_0(tmp_path, line, replay_dir):
     """Start-up (imports, config): the stop is at once, and the SIGHUPs after it are ignored."""
-    daemon = run_daemon(tmp_path, line.path, replay_dir)
-    wait_until_caught(daemon, signal.SIGTERM)
-    assert send(daemon.proc, signal.SIGTERM)
-    flood(daemon.proc, signal.SIGHUP)
-    assert_clean_stop(daemon, "SIGTERM while starting, then SIGHUPs")
+    sigterm_at_the_first_moment(tmp_path, line, replay_dir, runs=10)
+
+
+@pytest.mark.slow
+def test_sigterm_at_the_first_moment_many_times(tmp_path, line, replay_dir):
+    sigterm_at_the_first_moment(tmp_path, line, replay_dir, runs=300)
 
 
 def test_the_usb2rc_script_too(tmp_path, line, replay_dir):

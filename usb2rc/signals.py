@@ -29,10 +29,12 @@ Imports stay light (no logging, no typing): this module loads before anything sl
 from __future__ import annotations
 
 import atexit
+import contextlib
 import enum
 import queue
 import signal
 import threading
+from collections.abc import Iterable, Iterator
 from types import FrameType
 
 __all__ = [
@@ -106,10 +108,28 @@ class DaemonSignals:
                 return names
 
     def install(self) -> None:
-        """Handle every signal in REQUESTS in this process, until it exits. Main thread only."""
-        for signum in REQUESTS:
-            signal.signal(signum, self.handle)
+        """Handle every signal in REQUESTS in this process, until it exits. Main thread only.
+
+        All at once: with a SIGTERM handler but no SIGHUP one yet, a SIGTERM followed by a
+        SIGHUP would still kill the process. The signals are blocked meanwhile: they wait,
+        pending, and are handled once every handler is in.
+        """
         atexit.register(_ignore_for_good)
+        with _blocked(REQUESTS):
+            for signum in REQUESTS:
+                signal.signal(signum, self.handle)
+
+
+@contextlib.contextmanager
+def _blocked(signums: Iterable[int]) -> Iterator[None]:
+    if not hasattr(signal, "pthread_sigmask"):  # Windows: no SIGHUP either
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, signums)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
 def _ignore_for_good() -> None:
