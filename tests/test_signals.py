@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import logging
 import signal
+import sys
+import weakref
 from collections.abc import Callable
 
 import pytest
@@ -134,3 +136,28 @@ def test_serve_leaves_the_stopping_phase_on_an_error():
         serve(daemon, signals)
     assert daemon.calls == ["start", "stop"]
     assert signals.stop_requested  # a signal during that stop is ignored, not fatal
+
+
+def test_a_start_up_stop_swallowed_by_a_callback_still_stops_before_the_start(monkeypatch):
+    """A SystemExit raised inside a callback (here a weakref's; in the wild, importlib's
+    module-lock one) is reported by Python, not raised: the stop must not get lost."""
+    signals = DaemonSignals()
+    reported: list[object] = []
+    monkeypatch.setattr(signals, "_previous_unraisablehook", reported.append)
+    monkeypatch.setattr(sys, "unraisablehook", signals._unraisable)
+
+    class Thing:
+        pass
+
+    thing, other = Thing(), Thing()
+    ref = weakref.ref(thing, lambda _r: signals.handle(signal.SIGTERM))
+    del thing  # the callback runs now; its SystemExit goes to the unraisable hook
+    assert ref() is None
+    assert reported == []  # our own stop: no "Exception ignored" noise in the log
+    ref_other = weakref.ref(other, lambda _r: int("not a number"))
+    del other
+    assert ref_other() is None
+    assert len(reported) == 1  # anything else is still reported
+    daemon = FakeDaemon()
+    assert serve(daemon, signals) == 0
+    assert daemon.calls == []  # never started

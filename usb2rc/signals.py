@@ -33,6 +33,7 @@ import contextlib
 import enum
 import queue
 import signal
+import sys
 import threading
 from collections.abc import Iterable, Iterator
 from types import FrameType
@@ -72,6 +73,7 @@ class DaemonSignals:
         self.phase = Phase.STARTING
         self.requests: queue.SimpleQueue[str] = queue.SimpleQueue()  # put() is reentrant
         self.ignored: queue.SimpleQueue[int] = queue.SimpleQueue()
+        self._previous_unraisablehook = sys.unraisablehook
 
     def handle(self, signum: int, _frame: FrameType | None = None) -> None:
         if self.phase is Phase.STOPPING:
@@ -89,10 +91,16 @@ class DaemonSignals:
     def stop_requested(self) -> bool:
         return self.phase is Phase.STOPPING
 
-    def running(self) -> None:
-        """The main loop is about to start the daemon: stops are requests from now on."""
+    def running(self) -> bool:
+        """The main loop is about to start the daemon: stops are requests from now on.
+
+        False if a stop came while starting whose SystemExit did not end the process: raised
+        inside a callback (a weakref's, a __del__), Python reports it and goes on. Then the
+        caller stops instead of starting.
+        """
         if self.phase is Phase.STARTING:
             self.phase = Phase.RUNNING
+        return self.phase is Phase.RUNNING
 
     def stopping(self) -> None:
         """The main loop is stopping (a request, or an error): ignore every signal."""
@@ -107,6 +115,11 @@ class DaemonSignals:
             except queue.Empty:
                 return names
 
+    def _unraisable(self, unraisable: sys.UnraisableHookArgs) -> None:
+        if unraisable.exc_type is SystemExit and self.stop_requested:
+            return  # our start-up stop, swallowed by a callback: `running()` says so later
+        self._previous_unraisablehook(unraisable)
+
     def install(self) -> None:
         """Handle every signal in REQUESTS in this process, until it exits. Main thread only.
 
@@ -115,6 +128,8 @@ class DaemonSignals:
         pending, and are handled once every handler is in.
         """
         atexit.register(_ignore_for_good)
+        self._previous_unraisablehook = sys.unraisablehook
+        sys.unraisablehook = self._unraisable
         with _blocked(REQUESTS):
             for signum in REQUESTS:
                 signal.signal(signum, self.handle)

@@ -117,7 +117,9 @@ def serve(
     """
     if signals is None:
         signals = install_daemon_signals()
-    signals.running()
+    if not signals.running():
+        log.info("stopped while starting")
+        return 0
     daemon.start()
     try:
         _main_loop(daemon, config_path, stats_interval, notifier, signals)
