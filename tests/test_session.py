@@ -2,15 +2,20 @@
 
 A fake world plugs, unplugs and fails devices, opens and loses the line, asks `<` and `4`,
 and decides for every write how much of it went out (all, nothing, a cut anywhere, a cut
-with an unsure piece, a failure). The receiver decodes the bytes that went out with the
-C2-16B stream decoder, a fresh one per line opening, and checks every invariant of
-docs/ICD.md, "A stalled line":
+with an unsure piece, a failure). What went out waits in the OS until the far end reads it;
+a flush (`line_flushed()`, what `SerialLink.discard_stale` does on a pty) drops any suffix
+of what is still unread, perhaps in the middle of a frame. The receiver decodes what it
+reads with the C2-16B stream decoder, a fresh one per line opening, and checks every
+invariant of docs/ICD.md, "A stalled line":
 
-- the startup frame is the first frame on every (re)opened line;
-- a node's `>` comes only after its whole `1,6,5,7` on the current line (and no `2` since);
-- a device that left a node live has its `2` out before the node's next frame of any kind;
+- the startup frame is the first frame on every (re)opened line, and the first frame after
+  a flush; after it nothing is announced until its next whole `1,6,5,7`;
+- a node's `>` comes only after its whole `1,6,5,7` on the current line (and no `2` and no
+  startup since);
+- a device that left a node live has its `2` out before the node's next frame of any kind,
+  across flushes too (the receiver's last `>` may be older than the flush);
 - a node's message code advances by one per data frame that went out whole (an unsure
-  write may skip codes, never repeat one);
+  write may skip codes, a flush skips the codes of the frames it dropped; never a repeat);
 - a service frame cut short is sent again: once the line is well, every owed `2` arrives
   and every live node is announced and `>`.
 """
@@ -30,6 +35,7 @@ from usb2rc.state import EventKind, NodeFrame, ServiceEvent
 
 Service = c2_16b.Service
 CONNECT = (Service.CONNECTED, Service.VID_PID, Service.DEVICE_STRING, Service.DEVICE_TYPE)
+CONNECT_NAMES = ["connected", "vid-pid", "device-string", "device-type"]
 NODES = 3
 
 
@@ -39,6 +45,7 @@ class LineView:
 
     decoder: c2_16b.Decoder = field(default_factory=c2_16b.Decoder)
     frames: int = 0
+    startup_next: bool = True  # the next frame must be the startup frame
     announced: set[int] = field(default_factory=set)
     progress: dict[int, tuple[int, Service | None]] = field(default_factory=dict)
     owes_disconnect: set[int] = field(default_factory=set)
@@ -55,6 +62,8 @@ class Receiver:
         self.codes: dict[int, int] = {}  # across lines: codes keep counting
         self.unsure_writes = 0
         self.unsure_at_code: dict[int, int] = {}
+        self.dropped: dict[int, int] = {}  # data frames flushes dropped, per node (a total)
+        self.dropped_at_code: dict[int, int] = {}
         self.lines = 0
 
     def opened(self) -> None:
@@ -71,6 +80,14 @@ class Receiver:
         if cut:  # a frame cut short fails the receiver's CRC: model it without 2^-16 luck
             self.line.decoder.flush()
 
+    def flushed(self, dropped: dict[int, int]) -> None:
+        """What was unread after the kept part is gone: the line starts over."""
+        assert self.line is not None
+        self.line.decoder.flush()  # a frame the flush cut fails the CRC
+        self.line.startup_next = True
+        for node, count in dropped.items():
+            self.dropped[node] = self.dropped.get(node, 0) + count
+
     def device_left(self, node: int) -> None:
         line = self.line
         if line is not None and line.last_status.get(node) == c2_16b.LIVE:
@@ -78,9 +95,10 @@ class Receiver:
 
     def _check(self, line: LineView, frame: c2_16b.Frame) -> None:
         line.frames += 1
-        if line.frames == 1:
+        if line.startup_next:
             assert isinstance(frame, c2_16b.ServiceFrame), f"first frame {frame}"
             assert frame.service is Service.STARTUP, f"first frame {frame}"
+            line.startup_next = False
         if isinstance(frame, c2_16b.ServiceFrame):
             self._service(line, frame)
         else:
@@ -88,7 +106,9 @@ class Receiver:
 
     def _service(self, line: LineView, frame: c2_16b.ServiceFrame) -> None:
         node, service = frame.node_id, frame.service
-        if service is Service.STARTUP:
+        if service is Service.STARTUP:  # the line starts over: announced again from `1`
+            line.announced.clear()
+            line.progress.clear()
             return
         if node in line.owes_disconnect and service is not Service.ERROR:
             assert service is Service.DISCONNECTED, f"node {node}: {service} before its `2`"
@@ -119,12 +139,55 @@ class Receiver:
         if frame.status == c2_16b.LIVE:
             assert node in line.announced, f"node {node} `>` before its 1,6,5,7"
         line.last_status[node] = frame.status
+        dropped = self.dropped.get(node, 0)
         if node in self.codes:
             skipped = (frame.code - self.codes[node] - 1) & 0xFF
             allowed = self.unsure_writes - self.unsure_at_code[node]
+            allowed += dropped - self.dropped_at_code[node]
             assert skipped <= allowed, f"node {node}: code {frame.code} after {self.codes[node]}"
         self.codes[node] = frame.code
         self.unsure_at_code[node] = self.unsure_writes
+        self.dropped_at_code[node] = dropped
+
+
+@dataclass(frozen=True)
+class Written:
+    """Bytes the OS took, not read yet; `cut`: they end in the middle of a frame."""
+
+    data: bytes
+    cut: bool
+
+
+@dataclass(frozen=True)
+class Left:
+    """A device left its node here in the stream (the receiver judges it by what it read
+    before: was the node live?). A flush drops bytes, never this."""
+
+    node: int
+
+
+@dataclass(frozen=True)
+class Unsure:
+    """An unsure write here in the stream: the codes read after it may skip one."""
+
+
+Unread = Written | Left | Unsure
+
+
+def data_frames_in(data: bytes) -> dict[int, int]:
+    """Data frames per node in a piece that starts at a frame boundary."""
+    decoder = c2_16b.Decoder()
+    counts: dict[int, int] = {}
+    for frame in [*decoder.feed(data), *decoder.flush()]:
+        if isinstance(frame, c2_16b.DataFrame):
+            counts[frame.node_id] = counts.get(frame.node_id, 0) + 1
+    return counts
+
+
+def dropped_frames(whole: bytes, kept: int) -> dict[int, int]:
+    """The data frames of `whole` that keeping only its first `kept` bytes loses."""
+    before, after = data_frames_in(whole), data_frames_in(whole[:kept])
+    return {node: count - after.get(node, 0) for node, count in before.items()}
 
 
 @dataclass
@@ -137,6 +200,7 @@ class World:
     live: set[int] = field(default_factory=set)
     known: set[int] = field(default_factory=set)
     events: list[ServiceEvent] = field(default_factory=list)
+    unread: list[Unread] = field(default_factory=list)  # in the OS, in order
     plugs: int = 0
     ticks: int = 0
 
@@ -158,7 +222,8 @@ class World:
         if failed:
             self.events.append(ServiceEvent(EventKind.ERROR, node, info, "", 1))
         self.events.append(ServiceEvent(EventKind.DISCONNECTED, node, info))
-        self.receiver.device_left(node)
+        if self.receiver.line is not None:
+            self.unread.append(Left(node))
 
     def report(self, node: int) -> None:
         if node in self.present:
@@ -177,8 +242,44 @@ class World:
 
     def lose(self) -> None:
         if self.session.line_open:
+            self.read()
             self.session.line_lost()
             self.receiver.lost()
+
+    def read(self) -> None:
+        """The far end reads all the OS holds."""
+        pieces, self.unread = self.unread, []
+        for piece in pieces:
+            if isinstance(piece, Left):
+                self.receiver.device_left(piece.node)
+            elif isinstance(piece, Unsure):
+                self.receiver.unsure_writes += 1
+            else:
+                self.receiver.deliver(piece.data, piece.cut)
+
+    def flush(self, position: int) -> None:
+        """The link drops what the OS holds after the first `keep` unread bytes (the part the
+        far end's line discipline already had): the session starts the line over."""
+        if not self.session.line_open:
+            return
+        total = sum(len(p.data) for p in self.unread if isinstance(p, Written))
+        keep = position % (total + 1)
+        kept: list[Unread] = []
+        dropped: dict[int, int] = {}
+        for piece in self.unread:
+            if not isinstance(piece, Written) or len(piece.data) <= keep:
+                kept.append(piece)
+                keep -= len(piece.data) if isinstance(piece, Written) else 0
+                continue
+            for node, count in dropped_frames(piece.data, keep).items():
+                dropped[node] = dropped.get(node, 0) + count
+            if keep:
+                kept.append(Written(piece.data[:keep], cut=True))
+            keep = 0
+        self.unread = kept
+        self.read()
+        self.receiver.flushed(dropped)
+        self.session.line_flushed()
 
     def frames(self) -> list[NodeFrame]:
         axes = (self.ticks % 1000,) + (0,) * 9
@@ -199,15 +300,16 @@ class World:
         elif kind == "unsure":  # `cut` bytes surely, some of the next `unsure` really
             length, really = second  # type: ignore[misc]
             unsure = length % (len(out) - cut + 1)
-            self.receiver.unsure_writes += 1
             self._went(out, cut + really % (unsure + 1), cut, unsure)
+            if self.receiver.line is not None:
+                self.unread.append(Unsure())
         else:  # the write failed: what went before the failure, then the line is gone
             self._went(out, cut, cut, 0)
             self.lose()
 
     def _went(self, out: bytes, really: int, sent: int, unsure: int) -> None:
         if self.receiver.line is not None and really:
-            self.receiver.deliver(out[:really], cut=really < len(out))
+            self.unread.append(Written(out[:really], cut=really < len(out)))
         self.session.wrote(sent, unsure)
 
     def request(self, node: int | None) -> None:
@@ -224,6 +326,7 @@ class World:
             if self.session.stalled:
                 self.session.line_drained()
             self.tick(("all", 0, 0))
+            self.read()
 
 
 # Where a write is cut: a number taken modulo the write's length + 1, so every position is
@@ -236,6 +339,13 @@ outcomes = st.one_of(
 )
 nodes = st.integers(min_value=0, max_value=NODES - 1)
 whole = st.tuples(st.just("tick"), st.just(("all", 0, 0)))
+# A stall as a pty sees it: the far end read until now and stops, ticks go out unread while
+# devices come and go, then the link drops what the OS holds (all of it, or all but a prefix).
+device_events = st.tuples(st.sampled_from(["plug live", "unplug", "replug", "fail"]), nodes)
+stall = st.tuples(
+    st.just("stall"),
+    st.tuples(st.integers(0, 6), st.lists(device_events, max_size=3), st.integers(0, 6), positions),
+)
 actions = st.one_of(
     whole,  # most writes go out whole: the others interleave with real progress
     whole,
@@ -248,7 +358,11 @@ actions = st.one_of(
     st.tuples(st.just("fail"), nodes),
     st.tuples(st.just("report"), nodes),
     st.tuples(st.sampled_from(["open", "lose", "drain"]), st.none()),
+    st.tuples(st.just("read"), st.none()),  # the far end reads what the OS holds
+    st.tuples(st.just("read"), st.none()),
+    st.tuples(st.just("flush"), positions),  # ... or the link drops a suffix of it
     st.tuples(st.just("request"), st.one_of(st.none(), nodes)),
+    stall,
 )
 
 
@@ -276,6 +390,20 @@ def run(world: World, action: tuple[str, object]) -> None:
     elif name == "drain":
         if world.session.stalled:
             world.session.line_drained()
+    elif name == "read":
+        world.read()
+    elif name == "flush":
+        world.flush(arg)  # type: ignore[arg-type]
+    elif name == "stall":
+        before, events, after, position = arg  # type: ignore[misc]
+        world.read()  # the far end read until then
+        for _ in range(before):
+            world.tick(("all", 0, 0))
+        for event in events:
+            run(world, event)
+        for _ in range(after):
+            world.tick(("all", 0, 0))
+        world.flush(position)
     elif name == "request" and world.session.line_open:
         world.request(arg)  # type: ignore[arg-type]
 
@@ -444,3 +572,42 @@ def test_a_stalled_sumd_line_gets_no_frames_until_it_drains():
     assert session.tick([12000] * 8, True) == b""
     session.line_drained()
     assert sumd.SumdDecoder().feed(session.tick([9000] * 8, True))[0].failsafe
+
+
+def test_a_flush_starts_the_line_over_and_the_lost_stick_still_gets_its_2():
+    """Issue 11's Done-when at the session: the far end read node 0's `>`; its stick left
+    and the `2` went out, but a flush dropped it (and everything after the `>`)."""
+    world = fresh_world()
+    world.plug(0)
+    world.report(0)
+    world.plug(1)
+    world.report(1)
+    for _ in range(4):
+        ticked(world)
+    world.read()
+    assert world.receiver.line is not None
+    assert world.receiver.line.last_status == {0: c2_16b.LIVE, 1: c2_16b.LIVE}
+    world.unplug(0, failed=False)
+    ticked(world)  # the `2` goes out into the OS ...
+    world.flush(0)  # ... and is dropped, unread
+    out = world.session.tick(world.events, world.frames())
+    # room for 4 service frames of 6 (2 nodes): node 1 is announced again from its `1`
+    assert names(out) == ["startup", "disconnected", "connected", "vid-pid", "!", "!"]
+    world.unread.append(Written(out, cut=False))
+    world.session.wrote(len(out))
+    world.read()  # the receiver model checks the `2` came before node 0's `!`
+    world.heal()
+    assert world.receiver.line.last_status == {0: c2_16b.FAILSAFE, 1: c2_16b.LIVE}
+
+
+def test_a_flushed_sumd_line_goes_on_with_fresh_frames():
+    from usb2rc.protocol import sumd
+    from usb2rc.session import SumdSession
+
+    session = SumdSession()
+    session.line_opened()
+    cut = session.tick([12000] * 8, False)
+    assert session.wrote(len(cut) // 2).stalled
+    session.line_flushed()
+    frames = sumd.SumdDecoder().feed(session.tick([9000] * 8, True))
+    assert frames[0].failsafe and frames[0].channels == (9000,) * 8

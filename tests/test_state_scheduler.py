@@ -122,6 +122,12 @@ class FakeLink:
     def drained(self) -> bool:
         return self.accept
 
+    def wait_drained(self, timeout_s: float) -> bool:
+        return self.accept
+
+    def discard_stale(self) -> bool:
+        return False  # like a serial port: nothing stale to drop, nothing lost
+
     def close(self) -> None:
         pass
 

@@ -187,3 +187,37 @@ def test_a_pty_says_how_much_went_and_when_it_drains():
         link.close()
         os.close(master)
         os.close(slave)
+
+
+def test_a_pty_drops_what_it_holds_on_request():
+    """After a stall the link drops what a pty still holds: the far end then reads only what
+    its line discipline already had (about 4 KB), not the kernel's whole buffer."""
+    import os
+    import select
+
+    master, slave = os.openpty()
+    link = SerialLink(os.ttyname(slave))
+    try:
+        assert link.open_now() and link.line_event() is LineEvent.OPENED
+        while select.select([], [slave], [], 0.2)[1]:  # full, and stays full
+            link.write(bytes(216))
+        assert link.discard_stale() and link.stats.flushes == 1
+        got = 0
+        while select.select([master], [], [], 0.2)[0]:
+            got += len(os.read(master, 65536))
+        assert got < link.stats.bytes_written // 2, (got, link.stats.bytes_written)
+    finally:
+        link.close()
+        os.close(master)
+        os.close(slave)
+
+
+def test_a_port_that_reports_its_queue_is_not_flushed():
+    link = SerialLink("loop://")
+    try:
+        assert link.open_now() and link.line_event() is LineEvent.OPENED
+        assert link.write(b"H-").sent == 2
+        assert not link.discard_stale() and link.stats.flushes == 0
+        assert link._adopted.in_waiting == 2  # what was written is still there
+    finally:
+        link.close()

@@ -312,6 +312,7 @@ class Daemon:
                 f"{p99:.3f} ms, bytes {link.bytes_written}, queue-full skips "
                 f"{link.writes_skipped_queue_full}, write timeouts {link.write_timeouts}, "
                 f"short writes {link.short_writes}, stalls {st.stalls}, "
+                f"stale flushes {link.flushes}, "
                 f"line lost {link.losses}x, tick errors {st.tick_errors}"
             )
             if isinstance(out.thread, C2Output):

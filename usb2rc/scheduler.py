@@ -1,7 +1,8 @@
 """The scheduler: one thread per output, ticking against absolute monotonic deadlines.
 
 Each output thread is a thin loop around its line session (`usb2rc.session`): once a tick it
-follows the link (`line_event()`: a new port, a lost one; `drained()` after a stall), takes
+follows the link (`line_event()`: a new port, a lost one; `drained()` after a stall, then
+`discard_stale()`: the session is told `line_flushed()` or `line_drained()`), takes
 the node table's events and snapshot, asks the session for the tick's bytes, writes them in
 one `write()` and tells the session how many went out. A late tick is counted, never caught
 up with a burst. An RX thread per C2-16B output decodes what the far end sends and hands the
@@ -107,7 +108,7 @@ class TickThread(threading.Thread):
         while not self._stop_event.is_set():
             self.next_deadline = deadline
             delay = deadline - time.monotonic()
-            if delay > 0 and self._stop_event.wait(delay):
+            if delay > 0 and self.wait(delay):
                 break
             started = time.monotonic()
             if started - deadline > self.period_s / 2:
@@ -124,6 +125,10 @@ class TickThread(threading.Thread):
                 self.stats.missed_ticks += missed
                 deadline += missed * self.period_s
         self.finish()
+
+    def wait(self, delay_s: float) -> bool:
+        """Between ticks: wait delay_s, or less if stopped (then True)."""
+        return self._stop_event.wait(delay_s)
 
     def _safe_tick(self) -> bool:
         """One tick; a bug in it is logged (once per kind) and counted, never kills the
@@ -194,13 +199,35 @@ class _LineThread(TickThread):
         elif event is LineEvent.LOST:
             self.session.line_lost()
         if self.session.stalled and self.link.drained():
+            self.resume_line()
+
+    def resume_line(self) -> None:
+        """The far end reads again. What the OS still holds is as old as the stall: the
+        link drops it where it can (a pty), and the session then starts the line over;
+        elsewhere nothing was lost and the session goes on where it stopped."""
+        flushed = self.link.discard_stale()
+        if flushed:
+            self.session.line_flushed()
+        else:
             self.session.line_drained()
-            log.info(
-                "%s: %s takes bytes again after %.1f s; resumed with fresh frames",
-                self.name,
-                self.link.url,
-                time.monotonic() - self._stalled_since,
-            )
+        log.info(
+            "%s: %s takes bytes again after %.1f s; %s",
+            self.name,
+            self.link.url,
+            time.monotonic() - self._stalled_since,
+            "dropped the stale bytes it held, restarted the line with the startup frame"
+            if flushed
+            else "resumed with fresh frames",
+        )
+
+    def wait(self, delay_s: float) -> bool:
+        """Between ticks. While the line is stalled, wait on the port itself and resume
+        the moment it drains: the far end reads what a pty holds in well under a tick, and
+        the stale part must be dropped before it does."""
+        end = time.monotonic() + delay_s
+        if self.session.stalled and self.link.wait_drained(delay_s):
+            self.resume_line()
+        return self._stop_event.wait(max(0.0, end - time.monotonic()))
 
     def line_opened(self) -> None:
         self.session.line_opened()

@@ -10,6 +10,8 @@ port and no clock, so every interleaving can be driven from a test:
     tick(events, frames) -> bytes        one tick: the node table's events and snapshot
     wrote(sent, unsure=0)                how many bytes of the last output went out
     line_drained()                       after a stall, the line takes bytes again
+    line_flushed()                       ... and what it held was dropped (a pty's
+                                         buffer): the line starts over from the startup
     received(frame)                      a frame from the far end (`<`, `4` requests,
                                          answered in the next tick)
 
@@ -24,8 +26,11 @@ Invariants, whatever the line does (docs/ICD.md, "Service frames" and "A stalled
 - a node's `>` goes out only after its whole `1,6,5,7` went out on the current line (and no
   `2` of that node since);
 - a node whose device left has its `2` out before the node's next frame of any kind;
-- a node's message code advances by one per data frame that went out whole;
-- a service frame cut short is sent again.
+- a node's message code advances by one per data frame that went out whole (a flush may
+  drop frames: the receiver then sees a gap, never a code twice);
+- a service frame cut short is sent again;
+- after a flush the line starts over: the startup frame, a `2` for each node announced on the
+  line whose device left since, the connect sequence of every device present.
 """
 
 from __future__ import annotations
@@ -155,6 +160,10 @@ class C2Session:
         self._on_line: set[int] = set()  # nodes whose data frames this line has seen
         self._announced: set[int] = set()  # nodes whose whole 1,6,5,7 went out on this line
         self._present: dict[int, dict[str, ServiceEvent]] = {}  # node -> device -> CONNECTED
+        # Kept across flushes, cleared with the line: a flush may drop any suffix of what
+        # went out, so the receiver may still believe what it read before the first one.
+        self._told: set[int] = set()  # nodes whose whole 1,6,5,7 went out on this line
+        self._left_told: set[int] = set()  # ... and whose device left after that
         self._requests: list[int | None] = []  # `<` (None) and `4` (node) to answer
         self._last: list[_Slot] = []
         self._last_len = 0
@@ -180,12 +189,38 @@ class C2Session:
         owed service frames are still owed: none of them was lost)."""
         self.stalled = False
 
+    def line_flushed(self) -> None:
+        """After a stall, the line takes bytes again and what the OS still held was dropped
+        (`SerialLink.discard_stale`): any suffix of what went out may be lost, perhaps in
+        the middle of a frame. So the line starts over: the startup frame; a `2` for every
+        node announced on this line whose device left since (the receiver may have read its
+        `>` and not its `2`); the service frames still owed that are not connect sequences
+        (a `3`, a `2`); then the connect sequence of every device present, from its `1`.
+        Message codes go on counting: the receiver sees a gap where frames were dropped.
+        Nodes keep sending `!` while they are announced again (they are not new). A device
+        that left since the last tick gets its `2` ahead of that announcement when its
+        event comes (`_queue_disconnect`)."""
+        if not self.line_open:
+            return
+        self.stalled = False
+        self._last, self._last_len = [], 0
+        self._startup_due = True
+        self._announced.clear()
+        kept = [o for o in self._owed if o.event.kind is not EventKind.CONNECTED]
+        gone = self._left_told - {o.node_id for o in kept if o.is_disconnect}
+        self._owed = deque(kept)
+        for node_id in sorted(gone):
+            self._owed.extend(self._owed_frames(ServiceEvent(EventKind.DISCONNECTED, node_id)))
+        self._announce(sorted(self._present))
+
     def _reset_line(self) -> None:
         self.stalled = False
         self._startup_due = True
         self._owed.clear()
         self._on_line.clear()
         self._announced.clear()
+        self._told.clear()
+        self._left_told.clear()
         self._last, self._last_len = [], 0
 
     # --- events from the far end ---------------------------------------------------------
@@ -367,6 +402,8 @@ class C2Session:
         assert self._owed and self._owed[0] is slot.owed, "owed frames go out in order"
         self._owed.popleft()
         self._announced = _announced_after(self._announced, [slot.owed])
+        if slot.owed.ends_connect_sequence:
+            self._told.add(slot.owed.node_id)
         return 1
 
     # --- service events ------------------------------------------------------------------
@@ -383,8 +420,27 @@ class C2Session:
     def _queue(self, event: ServiceEvent) -> None:
         if event.kind is EventKind.CONNECTED:
             self._queue_once(event)  # that connect sequence is on its way: once is enough
+        elif event.kind is EventKind.DISCONNECTED:
+            self._queue_disconnect(event)
         else:
             self._owed.extend(self._owed_frames(event))
+
+    def _queue_disconnect(self, event: ServiceEvent) -> None:
+        """The `2` goes before any other frame of its node: a connect sequence of that node
+        still owed (a `<` answered just before the device left) is taken out, and queued
+        again after the `2`, from its `1`, if its device is still present."""
+        node_id = event.node_id
+        if node_id in self._told:
+            self._left_told.add(node_id)  # owed a `2` after any flush from now on
+        ahead = [
+            o for o in self._owed if o.node_id == node_id and o.event.kind is EventKind.CONNECTED
+        ]
+        self._owed = deque(o for o in self._owed if o not in ahead)
+        self._owed.extend(self._owed_frames(event))
+        present = self._present.get(node_id, {}).values()
+        for connected in dict.fromkeys(o.event for o in ahead):
+            if connected in present:
+                self._queue_once(connected)
 
     def _queue_once(self, event: ServiceEvent) -> None:
         if not self.line_open or any(o.event == event for o in self._owed):
@@ -450,6 +506,10 @@ class SumdSession:
         self.line_open, self.stalled = False, False
 
     def line_drained(self) -> None:
+        self.stalled = False
+
+    def line_flushed(self) -> None:
+        """The stale frames were dropped: nothing to announce, the next frame is fresh."""
         self.stalled = False
 
     def tick(self, channels: Sequence[int], failsafe: bool) -> bytes:

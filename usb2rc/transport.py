@@ -17,7 +17,8 @@ A write never blocks a tick and says how many bytes went out (`Written`):
 Where the OS reports its transmit queue (serial ports, `loop://`), a write that would push
 it past `max_queued_bytes` is skipped (0 bytes); where it does not (ptys, sockets), a write
 the OS does not take whole says the far end stopped reading. Either way the writer waits
-for `drained()` before it writes again.
+for `drained()` before it writes again; then `discard_stale()` drops what a pty still holds
+from before the stall (the far end must not act on it), and says whether it could.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import os
 import queue
 import select
 import socket
+import termios
 import threading
 import time
 from dataclasses import dataclass
@@ -52,6 +54,7 @@ class LinkStats:
     bytes_read: int = 0
     losses: int = 0
     opens: int = 0
+    flushes: int = 0  # stale bytes dropped from the OS queue after a stall (ptys)
 
 
 @dataclass(frozen=True)
@@ -259,6 +262,46 @@ class SerialLink:
             return True  # nothing to ask: try again
         try:
             return bool(select.select([], [handle], [], 0)[1])
+        except (OSError, ValueError):
+            return True  # the next write finds out what is wrong
+
+    def discard_stale(self) -> bool:
+        """After a stall: drop what the OS still holds for the far end; True if it did.
+
+        Only where the OS does not report its queue but the port is a posix fd (ptys): there
+        the kernel holds about 18 KB, frames as old as the stall, which the far end would
+        read and act on before anything fresh. A reported queue never holds more than two
+        ticks (`max_queued_bytes`), so it is left alone; sockets and other URLs cannot be
+        flushed (False: the caller must assume all of it arrives)."""
+        port = self._adopted
+        if port is None or self._queue_known:
+            return False
+        fd = _posix_fd(port)
+        if fd is None:
+            return False
+        try:
+            termios.tcflush(fd, termios.TCOFLUSH)
+        except (OSError, termios.error) as exc:
+            log.debug("serial port %s: could not drop the stale bytes: %s", self.url, exc)
+            return False
+        self.stats.flushes += 1
+        return True
+
+    def wait_drained(self, timeout_s: float) -> bool:
+        """`drained()`, but where the OS can say when the fd or socket takes bytes again,
+        wait up to timeout_s for it (writer thread, between ticks): a far end reads a pty's
+        whole buffer in well under a tick, so a drain seen only at the next tick comes after
+        the stale bytes were read."""
+        port = self._adopted
+        if port is None or self._queue_known:
+            return self.drained()
+        handle: int | socket.socket | None = _posix_fd(port)
+        if handle is None:
+            handle = _socket_of(port)
+        if handle is None:
+            return self.drained()
+        try:
+            return bool(select.select([], [handle], [], max(0.0, timeout_s))[1])
         except (OSError, ValueError):
             return True  # the next write finds out what is wrong
 
