@@ -28,10 +28,12 @@ from usb2rc.transport import SerialLink
 
 LIVE = c2_16b.LIVE
 STARTUP = c2_16b.startup(__version__)[: c2_16b.FRAME_LEN]  # as the daemon sends it
-# What a pty stall may still deliver before the fresh frames: what the far end's line
-# discipline already held when the daemon dropped the rest (about 4 KB), and what it read
-# in the tick before the daemon saw the drain. The kernel's buffer is about 18.5 KB.
-BURST_LIMIT = 8192
+# What a pty stall may still deliver before the fresh frames: the far end reads 4 KB at a
+# time (its line discipline's buffer); the one it reads and the one the kernel moves up
+# before the daemon's flush usually come through (8 KB), a third when the daemon is slow to
+# wake (12 KB). The kernel's whole buffer, what came through without the flush (or with a
+# flush only at the next tick), is about 18.4 KB.
+BURST_LIMIT = 16384
 CONNECT = ["connected", "vid-pid", "device-string", "device-type"]
 # 100 Hz at 230400 baud: 6 frames a tick; three sticks fill a Linux pty (about 18 KB) in
 # under 2 s, so a 3 s stall reaches the point where the OS takes no more bytes.
