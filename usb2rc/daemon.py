@@ -36,14 +36,13 @@ from usb2rc.protocol import c2_16b, sumd
 from usb2rc.protocol.c2_16b import AXIS_NAMES
 from usb2rc.scheduler import (
     C2Output,
-    C2Settings,
     ChannelValue,
     RxThread,
     SumdOutput,
     TickThread,
     queue_cap,
 )
-from usb2rc.session import frames_per_tick
+from usb2rc.session import C2Settings, frames_per_tick
 from usb2rc.state import Expected, ExpectedEntry, NodeFrame, NodeTable
 from usb2rc.transport import SerialLink
 
@@ -136,7 +135,7 @@ class Daemon:
         *,
         port_override: str | None = None,
         version: str = __version__,
-        on_ready: Callable[[], None] | None = None,
+        on_ready: Callable[[], object] | None = None,
         on_tick: Callable[[], None] | None = None,
         on_status: Callable[[str], object] | None = None,
         outputs: bool = True,

@@ -33,6 +33,7 @@ from usb2rc.session import (  # noqa: F401 - re-exported: their home used to be 
 )
 from usb2rc.state import NodeFrame, NodeTable
 from usb2rc.transport import LineEvent, SerialLink, Written
+from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc.scheduler")
 
@@ -79,7 +80,7 @@ class OutputStats:
         return errors[min(len(errors) - 1, int(len(errors) * 0.99))] * 1000.0
 
 
-class TickThread(threading.Thread):
+class TickThread(Worker):
     """Calls `tick()` every 1/rate_hz s on absolute monotonic deadlines until stopped."""
 
     def __init__(
@@ -89,23 +90,19 @@ class TickThread(threading.Thread):
         on_tick: Callable[[], None] | None = None,
         on_first_write: Callable[[], None] | None = None,
     ) -> None:
-        super().__init__(name=name)
+        super().__init__(name)
         self.period_s = 1.0 / rate_hz
         self.stats = OutputStats()
         self.on_tick = on_tick  # after every tick, on this thread (the watchdog hook)
         self.on_first_write = on_first_write  # once, after the first successful write
         self.last_tick_monotonic = 0.0
         self.next_deadline = 0.0  # when the next tick is due (monotonic): readers pace on it
-        self._stop_event = threading.Event()
         self._last_write = 0.0
         self._logged_errors: set[str] = set()
 
-    def stop(self) -> None:
-        self._stop_event.set()
-
     def run(self) -> None:
         deadline = time.monotonic()
-        while not self._stop_event.is_set():
+        while not self.stopping:
             self.next_deadline = deadline
             delay = deadline - time.monotonic()
             if delay > 0 and self.wait(delay):
@@ -128,7 +125,7 @@ class TickThread(threading.Thread):
 
     def wait(self, delay_s: float) -> bool:
         """Between ticks: wait delay_s, or less if stopped (then True)."""
-        return self._stop_event.wait(delay_s)
+        return self.sleep(delay_s)
 
     def _safe_tick(self) -> bool:
         """One tick; a bug in it is logged (once per kind) and counted, never kills the
@@ -227,7 +224,7 @@ class _LineThread(TickThread):
         end = time.monotonic() + delay_s
         if self.session.stalled and self.link.wait_drained(delay_s):
             self.resume_line()
-        return self._stop_event.wait(max(0.0, end - time.monotonic()))
+        return self.sleep(max(0.0, end - time.monotonic()))
 
     def line_opened(self) -> None:
         self.session.line_opened()
@@ -352,27 +349,23 @@ class SumdOutput(_LineThread):
             self.frames_sent += delivered.data_frames
 
 
-class RxThread(threading.Thread):
+class RxThread(Worker):
     """Reads what the far end sends on a C2-16B line and hands each frame to `on_frame`
     (the output thread's queue: its session answers `<` and `4` requests)."""
 
     def __init__(
         self, name: str, link: SerialLink, on_frame: Callable[[c2_16b.Frame], None]
     ) -> None:
-        super().__init__(name=name)
+        super().__init__(name)
         self.link = link
         self.on_frame = on_frame
         self.decoder = c2_16b.Decoder()
         self.requests = 0
-        self._stop_event = threading.Event()
-
-    def stop(self) -> None:
-        self._stop_event.set()
 
     def run(self) -> None:
-        while not self._stop_event.is_set():
+        while not self.stopping:
             if not self.link.readable:
-                self._stop_event.wait(0.1)
+                self.sleep(0.1)
                 continue
             data = self.link.read()
             if data:

@@ -34,6 +34,7 @@ import termios
 import threading
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import serial
 import serial.serialposix
@@ -70,6 +71,11 @@ class Written:
 class LineEvent(enum.Enum):
     OPENED = "opened"  # the writer adopted a new port: a fresh line
     LOST = "lost"  # the port failed and is closed
+
+
+def _out_waiting(port: Any) -> int:
+    """pyserial's transmit queue count; ports that cannot say raise (SerialBase lacks it)."""
+    return int(port.out_waiting)
 
 
 def _describe_open_error(url: str, exc: Exception) -> str:
@@ -345,7 +351,7 @@ class SerialLink:
         if _socket_of(port) is not None:
             return False
         try:
-            int(port.out_waiting)
+            _out_waiting(port)
         except (AttributeError, NotImplementedError, serial.SerialException, OSError):
             return False
         return True
@@ -355,7 +361,7 @@ class SerialLink:
         if not self._queue_known:
             return None
         try:
-            return int(port.out_waiting)
+            return _out_waiting(port)
         except (AttributeError, NotImplementedError, serial.SerialException, OSError):
             return None
 
@@ -381,7 +387,7 @@ class SerialLink:
         if port is None or not self.readable:
             return b""
         try:
-            waiting = port.in_waiting
+            waiting = port.in_waiting  # type: ignore[attr-defined]  # not on SerialBase
             data = port.read(max(1, min(waiting, 4096)))
         except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
             # TypeError/AttributeError: pyserial's posix read on a port closed under it.
