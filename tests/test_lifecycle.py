@@ -201,3 +201,14 @@ def test_a_device_without_its_node_yet_is_looked_at_again(tmp_path: Path) -> Non
     lifecycle.handle_queued()
     assert forgotten == [info.key]
     assert table.collect(subscriber)[0] == []
+
+
+def test_a_daemon_that_never_started_stops_cleanly(tmp_path: Path) -> None:
+    """`serve` stops the daemon whatever `start()` got to, so stop must cope with threads
+    that never started."""
+    from usb2rc.config import Config
+    from usb2rc.daemon import Daemon
+
+    daemon = Daemon(Config.default(), ReplayBackend(tmp_path), port_override="loop://")
+    daemon.stop()
+    assert not any(out.thread.is_alive() for out in daemon.outputs)

@@ -120,8 +120,8 @@ def serve(
     if not signals.running():
         log.info("stopped while starting")
         return 0
-    daemon.start()
     try:
+        daemon.start()  # inside: a start that fails half-way still stops what it started
         _main_loop(daemon, config_path, stats_interval, notifier, signals)
     finally:
         signals.stopping()
