@@ -21,6 +21,7 @@ from daemon_harness import PtyLine, Seen, StickState, install, recording, run_da
 from test_state_scheduler import BINDING, Source, info
 
 from usb2rc import __version__
+from usb2rc.outputs.sumd import SumdChannels
 from usb2rc.protocol import c2_16b, sumd
 from usb2rc.scheduler import C2Output, C2Settings, SumdOutput, queue_cap
 from usb2rc.state import NodeTable
@@ -326,7 +327,8 @@ def test_a_stalled_sumd_pty_drops_its_stale_frames_at_the_drain():
     master, slave = os.openpty()
     link = SerialLink(os.ttyname(slave))
     value = [0x2260]
-    out = SumdOutput("sumd", link, NodeTable(), [lambda nodes: (value[0], False)] * 8)
+    channels = SumdChannels([lambda nodes: (value[0], False)] * 8)
+    out = SumdOutput("sumd", link, NodeTable(), channels)
     try:
         assert link.open_now()
         for _ in range(100_000):  # until a write is short and the pty stays full

@@ -12,12 +12,13 @@ from dataclasses import dataclass, field
 import pytest
 from daemon_harness import T16000M_DESCRIPTOR, StickState
 
+from usb2rc.binding import default_binding
 from usb2rc.config import load_config_text
-from usb2rc.daemon import sumd_channel
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
-from usb2rc.mapping import ChannelSource, compile_mapping, default_binding
+from usb2rc.mapping import ChannelSource, compile_mapping
+from usb2rc.outputs.sumd import sumd_channel
 from usb2rc.protocol import c2_16b
 from usb2rc.scheduler import C2Output, C2Settings
 from usb2rc.state import NodeFrame, NodeTable

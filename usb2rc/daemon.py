@@ -25,25 +25,12 @@ from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.lifecycle import DeviceLifecycle
-from usb2rc.mapping import (
-    ChannelSource,
-    Mapping,
-    NodeInputs,
-    compile_mapping,
-    sumd_value,
-)
-from usb2rc.protocol import c2_16b, sumd
-from usb2rc.protocol.c2_16b import AXIS_NAMES
-from usb2rc.scheduler import (
-    C2Output,
-    ChannelValue,
-    RxThread,
-    SumdOutput,
-    TickThread,
-    queue_cap,
-)
+from usb2rc.mapping import Mapping, compile_mapping
+from usb2rc.outputs.sumd import SumdChannels
+from usb2rc.protocol import c2_16b
+from usb2rc.scheduler import C2Output, RxThread, SumdOutput, TickThread, queue_cap
 from usb2rc.session import C2Settings, frames_per_tick
-from usb2rc.state import Expected, ExpectedEntry, NodeFrame, NodeTable
+from usb2rc.state import Expected, ExpectedEntry, NodeTable
 from usb2rc.transport import SerialLink
 
 log = logging.getLogger("usb2rc")
@@ -88,43 +75,17 @@ def outputs_with_port(config: Config, port_override: str | None) -> tuple[Output
     return tuple(outputs)
 
 
-def expected_nodes(config: Config) -> Expected:
+def expected_nodes(config: Config | Mapping) -> Expected:
     """Config entries pinned to a Node-ID, as what they send before their device comes:
-    the configured failsafe values, 0 for axes without one (docs/ICD.md, "Failsafe")."""
+    the configured failsafe values, 0 for axes without one (docs/ICD.md, "Failsafe"), and
+    their unsigned slots; both compiled with the entry (`mapping.CompiledEntry`)."""
+    mapping = config if isinstance(config, Mapping) else compile_mapping(config)
     nodes: Expected = {}
-    for entry in config.devices:
-        if entry.node_id is None:
-            continue
-        axes: list[int | None] = [None] * len(AXIS_NAMES)
-        unsigned = 0
-        for axis in entry.axes:
-            slot = AXIS_NAMES.index(axis.slot)
-            axes[slot] = 0 if axis.failsafe is None else axis.failsafe
-            unsigned |= (1 << slot) if axis.unsigned else 0
-        inputs = NodeInputs(tuple(axes), 0, 0)
-        nodes.setdefault(entry.node_id, {})[entry.name] = ExpectedEntry(inputs, unsigned)
+    for entry in mapping.pinned_entries():
+        assert entry.node_id is not None
+        expected = ExpectedEntry(entry.failsafe, entry.unsigned_slots)
+        nodes.setdefault(entry.node_id, {})[entry.name] = expected
     return nodes
-
-
-def sumd_channel(source: ChannelSource, extended: bool) -> ChannelValue:
-    """A function from the nodes' frames to (wire value, in failsafe) for one SUMD channel.
-
-    Whether an axis is unsigned comes from the frame (the bindings feeding it), not from a
-    guess about the config; a node that does not exist sends the centre / released, 0x81."""
-
-    def value(nodes: dict[int, NodeFrame]) -> tuple[int, bool]:
-        frame = nodes.get(source.node_id)
-        if frame is None:
-            absent = ChannelSource(source.node_id, source.kind, source.index, False)
-            return sumd_value(absent, (0,) * len(AXIS_NAMES), 0, 0, extended), True
-        own = source
-        if source.kind == "axis":
-            unsigned = bool(frame.unsigned_slots >> source.index & 1)
-            own = ChannelSource(source.node_id, "axis", source.index, unsigned, source.name)
-        wire = sumd_value(own, frame.axes, frame.group1, frame.group2, extended)
-        return wire, frame.failsafe
-
-    return value
 
 
 class Daemon:
@@ -148,7 +109,7 @@ class Daemon:
         self.port_override = port_override
         self.output_configs = outputs_with_port(config, port_override) if outputs else ()
         self.mapping: Mapping = compile_mapping(config)
-        self.table = NodeTable(expected_nodes(config))
+        self.table = NodeTable(expected_nodes(self.mapping))
         self._on_ready = on_ready
         self._on_tick = on_tick
         self._on_status = on_status
@@ -167,9 +128,9 @@ class Daemon:
         assert out.port
         name = f"output{index + 1}-{out.protocol}"
         if out.protocol == "sumd":
-            channels = [sumd_channel(s, out.extended) for s in self.mapping.sumd_channels(out)]
-            frame_len = sumd.frame_length(max(sumd.MIN_CHANNELS, len(channels)))
-            link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(frame_len))
+            channels = SumdChannels.of(self.mapping.sumd_channels(out), out.extended)
+            cap = queue_cap(channels.frame_length)
+            link = SerialLink(out.port, out.baudrate, max_queued_bytes=cap)
             thread: TickThread = SumdOutput(
                 name, link, self.table, channels, out.rate_hz, self._tick, self._first_write
             )
@@ -291,7 +252,7 @@ class Daemon:
         The lifecycle thread applies it between two device events, so a device plugged
         meanwhile is bound with the new mapping either way."""
         mapping = compile_mapping(config)
-        if not self.lifecycle.reload(mapping, expected_nodes(config)):
+        if not self.lifecycle.reload(mapping, expected_nodes(mapping)):
             log.error("config reload: the device thread did not take it within 5 s")
         self.mapping = mapping
         if self.outputs and outputs_with_port(config, self.port_override) != self.output_configs:

@@ -25,6 +25,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from usb2rc.binding import DeviceBinding, MappingError
 from usb2rc.hid.backend import (
     Backend,
     Device,
@@ -37,7 +38,7 @@ from usb2rc.hid.descriptor import DescriptorError, DeviceLayout, parse_descripto
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.hid.usages import device_type_name
-from usb2rc.mapping import DeviceBinding, Mapping, MappingError
+from usb2rc.mapping import Mapping
 from usb2rc.state import Expected, NodeTable
 from usb2rc.worker import Worker
 

@@ -17,9 +17,10 @@ import threading
 import time
 import traceback
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from usb2rc.outputs.sumd import SumdChannels
 from usb2rc.protocol import c2_16b
 from usb2rc.session import (  # noqa: F401 - re-exported: their home used to be here
     BITS_PER_BYTE_ON_WIRE,
@@ -31,7 +32,7 @@ from usb2rc.session import (  # noqa: F401 - re-exported: their home used to be 
     device_string_text,
     frames_per_tick,
 )
-from usb2rc.state import NodeFrame, NodeTable
+from usb2rc.state import NodeTable
 from usb2rc.transport import LineEvent, SerialLink, Written
 from usb2rc.worker import Worker
 
@@ -311,18 +312,16 @@ class C2Output(_LineThread):
             self.c2.received(frame)
 
 
-ChannelValue = Callable[[dict[int, NodeFrame]], tuple[int, bool]]
-
-
 class SumdOutput(_LineThread):
-    """HoTT SUMD: one frame of the configured channels per tick (100 Hz)."""
+    """HoTT SUMD: one frame of the configured channels per tick (100 Hz); the channels'
+    values are the SUMD output's (`usb2rc.outputs.sumd.SumdChannels`)."""
 
     def __init__(
         self,
         name: str,
         link: SerialLink,
         table: NodeTable,
-        channels: Sequence[ChannelValue],
+        channels: SumdChannels,
         rate_hz: float = 100.0,
         on_tick: Callable[[], None] | None = None,
         on_first_write: Callable[[], None] | None = None,
@@ -330,23 +329,14 @@ class SumdOutput(_LineThread):
         self.sumd = SumdSession()
         super().__init__(name, link, self.sumd, rate_hz, on_tick, on_first_write)
         self.table = table
-        self.channels = list(channels)
-        self.frames_sent = 0
+        self.channels = channels
 
     def tick(self) -> None:
         self.follow_link()
         if not self.sumd.line_open or self.sumd.stalled:
             return
-        nodes = {f.node_id: f for f in self.table.frames()}
-        values: list[int] = []
-        failsafe = False
-        for channel in self.channels:
-            value, channel_failsafe = channel(nodes)
-            values.append(value)
-            failsafe = failsafe or channel_failsafe
-        delivered = self.send(self.sumd.tick(values, failsafe))
-        if delivered is not None:
-            self.frames_sent += delivered.data_frames
+        values, failsafe = self.channels.evaluate(self.table.frames())
+        self.send(self.sumd.tick(values, failsafe))
 
 
 class RxThread(Worker):

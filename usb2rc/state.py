@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Protocol
 
+from usb2rc.binding import DeviceBinding, NodeInputs
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.reader import ReaderRecord
-from usb2rc.mapping import DeviceBinding, NodeInputs
 from usb2rc.protocol.c2_16b import AXIS_COUNT
 
 log = logging.getLogger("usb2rc.nodes")
@@ -47,7 +47,7 @@ class NodeFrame:
     axes: tuple[int, ...]
     group1: int
     group2: int
-    unsigned_slots: int = 0  # bit k set: axis slot k is a uint16 (`unsigned: true`)
+    unsigned_slots: int = 0  # bit k set: axis slot k is a uint16 (binding.unsigned_slots)
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,7 @@ class ExpectedEntry:
     """A config entry pinned to a node whose device has not come (yet)."""
 
     inputs: NodeInputs  # what it sends meanwhile: its failsafe values
-    unsigned_slots: int = 0
+    unsigned_slots: int = 0  # the entry's (mapping.CompiledEntry.unsigned_slots)
 
 
 class SnapshotSource(Protocol):
@@ -63,10 +63,6 @@ class SnapshotSource(Protocol):
 
     @property
     def record(self) -> ReaderRecord: ...
-
-
-def unsigned_slots_of(binding: DeviceBinding) -> int:
-    return sum(1 << k for k, info in enumerate(binding.axis_info) if info and info.unsigned)
 
 
 @dataclass
@@ -135,7 +131,7 @@ class _Node:
             _merge_axes(axes, inputs)
             group1 |= inputs.group1
             group2 |= inputs.group2
-            unsigned |= unsigned_slots_of(attached.binding)
+            unsigned |= attached.binding.unsigned_slots  # computed once, with the binding
         return NodeFrame(self.node_id, self.failsafe, tuple(axes), group1, group2, unsigned)
 
     def failsafe_change(self) -> str | None:

@@ -11,6 +11,7 @@ import argparse
 import sys
 from dataclasses import dataclass
 
+from usb2rc.binding import DeviceBinding, MappingError
 from usb2rc.config import (
     Config,
     ConfigError,
@@ -23,7 +24,7 @@ from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DescriptorError, parse_descriptor
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.hid.replay import ReplayBackend
-from usb2rc.mapping import DeviceBinding, Mapping, MappingError, compile_mapping
+from usb2rc.mapping import Mapping, compile_mapping
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

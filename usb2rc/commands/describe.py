@@ -13,10 +13,10 @@ import json
 import sys
 from typing import Any
 
+from usb2rc.binding import default_binding
 from usb2rc.hid.descriptor import DescriptorError, DeviceLayout, parse_descriptor
 from usb2rc.hid.recording import Recording, RecordingError, read_recording
 from usb2rc.hid.usages import device_type_name, usage_name
-from usb2rc.mapping import default_binding
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -12,6 +12,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
+from usb2rc.binding import shaping_text, usage_label
 from usb2rc.commands.check import bind_replay, load_or_default
 from usb2rc.config import (
     HAT_DIRECTIONS,
@@ -21,14 +22,9 @@ from usb2rc.config import (
     DeviceConfig,
     OutputConfig,
 )
-from usb2rc.mapping import (
-    Mapping,
-    compile_mapping,
-    node_button_bit,
-    shaping_text,
-    usage_label,
-)
+from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT
+from usb2rc.scaling import node_button_bit
 
 FORMATS = ("markdown", "text")
 

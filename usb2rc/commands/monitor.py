@@ -21,11 +21,11 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+from usb2rc.binding import DeviceBinding, describe_button_runs
 from usb2rc.commands.run import add_common_input_args, load_or_report, make_backend
 from usb2rc.config import Config
 from usb2rc.daemon import Daemon
 from usb2rc.hid.backend import Backend, DeviceInfo, ErrorCode
-from usb2rc.mapping import DeviceBinding, describe_button_runs
 from usb2rc.protocol.c2_16b import AXIS_NAMES
 from usb2rc.receiver import NodeView
 from usb2rc.state import EventKind, NodeFrame, ServiceEvent

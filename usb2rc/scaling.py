@@ -1,0 +1,103 @@
+"""Axis, hat and button values: the pure arithmetic of the mapping (no config, no device).
+
+Axis scaling (docs/ICD.md, "Axis scaling"): after clamping,
+`out = round((v - lo) * 65535 / (hi - lo)) - 32768`, exact in integers (round half to even, as
+Python's `round`). With calibration, deadband, expo or trim set, the value goes through a
+normalized x in [-1, 1] and back with
+`to_wire(x) = floor((x + 1) * 32767.5 + 0.5) - 32768`: -1 → -32768, 0 → 0, +1 → +32767.
+`unsigned: true` drops the `- 32768`. docs/CONFIG.md has the full pipeline. usb2rc.mapping
+compiles a config into closures over these.
+"""
+
+from __future__ import annotations
+
+import math
+
+from usb2rc.config_model import AxisConfig
+from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, NODE_BUTTONS
+
+INT16_MIN, INT16_MAX, UINT16_MAX = -32768, 32767, 65535
+
+
+def round_div(num: int, den: int) -> int:
+    """round(num / den) in exact integers, halves to even (Python's round); den > 0."""
+    q, r = divmod(num, den)
+    if 2 * r > den or (2 * r == den and q & 1):
+        q += 1
+    return q
+
+
+def scale_linear(v: int, lo: int, hi: int, unsigned: bool = False) -> int:
+    """Clamp to [lo, hi], `round((v - lo) * 65535 / (hi - lo)) - 32768`
+    (docs/ICD.md, "Axis scaling")."""
+    if hi <= lo:
+        return 32768 if unsigned else 0
+    v = lo if v < lo else hi if v > hi else v
+    out = round_div((v - lo) * 65535, hi - lo)
+    return out if unsigned else out - 32768
+
+
+def to_wire(x: float, unsigned: bool = False) -> int:
+    """A normalized x in [-1, 1] (clamped) onto the wire: -1 → -32768, 0 → 0, +1 → 32767."""
+    x = -1.0 if x < -1.0 else 1.0 if x > 1.0 else x
+    out = math.floor((x + 1.0) * 32767.5 + 0.5)
+    return out if unsigned else out - 32768
+
+
+def normalize(v: int, lo: int, center: float, hi: int) -> float:
+    """Raw v onto [-1, 1]: lo → -1, center → 0, hi → +1, linear on each side, clamped."""
+    if v <= lo:
+        return -1.0
+    if v >= hi:
+        return 1.0
+    if v < center:
+        return (v - center) / (center - lo)
+    return (v - center) / (hi - center)
+
+
+def apply_deadband(x: float, deadband: float) -> float:
+    """Zero within ±deadband, then rescaled so ±1 stays ±1 (continuous at the edge)."""
+    if deadband <= 0.0:
+        return x
+    if abs(x) <= deadband:
+        return 0.0
+    return math.copysign((abs(x) - deadband) / (1.0 - deadband), x)
+
+
+def apply_expo(x: float, expo: float) -> float:
+    """Standard RC expo: (1 - e) * x + e * x³."""
+    return (1.0 - expo) * x + expo * x * x * x
+
+
+def shape(x: float, axis: AxisConfig) -> float:
+    """Deadband, expo, invert, trim (in that order) on a normalized value."""
+    x = apply_expo(apply_deadband(x, axis.deadband), axis.expo)
+    if axis.invert:
+        x = -x
+    x += axis.trim
+    return -1.0 if x < -1.0 else 1.0 if x > 1.0 else x
+
+
+def hat_direction(v: int, lo: int, hi: int) -> int | None:
+    """DESIGN.md: 0 UP, 1 UP-RIGHT, ... 7 UP-LEFT; None when centred (outside [lo, hi])."""
+    n = hi - lo + 1
+    if n <= 0 or not lo <= v <= hi:
+        return None
+    angle = (v - lo) * 360 / n
+    return round(angle / 45) % 8
+
+
+def hat_component(direction: int | None, axis: str) -> int:
+    """-1, 0 or +1 along x (left/right) or y (down/up) for a hat direction."""
+    if direction is None:
+        return 0
+    if axis == "x":
+        return 1 if direction in (1, 2, 3) else -1 if direction in (5, 6, 7) else 0
+    return 1 if direction in (7, 0, 1) else -1 if direction in (3, 4, 5) else 0
+
+
+def node_button_bit(button: int) -> tuple[int, int]:
+    """Node button 1..56 → (group 0 or 1, bit)."""
+    if not 1 <= button <= NODE_BUTTONS:
+        raise ValueError(f"node button {button} is outside 1..{NODE_BUTTONS}")
+    return (0, button - 1) if button <= GROUP1_BUTTONS else (1, button - GROUP1_BUTTONS - 1)
