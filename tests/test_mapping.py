@@ -375,3 +375,22 @@ devices:
         zero.sumd_channels(load_config_text("outputs: [{protocol: sumd}]").outputs[0])[0].node_id
         == 0
     )
+
+
+def test_compile_mapping_compiles_each_entry_once() -> None:
+    """The matcher, button runs, unsigned slots and failsafe values of an entry are
+    compiled with the mapping; a bind only adds what the device's layout decides."""
+    text = """
+devices:
+  - name: stick
+    match: {product: "T.16*"}
+    node_id: 1
+    axes: {x: X, rz: {usage: Rz, unsigned: true, failsafe: 100}}
+    buttons: {1-4: 5-8}
+"""
+    mapping = compile_mapping(load_config_text(text, "t.yaml"))
+    (entry,) = mapping.entries
+    assert entry.matches(STICK) and not entry.matches(OTHER)
+    assert (entry.unsigned_slots, entry.failsafe.axes[0], entry.failsafe.axes[6]) == (64, 0, 100)
+    b = mapping.bind(STICK, layout((X, 0, 255), (RZ, 0, 1023)))
+    assert b.button_runs is entry.button_runs and b.unsigned_slots == entry.unsigned_slots

@@ -12,13 +12,14 @@ from dataclasses import dataclass, field
 import pytest
 from daemon_harness import T16000M_DESCRIPTOR, StickState
 
-from usb2rc.binding import default_binding
+from usb2rc.binding import default_binding, unsigned_slots
 from usb2rc.config import load_config_text
+from usb2rc.daemon import expected_nodes
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.mapping import ChannelSource, compile_mapping
-from usb2rc.outputs.sumd import sumd_channel
+from usb2rc.outputs.sumd import SumdChannels, sumd_channel
 from usb2rc.protocol import c2_16b
 from usb2rc.scheduler import C2Output, C2Settings
 from usb2rc.state import NodeFrame, NodeTable
@@ -253,3 +254,45 @@ def test_stats_are_read_while_the_output_thread_adds_periods():
     stats.add_period(Period(0.021))
     assert stats.period_p99_error_ms(0.02) == pytest.approx(1.0)
     assert appended.is_set() and len(stats.periods()) == 12
+
+
+def test_every_consumer_gets_the_same_unsigned_slots():
+    """Whether a slot is unsigned is answered once (`binding.unsigned_slots`): the binding,
+    the pinned entry before its device comes, the node's frame, the SUMD channel list of
+    `icd` / `check` and the SUMD output's values all agree."""
+    config = load_config_text(
+        "outputs:\n  - protocol: sumd\n    channels: [node2.x, node2.rz, node2.slider]\n"
+        "devices:\n"
+        "  - name: pedals\n    match: {vid: 0x044f}\n    node_id: 2\n"
+        "    axes: {x: X, rz: {usage: Rz, unsigned: true}}\n"
+        "  - name: throttle\n    match: {vid: 0x1234}\n    node_id: 2\n"
+        "    axes: {slider: {usage: Slider, unsigned: true}}\n",
+        "t.yaml",
+    )
+    mapping = compile_mapping(config)
+    rz, slider = 1 << 6, 1 << 3
+    pedals, throttle = mapping.entries
+    assert (pedals.unsigned_slots, throttle.unsigned_slots) == (rz, slider)
+    binding = mapping.bind(info("k", "1-1"), LAYOUT)
+    assert binding is not None and binding.unsigned_slots == rz
+    per_slot = [info is not None and info.unsigned for info in binding.axis_info]
+    assert binding.unsigned_slots == sum(1 << k for k, u in enumerate(per_slot) if u)
+    assert unsigned_slots(binding.axis_info) == unsigned_slots(config.devices[0].axes) == rz
+
+    expected = expected_nodes(mapping)
+    assert {n: e.unsigned_slots for n, e in expected[2].items()} == {
+        "pedals": rz,
+        "throttle": slider,
+    }
+    table = NodeTable(expected)
+    assert frame_of(table, 2).unsigned_slots == rz | slider
+    table.add_device(2, info("k", "1-1"), binding, Source.of(StickState(rz=255)), "JOYSTICK")
+    frame = frame_of(table, 2)
+    assert frame.unsigned_slots == rz | slider  # the throttle is still expected
+
+    sources = mapping.sumd_channels(config.outputs[0])
+    assert [s.unsigned for s in sources] == [False, True, True]
+    assert [bool(frame.unsigned_slots >> s.index & 1) for s in sources] == [False, True, True]
+    values, failsafe = SumdChannels.of(sources).evaluate([frame])
+    # rz full travel (uint16 65535), slider at its failsafe 0 (uint16: the low end)
+    assert (values[1:], failsafe) == ([15200, 8800], True)
