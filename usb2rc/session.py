@@ -1,5 +1,8 @@
 """The line sessions: what goes on one output line, as sans-IO state machines.
 
+(A little over 500 lines on purpose: C2Session's invariants — announce state, codes, owed
+service frames, stalls and flushes — hold only together, and are tested together.)
+
 A `C2Session` is one C2-16B output's line protocol (h11's `Connection` is the model): it owns
 the startup frame, the service frames owed, the message codes, the round-robin and who is
 announced on the line. It takes events and returns the bytes to write; it has no thread, no

@@ -1,5 +1,9 @@
 """HID report descriptors: parse into a field layout, compile a per-device decode plan.
 
+(Over 500 lines on purpose: the parser and the plan compiler share the item tables and the
+field types, and the plan is only correct for layouts this parser makes; split, each half
+would have to know the other's invariants.)
+
 Terms are the HID 1.11 spec's: usage page / usage, logical minimum / maximum, report size /
 count, report ID, Main / Global / Local items.
 
