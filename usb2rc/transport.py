@@ -78,6 +78,11 @@ def _out_waiting(port: Any) -> int:
     return int(port.out_waiting)
 
 
+def _in_waiting(port: Any) -> int:
+    """Bytes received and not read yet (SerialBase lacks the attribute; its ports have it)."""
+    return int(port.in_waiting)
+
+
 def _describe_open_error(url: str, exc: Exception) -> str:
     text = str(exc)
     if "Permission denied" in text or "Errno 13" in text:
@@ -387,8 +392,7 @@ class SerialLink:
         if port is None or not self.readable:
             return b""
         try:
-            waiting = port.in_waiting  # type: ignore[attr-defined]  # not on SerialBase
-            data = port.read(max(1, min(waiting, 4096)))
+            data: bytes = port.read(max(1, min(_in_waiting(port), 4096)))
         except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
             # TypeError/AttributeError: pyserial's posix read on a port closed under it.
             self._broken = (port, exc)  # the writer closes it and reopens

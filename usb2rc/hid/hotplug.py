@@ -89,7 +89,7 @@ class HotplugMonitor(Worker):
             use_udev = sys.platform.startswith("linux") and backend.name == "hidapi"
         self._use_udev = use_udev
         self._known: dict[str, DeviceInfo] | None = None
-        self._lock = threading.Lock()  # guards _known: forget() comes from reader threads
+        self._lock = threading.Lock()  # guards _known: forget() comes from the lifecycle thread
         super().__init__("hid-hotplug")
 
     def initial_devices(self) -> list[DeviceInfo]:
