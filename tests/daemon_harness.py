@@ -174,11 +174,13 @@ class PtyLine:
 
     def _run(self) -> None:
         while not self._stop.is_set():
+            if not self._reading():
+                continue
             try:
                 ready, _, _ = select.select([self.master], [], [], 0.05)
             except (OSError, ValueError):
                 return
-            if not ready:
+            if not ready or not self._reading():
                 continue
             try:
                 data = os.read(self.master, 65536)
@@ -186,10 +188,18 @@ class PtyLine:
                 continue
             now = time.monotonic()
             frames = self.decoder.feed(data)
-            if frames:
-                with self._cond:
-                    self._record(now, frames)
-                    self._cond.notify_all()
+            with self._cond:
+                self._received(now, data, frames)
+                self._cond.notify_all()
+
+    def _reading(self) -> bool:
+        """Whether the far end reads now (a subclass may stall it; it waits here then)."""
+        return True
+
+    def _received(self, now: float, data: bytes, frames: list[Any]) -> None:
+        """Every read, under the condition's lock: the bytes and what they decoded to."""
+        if frames:
+            self._record(now, frames)
 
     def _record(self, now: float, frames: list[Any]) -> None:
         """Keep what arrived (under the condition's lock); subclasses check as they keep."""

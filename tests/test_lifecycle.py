@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import errno
 import threading
+import time
 from pathlib import Path
 
 from daemon_harness import INVERT_X_CONFIG, StickState, install, recording
@@ -67,15 +68,24 @@ def plug_stick(folder: Path, name: str = "stick.hid") -> DeviceInfo:
 
 
 def wait_until(predicate, timeout: float = WAIT_S) -> None:
-    done = threading.Event()
-    deadline = threading.Timer(timeout, done.set)
-    deadline.start()
-    try:
-        while not predicate():
-            assert not done.is_set(), "condition not reached in time"
-            done.wait(0.005)
-    finally:
-        deadline.cancel()
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, "condition not reached in time"
+        time.sleep(0.005)  # polls the condition; nothing waits on a fixed time
+
+
+def refusing_setup(
+    tmp_path: Path, refusals: int, retry_s: float
+) -> tuple[NodeTable, int, ScriptedBackend, DeviceLifecycle]:
+    """A stick pin-mapped to node 4 whose first `refusals` opens are refused."""
+    mapping, expected = mapping_of("false")
+    table = NodeTable(expected)
+    subscriber = table.subscribe()
+    backend = ScriptedBackend(tmp_path)
+    backend.refusals = refusals
+    lifecycle = DeviceLifecycle(backend, table, mapping, make_reader, retry_s=retry_s)
+    lifecycle.plugged(plug_stick(tmp_path))
+    return table, subscriber, backend, lifecycle
 
 
 def events_of(table: NodeTable, subscriber: int) -> list[tuple[EventKind, int]]:
@@ -133,13 +143,7 @@ def test_a_late_exit_of_an_old_reader_leaves_the_new_device_alone(tmp_path: Path
 
 
 def test_an_open_refused_is_retried_while_plugged_and_reported_once(tmp_path: Path) -> None:
-    mapping, expected = mapping_of("false")
-    table = NodeTable(expected)
-    subscriber = table.subscribe()
-    backend = ScriptedBackend(tmp_path)
-    backend.refusals = 3
-    lifecycle = DeviceLifecycle(backend, table, mapping, make_reader, retry_s=0.01)
-    lifecycle.plugged(plug_stick(tmp_path))
+    table, subscriber, backend, lifecycle = refusing_setup(tmp_path, refusals=3, retry_s=0.01)
     lifecycle.start()
     seen: list[tuple[EventKind, int]] = []
     try:
@@ -154,13 +158,7 @@ def test_an_open_refused_is_retried_while_plugged_and_reported_once(tmp_path: Pa
 
 
 def test_the_error_code_of_a_refused_open_is_permission_denied(tmp_path: Path) -> None:
-    mapping, expected = mapping_of("false")
-    table = NodeTable(expected)
-    subscriber = table.subscribe()
-    backend = ScriptedBackend(tmp_path)
-    backend.refusals = 1
-    lifecycle = DeviceLifecycle(backend, table, mapping, make_reader, retry_s=60)
-    lifecycle.plugged(plug_stick(tmp_path))
+    table, subscriber, _backend, lifecycle = refusing_setup(tmp_path, refusals=1, retry_s=60)
     lifecycle.handle_queued()
     (error,) = table.collect(subscriber)[0]
     assert (error.kind, error.error_code) == (EventKind.ERROR, int(ErrorCode.PERMISSION_DENIED))

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-from daemon_harness import PtyLine, Seen, StickState, install, recording, run_daemon
+from daemon_harness import PtyLine, StickState, install, recording, run_daemon
 from test_state_scheduler import BINDING, Source, info
 
 from usb2rc import __version__
@@ -112,27 +112,13 @@ class StallingLine(PtyLine):
         self.resumed_at_byte = 0
         super().__init__()
 
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            if not self.reading.wait(0.05):
-                continue
-            try:
-                ready, _, _ = select.select([self.master], [], [], 0.05)
-            except (OSError, ValueError):
-                return
-            if not ready or not self.reading.is_set():
-                continue
-            try:
-                data = os.read(self.master, 65536)
-            except OSError:
-                continue
-            now = time.monotonic()
-            frames = self.decoder.feed(data)
-            with self._cond:
-                self.chunks.append(Chunk(now, len(data)))
-                self.raw += data
-                self.seen.extend(Seen(now, f) for f in frames)
-                self._cond.notify_all()
+    def _reading(self) -> bool:
+        return self.reading.wait(0.05)
+
+    def _received(self, now: float, data: bytes, frames: list) -> None:
+        self.chunks.append(Chunk(now, len(data)))
+        self.raw += data
+        self._record(now, frames)
 
     def stall(self) -> None:
         self.reading.clear()
