@@ -15,6 +15,7 @@ from daemon_harness import T16000M_DESCRIPTOR, StickState
 from usb2rc.binding import default_binding, unsigned_slots
 from usb2rc.config import load_config_text
 from usb2rc.daemon import expected_nodes
+from usb2rc.guard import NO_GUARD
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
@@ -48,6 +49,9 @@ def info(key: str, port: str, serial: str = "") -> DeviceInfo:
 
 
 BINDING = default_binding(LAYOUT, "T.16000M")
+# These rules hold whatever the sticks do: the neutral guard (tests/test_guard.py) is off
+# here, so a stick at full deflection goes live at its first report.
+BINDING.guard = NO_GUARD
 LEFT, RIGHT = StickState(x=0), StickState(x=16383)
 
 
@@ -178,7 +182,7 @@ def test_a_failed_write_keeps_the_service_frames_and_the_codes():
 def test_sumd_reads_unsigned_from_the_binding_not_from_a_guess():
     config_text = (
         "devices:\n  - name: pedal\n    match: {vid: 0x044f}\n"
-        "    axes:\n      x: {usage: X, unsigned: true}\n"
+        "    axes:\n      x: {usage: X, unsigned: true, arm: any}\n"
     )
     config = load_config_text(config_text, "t.yaml")
     binding = compile_mapping(config).bind(info("k", "1-1"), LAYOUT)
@@ -264,7 +268,7 @@ def test_every_consumer_gets_the_same_unsigned_slots():
         "outputs:\n  - protocol: sumd\n    channels: [node2.x, node2.rz, node2.slider]\n"
         "devices:\n"
         "  - name: pedals\n    match: {vid: 0x044f}\n    node_id: 2\n"
-        "    axes: {x: X, rz: {usage: Rz, unsigned: true}}\n"
+        "    axes: {x: X, rz: {usage: Rz, unsigned: true, arm: any}}\n"
         "  - name: throttle\n    match: {vid: 0x1234}\n    node_id: 2\n"
         "    axes: {slider: {usage: Slider, unsigned: true}}\n",
         "t.yaml",

@@ -14,7 +14,21 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
-from usb2rc.config_model import HAT_DIRECTIONS, AxisConfig, DeviceConfig, HatConfig
+from usb2rc.config_model import (
+    HAT_DIRECTIONS,
+    AxisConfig,
+    DeviceConfig,
+    HatConfig,
+    TrimSwitchConfig,
+)
+from usb2rc.guard import (
+    DEFAULT_TOLERANCE,
+    NO_GUARD,
+    GuardedAxis,
+    NeutralGuard,
+    default_arm,
+    normalize_arm,
+)
 from usb2rc.hid.descriptor import DeviceLayout, InputField, InputState
 from usb2rc.hid.usages import (
     GD_DIAL,
@@ -44,6 +58,7 @@ from usb2rc.scaling import (
     shape,
     to_wire,
 )
+from usb2rc.trims import TrimSwitch
 from usb2rc.yamlnodes import Where
 
 NUM_AXES = len(AXIS_SLOTS)
@@ -247,8 +262,12 @@ class DeviceBinding:
         hats: Sequence[HatPlan],
         hat_notes: Sequence[str] = (),
         where: Where | None = None,
+        guard: NeutralGuard = NO_GUARD,
+        trim_switches: Sequence[TrimSwitch] = (),
     ) -> None:
         self.name = name
+        self.guard = guard  # axes that must rest before the device goes live (guard.py)
+        self.trim_switches = tuple(trim_switches)
         self.node_id = node_id
         self.where = where
         self._axes = tuple((slot, fn) for slot, fn, _, _ in axes)
@@ -307,6 +326,8 @@ class DeviceBinding:
         lines += [f"  axis {info.describe()}" for info in self.axis_info if info is not None]
         lines += [f"  {line}" for line in describe_button_runs(self.button_runs)]
         lines += [f"  {note}" for note in self.hat_notes]
+        lines.append(f"  neutral guard: {self.guard.describe()}")
+        lines += [f"  trim switch -> {AXIS_SLOTS[t.slot]}" for t in self.trim_switches]
         return lines
 
 
@@ -393,16 +414,20 @@ def first_hat(layout: DeviceLayout) -> InputField | None:
 
 
 def default_binding(layout: DeviceLayout, name: str, node_id: int | None = None) -> DeviceBinding:
-    axes = []
+    axes, guarded = [], []
     for slot, f in default_axis_fields(layout):
         fn, info = _field_axis(f, None, slot)
         axes.append((AXIS_SLOTS.index(slot), fn, info, None))
+        arm = default_arm(f.usage, layout.application)
+        if arm != "any":
+            guarded.append(GuardedAxis(AXIS_SLOTS.index(slot), info.source, arm))
     hats, notes = [], []
     hat = first_hat(layout)
     if hat is not None:
         hats.append(hat_table(hat, "hat1"))
         notes.append(f"hat {usage_label(hat.usage, hat.occurrence)} -> hat1 (group 1 bits 24-31)")
-    return DeviceBinding(name, node_id, axes, DEFAULT_BUTTON_RUNS, hats, notes)
+    guard = NeutralGuard(tuple(guarded))
+    return DeviceBinding(name, node_id, axes, DEFAULT_BUTTON_RUNS, hats, notes, guard=guard)
 
 
 # --------------------------------------------------------------------------- configured
@@ -451,16 +476,56 @@ def configured_binding(
         return binding
     if button_runs is None:
         button_runs = compile_button_runs([(r.hid, r.node) for r in device.buttons])
-    axes = []
+    axes, guarded, trims = [], [], []
     for axis in device.axes:
         fn, info = _configured_axis(layout, axis)
         axes.append((AXIS_SLOTS.index(axis.slot), fn, info, axis.failsafe))
+        guarded += _guarded_axis(axis, info, layout.application)
+        if axis.trim_switch is not None:
+            trims.append(_trim_switch(layout, axis.trim_switch, AXIS_SLOTS.index(axis.slot)))
     hats, notes = [], []
     for hat in device.hats:
         f = _find_field(layout, hat.usage, hat.occurrence, hat.where, "hat")
         hats.append(hat_table(f, hat.to))
         notes.append(_hat_note(f, hat))
-    return DeviceBinding(device.name, device.node_id, axes, button_runs, hats, notes, device.where)
+    return DeviceBinding(
+        device.name,
+        device.node_id,
+        axes,
+        button_runs,
+        hats,
+        notes,
+        device.where,
+        NeutralGuard(tuple(guarded)),
+        trims,
+    )
+
+
+def _guarded_axis(axis: AxisConfig, info: AxisInfo, application: int) -> list[GuardedAxis]:
+    """The axis's guard: `arm:` as configured, else by its usage (guard.default_arm)."""
+    arm = normalize_arm(axis.arm) if axis.arm else default_arm(axis.usage, application)
+    if arm == "any":
+        return []
+    tolerance = DEFAULT_TOLERANCE if axis.arm_tolerance is None else axis.arm_tolerance
+    slot = AXIS_SLOTS.index(axis.slot)
+    return [GuardedAxis(slot, info.source, arm, tolerance, axis.unsigned, axis.trim)]
+
+
+def _trim_switch(layout: DeviceLayout, config: TrimSwitchConfig, slot: int) -> TrimSwitch:
+    if config.buttons is not None:
+        minus, plus = (1 << (b - 1) for b in config.buttons)
+        return TrimSwitch(slot, config.step, config.limit, minus=minus, plus=plus)
+    assert config.hat is not None
+    f = _find_field(layout, config.hat, config.occurrence, config.where, "trim switch hat")
+    return TrimSwitch(
+        slot,
+        config.step,
+        config.limit,
+        hat_index=f.index,
+        hat_lo=f.logical_min,
+        hat_hi=f.logical_max,
+        hat_axis=config.hat_axis or "x",
+    )
 
 
 def _hat_note(f: InputField, hat: HatConfig) -> str:

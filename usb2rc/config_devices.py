@@ -21,7 +21,9 @@ from usb2rc.config_model import (
     DeviceConfig,
     HatConfig,
     MatchConfig,
+    TrimSwitchConfig,
 )
+from usb2rc.guard import ARM_CHOICES
 from usb2rc.hid.usages import GD_HAT_SWITCH, usage_from_name
 from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
 from usb2rc.protocol.c2_16b import MAX_NODE_ID as NODE_ID_MAX
@@ -32,8 +34,9 @@ DEVICE_KEYS = ("name", "match", "node_id", "axes", "buttons", "hats")
 MATCH_KEYS = ("vid", "pid", "serial", "port", "product")
 AXIS_KEYS = (
     "usage", "occurrence", "hat", "axis", "buttons", "calibration", "deadband", "expo",
-    "invert", "trim", "unsigned", "failsafe",
+    "invert", "trim", "unsigned", "failsafe", "arm", "arm_tolerance", "trim_switch",
 )  # fmt: skip
+TRIM_SWITCH_KEYS = ("hat", "axis", "occurrence", "buttons", "step", "limit")
 HAT_KEYS = ("usage", "occurrence", "to")
 USAGES_ALLOWED = (
     "a usage name such as X, Y, Z, Rx, Ry, Rz, Slider, Dial, Wheel, HatSwitch, Throttle, "
@@ -219,6 +222,9 @@ def _read_axis_options(
         "trim": lambda n, p: reader.number(n, p, -1.0, 1.0),
         "invert": reader.boolean,
         "unsigned": reader.boolean,
+        "arm": lambda n, p: reader.choice(n, p, ARM_CHOICES),
+        "arm_tolerance": lambda n, p: reader.number(n, p, 0.0, 1.0),
+        "trim_switch": lambda n, p: _read_trim_switch(reader, n, p),
     }
     for key, read in simple.items():
         if key in items:
@@ -240,6 +246,39 @@ def _read_axis_options(
         options["failsafe"] = reader.integer(items["failsafe"][1], f"{path}.failsafe", lo, hi)
         ok = ok and options["failsafe"] is not None
     return options if ok else None
+
+
+def _read_trim_switch(reader: NodeReader, node: Node, path: str) -> TrimSwitchConfig | None:
+    """`trim_switch: {buttons: [minus, plus]}` or `{hat: HatSwitch, axis: x|y}`, with
+    `step` and `limit` (fractions of the half range)."""
+    items = reader.mapping(node, path, TRIM_SWITCH_KEYS)
+    if items is None:
+        return None
+    given = [key for key in ("hat", "buttons") if key in items]
+    if len(given) != 1:
+        what = "missing" if not given else "hat and buttons both given"
+        reader.error(node, path, f"trim switch {what}: give exactly one of hat, buttons")
+        return None
+    source: dict[str, Any] | None
+    if given[0] == "hat":
+        occurrence = 0
+        if "occurrence" in items:
+            occurrence = reader.integer(items["occurrence"][1], f"{path}.occurrence", 0, 255) or 0
+        source = _read_hat_axis(reader, node, items, path, occurrence)
+    else:
+        for key in ("axis", "occurrence"):
+            if key in items:
+                reader.error(items[key][0], f"{path}.{key}", "only with a hat trim switch")
+        source = _read_button_pair(reader, items["buttons"][1], f"{path}.buttons")
+    options: dict[str, Any] = {}
+    for key, lo in (("step", 0.001), ("limit", 0.0)):
+        if key in items:
+            options[key] = reader.number(items[key][1], f"{path}.{key}", lo, 1.0)
+            if options[key] is None:
+                return None
+    if source is None:
+        return None
+    return TrimSwitchConfig(reader.where(node, path), **source, **options)
 
 
 def _read_calibration(reader: NodeReader, node: Node, path: str) -> Calibration | None:

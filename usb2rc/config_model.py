@@ -74,6 +74,20 @@ class Calibration:
 
 
 @dataclass(frozen=True)
+class TrimSwitchConfig:
+    """A hat axis or a button pair that steps an axis's trim (docs/CONFIG.md, "Trims").
+    Exactly one of hat / buttons is set."""
+
+    where: Where
+    hat: int | None = None  # a hat's usage, with hat_axis: -1 steps down, +1 up
+    hat_axis: str | None = None  # "x" (left -1 / right +1) or "y" (down -1 / up +1)
+    occurrence: int = 0
+    buttons: tuple[int, int] | None = None  # HID buttons: first steps down, second up
+    step: float = 0.01  # per press, a fraction of the half range
+    limit: float = 0.25  # the trim stays within ±limit
+
+
+@dataclass(frozen=True)
 class AxisConfig:
     """One axis slot's source and pipeline. Exactly one of usage / hat / buttons is set."""
 
@@ -91,6 +105,9 @@ class AxisConfig:
     trim: float = 0.0
     unsigned: bool = False
     failsafe: int | None = None  # None: hold the last value
+    arm: str | None = None  # neutral guard: centre, low, high, any; None: by usage (guard.py)
+    arm_tolerance: float | None = None  # None: guard.DEFAULT_TOLERANCE
+    trim_switch: TrimSwitchConfig | None = None
 
 
 @dataclass(frozen=True)

@@ -78,6 +78,14 @@ def shape(x: float, axis: AxisConfig) -> float:
     return -1.0 if x < -1.0 else 1.0 if x > 1.0 else x
 
 
+def add_trim(value: int, trim: float, unsigned: bool = False) -> int:
+    """A wire value moved by a trim (a fraction of the half range), clamped to the wire
+    range: the same offset `shape` adds before `to_wire` (one wire unit = 1/32767.5)."""
+    lo, hi = (0, UINT16_MAX) if unsigned else (INT16_MIN, INT16_MAX)
+    out = value + math.floor(trim * 32767.5 + 0.5)
+    return lo if out < lo else hi if out > hi else out
+
+
 def hat_direction(v: int, lo: int, hi: int) -> int | None:
     """DESIGN.md: 0 UP, 1 UP-RIGHT, ... 7 UP-LEFT; None when centred (outside [lo, hi])."""
     n = hi - lo + 1

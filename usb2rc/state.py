@@ -19,8 +19,11 @@ from typing import Any, Protocol
 
 from usb2rc.binding import DeviceBinding, NodeInputs
 from usb2rc.hid.backend import DeviceInfo
+from usb2rc.hid.descriptor import InputState
 from usb2rc.hid.reader import ReaderRecord
-from usb2rc.protocol.c2_16b import AXIS_COUNT
+from usb2rc.protocol.c2_16b import AXIS_COUNT, AXIS_NAMES
+from usb2rc.scaling import add_trim
+from usb2rc.trims import TrimStore
 
 log = logging.getLogger("usb2rc.nodes")
 
@@ -75,23 +78,75 @@ class _Attached:
     device_type: str
     present: bool = True
     last_inputs: NodeInputs | None = None  # held values (from before an unplug / re-plug)
+    # Neutral guard (usb2rc.guard, docs/ICD.md "Neutral guard"): False from the plug until
+    # the guarded axes rest; `waiting` names those that did not, at the last frame.
+    armed: bool = False
+    waiting: tuple[str, ...] = ()
+    # No lost taps: per output (subscriber), the reader's press serial it has shown.
+    seen_presses: dict[int, int] = field(default_factory=dict)
+    trim_serial: int = 0  # the press serial the trims have stepped on
+    trim_positions: dict[int, int] = field(default_factory=dict)  # hat switches: slot -> -1/0/1
 
     @property
     def live(self) -> bool:
-        """Present and its state known: at least one report decoded since it was plugged.
+        """Present, its state known (at least one report decoded since it was plugged) and
+        its guarded axes at rest once since then (`armed`).
 
         Decision: until then the node stays in failsafe with the held (or failsafe) values;
-        a re-plugged throttle must not jump to mid-scale before it has said where it is."""
-        return self._live(self.source.record)
+        a re-plugged throttle must not jump to mid-scale before it has said where it is, nor
+        go live at full before it was pulled back."""
+        return self._known(self.source.record) and self.armed
 
-    def _live(self, record: ReaderRecord) -> bool:
+    def _known(self, record: ReaderRecord) -> bool:
         return self.present and record.reports > 0
 
-    def inputs(self) -> NodeInputs:
+    def inputs(
+        self, subscriber: int | None = None, trims: dict[int, float] | None = None
+    ) -> NodeInputs:
+        """What the device sends now (under the table lock). `subscriber`: the output asking,
+        whose frame also shows the buttons tapped since its last frame; `trims`: the node's
+        stepped trims of the slots this device has trim switches for."""
         record = self.source.record  # read once: liveness and values from the same record
-        if self._live(record):
-            return self.binding.apply(record.state)
-        return self.binding.failsafe(self.last_inputs)
+        if not self._known(record):
+            return self.binding.failsafe(self.last_inputs)
+        state = record.state
+        if subscriber is not None:
+            seen = self.seen_presses.get(subscriber, 0)
+            if record.press_serial != seen:
+                self.seen_presses[subscriber] = record.press_serial
+                taps = record.pressed_since(seen) & ~state.buttons
+                if taps:
+                    state = InputState(state.values, state.buttons | taps)
+        inputs = self.binding.apply(state)
+        if trims:
+            inputs = _trimmed(inputs, trims, self.binding)
+        if not self.armed:
+            self.waiting = tuple(self.binding.guard.waiting_for(inputs.axes, trims))
+            if self.waiting:
+                return self.binding.failsafe(self.last_inputs)
+            self.armed = True
+        return inputs
+
+    def step_trims(self, node_id: int, store: TrimStore) -> None:
+        """Step the node's trims from this device's trim switches: a button press steps once
+        (every press, from the reader's press log), a hat steps when pushed (sampled)."""
+        switches = self.binding.trim_switches
+        record = self.source.record
+        if not switches or not self._known(record):
+            return
+        rising = [mask for serial, mask in record.presses if serial > self.trim_serial]
+        self.trim_serial = record.press_serial
+        for switch in switches:
+            if switch.hat_index >= 0:
+                position = switch.position(record.state)
+                before = self.trim_positions.get(switch.slot, 0)
+                self.trim_positions[switch.slot] = position
+                steps = position if position != before else 0
+            else:
+                steps = switch.presses(rising)
+            if steps and self.armed:
+                value = store.step(node_id, switch, steps)
+                log.info("node %d: %s trim %+.3f", node_id, AXIS_NAMES[switch.slot], value)
 
     def same_device(self, info: DeviceInfo, binding: DeviceBinding) -> bool:
         """The same physical device come back: same model on the same port, or the same
@@ -110,7 +165,7 @@ class _Node:
     attached: list[_Attached] = field(default_factory=list)
     # config entries pinned here whose device has not come yet
     expected: dict[str, ExpectedEntry] = field(default_factory=dict)
-    logged_failsafe: bool | None = None  # the state last logged, to log transitions once
+    logged: tuple[bool, tuple[str, ...]] | None = None  # state and reasons last logged
 
     @property
     def failsafe(self) -> bool:
@@ -120,31 +175,62 @@ class _Node:
             return True
         return bool(self.expected) or not all(a.live for a in self.attached)
 
-    def frame(self) -> NodeFrame:
+    def frame(self, subscriber: int | None = None, trims: TrimStore | None = None) -> NodeFrame:
         axes = [0] * AXIS_COUNT
         group1 = group2 = unsigned = 0
         for entry in self.expected.values():
             _merge_axes(axes, entry.inputs)
             unsigned |= entry.unsigned_slots
         for attached in self.attached:
-            inputs = attached.inputs()
+            own_trims = None
+            if attached.binding.trim_switches and trims is not None:
+                attached.step_trims(self.node_id, trims)
+                own_trims = trims.of_switches(self.node_id, attached.binding.trim_switches)
+            inputs = attached.inputs(subscriber, own_trims)
             _merge_axes(axes, inputs)
             group1 |= inputs.group1
             group2 |= inputs.group2
             unsigned |= attached.binding.unsigned_slots  # computed once, with the binding
         return NodeFrame(self.node_id, self.failsafe, tuple(axes), group1, group2, unsigned)
 
+    def reasons(self) -> list[tuple[str, str]]:
+        """Why the node is `!`: (kind, text) per device or entry it waits for."""
+        why = []
+        for a in self.attached:
+            name = a.info.product or "device"
+            if not a.present:
+                why.append(("lost", name))
+            elif a.waiting:
+                why.append((f"guard {name}", f"{', '.join(a.waiting)} ({name})"))
+            elif not a.live:
+                why.append(("unknown", f"{name} (no report yet)"))
+        why += [("expected", f"{name} (not plugged)") for name in self.expected]
+        return why
+
     def failsafe_change(self) -> str | None:
-        """A log line when the node entered or left failsafe since the last call."""
+        """A log line when the node entered or left failsafe, or waits for something else
+        now (the neutral guard: what must rest), since the last call."""
         now = self.failsafe
-        before, self.logged_failsafe = self.logged_failsafe, now
-        if before is None or before == now:
+        reasons = self.reasons() if now else []
+        key = (now, tuple(kind for kind, _ in reasons))
+        before, self.logged = self.logged, key
+        if before is None or before == key:
             return None
-        if now:
-            why = [a.info.product or "device" for a in self.attached if not a.live]
-            why += [f"{name} (not plugged)" for name in self.expected]
-            return f"node {self.node_id} enters failsafe: waiting for {', '.join(why) or '-'}"
-        return f"node {self.node_id} leaves failsafe: all its devices are live"
+        texts = ", ".join(text for _, text in reasons) or "-"
+        if not now:
+            return f"node {self.node_id} leaves failsafe: all its devices are live"
+        if before[0]:  # still `!`, for another reason (the device came, and must rest)
+            return f"node {self.node_id} waits for {texts}"
+        return f"node {self.node_id} enters failsafe: waiting for {texts}"
+
+
+def _trimmed(inputs: NodeInputs, trims: dict[int, float], binding: DeviceBinding) -> NodeInputs:
+    axes = list(inputs.axes)
+    for slot, trim in trims.items():
+        value, info = axes[slot], binding.axis_info[slot]
+        if value is not None and info is not None:
+            axes[slot] = add_trim(value, trim, info.unsigned)
+    return NodeInputs(tuple(axes), inputs.group1, inputs.group2)
 
 
 def _merge_axes(axes: list[int], inputs: NodeInputs) -> None:
@@ -163,38 +249,59 @@ class NodeTable:
         self._lock = threading.Lock()
         self._nodes: dict[int, _Node] = {}
         self._by_key: dict[str, tuple[int, _Attached]] = {}
-        self._outbox: list[list[ServiceEvent]] = []
+        self._outbox: list[list[ServiceEvent] | None] = []  # None: frames only (SUMD)
+        self._trims = TrimStore()
+        self._stopping = False
         for node_id, entries in (expected or {}).items():
             self._nodes[node_id] = _Node(node_id, expected=dict(entries))
 
     # --- outputs -------------------------------------------------------------------------
 
-    def subscribe(self) -> int:
+    def subscribe(self, events: bool = True) -> int:
+        """An output's subscription: its service events (events=False: none, for a SUMD
+        output) and its own latch of the buttons tapped between two of its frames."""
         with self._lock:
-            self._outbox.append([])
+            self._outbox.append([] if events else None)
             return len(self._outbox) - 1
 
     def collect(self, subscriber: int) -> tuple[list[ServiceEvent], list[NodeFrame]]:
         """The events owed to this output and every node's frame, taken together."""
         with self._lock:
             events = self._outbox[subscriber]
-            self._outbox[subscriber] = []
-            frames, changes = self._frames_locked()
+            if events is None:
+                events = []
+            else:
+                self._outbox[subscriber] = []
+            frames, changes = self._frames_locked(subscriber)
         _log_changes(changes)
         return events, frames
 
-    def frames(self) -> list[NodeFrame]:
+    def frames(self, subscriber: int | None = None) -> list[NodeFrame]:
+        """Every node's frame; with `subscriber`, buttons tapped since its last frame show
+        as pressed (no lost taps, docs/ICD.md "Taps")."""
         with self._lock:
-            frames, changes = self._frames_locked()
+            frames, changes = self._frames_locked(subscriber)
         _log_changes(changes)
         return frames
 
-    def _frames_locked(self) -> tuple[list[NodeFrame], list[str]]:
+    def stop(self) -> None:
+        """usb2rc stops: every device counts as gone from now on (no service events), so
+        every node sends `!` with its failsafe or held values (docs/ICD.md, "Stop")."""
+        with self._lock:
+            self._stopping = True
+            for node in self._nodes.values():
+                for attached in node.attached:
+                    if attached.present:
+                        attached.last_inputs = attached.inputs()
+                        attached.present = False
+            self._by_key.clear()
+
+    def _frames_locked(self, subscriber: int | None = None) -> tuple[list[NodeFrame], list[str]]:
         frames, changes = [], []
         for node_id in sorted(self._nodes):
             node = self._nodes[node_id]
-            frames.append(node.frame())
-            change = node.failsafe_change()
+            frames.append(node.frame(subscriber, self._trims))
+            change = None if self._stopping else node.failsafe_change()
             if change:
                 changes.append(change)
         return frames, changes
@@ -206,6 +313,7 @@ class NodeTable:
         that keeps asking cannot fill the line with service frames."""
         with self._lock:
             box = self._outbox[subscriber]
+            assert box is not None, "a C2-16B output subscribes to the events"
             queued = 0
             for nid in sorted(self._nodes):
                 if node_id is not None and nid != node_id:
@@ -233,6 +341,8 @@ class NodeTable:
     ) -> None:
         attached = _Attached(info, binding, source, device_type)
         with self._lock:
+            if self._stopping:
+                return  # its reader is stopped with the others
             node = self._nodes.setdefault(node_id, _Node(node_id))
             kept = []
             for old in node.attached:
@@ -339,6 +449,11 @@ class NodeTable:
                         for a in node.attached
                     ],
                     "expected": sorted(node.expected),
+                    "waiting_for": [text for _, text in node.reasons()] if node.failsafe else [],
+                    "trims": {
+                        AXIS_NAMES[slot]: value
+                        for slot, value in sorted(self._trims.of_node(nid).items())
+                    },
                 }
                 for nid, node in sorted(self._nodes.items())
             }
@@ -350,7 +465,10 @@ class NodeTable:
                 for attached in node.attached:
                     new_binding = rebind_one(attached.info)
                     if new_binding is not None:
-                        attached.binding = new_binding
+                        attached.binding = new_binding  # an armed device stays armed
+                switches = [t for a in node.attached for t in a.binding.trim_switches]
+                for change in self._trims.keep(node.node_id, switches):
+                    log.warning("config reload: node %d: %s", node.node_id, change)
                 node.expected = {
                     name: entry
                     for name, entry in expected.get(node.node_id, {}).items()
@@ -362,12 +480,13 @@ class NodeTable:
 
     def _broadcast(self, event: ServiceEvent) -> None:
         for box in self._outbox:
-            box.append(event)
+            if box is not None:
+                box.append(event)
 
 
 def _log_changes(changes: list[str]) -> None:
     for change in changes:
-        level = logging.WARNING if "enters failsafe" in change else logging.INFO
+        level = logging.INFO if "leaves failsafe" in change else logging.WARNING
         log.log(level, "%s", change)
 
 

@@ -750,6 +750,11 @@ class ReportDecoder:
         self.reports += 1
         return True
 
+    @property
+    def buttons(self) -> int:
+        """The current button mask (HID button n -> bit n-1), without building a state."""
+        return self._buttons
+
     def state(self) -> InputState:
         """The current state merged over all report IDs."""
         state = self._state

@@ -31,12 +31,21 @@ from usb2rc.worker import Worker
 log = logging.getLogger(__name__)
 
 READ_TIMEOUT_S = 0.1
+PRESSES_KEPT = 32  # rising edges a record remembers: a consumer one tick behind sees them all
 
 
 class Decoder(Protocol):
     def feed(self, report: bytes) -> bool: ...
 
     def state(self) -> InputState: ...
+
+
+class ButtonsDecoder(Decoder, Protocol):
+    """A decoder whose current button mask is cheap to read (descriptor.ReportDecoder): the
+    reader then notes every press, for the taps between two ticks."""
+
+    @property
+    def buttons(self) -> int: ...
 
 
 OnExit = Callable[["DeviceReader", ErrorCode | None], None]
@@ -51,6 +60,20 @@ class ReaderRecord:
     reports: int = 0  # reports the decoder accepted; 0: the device's state is not known yet
     bad_reports: int = 0  # reports it refused (unknown ID, short)
     at: float | None = None  # monotonic time of the last published report
+    # No lost taps (docs/ICD.md, "Taps"): the last PRESSES_KEPT reports that pressed a button,
+    # as (serial, HID buttons that went down), oldest first; press_serial is the newest's.
+    presses: tuple[tuple[int, int], ...] = ()
+    press_serial: int = 0
+
+    def pressed_since(self, serial: int) -> int:
+        """The HID buttons pressed in any report after press `serial` (a consumer's last
+        `press_serial`): a tap that is over by now still shows in the consumer's next frame."""
+        mask = 0
+        for when, rising in reversed(self.presses):
+            if when <= serial:
+                break
+            mask |= rising
+        return mask
 
 
 class DeviceReader(Worker):
@@ -68,6 +91,10 @@ class DeviceReader(Worker):
         self.record = ReaderRecord(decoder.state())
         self._reports = 0  # counted by the reader thread; published with the state
         self._bad_reports = 0
+        self._track_presses = hasattr(decoder, "buttons")
+        self._buttons = 0  # the mask after the last report, for rising edges
+        self._presses: tuple[tuple[int, int], ...] = ()
+        self._press_serial = 0
         self.exit_code: ErrorCode | None = None
         self.error: BaseException | None = None  # what ended it, if not stop()
         self._on_exit = on_exit
@@ -95,18 +122,31 @@ class DeviceReader(Worker):
     def _handle(self, report: bytes) -> None:
         if self.decoder.feed(report):
             self._reports += 1
+            if self._track_presses:
+                self._note_buttons(self.decoder.buttons)  # type: ignore[attr-defined]
         else:
             self._bad_reports += 1
+
+    def _note_buttons(self, buttons: int) -> None:
+        """Every press, even one released before the record is published (a tap)."""
+        rising = buttons & ~self._buttons
+        self._buttons = buttons
+        if rising:
+            self._press_serial += 1
+            self._presses = (*self._presses, (self._press_serial, rising))[-PRESSES_KEPT:]
 
     def _drain(self) -> None:
         """Decode what the device has queued, without blocking. At 1 kHz this runs ~20 times
         per tick per device: locals instead of a method call and two attribute writes per
         report."""
         read, feed = self.device.read, self.decoder.feed
+        decoder: ButtonsDecoder | None = self.decoder if self._track_presses else None  # type: ignore[assignment]
         accepted = refused = 0
         while (report := read(0.0)) is not None:
             if feed(report):
                 accepted += 1
+                if decoder is not None and decoder.buttons != self._buttons:
+                    self._note_buttons(decoder.buttons)
             else:
                 refused += 1
         self._reports += accepted
@@ -119,7 +159,14 @@ class DeviceReader(Worker):
         if (last.reports, last.bad_reports) == (self._reports, self._bad_reports):
             return
         at = time.monotonic() if self._reports != last.reports else last.at
-        self.record = ReaderRecord(self.decoder.state(), self._reports, self._bad_reports, at)
+        self.record = ReaderRecord(
+            self.decoder.state(),
+            self._reports,
+            self._bad_reports,
+            at,
+            self._presses,
+            self._press_serial,
+        )
 
     def _loop(self) -> None:
         while not self.stopping:
