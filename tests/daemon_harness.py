@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from usb2rc.protocol import c2_16b, sumd
 
@@ -100,18 +100,33 @@ def recording(
     name: str = "Thrustmaster T.16000M",
     extra: str = "",
 ) -> str:
+    return timed_recording([(i * hold_s, state) for i, state in enumerate(states)], name, extra)
+
+
+class Reporting(Protocol):
+    def report(self) -> bytes: ...
+
+
+def timed_recording(
+    events: Sequence[tuple[float, Reporting]],
+    name: str = "Thrustmaster T.16000M",
+    extra: str = "",
+    descriptor: bytes = T16000M_DESCRIPTOR,
+    ids: str = "044f b10a",
+) -> str:
+    """A hid-recorder file: each (time in s, state) is one report at that time."""
     lines = [
         "# usb2rc test recording",
-        f"R: {len(T16000M_DESCRIPTOR)} " + " ".join(f"{b:02x}" for b in T16000M_DESCRIPTOR),
+        f"R: {len(descriptor)} " + " ".join(f"{b:02x}" for b in descriptor),
         f"N: {name}",
         "P: usb-0000:00:14.0-1/input0",
-        "I: 3 044f b10a",
+        f"I: 3 {ids}",
     ]
     if extra:
         lines.append(extra)
-    for i, state in enumerate(states):
+    for at, state in events:
         report = state.report()
-        lines.append(f"E: {i * hold_s:.6f} {len(report)} " + " ".join(f"{b:02x}" for b in report))
+        lines.append(f"E: {at:.6f} {len(report)} " + " ".join(f"{b:02x}" for b in report))
     return "\n".join(lines) + "\n"
 
 

@@ -231,6 +231,7 @@ class Daemon:
     def stop(self) -> None:
         self.monitor.stop()
         readers = self.lifecycle.shutdown(JOIN_TIMEOUT_S)
+        self.table.stop()  # every node `!` from here; each output sends it before it closes
         for out in self.outputs:
             out.thread.stop()
             if out.rx is not None:

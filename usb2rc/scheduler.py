@@ -39,6 +39,7 @@ from usb2rc.worker import Worker
 log = logging.getLogger("usb2rc.scheduler")
 
 PERIODS_KEPT = 3000
+FINAL_TICKS_S = 0.25  # at most this long for the failsafe frames when usb2rc stops
 
 
 def queue_cap(tick_bytes: int) -> int:
@@ -122,6 +123,7 @@ class TickThread(Worker):
                 missed = int(behind // self.period_s) + 1
                 self.stats.missed_ticks += missed
                 deadline += missed * self.period_s
+        self.final_ticks()
         self.finish()
 
     def wait(self, delay_s: float) -> bool:
@@ -154,6 +156,9 @@ class TickThread(Worker):
 
     def tick(self) -> None:
         raise NotImplementedError
+
+    def final_ticks(self) -> None:
+        """Called once in the thread when it is stopped, before `finish()`."""
 
     def finish(self) -> None:
         """Called once in the thread after the last tick."""
@@ -253,6 +258,21 @@ class _LineThread(TickThread):
             self.note_write()
         return delivered
 
+    def final_ticks(self) -> None:
+        """usb2rc stops: failsafe frames before the port closes (docs/ICD.md, "Stop"). The
+        session marks every frame failsafe; ticks go on at the tick rate until each node's
+        `!` (SUMD: one 0x81 frame) went out, or the line cannot take it, and for at most
+        FINAL_TICKS_S: a stalled line never holds the stop."""
+        self.session.stopping()
+        end = time.monotonic() + FINAL_TICKS_S
+        while self.session.line_open and not self.session.stop_done:
+            self._safe_tick()
+            if self.session.stop_done or time.monotonic() + self.period_s > end:
+                break
+            time.sleep(self.period_s)  # `sleep()` returns at once now: the worker is stopping
+        if self.session.line_open and not self.session.stop_done:
+            log.warning("%s: stopped before every node's failsafe frame went out", self.name)
+
     def finish(self) -> None:
         self.link.close()
 
@@ -330,12 +350,13 @@ class SumdOutput(_LineThread):
         super().__init__(name, link, self.sumd, rate_hz, on_tick, on_first_write)
         self.table = table
         self.channels = channels
+        self.subscriber = table.subscribe(events=False)  # its own latch of button taps
 
     def tick(self) -> None:
         self.follow_link()
         if not self.sumd.line_open or self.sumd.stalled:
             return
-        values, failsafe = self.channels.evaluate(self.table.frames())
+        values, failsafe = self.channels.evaluate(self.table.frames(self.subscriber))
         self.send(self.sumd.tick(values, failsafe))
 
 

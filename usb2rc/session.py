@@ -172,6 +172,8 @@ class C2Session:
         self._last_len = 0
         self._round_robin = 0
         self._warned_nodes = 0
+        self._stopping = False  # usb2rc stops: every data frame is `!` from now on
+        self._stop_owed: set[int] = set()  # nodes on this line without a `!` since then
 
     # --- events from the line ------------------------------------------------------------
 
@@ -225,6 +227,19 @@ class C2Session:
         self._told.clear()
         self._left_told.clear()
         self._last, self._last_len = [], 0
+
+    def stopping(self) -> None:
+        """usb2rc stops (SIGTERM, SIGINT): from now on every data frame is `!`, so a receiver
+        sees failsafe at once instead of waiting for its own timeout (docs/ICD.md, "Stop").
+        `stop_done` once every node whose frames this line has carried got one."""
+        self._stopping = True
+        self._stop_owed = set(self._on_line)
+
+    @property
+    def stop_done(self) -> bool:
+        """Stopping, and nothing more to send: each node's `!` went out, or the line cannot
+        take it (closed, or stalled: a stop never waits for a far end that does not read)."""
+        return self._stopping and (not self._stop_owed or not self.line_open or self.stalled)
 
     # --- events from the far end ---------------------------------------------------------
 
@@ -301,7 +316,7 @@ class C2Session:
         held = (announcing - self._on_line) | leaving
         ready = [f for f in frames if f.node_id not in held]
         for frame in self._choose_nodes(ready, frames, room - len(out)):
-            live = not frame.failsafe and frame.node_id in announced
+            live = not frame.failsafe and frame.node_id in announced and not self._stopping
             data = self._data_frame(frame, self._codes.get(frame.node_id, 0), live)
             self._add(out, slots, data, _Slot(0, data_node=frame.node_id))
         self._last = slots
@@ -374,6 +389,7 @@ class C2Session:
                 node = slot.data_node
                 self._codes[node] = (self._codes.get(node, 0) + 1) & 0xFF
                 self._on_line.add(node)
+                self._stop_owed.discard(node)
                 data += 1
         if unsure:
             self._restart_cut_sequence()
@@ -501,6 +517,17 @@ class SumdSession:
         self.stalled = False
         self.stalls = 0
         self._last_len = 0
+        self._stopping = False
+        self._stop_sent = False
+
+    def stopping(self) -> None:
+        """usb2rc stops: every frame from now on has the failsafe bit (0x81)."""
+        self._stopping = True
+
+    @property
+    def stop_done(self) -> bool:
+        """Stopping, and a failsafe frame went out whole (or the line cannot take one)."""
+        return self._stopping and (self._stop_sent or not self.line_open or self.stalled)
 
     def line_opened(self) -> None:
         self.line_open, self.stalled = True, False
@@ -519,12 +546,13 @@ class SumdSession:
         self._last_len = 0
         if not self.line_open or self.stalled:
             return b""
-        frame = sumd.encode_sumd(channels, failsafe=failsafe)
+        frame = sumd.encode_sumd(channels, failsafe=failsafe or self._stopping)
         self._last_len = len(frame)
         return frame
 
     def wrote(self, sent: int, unsure: int = 0) -> Delivered:
         whole = self._last_len > 0 and sent >= self._last_len
+        self._stop_sent = self._stop_sent or (whole and self._stopping)
         stalled = self.line_open and sent < self._last_len
         if stalled and not self.stalled:
             self.stalls += 1

@@ -214,12 +214,13 @@ class _Node:
         reasons = self.reasons() if now else []
         key = (now, tuple(kind for kind, _ in reasons))
         before, self.logged = self.logged, key
-        if before is None or before == key:
-            return None
+        guarded = any(kind.startswith("guard") for kind, _ in reasons)
+        if before == key or (before is None and not guarded):
+            return None  # a new node says nothing until it waits for the pilot, or is live
         texts = ", ".join(text for _, text in reasons) or "-"
         if not now:
             return f"node {self.node_id} leaves failsafe: all its devices are live"
-        if before[0]:  # still `!`, for another reason (the device came, and must rest)
+        if before is None or before[0]:  # still `!`, for another reason: it must rest
             return f"node {self.node_id} waits for {texts}"
         return f"node {self.node_id} enters failsafe: waiting for {texts}"
 
