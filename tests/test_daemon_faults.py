@@ -32,7 +32,7 @@ def live_node(frames: list, node_id: int = 0) -> bool:
 
 
 def test_serial_port_gone_and_back(tmp_path, replay_dir):
-    install(replay_dir / "stick.hid", recording([StickState(x=0)]))
+    install(replay_dir / "stick.hid", recording([StickState(), StickState(x=0)]))
     link = tmp_path / "ttyLINK"  # the port path the daemon knows; we swap what is behind it
     first = PtyLine()
     link.symlink_to(first.path)
@@ -60,7 +60,7 @@ def test_serial_port_gone_and_back(tmp_path, replay_dir):
 
 
 def test_device_read_error_mid_stream(tmp_path, line, replay_dir):
-    states = [StickState(x=0, buttons=1)] * 3
+    states = [StickState(), *[StickState(x=0, buttons=1)] * 3]
     text = recording(states, extra="# usb2rc-fault: read-error at 0.5")
     install(replay_dir / "bad.hid", text)
     daemon = run_daemon(tmp_path, line.path, replay_dir)
@@ -123,7 +123,7 @@ def test_rx_garbage_and_requests(tmp_path, line, replay_dir):
 def test_sighup_good_and_bad_config(tmp_path, line, replay_dir):
     config = tmp_path / "usb2rc.yaml"
     config.write_text(INVERT_X_CONFIG.format(invert="false"))
-    install(replay_dir / "stick.hid", recording([StickState(x=0)]))
+    install(replay_dir / "stick.hid", recording([StickState(), StickState(x=0)]))
     daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(config))
     try:
         line.wait_for(lambda fr: live_node(fr, 4) and data_frames(fr, 4)[-1].axes[0] == -32768)
@@ -151,7 +151,7 @@ def test_sighup_good_and_bad_config(tmp_path, line, replay_dir):
 
 
 def test_unusable_descriptor_reports_error_and_others_go_on(tmp_path, line, replay_dir):
-    install(replay_dir / "a-good.hid", recording([StickState(x=0)]))
+    install(replay_dir / "a-good.hid", recording([StickState(), StickState(x=0)]))
     # a joystick collection that is never closed: the descriptor is unusable
     desc = "05 01 09 04 a1 01 75 08 95 01 15 00 26 ff 00 09 30 81 02"
     broken = f"R: 19 {desc}\nN: Broken Stick\nI: 3 1234 5678\nE: 0.0 1 00\n"
@@ -182,7 +182,7 @@ def test_sumd_output_and_its_failsafe(tmp_path, line, replay_dir):
     config = tmp_path / "sumd.yaml"
     config.write_text(SUMD_CONFIG.format(sumd_port=sumd_line.path))
     state = StickState(x=0, y=16383, rz=0, buttons=0x0001)
-    install(replay_dir / "stick.hid", recording([state]))
+    install(replay_dir / "stick.hid", recording([StickState(), state]))
     daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(config))
     try:
         assert expected_frame(state)[0][6] == -32768
@@ -211,17 +211,17 @@ devices:
 def test_two_devices_on_one_config_entry_is_a_clash_not_a_merge(tmp_path, line, replay_dir):
     config = tmp_path / "pinned.yaml"
     config.write_text(PINNED)
-    install(replay_dir / "a.hid", recording([StickState(x=0)]))
-    install(replay_dir / "b.hid", recording([StickState(x=16383, buttons=1)]))
+    install(replay_dir / "a.hid", recording([StickState(), StickState(x=0)]))
+    install(replay_dir / "b.hid", recording([StickState(), StickState(x=16383, buttons=1)]))
     daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(config))
     try:
         line.wait_for(lambda fr: "error" in services(fr))
         line.wait_for(lambda fr: len([f for f in data_frames(fr, 2) if f.status == LIVE]) >= 10)
         error = next(f for f in service_frames(line.frames()) if f.service.service_name == "error")
         assert error.error_code == 0x05 and error.node_id != 2
-        # node 2 is fed by the first device only: never a mix of the two sticks
+        # node 2 is fed by the first device only (centred, then full left): never the other
         live = [f for f in data_frames(line.frames(), 2) if f.status == LIVE]
-        assert {(f.axes[0], f.group1) for f in live} == {(-32768, 0)}
+        assert {(f.axes[0], f.group1) for f in live} <= {(2, 0), (-32768, 0)}
     finally:
         assert daemon.stop() == 0
     assert "add `serial:` or `port:`" in daemon.log()

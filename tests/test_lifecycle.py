@@ -63,7 +63,8 @@ class ScriptedBackend:
 
 
 def plug_stick(folder: Path, name: str = "stick.hid") -> DeviceInfo:
-    install(folder / name, recording([StickState(x=16383)], hold_s=0.01))
+    # plugged at rest (the neutral guard), then at full right
+    install(folder / name, recording([StickState(), StickState(x=16383)], hold_s=0.01))
     return next(i for i in ReplayBackend(folder).enumerate() if i.path.endswith(name))
 
 
@@ -86,6 +87,12 @@ def refusing_setup(
     lifecycle = DeviceLifecycle(backend, table, mapping, make_reader, retry_s=retry_s)
     lifecycle.plugged(plug_stick(tmp_path))
     return table, subscriber, backend, lifecycle
+
+
+def live_x(table: NodeTable) -> int | None:
+    """Node 0's X while it is live (None while `!`)."""
+    frame = table.frames()[0]
+    return None if frame.failsafe else frame.axes[0]
 
 
 def events_of(table: NodeTable, subscriber: int) -> list[tuple[EventKind, int]]:
@@ -112,8 +119,8 @@ def test_a_reload_during_a_plug_binds_the_device_with_the_new_mapping(tmp_path: 
         bindings = [binding for _n, _i, binding, _p, _t in table.attachments()]
         assert len(bindings) == 1
         assert bindings[0] is not None and lifecycle.mapping is new
-        wait_until(lambda: not table.frames()[0].failsafe)
-        assert table.frames()[0].axes[0] == -32768  # X at full right, inverted: new mapping
+        # X at full right, inverted: the new mapping (the old one would send +32767)
+        wait_until(lambda: live_x(table) == -32768)
     finally:
         for reader in lifecycle.shutdown(WAIT_S):
             reader.join(WAIT_S)

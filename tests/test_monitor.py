@@ -22,7 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from daemon_harness import ROOT, StickState, install, recording
+from daemon_harness import ROOT, StickState, install, recording, timed_recording
 
 from usb2rc.commands import monitor
 from usb2rc.config import Config, load_config
@@ -36,8 +36,15 @@ X_LINE = re.compile(r"^\s*x\s+\[([#-]+)\]\s+([+-]\d+)\s+<- (.*)$", re.MULTILINE)
 ANSI = re.compile(r"\x1b(\[[0-?]*[ -/]*[@-~]|\][^\x07]*\x07|[()][0-9A-Za-z]|[=>78])")
 WAIT_S = 20.0
 
-# X from one end to the other, each held 0.5 s, forever (--replay-loop).
-SWING = recording([StickState(x=0, buttons=0x0001), StickState(x=16383, hat=2)], hold_s=0.5)
+# X from one end to the other, each held 0.5 s, forever (--replay-loop); each lap starts
+# with a centred report (20 ms), so the neutral guard lets the node go live.
+SWING = timed_recording(
+    [
+        (0.0, StickState()),
+        (0.02, StickState(x=0, buttons=0x0001)),
+        (0.52, StickState(x=16383, hat=2)),
+    ]
+)
 
 
 def swing_dir(tmp_path: Path) -> Path:
