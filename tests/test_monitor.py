@@ -22,7 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from daemon_harness import ROOT, StickState, install, recording, timed_recording
+from daemon_harness import ROOT, StickState, install, timed_recording
 
 from usb2rc.commands import monitor
 from usb2rc.config import Config, load_config
