@@ -200,6 +200,11 @@ def wait_next_connect(line: PtyLine, count: int, timeout: float = 10.0) -> int:
 
 
 def go_live(bed: UsbBed, line: PtyLine, hidraw: str, node: int, state: StickState) -> Delivery:
+    """The node's next frames carry `state`; a node not live yet is first sent a centred
+    report (the neutral guard lets a stick go live only once it rests at the centre)."""
+    own = data_frames(line.frames(), node)
+    if not own or own[-1].status != LIVE:
+        arm(bed, line, hidraw, node, [StickState().report()])
     return send_and_follow(bed, line, hidraw, node, state.report(), lambda f: carries(f, state))
 
 
@@ -337,6 +342,29 @@ def test_open_gets_each_devices_own_descriptor(every_device) -> None:
         assert seen[node] == [fake.descriptor.hex()] * 2, fake.product
 
 
+SIM_THROTTLE = 0x000200BB
+
+
+def rest_reports(descriptor: bytes) -> list[bytes]:
+    """Every input report with each value at the middle of its range (a Throttle at its
+    low end): what the neutral guard waits for before a device goes live."""
+    reports = []
+    for ref in ref_reports(descriptor).values():
+        values = {
+            key: f.logical_min if key[0] == SIM_THROTTLE else (f.logical_min + f.logical_max) // 2
+            for key, f in ref.values.items()
+        }
+        reports.append(encode(ref, values))
+    return reports
+
+
+def arm(tb: UsbBed, line: PtyLine, hidraw: str, node: int, reports: list[bytes]) -> None:
+    """Send the reports at rest; wait until the node is live (the neutral guard passed)."""
+    for report in reports[:-1]:
+        tb.report(hidraw, report)
+    send_and_follow(tb, line, hidraw, node, reports[-1], lambda f: f.status == LIVE)
+
+
 def x_report(descriptor: bytes, at_max: bool) -> bytes:
     """A report of the input report that carries X: X at the end of its logical range, and
     button 1 pressed with it at the top (hid-tools' field positions)."""
@@ -357,6 +385,7 @@ def test_every_real_device_reports_reach_the_frames(every_device, tmp_path: Path
             wait_announced(line, node_id)
         deliveries = []
         for node_id, (fake, node) in enumerate(plugged):
+            arm(tb, line, node, node_id, rest_reports(fake.descriptor))
             top = x_report(fake.descriptor, at_max=True)
             bottom = x_report(fake.descriptor, at_max=False)
             deliveries.append(
@@ -584,7 +613,7 @@ def test_record_reproduces_the_reports_and_replays_to_the_same_frames(
 ) -> None:
     hidraw = bed.add(stick("1-1.2"))
     recording = replay_dir / "t16000m.hid"
-    states = script()[:12]
+    states = [StickState(), *script()[:11]]  # at rest first: the replay goes live at once
     with open(recording, "w") as out:
         proc = subprocess.Popen(
             [

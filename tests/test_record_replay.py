@@ -25,9 +25,10 @@ from daemon_harness import (
 from usb2rc.hid.recording import read_recording
 
 # Each state is held 0.3 s (15 ticks at 50 Hz); the first differs from the device's state
-# before its first report, so the sequence has a clear start.
+# before its first report, so the sequence has a clear start, and rests near the centre
+# (the neutral guard lets the node go live on it).
 STATES = [
-    StickState(x=100, y=200, buttons=0x0010),
+    StickState(x=8300, y=8100, buttons=0x0010),
     StickState(x=0, y=16383, rz=0, slider=255, buttons=0x0001),
     StickState(x=16383, y=0, rz=255, slider=0, buttons=0x8000, hat=0),
     StickState(x=4000, y=12000, rz=7, slider=99, buttons=0x0101, hat=5),

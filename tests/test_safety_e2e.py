@@ -57,9 +57,7 @@ class ThrottleState:
 
 
 def throttle_recording(events: list[tuple[float, ThrottleState]]) -> str:
-    return timed_recording(
-        events, "Acme Throttle", descriptor=THROTTLE_DESCRIPTOR, ids="1234 5678"
-    )
+    return timed_recording(events, "Acme Throttle", descriptor=THROTTLE_DESCRIPTOR, ids="1234 5678")
 
 
 def held_then_at_rest(at_rest: Any, away: Any) -> list[tuple[float, Any]]:

@@ -149,7 +149,7 @@ def stall_with_plug_and_unplug(tmp_path: Path, replay_dir: Path, stall_s: float)
     config = tmp_path / "fast.yaml"
     config.write_text(FAST_OUTPUT.format(port=line.path))
     for name in ("a", "b", "c"):
-        install(replay_dir / f"{name}.hid", recording([StickState(x=0)]))
+        install(replay_dir / f"{name}.hid", recording([StickState(), StickState(x=0)]))
     daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(config))
     try:
         line.wait_for(lambda fr: all(live(fr, n) for n in range(3)))
@@ -158,7 +158,8 @@ def stall_with_plug_and_unplug(tmp_path: Path, replay_dir: Path, stall_s: float)
         # the OS stops taking bytes after about 18 KB: the daemon says so in its log
         wait_log(daemon, "stalled", timeout=stall_s + 10)
         os.unlink(replay_dir / "a.hid")  # node 0's stick is unplugged ...
-        install(replay_dir / "d.hid", recording([StickState(x=16383)]))  # ... node 3 is new
+        # ... node 3 is new (plugged at rest: the neutral guard)
+        install(replay_dir / "d.hid", recording([StickState(), StickState(x=16383)]))
         time.sleep(max(0.0, stalled_at + stall_s - time.monotonic()))  # the far end's stall
         resumed_at = line.resume()
         line.wait_for(lambda fr: live(fr, 3) and not live(fr, 0), timeout=15)
