@@ -22,10 +22,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from daemon_harness import ROOT, StickState, install, timed_recording
+from daemon_harness import ROOT, StickState, install, scale, timed_recording
 
 from usb2rc.commands import monitor
-from usb2rc.config import Config, load_config
+from usb2rc.config import Config, load_config, load_config_text
 from usb2rc.hid.backend import ErrorCode
 from usb2rc.hid.replay import ReplayBackend
 from usb2rc.state import EventKind, ServiceEvent
@@ -258,3 +258,41 @@ def test_bar_and_event_text():
     assert monitor.event_text(error) == "node 3: error 0x01 (READ_FAILED)"
     odd = ServiceEvent(EventKind.ERROR, 3, None, "", 0x7F)
     assert monitor.event_text(odd) == "node 3: error 0x7f (unknown)"
+
+
+TRIM_CONFIG = """
+devices:
+  - name: stick
+    match: {vid: 0x044f, pid: 0xb10a}
+    node_id: 1
+    axes:
+      x: {usage: X, trim_switch: {buttons: [3, 4], step: 0.05, limit: 0.1}}
+      slider: {usage: Slider, arm: low}
+"""
+
+
+def test_monitor_shows_what_a_node_waits_for_and_its_trims(tmp_path):
+    """Plugged with the slider up: `waits for Slider low`; then at rest, and button 4
+    pressed three times: the trim steps +0.05 twice and stops at its limit, +0.1."""
+    folder = tmp_path / "replay"
+    folder.mkdir()
+    up, low = StickState(slider=255), StickState(slider=0)
+    presses = [
+        (1.0 + 0.2 * k + dt, StickState(slider=0, buttons=b))
+        for k in range(3)
+        for dt, b in ((0, 8), (0.1, 0))
+    ]
+    install(folder / "stick.hid", timed_recording([(0.0, up), (0.5, low), *presses]))
+    config = load_config_text(TRIM_CONFIG, "trim.yaml")
+    side = monitor.InputSide(config, ReplayBackend(folder))
+    side.start()
+    try:
+        snap = wait_for(side, lambda s: bool(s.nodes) and s.nodes[0].waits_for)
+        text = monitor.snapshot_text(snap, [])
+        assert "node 1 FAILSAFE: waits for Slider low (Thrustmaster T.16000M)" in text
+        snap = wait_for(side, lambda s: "trim +0.100" in monitor.snapshot_text(s, []))
+        assert not snap.nodes[0].failsafe
+        x = next(a for a in snap.nodes[0].axes if a.slot == "x")
+        assert x.value == scale(8192, 0, 16383) + 3277  # centred X, plus 0.1 of 32767.5
+    finally:
+        side.stop()

@@ -94,9 +94,10 @@ class InputSide:
             failsafe=frame.failsafe,
             devices=devices,
             waiting=list(described.get("expected", [])),
-            axes=axis_rows(frame, devices),
+            axes=axis_rows(frame, devices, described.get("trims", {})),
             buttons=view.pressed_buttons(),
             hat=view.hat(),
+            waits_for=list(described.get("waiting_for", [])),
         )
 
 
@@ -146,6 +147,7 @@ class NodeRow:
     axes: list[AxisRow]
     buttons: list[int]
     hat: str
+    waits_for: list[str] = field(default_factory=list)  # why it is `!` (the neutral guard ...)
 
 
 @dataclass(frozen=True)
@@ -160,8 +162,11 @@ def device_label(info: DeviceInfo) -> str:
     return f"{info.product or info.path} ({info.vid:04x}:{info.pid:04x}, port {info.port_path})"
 
 
-def axis_rows(frame: NodeFrame, devices: list[DeviceRow]) -> list[AxisRow]:
-    """The slots a device feeds, and any other slot that is not 0 (a configured failsafe)."""
+def axis_rows(
+    frame: NodeFrame, devices: list[DeviceRow], trims: dict[str, float] | None = None
+) -> list[AxisRow]:
+    """The slots a device feeds, and any other slot that is not 0 (a configured failsafe);
+    `trims`: the node's stepped trims by slot name (docs/CONFIG.md, "Trims")."""
     rows = []
     for slot, (name, value) in enumerate(zip(AXIS_NAMES, frame.axes, strict=True)):
         feeder = next((d for d in devices if d.binding.axis_info[slot] is not None), None)
@@ -177,6 +182,8 @@ def axis_rows(frame: NodeFrame, devices: list[DeviceRow]) -> list[AxisRow]:
         source += "" if info.shaping == "linear" else f", {info.shaping}"
         if info.unsigned:
             source += ", unsigned"
+        if trims and name in trims:
+            source += f", trim {trims[name]:+.3f}"
         if not feeder.present:
             source += ", LOST: " + ("holds" if info.failsafe is None else "failsafe value")
         rows.append(AxisRow(name, value, lo, hi, source + ")"))
@@ -190,7 +197,9 @@ def bar(value: int, lo: int, hi: int, width: int = BAR_WIDTH) -> str:
 
 
 def state_name(node: NodeRow) -> str:
-    return "FAILSAFE" if node.failsafe else "LIVE"
+    if not node.failsafe:
+        return "LIVE"
+    return "FAILSAFE" + (f": waits for {', '.join(node.waits_for)}" if node.waits_for else "")
 
 
 def device_lines(node: NodeRow) -> list[str]:
