@@ -1,0 +1,176 @@
+"""Property tests for the state machines of issue 13: the neutral guard and the tap latch.
+
+Hypothesis drives a NodeTable through random sequences (reports, frames, unplugs, replugs,
+two outputs collecting at their own pace) and checks each frame against a small model
+written from docs/ICD.md ("Neutral guard", "Taps"), with the wire values from the test
+harness's own scaling (daemon_harness.expected_frame), not from the code under test.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from daemon_harness import T16000M_DESCRIPTOR, StickState, expected_frame
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from usb2rc.binding import default_binding
+from usb2rc.guard import GuardedAxis, NeutralGuard
+from usb2rc.hid.backend import DeviceInfo
+from usb2rc.hid.descriptor import parse_descriptor
+from usb2rc.hid.reader import PRESSES_KEPT, DeviceReader, ReaderRecord
+from usb2rc.state import NodeTable
+
+LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
+BINDING = default_binding(LAYOUT, "T.16000M")  # a JOYSTICK: X, Y, Rz guarded at the centre
+GUARDED = (0, 1, 6)  # x, y, rz
+TOLERANCE = 0.1
+
+
+def info(key: str) -> DeviceInfo:
+    return DeviceInfo(
+        key=key, path=key, vid=0x044F, pid=0xB10A, product="T.16000M", port_path="1-1"
+    )
+
+
+@dataclass
+class Source:
+    record: ReaderRecord
+
+
+def record_of(state: StickState) -> ReaderRecord:
+    decoder = LAYOUT.make_decoder()
+    decoder.feed(state.report())
+    return ReaderRecord(decoder.state(), 1)
+
+
+def at_rest(state: StickState) -> bool:
+    """docs/ICD.md, "Neutral guard": X, Y, Rz within 0.1 of the half range of the centre."""
+    axes = expected_frame(state)[0]
+    return all(abs((axes[slot] + 32768) * 2 / 65535 - 1) <= TOLERANCE for slot in GUARDED)
+
+
+# Mostly near the ends and the centre, where the guard decides.
+COORD = st.one_of(
+    st.sampled_from([0, 16383, 8192, 8191, 7400, 9000, 6000, 10400]),
+    st.integers(0, 16383),
+)
+RZ = st.one_of(st.sampled_from([0, 255, 128, 116, 140]), st.integers(0, 255))
+STATES = st.builds(StickState, x=COORD, y=COORD, rz=RZ)
+OPS = st.lists(
+    st.one_of(
+        st.tuples(st.just("report"), STATES),
+        st.just(("frame",)),
+        st.just(("unplug",)),
+        st.just(("replug",)),
+    ),
+    max_size=40,
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(OPS)
+def test_the_guard_lets_a_device_live_only_after_a_frame_at_rest(ops: list) -> None:
+    table = NodeTable()
+    plugs = 0
+    source = Source(ReaderRecord(LAYOUT.initial_state(), 0))
+    table.add_device(0, info("k0"), BINDING, source, "JOYSTICK")
+    plugged, state, armed = True, None, False
+    held = (0,) * 10  # nothing to hold yet: 0 (docs/ICD.md, "Failsafe")
+    for op in ops:
+        if op[0] == "report" and plugged:
+            state = op[1]
+            source.record = record_of(state)
+        elif op[0] == "unplug" and plugged:
+            # the unplug takes the device's last values: held if the guard lets them be
+            # (armed, or at rest right now), else what was held before stays
+            if state is not None and (armed or at_rest(state)):
+                held = expected_frame(state)[0]
+            table.remove_device(f"k{plugs}")
+            plugged, armed = False, False
+        elif op[0] == "replug" and not plugged:
+            plugs += 1
+            source = Source(ReaderRecord(LAYOUT.initial_state(), 0))
+            table.add_device(0, info(f"k{plugs}"), BINDING, source, "JOYSTICK")
+            plugged, state = True, None
+        elif op[0] == "frame":
+            frame = table.frames()[0]
+            if plugged and state is not None and not armed and at_rest(state):
+                armed = True
+            assert frame.failsafe == (not armed)
+            if armed:
+                assert state is not None
+                assert (frame.axes, frame.group1) == expected_frame(state)[:2]
+            else:
+                assert frame.axes == held and frame.group1 == 0
+
+
+@given(
+    st.sampled_from(["centre", "low", "high"]),
+    st.floats(0.0, 1.0),
+    st.floats(-0.5, 0.5),
+    st.integers(-32768, 32767),
+)
+def test_an_axis_rests_within_its_tolerance_of_its_rest_point(
+    arm: str, tolerance: float, trim: float, wire: int
+) -> None:
+    """`centre` is symmetric around centre + trim, `low` / `high` one-sided; tolerance 1
+    accepts the whole centre side, 0 only the point itself."""
+    axis = GuardedAxis(0, "X", arm, tolerance, False, trim)
+    x = (wire + 32768) * 2 / 65535 - 1
+    rest = max(-1.0, min(1.0, {"centre": 0.0, "low": -1.0, "high": 1.0}[arm] + trim))
+    expected = {
+        "centre": abs(x - rest) <= tolerance,
+        "low": x <= rest + tolerance,
+        "high": x >= rest - tolerance,
+    }[arm]
+    assert axis.at_rest(wire) == expected
+    guard = NeutralGuard((axis,))
+    assert guard.waiting_for([wire] + [None] * 9) == ([] if expected else [f"X {arm}"])
+
+
+# --- the tap latch --------------------------------------------------------------------------
+
+
+class NoDevice:
+    info = info("tap")
+
+
+BUTTON_MASKS = st.integers(0, 0xF)  # HID buttons 1-4
+TAP_OPS = st.lists(
+    st.one_of(
+        st.tuples(st.just("report"), BUTTON_MASKS),
+        st.tuples(st.just("collect"), st.integers(0, 1)),
+    ),
+    max_size=60,
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(TAP_OPS)
+def test_every_press_shows_in_the_next_frame_of_each_output(ops: list) -> None:
+    """Two outputs collect at their own pace; each frame of an output shows the buttons held
+    now plus every button pressed (a rising edge) since that output's previous frame, and
+    nothing else."""
+    reader = DeviceReader(NoDevice(), LAYOUT.make_decoder(), lambda r, c: None)  # type: ignore[arg-type]
+    table = NodeTable()
+    outputs = [table.subscribe(events=False), table.subscribe(events=False)]
+    table.add_device(0, NoDevice.info, BINDING, reader, "JOYSTICK")
+    buttons = 0
+    pressed_since = [0, 0]  # per output: rising edges since its last frame (the model)
+    presses_since = [0, 0]
+    for op in ops:
+        if op[0] == "report":
+            rising = op[1] & ~buttons
+            buttons = op[1]
+            for k in range(2):
+                pressed_since[k] |= rising
+                presses_since[k] += bool(rising)
+            reader._handle(StickState(buttons=buttons).report())
+            reader._publish()
+        else:
+            k = op[1]
+            frame = table.frames(outputs[k])[0]
+            if presses_since[k] <= PRESSES_KEPT:  # the press log's bound (docs/ICD.md, "Taps")
+                assert frame.group1 & 0xF == buttons | pressed_since[k]
+            pressed_since[k], presses_since[k] = 0, 0
