@@ -1,0 +1,281 @@
+"""Issue 13 in one process: the sessions' `stopping()`, the new config options and their
+errors, trims (stepping, limits, reload, replug), the guard's defaults per device type."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pytest
+from daemon_harness import T16000M_DESCRIPTOR, StickState, scale
+
+from usb2rc.binding import default_binding
+from usb2rc.config import ConfigError, load_config_text
+from usb2rc.hid.backend import DeviceInfo
+from usb2rc.hid.descriptor import parse_descriptor
+from usb2rc.hid.reader import ReaderRecord
+from usb2rc.hid.usages import GD_GAMEPAD, GD_MULTI_AXIS, GD_RZ, GD_X, GD_Z, SIM_THROTTLE
+from usb2rc.guard import default_arm
+from usb2rc.mapping import compile_mapping
+from usb2rc.protocol import c2_16b, sumd
+from usb2rc.session import C2Session, C2Settings, SumdSession
+from usb2rc.state import EventKind, NodeFrame, NodeTable, ServiceEvent
+
+LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
+STICK = DeviceInfo(key="k", path="k", vid=0x044F, pid=0xB10A, product="T.16000M", port_path="1-1")
+
+
+# --- stopping: the sessions ---------------------------------------------------------------
+
+
+def live_session(nodes: int, baudrate: int = 115200) -> tuple[C2Session, list[NodeFrame]]:
+    """A C2 session whose nodes are announced and `>` on an open line."""
+    session = C2Session(C2Settings(baudrate=baudrate))
+    session.line_opened()
+    events = [ServiceEvent(EventKind.CONNECTED, n, STICK, "JOYSTICK") for n in range(nodes)]
+    frames = [NodeFrame(n, False, (0,) * 10, 0, 0) for n in range(nodes)]
+    for _ in range(40):  # every connect sequence out, every node's `>` on the line
+        out = session.tick(events, frames)
+        session.wrote(len(out))
+        events = []
+    return session, frames
+
+
+def statuses(data: bytes) -> dict[int, int]:
+    return {
+        f.node_id: f.status for f in c2_16b.Decoder().feed(data) if isinstance(f, c2_16b.DataFrame)
+    }
+
+
+def test_c2_stopping_sends_failsafe_for_every_node_though_the_table_says_live() -> None:
+    session, frames = live_session(3)
+    assert set(statuses(session.tick([], frames)).values()) == {c2_16b.LIVE}
+    session.wrote(0)
+    session.line_drained()
+    session.stopping()
+    assert not session.stop_done
+    out = session.tick([], frames)
+    assert statuses(out) == dict.fromkeys(range(3), c2_16b.FAILSAFE)
+    session.wrote(len(out))
+    assert session.stop_done
+
+
+def test_c2_stopping_with_round_robin_takes_ticks_until_every_node_had_its_failsafe() -> None:
+    session, frames = live_session(8, baudrate=57600)  # 3 frames a tick: round-robin
+    session.stopping()
+    seen: dict[int, int] = {}
+    ticks = 0
+    while not session.stop_done:
+        out = session.tick([], frames)
+        session.wrote(len(out))
+        seen.update(statuses(out))
+        ticks += 1
+        assert ticks < 10
+    assert seen == dict.fromkeys(range(8), c2_16b.FAILSAFE) and ticks >= 3
+
+
+def test_c2_stopping_on_a_stalled_or_closed_line_is_done_at_once() -> None:
+    session, frames = live_session(2)
+    out = session.tick([], frames)
+    session.wrote(len(out) // 2)  # the far end stopped reading
+    session.stopping()
+    assert session.stalled and session.stop_done
+    closed = C2Session(C2Settings())
+    closed.stopping()
+    assert closed.stop_done
+
+
+def test_sumd_stopping_sets_the_failsafe_bit() -> None:
+    session = SumdSession()
+    session.line_opened()
+    assert session.tick([12000, 12000], failsafe=False)[1] == 0x01
+    session.wrote(0)
+    session.line_drained()
+    session.stopping()
+    assert not session.stop_done
+    frame = session.tick([12000, 12000], failsafe=False)
+    assert frame[1] == 0x81
+    assert sumd.SumdDecoder().feed(frame)[0].failsafe
+    session.wrote(len(frame))
+    assert session.stop_done
+    stalled = SumdSession()
+    stalled.line_opened()
+    stalled.tick([12000, 12000], failsafe=False)
+    stalled.wrote(3)  # the far end stopped reading
+    stalled.stopping()
+    assert stalled.stalled and stalled.stop_done  # a far end that does not read: no wait
+
+
+# --- stopping: the table ------------------------------------------------------------------
+
+
+@dataclass
+class Source:
+    record: ReaderRecord
+
+
+def record_of(state: StickState) -> ReaderRecord:
+    decoder = LAYOUT.make_decoder()
+    decoder.feed(state.report())
+    return ReaderRecord(decoder.state(), 1)
+
+
+def test_table_stop_makes_every_node_failsafe_with_its_values_held_and_no_event() -> None:
+    table = NodeTable()
+    box = table.subscribe()
+    table.add_device(
+        0,
+        STICK,
+        default_binding(LAYOUT, "T.16000M"),
+        Source(record_of(StickState(x=9000, buttons=1))),
+        "JOYSTICK",
+    )
+    table.collect(box)
+    live = table.frames()[0]
+    assert not live.failsafe and live.group1 == 1
+    table.stop()
+    events, frames = table.collect(box)
+    assert events == []  # not unplugged: no `2`
+    assert frames[0].failsafe and frames[0].axes == live.axes and frames[0].group1 == 0
+
+
+# --- config -------------------------------------------------------------------------------
+
+STICK_ENTRY = "devices:\n  - match: {vid: 0x044f}\n    axes:\n"
+
+
+def problems(axes_yaml: str) -> list[str]:
+    with pytest.raises(ConfigError) as info:
+        load_config_text(STICK_ENTRY + axes_yaml, "t.yaml")
+    return info.value.errors
+
+
+def test_arm_and_trim_switch_errors_name_the_line_and_key() -> None:
+    assert problems("      x: {usage: X, arm: middle}\n") == [
+        "t.yaml:4: devices[0].axes.x.arm: 'middle' is not valid "
+        "(allowed: centre, center, low, high, any)"
+    ]
+    assert problems("      x: {usage: X, arm_tolerance: 2}\n") == [
+        "t.yaml:4: devices[0].axes.x.arm_tolerance: 2 is out of range (allowed: 0.0..1.0)"
+    ]
+    [missing] = problems("      x: {usage: X, trim_switch: {step: 0.1}}\n")
+    assert "devices[0].axes.x.trim_switch: trim switch missing" in missing
+    [both] = problems("      x: {usage: X, trim_switch: {hat: HatSwitch, buttons: [1, 2]}}\n")
+    assert "hat and buttons both given" in both
+    assert problems("      x: {usage: X, trim_switch: {buttons: [1, 2], stpe: 0.1}}\n") == [
+        "t.yaml:4: devices[0].axes.x.trim_switch.stpe: unknown key 'stpe'; did you mean 'step'? "
+        "(allowed: hat, axis, occurrence, buttons, step, limit)"
+    ]
+    [no_axis] = problems("      x: {usage: X, trim_switch: {hat: HatSwitch}}\n")
+    assert "trim_switch.axis: missing" in no_axis
+
+
+def test_trim_switch_hat_missing_from_the_device_is_a_mapping_error() -> None:
+    config = load_config_text(
+        STICK_ENTRY
+        + "      x: {usage: X, trim_switch: {hat: HatSwitch, occurrence: 1, axis: x}}\n",
+        "t.yaml",
+    )
+    with pytest.raises(ValueError, match="t.yaml:4: .*trim switch hat HatSwitch #2 is not in"):
+        compile_mapping(config).bind(STICK, LAYOUT)
+
+
+def test_guard_defaults_by_usage_and_device_type() -> None:
+    assert default_arm(GD_X, GD_GAMEPAD) == "centre"
+    assert default_arm(GD_RZ, GD_MULTI_AXIS) == "any"  # a space mouse: not a stick
+    assert default_arm(GD_Z, GD_GAMEPAD) == "any"
+    assert default_arm(SIM_THROTTLE, GD_MULTI_AXIS) == "low"
+    assert default_binding(LAYOUT, "t").guard.describe() == "X centre, Y centre, Rz centre"
+    config = load_config_text(
+        STICK_ENTRY + "      x: X\n      y: {usage: Y, arm: any}\n"
+        "      slider: {usage: Slider, arm: high, arm_tolerance: 0.2}\n",
+        "t.yaml",
+    )
+    binding = compile_mapping(config).bind(STICK, LAYOUT)
+    assert binding is not None and binding.guard.describe() == "X centre, Slider high"
+    assert binding.guard.axes[1].tolerance == 0.2
+
+
+# --- trims --------------------------------------------------------------------------------
+
+TRIM_ENTRY = """
+devices:
+  - name: stick
+    match: {{vid: 0x044f}}
+    node_id: 1
+    axes:
+      x: {{usage: X, trim_switch: {{buttons: [3, 4], step: 0.05, limit: {limit}}}}}
+      y: {{usage: Y{y_trim}}}
+"""
+
+
+def trim_binding(limit: float = 0.2, y_trim: str = ""):  # type: ignore[no-untyped-def]
+    config = load_config_text(TRIM_ENTRY.format(limit=limit, y_trim=y_trim), "t.yaml")
+    mapping = compile_mapping(config)
+    return mapping, mapping.bind(STICK, LAYOUT)
+
+
+class Presses:
+    """A reader record source whose buttons are pressed one report at a time."""
+
+    def __init__(self) -> None:
+        self.serial = 0
+        self.presses: tuple[tuple[int, int], ...] = ()
+        self.record = record_of(StickState())
+
+    def press(self, hid_button: int) -> None:
+        self.serial += 1
+        self.presses = (*self.presses, (self.serial, 1 << (hid_button - 1)))
+        base = record_of(StickState())
+        self.record = ReaderRecord(base.state, self.serial + 1, 0, None, self.presses, self.serial)
+
+
+def x_of(table: NodeTable) -> int:
+    return next(f for f in table.frames() if f.node_id == 1).axes[0]
+
+
+def test_trim_steps_per_press_within_its_limit_and_survives_reload_and_replug() -> None:
+    mapping, binding = trim_binding()
+    centre = scale(8192, 0, 16383)
+    table = NodeTable()
+    source = Presses()
+    table.add_device(1, STICK, binding, source, "JOYSTICK")
+    assert x_of(table) == centre  # armed: centred
+    for _ in range(3):
+        source.press(4)  # three taps up between two frames: every one counts
+    assert x_of(table) == centre + 4915  # 0.15 of 32767.5
+    for _ in range(3):
+        source.press(4)
+    assert x_of(table) == centre + 6554  # held at the limit, 0.2
+    assert table.describe()["1"]["trims"] == {"x": 0.2}
+    # a replug: the trim belongs to the node and slot
+    table.remove_device(STICK.key)
+    again = Presses()
+    table.add_device(1, STICK, binding, again, "JOYSTICK")
+    assert x_of(table) == centre + 6554
+    # a reload with a lower limit clamps it; one without the switch drops it
+    _, tighter = trim_binding(limit=0.1)
+    table.rebind(lambda _info: tighter, {})
+    assert x_of(table) == centre + 3277
+    again.press(3)
+    assert x_of(table) == centre + 1638  # one step down: 0.05
+    plain = load_config_text(
+        "devices:\n  - match: {vid: 0x044f}\n    node_id: 1\n    axes: {x: X}\n", "p.yaml"
+    )
+    table.rebind(lambda _info: compile_mapping(plain).bind(STICK, LAYOUT), {})
+    assert x_of(table) == centre and table.describe()["1"]["trims"] == {}
+
+
+def test_a_trim_moves_the_rest_point_of_the_guard() -> None:
+    """A stick trimmed +0.2 that comes back centred sends +0.2: it rests there."""
+    _, binding = trim_binding()
+    table = NodeTable()
+    source = Presses()
+    table.add_device(1, STICK, binding, source, "JOYSTICK")
+    assert not table.frames()[0].failsafe  # live: trims step only now
+    for _ in range(4):
+        source.press(4)
+    assert x_of(table) == scale(8192, 0, 16383) + 6554
+    table.remove_device(STICK.key)
+    table.add_device(1, STICK, binding, Source(record_of(StickState())), "JOYSTICK")
+    frame = next(f for f in table.frames() if f.node_id == 1)
+    assert not frame.failsafe  # centred plus its trim: at rest
