@@ -8,13 +8,13 @@ from dataclasses import dataclass
 import pytest
 from daemon_harness import T16000M_DESCRIPTOR, StickState, scale
 
-from usb2rc.binding import default_binding
+from usb2rc.binding import DeviceBinding, default_binding
 from usb2rc.config import ConfigError, load_config_text
+from usb2rc.guard import default_arm
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.hid.usages import GD_GAMEPAD, GD_MULTI_AXIS, GD_RZ, GD_X, GD_Z, SIM_THROTTLE
-from usb2rc.guard import default_arm
 from usb2rc.mapping import compile_mapping
 from usb2rc.protocol import c2_16b, sumd
 from usb2rc.session import C2Session, C2Settings, SumdSession
@@ -175,7 +175,7 @@ def test_trim_switch_hat_missing_from_the_device_is_a_mapping_error() -> None:
         + "      x: {usage: X, trim_switch: {hat: HatSwitch, occurrence: 1, axis: x}}\n",
         "t.yaml",
     )
-    with pytest.raises(ValueError, match="t.yaml:4: .*trim switch hat HatSwitch #2 is not in"):
+    with pytest.raises(ValueError, match=r"t\.yaml:4: .*trim switch hat HatSwitch #2 is not in"):
         compile_mapping(config).bind(STICK, LAYOUT)
 
 
@@ -204,14 +204,14 @@ devices:
     node_id: 1
     axes:
       x: {{usage: X, trim_switch: {{buttons: [3, 4], step: 0.05, limit: {limit}}}}}
-      y: {{usage: Y{y_trim}}}
 """
 
 
-def trim_binding(limit: float = 0.2, y_trim: str = ""):  # type: ignore[no-untyped-def]
-    config = load_config_text(TRIM_ENTRY.format(limit=limit, y_trim=y_trim), "t.yaml")
-    mapping = compile_mapping(config)
-    return mapping, mapping.bind(STICK, LAYOUT)
+def trim_binding(limit: float = 0.2) -> DeviceBinding:
+    config = load_config_text(TRIM_ENTRY.format(limit=limit), "t.yaml")
+    binding = compile_mapping(config).bind(STICK, LAYOUT)
+    assert binding is not None
+    return binding
 
 
 class Presses:
@@ -234,7 +234,7 @@ def x_of(table: NodeTable) -> int:
 
 
 def test_trim_steps_per_press_within_its_limit_and_survives_reload_and_replug() -> None:
-    mapping, binding = trim_binding()
+    binding = trim_binding()
     centre = scale(8192, 0, 16383)
     table = NodeTable()
     source = Presses()
@@ -253,7 +253,7 @@ def test_trim_steps_per_press_within_its_limit_and_survives_reload_and_replug() 
     table.add_device(1, STICK, binding, again, "JOYSTICK")
     assert x_of(table) == centre + 6554
     # a reload with a lower limit clamps it; one without the switch drops it
-    _, tighter = trim_binding(limit=0.1)
+    tighter = trim_binding(limit=0.1)
     table.rebind(lambda _info: tighter, {})
     assert x_of(table) == centre + 3277
     again.press(3)
@@ -267,7 +267,7 @@ def test_trim_steps_per_press_within_its_limit_and_survives_reload_and_replug() 
 
 def test_a_trim_moves_the_rest_point_of_the_guard() -> None:
     """A stick trimmed +0.2 that comes back centred sends +0.2: it rests there."""
-    _, binding = trim_binding()
+    binding = trim_binding()
     table = NodeTable()
     source = Presses()
     table.add_device(1, STICK, binding, source, "JOYSTICK")
