@@ -156,15 +156,19 @@ class PtyReader:
 
 
 def ramp_recording(count: int, step_s: float) -> str:
-    """count reports, one every step_s, X = 0, 1, 2 ... (unique while count <= 16384)."""
-    states = [StickState(x=i % (X_MAX + 1), y=8192) for i in range(count)]
+    """count reports, one every step_s, X = 8192, 8193 ... (unique while count <= 16384;
+    from the centre, where the neutral guard lets the stick go live)."""
+    states = [StickState(x=(8192 + i) % (X_MAX + 1), y=8192) for i in range(count)]
     return recording(states, hold_s=step_s)
 
 
 def khz_recording(seconds: float, name: str) -> str:
-    """1000 reports/s, every one different (X and Y ramps)."""
+    """1000 reports/s, every one different (X and Y ramps, from the centre: the guard)."""
     count = int(seconds * 1000)
-    states = [StickState(x=(7 * i) % (X_MAX + 1), y=(13 * i) % (X_MAX + 1)) for i in range(count)]
+    states = [
+        StickState(x=(8192 + 7 * i) % (X_MAX + 1), y=(8192 + 13 * i) % (X_MAX + 1))
+        for i in range(count)
+    ]
     return recording(states, hold_s=0.001, name=name)
 
 
@@ -532,7 +536,7 @@ def percentile(values: Sequence[float], q: float) -> float:
 def run_starts(workdir: Path, starts: int) -> dict[str, Any]:
     replay_dir = workdir / "start"
     replay_dir.mkdir()
-    states = [StickState(x=i * 100) for i in range(50)]
+    states = [StickState(x=8192 + i * 100) for i in range(50)]  # from the centre: the guard
     (replay_dir / "stick.hid").write_text(recording(states, hold_s=0.02))
     reader = PtyReader(workdir)
     firsts, datas, stops = [], [], []

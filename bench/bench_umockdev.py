@@ -49,7 +49,7 @@ def measure(workdir: Path, reports: int, report_ms: float) -> dict[str, Any]:
         )
         try:
             reader.wait_for(lambda f: reader.data(), timeout=20, what="the first data frame")
-            bed.report(hidraw, StickState(x=X_MAX).report())  # live before the ramp
+            bed.report(hidraw, StickState().report())  # live (centred: the guard) before the ramp
             reader.wait_for(lambda f: reader.data()[-1]["s"] == 0x3E, 5, "a live frame")
             deliveries = ramp(bed, hidraw, reports, report_ms / 1000)
             last = scale(deliveries[-1][1], 0, X_MAX)
