@@ -210,6 +210,7 @@ def device_lines(node: NodeRow) -> list[str]:
         lines.append(f"  device {device_label(dev.info)}{entry}{state}")
         runs = describe_button_runs(dev.binding.button_runs)
         lines += [f"    {line}" for line in [*runs, *dev.binding.hat_notes]]
+        lines.append(f"    neutral guard: {dev.binding.guard.describe()}")
     lines += [f"  waiting for config entry {name}: not plugged" for name in node.waiting]
     return lines
 
