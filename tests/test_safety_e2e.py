@@ -12,7 +12,9 @@ devices, frames read off real ptys.
 from __future__ import annotations
 
 import itertools
+import os
 import signal
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -256,3 +258,25 @@ def test_a_5_ms_tap_between_ticks_shows_in_one_frame_on_c2_and_sumd(
         assert sumd_taps(sumd_line.frames()) == [1] * TAPS
     finally:
         sumd_line.close()
+
+
+def test_sigterm_on_a_line_nobody_reads_still_stops(tmp_path: Path, replay_dir: Path) -> None:
+    """A far end that never reads: the pty fills, the line stalls; the final failsafe ticks
+    give up instead of waiting for it (the wait here only catches a hang)."""
+    master, slave = os.openpty()
+    try:
+        install(replay_dir / "stick.hid", recording([CENTRED], hold_s=0.001))
+        daemon = run_daemon(tmp_path, os.ttyname(slave), replay_dir)
+        try:
+            deadline = time.monotonic() + 30
+            while "stalled" not in daemon.log():
+                assert time.monotonic() < deadline, daemon.log()[-2000:]
+                time.sleep(0.05)
+            daemon.signal(signal.SIGTERM)
+            assert daemon.proc.wait(10) == 0
+        finally:
+            daemon.stop()
+        assert "Traceback" not in daemon.log()
+    finally:
+        os.close(master)
+        os.close(slave)
