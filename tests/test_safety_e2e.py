@@ -161,9 +161,21 @@ def test_with_a_config_a_slider_armed_low_waits_for_its_low_end(
         assert_guarded(frames, (0, 0, 0, 32767) + (0,) * 6)
         assert next(f for f in frames if f.status == LIVE).axes[3] == -32768
         assert {f.axes[3] for f in frames if f.status == FAILSAFE} == {-32768}  # its failsafe
+        # replugged with X at full right (the slider low): `!` until X is centred
+        before = len(line.frames())
+        (replay_dir / "stick.hid").unlink()
+        line.wait_for(lambda fr: "disconnected" in services(fr[before:], 4))
+        before = len(line.frames())
+        right = StickState(x=16383, slider=0)
+        install(replay_dir / "stick.hid", timed_recording(held_then_at_rest(low, right)))
+        wait_live(line, 4, before)
+        frames = after_plug(line, 4, before)
+        assert_guarded(frames, (32767, 0, 0, -32768) + (0,) * 6)
+        assert next(f for f in frames if f.status == LIVE).axes[0] == expected_frame(low)[0][0]
     finally:
         assert daemon.stop() == 0, daemon.log()
     assert "node 4 waits for Slider low (Thrustmaster T.16000M)" in daemon.log()
+    assert "node 4 waits for X centre (Thrustmaster T.16000M)" in daemon.log()
 
 
 def two_outputs(tmp_path: Path, sumd_line: PtyLine, channels: str) -> Path:

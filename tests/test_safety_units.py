@@ -279,3 +279,80 @@ def test_a_trim_moves_the_rest_point_of_the_guard() -> None:
     table.add_device(1, STICK, binding, Source(record_of(StickState())), "JOYSTICK")
     frame = next(f for f in table.frames() if f.node_id == 1)
     assert not frame.failsafe  # centred plus its trim: at rest
+
+
+# --- the guard: reload, merged nodes -------------------------------------------------------
+
+MERGED = """
+devices:
+  - name: stick
+    match: {vid: 0x044f, pid: 0xb10a}
+    node_id: 1
+    axes: {x: X}
+  - name: throttle
+    match: {vid: 0x044f, pid: 0xb687}
+    node_id: 1
+    axes: {slider: {usage: Slider, arm: low}}
+"""
+THROTTLE = DeviceInfo(key="t", path="t", vid=0x044F, pid=0xB687, product="TWCS", port_path="1-2")
+
+
+def test_each_device_of_a_merged_node_guards_its_own_axes() -> None:
+    mapping = compile_mapping(load_config_text(MERGED, "m.yaml"))
+    stick, throttle = (mapping.bind(i, LAYOUT) for i in (STICK, THROTTLE))
+    assert stick is not None and throttle is not None
+    table = NodeTable()
+    # the stick rests, its slider (not guarded: not in its entry) is up; the throttle's is up
+    stick_source = Source(record_of(StickState(slider=255)))
+    throttle_source = Source(record_of(StickState(x=0, slider=255)))
+    table.add_device(1, STICK, stick, stick_source, "JOYSTICK")
+    table.add_device(1, THROTTLE, throttle, throttle_source, "JOYSTICK")
+    assert table.frames()[0].failsafe
+    assert table.describe()["1"]["waiting_for"] == ["Slider low (TWCS)"]
+    throttle_source.record = record_of(StickState(x=0, slider=0))  # its X is not its guard
+    assert not table.frames()[0].failsafe
+
+
+def test_a_reload_never_makes_an_armed_device_wait_and_a_waiting_one_takes_the_new_guard() -> None:
+    armed_x = "devices:\n  - match: {vid: 0x044f}\n    node_id: 1\n    axes: {x: X}\n"
+    any_x = (
+        "devices:\n  - match: {vid: 0x044f}\n    node_id: 1\n    axes: {x: {usage: X, arm: any}}\n"
+    )
+    guarded = compile_mapping(load_config_text(armed_x, "a.yaml")).bind(STICK, LAYOUT)
+    free = compile_mapping(load_config_text(any_x, "b.yaml")).bind(STICK, LAYOUT)
+    table = NodeTable()
+    source = Source(record_of(StickState()))
+    table.add_device(1, STICK, guarded, source, "JOYSTICK")
+    assert not table.frames()[0].failsafe
+    source.record = record_of(StickState(x=16383))  # in flight, full right
+    table.rebind(lambda _i: guarded, {})
+    assert not table.frames()[0].failsafe  # armed stays armed
+    # replugged at full right: waits; a reload to `arm: any` lets it go
+    table.remove_device(STICK.key)
+    table.add_device(1, STICK, guarded, Source(record_of(StickState(x=16383))), "JOYSTICK")
+    assert table.frames()[0].failsafe
+    table.rebind(lambda _i: free, {})
+    assert not table.frames()[0].failsafe and table.frames()[0].axes[0] == 32767
+
+
+HAT_TRIM = """
+devices:
+  - match: {vid: 0x044f}
+    node_id: 1
+    axes:
+      y: {usage: Y, trim_switch: {hat: HatSwitch, axis: y, step: 0.02}}
+"""
+
+
+def test_a_hat_trim_steps_once_per_push() -> None:
+    binding = compile_mapping(load_config_text(HAT_TRIM, "h.yaml")).bind(STICK, LAYOUT)
+    table = NodeTable()
+    source = Source(record_of(StickState()))
+    table.add_device(1, STICK, binding, source, "JOYSTICK")
+    centre = scale(8192, 0, 16383)
+    assert not table.frames()[0].failsafe  # live: trims step only now
+    for hat in (0, 0, 0, 8, 1, 8, 4):  # UP held 3 frames, released, UP-RIGHT, released, DOWN
+        source.record = record_of(StickState(hat=hat))
+        table.frames()
+    assert table.describe()["1"]["trims"] == {"y": 0.02}  # +1 +1 -1 steps
+    assert table.frames()[0].axes[1] == centre + 655  # 0.02 of 32767.5
