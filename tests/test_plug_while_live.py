@@ -65,7 +65,8 @@ def line_dropped(log: str) -> bool:
 def test_stick_keeps_every_tick_while_five_devices_are_plugged(tmp_path: Path) -> None:
     replay_dir = tmp_path / "replay"
     replay_dir.mkdir()
-    stick = [StickState(x=i % 16384, y=(3 * i) % 16384) for i in range(2000)]
+    # from the centre (the neutral guard lets it go live), then every report different
+    stick = [StickState(x=(8192 + i) % 16384, y=(8192 + 3 * i) % 16384) for i in range(2000)]
     install(replay_dir / "stick.hid", recording(stick, hold_s=0.001))
     config = tmp_path / "usb2rc.yaml"
     config.write_text(CONFIG)

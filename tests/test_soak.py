@@ -41,7 +41,7 @@ def test_soak_plug_unplug(request, tmp_path: Path):
     replay.mkdir()
     texts = [
         recording(
-            [StickState(x=1000 * i + j, buttons=1 << i) for j in range(20)],
+            [StickState(), *[StickState(x=1000 * i + j, buttons=1 << i) for j in range(20)]],
             hold_s=0.01,
             name=f"Soak T.16000M {i}",
         )

@@ -60,10 +60,11 @@ def live(node: int):
 
 
 def fast_states(n: int, seed: int) -> list[StickState]:
+    """n states, the first at rest (the neutral guard lets the stick go live), then random."""
     rng = random.Random(seed)
-    return [
+    return [StickState()] + [
         StickState(x=rng.randrange(16384), y=rng.randrange(16384), buttons=rng.randrange(65536))
-        for _ in range(n)
+        for _ in range(n - 1)
     ]
 
 
@@ -71,7 +72,7 @@ def fast_states(n: int, seed: int) -> list[StickState]:
 
 
 def test_serial_line_vanishes_and_returns(request, tmp_path, replay):
-    install(replay / "stick.hid", recording([StickState(x=0)]))
+    install(replay / "stick.hid", recording([StickState(), StickState(x=0)]))
     link = tmp_path / "ttyLINK"
     line = CheckedLine()
     link.symlink_to(line.path)
@@ -170,9 +171,13 @@ def test_unplug_mid_report_at_high_rate(request, tmp_path, replay):
 
 def test_device_whose_reads_fail(request, tmp_path, replay):
     """read-error 0.3 s after each open: error `3` (0x01), `2`, `!`, reopened, live, again."""
-    text = recording([StickState(x=0, buttons=1)], extra="# usb2rc-fault: read-error at 0.3")
+    text = recording(
+        [StickState(), StickState(x=0, buttons=1)], extra="# usb2rc-fault: read-error at 0.3"
+    )
     install(replay / "bad.hid", text)
-    install(replay / "good.hid", recording([StickState(x=16383)], name="Good T.16000M"))
+    install(
+        replay / "good.hid", recording([StickState(), StickState(x=16383)], name="Good T.16000M")
+    )
     line = CheckedLine()
     daemon = start(tmp_path, line.path, replay)
     cycles = max(3, REPEATS)
@@ -253,7 +258,10 @@ def test_device_flooding_8khz(request, tmp_path, replay):
 def test_ten_devices_at_115200(request, tmp_path, replay):
     """10 nodes, 6 frames per tick: round-robin, every node served, one bandwidth warning."""
     for i in range(10):
-        install(replay / f"s{i}.hid", recording([StickState(x=i * 1000)], name=f"Stick {i:02d}"))
+        install(
+            replay / f"s{i}.hid",
+            recording([StickState(), StickState(x=i * 1000)], name=f"Stick {i:02d}"),
+        )
     line = CheckedLine()
     daemon = start(tmp_path, line.path, replay)
     try:
@@ -284,7 +292,7 @@ def test_ten_devices_at_115200(request, tmp_path, replay):
 
 def test_rx_garbage_and_requests_interleaved(request, tmp_path, replay):
     install(replay / "a.hid", recording([StickState()]))
-    install(replay / "b.hid", recording([StickState(x=1)], name="Other T.16000M"))
+    install(replay / "b.hid", recording([StickState(), StickState(x=1)], name="Other T.16000M"))
     line = CheckedLine()
     daemon = start(tmp_path, line.path, replay)
     rng = random.Random(9)
@@ -332,7 +340,7 @@ def test_rx_garbage_and_requests_interleaved(request, tmp_path, replay):
 def test_sighup_storm(request, tmp_path, replay):
     config = tmp_path / "usb2rc.yaml"
     config.write_text(INVERT_X_CONFIG.format(invert="false"))
-    install(replay / "stick.hid", recording([StickState(x=0)]))
+    install(replay / "stick.hid", recording([StickState(), StickState(x=0)]))
     line = CheckedLine(configured=[4])
     daemon = start(tmp_path, line.path, replay, "--config", str(config))
     storms = env_int("USB2RC_SIGHUP_STORMS", 6)
@@ -454,7 +462,7 @@ def test_sighup_with_a_control_character_keeps_running(tmp_path, replay):
     """Found by the config fuzzing: this used to kill the daemon (a ReaderError escaped)."""
     config = tmp_path / "c.yaml"
     config.write_text(INVERT_X_CONFIG.format(invert="false"))
-    install(replay / "stick.hid", recording([StickState(x=0)]))
+    install(replay / "stick.hid", recording([StickState(), StickState(x=0)]))
     line = CheckedLine(configured=[4])
     daemon = start(tmp_path, line.path, replay, "--config", str(config))
     try:
