@@ -391,9 +391,9 @@ def prepare(args: argparse.Namespace) -> tuple[Config, str, list[LiveDevice], li
     config, text = load(args.config)
     if args.replay and not os.path.isdir(args.replay):
         raise UsageError(f"--replay {args.replay}: no such directory")
+    only = wanted_entry(config, args.device)
     if not (sys.stdin.isatty() and sys.stdout.isatty()):
         raise UsageError("calibrate is interactive: run it in a terminal")
-    only = wanted_entry(config, args.device)
     backend = choose_backend(args.replay, loop=args.replay_loop)
     devices, targets, notes = open_devices(config, backend, only)
     for note in notes:

@@ -4,9 +4,9 @@ For setting up a HOTAS: every node with its failsafe state, each axis as a bar w
 it would carry on the wire, the raw HID value it comes from and the device and usage feeding
 it, the pressed node buttons and the hat, the service events an output would send, and each
 device's report count. It runs the daemon's own input side (hot-plug, one reader thread per
-device, the compiled mapping, the node table) and opens no serial port. On a terminal it redraws about 10 times a second
-(plain ANSI, fine over SSH); with `--plain`, or when stdout is not a terminal, it prints a
-text snapshot once a second.
+device, the compiled mapping, the node table) and opens no serial port. On a terminal it
+redraws about 10 times a second (plain ANSI, fine over SSH); with `--plain`, or when stdout
+is not a terminal, it prints a text snapshot once a second.
 """
 
 from __future__ import annotations
