@@ -225,5 +225,6 @@ class Wizard:
 
     def _next(self) -> None:
         self._index += 1
+        self.value = None  # the next axis's value comes with its first observe()
         self.step = Step.RANGE if self.target is not None else Step.SUMMARY
         self.range, self.rest = _Seen(), _Seen()

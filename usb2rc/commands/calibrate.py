@@ -113,8 +113,13 @@ class LiveDevice:
     decoder: TrackingDecoder
     gone: str = ""  # why it stopped, set by the reader thread
 
-    def sample(self, index: int) -> tuple[int, int, int]:
-        value = self.reader.record.state.values[index]
+    def sample(self, index: int) -> tuple[int, int, int] | None:
+        """(value, lowest, highest) of field `index`; None before the device's first report
+        (its state is only the descriptor's centre then, not where the axis is)."""
+        record = self.reader.record
+        if not record.reports:
+            return None
+        value = record.state.values[index]
         low, high = self.decoder.take(index, value)
         return value, low, high
 
@@ -229,7 +234,7 @@ def stop_devices(devices: Sequence[LiveDevice]) -> None:
 # --------------------------------------------------------------------------- keys
 
 
-KEYS = {b"\r": "enter", b"\n": "enter", b"\x03": "q"}
+KEYS = {b"\r": "enter", b"\n": "enter"}  # Ctrl-C stays a signal (cbreak keeps ISIG)
 
 
 @contextlib.contextmanager
@@ -282,12 +287,15 @@ def axis_lines(wizard: Wizard, device: LiveDevice) -> list[str]:
     t = wizard.target
     assert t is not None
     number, total = wizard.position
-    value = wizard.value if wizard.value is not None else 0
     lines = [
         f"axis {number} of {total}: {t.entry}.{t.slot} <- {t.source} "
         f"(logical {t.logical_min}..{t.logical_max})",
-        f"raw {value:>7}  [{bar(value, t.logical_min, t.logical_max)}]",
     ]
+    if wizard.value is None:
+        lines.append("raw       -  (no report from the device yet: move it)")
+    else:
+        value = wizard.value
+        lines.append(f"raw {value:>7}  [{bar(value, t.logical_min, t.logical_max)}]")
     seen = wizard.range
     if wizard.step is Step.RANGE:
         lines.append("step 1 of 2: move it through its whole range, then press Enter")
@@ -351,7 +359,9 @@ def run_wizard(wizard: Wizard, devices: dict[int, LiveDevice], path: str, fd: in
         while not wizard.finished:
             target = wizard.target
             if target is not None and wizard.step is not Step.SUMMARY:
-                wizard.observe(*devices[target.device].sample(target.field_index))
+                sample = devices[target.device].sample(target.field_index)
+                if sample is not None:
+                    wizard.observe(*sample)
             live.update(render(wizard, devices, path), refresh=True)
             for key in read_keys(fd, REFRESH_S):
                 wizard.key(key)
