@@ -7,6 +7,7 @@ throttle). The test answers the wizard as a user would, waiting for what the scr
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import shutil
@@ -38,9 +39,15 @@ needs_tmux = pytest.mark.skipif(
 )
 
 
+SERVERS = itertools.count()
+
+
 class Pane:
     def __init__(self, name: str) -> None:
-        self.tmux = ["tmux", "-L", f"{name}-{os.getpid()}", "-f", os.devnull]
+        # A server of its own per test: a new session on a server still shutting down after
+        # the last test's kill-server fails ("server exited unexpectedly").
+        socket = f"{name}-{os.getpid()}-{next(SERVERS)}"
+        self.tmux = ["tmux", "-L", socket, "-f", os.devnull]
 
     def start(self, command: str, cwd: Path) -> None:
         env = dict(os.environ, TERM="xterm", LANG="C.UTF-8")
@@ -171,6 +178,43 @@ def test_calibrate_writes_what_check_accepts_and_keeps_the_comments(tmp_path, pa
     )
     assert checked.returncode == 0, checked.stderr
     assert "axis x      <- X (raw 0..16383, signed -32768..32767, calibration 0/" in checked.stdout
+
+
+@needs_tmux
+def test_calibrate_over_the_demo_recordings(tmp_path, pane):
+    """The shipped demo never rests (circles and sweeps, looped): each axis takes its range,
+    then `m` (midpoint) in the rest step, as for a throttle."""
+    demo = ROOT / "usb2rc" / "data" / "demo"
+    config = starter(tmp_path, demo)
+    before = config.read_text()
+    argv = usb2rc("calibrate", "--config", str(config), "--replay", str(demo), "--replay-loop")
+    pane.start(" ".join(argv) + " thrustmaster-t-16000m; echo EXIT=$?; sleep 60", ROOT)
+    ends = {"x": 16383, "y": 16383, "slider": 255, "rz": 255}
+    for number, slot in enumerate(ends, start=1):
+        pane.wait_for(f"axis {number} of 4: thrustmaster-t-16000m.{slot} ")
+        pane.wait_for(f"seen 0..{ends[slot]} (100% of the range)")
+        pane.keys("Enter")
+        pane.wait_for("step 2 of 2")
+        pane.keys("m")
+    pane.wait_for("Enter: write")
+    pane.keys("Enter")
+    pane.wait_for("EXIT=0")
+    after = config.read_text()
+    assert [line.split("#", 1)[1] for line in after.splitlines() if "#" in line] == [
+        line.split("#", 1)[1] for line in before.splitlines() if "#" in line
+    ]
+    stick, throttle = load_config(str(config)).devices
+    assert {a.slot: a.calibration for a in stick.axes} == {
+        "x": Calibration(0, 8191, 16383),
+        "y": Calibration(0, 8191, 16383),
+        "slider": Calibration(0, 127, 255),
+        "rz": Calibration(0, 127, 255),
+    }
+    assert all(a.calibration is None for a in throttle.axes)  # DEVICE named the stick only
+    checked = subprocess.run(
+        usb2rc("check", "--config", str(config)), capture_output=True, text=True, timeout=60
+    )
+    assert checked.returncode == 0, checked.stderr
 
 
 @needs_tmux
