@@ -178,3 +178,15 @@ def test_buttons_follow_the_default_runs_up_to_the_devices_last(count):
         (b, b) for b in range(1, min(count, 56) + 1)
     ]
     assert ("buttons 57-60" in text) == (count == 60)
+
+
+def test_a_replaced_file_keeps_its_mode_and_leaves_no_temporary(tmp_path):
+    from usb2rc.textfile import write_atomically
+
+    target = tmp_path / "usb2rc.yaml"
+    target.write_text("old\n")
+    target.chmod(0o640)
+    write_atomically(target, "new\n")
+    assert target.read_text() == "new\n"
+    assert target.stat().st_mode & 0o777 == 0o640
+    assert [p.name for p in tmp_path.iterdir()] == ["usb2rc.yaml"]
