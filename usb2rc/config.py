@@ -197,14 +197,14 @@ def _check_bandwidth(
 
 
 def _read_channels(
-    reader: NodeReader, node: Node, path: str, entry: OutputProtocol
+    reader: NodeReader, node: Node, path: str, output: OutputProtocol
 ) -> tuple[tuple[ChannelRef, ...], tuple[Where, ...]] | None:
     """The channel references (parsed here, once) and where each is; bad names reported."""
     entries = reader.sequence(node, path)
     if entries is None:
         return None
-    assert entry.channels is not None
-    low, high = entry.channels
+    assert output.channels is not None
+    low, high = output.channels
     if not low <= len(entries) <= high:
         reader.error(node, path, f"{len(entries)} channels", f"{low}..{high}")
     refs: list[ChannelRef] = []

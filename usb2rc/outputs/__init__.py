@@ -22,7 +22,11 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from usb2rc.protocol import c2_16b, crsf, sbus, sumd
+# Aliased: a submodule of this package of the same name (outputs.sumd) would shadow them.
+from usb2rc.protocol import c2_16b as c2_16b_codec
+from usb2rc.protocol import crsf as crsf_codec
+from usb2rc.protocol import sbus as sbus_codec
+from usb2rc.protocol import sumd as sumd_codec
 
 if TYPE_CHECKING:
     from yaml.nodes import Node
@@ -101,19 +105,19 @@ def _resolve(path: str) -> Any:
 
 
 def _c2_frame_length(_channels: int) -> int:
-    return c2_16b.FRAME_LEN + 1
+    return c2_16b_codec.FRAME_LEN + 1
 
 
 def _crsf_frame_length(_channels: int) -> int:
-    return crsf.RC_FRAME_LEN
+    return crsf_codec.RC_FRAME_LEN
 
 
 def _sbus_frame_length(_channels: int) -> int:
-    return sbus.FRAME_LEN
+    return sbus_codec.FRAME_LEN
 
 
 def _sumd_frame_length(channels: int) -> int:
-    return sumd.frame_length(max(sumd.MIN_CHANNELS, channels))
+    return sumd_codec.frame_length(max(sumd_codec.MIN_CHANNELS, channels))
 
 
 PROTOCOLS: dict[str, OutputProtocol] = {
@@ -142,7 +146,7 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             frame_length=_sumd_frame_length,
             decoder_path="usb2rc.protocol.sumd:SumdDecoder",
             build_path="usb2rc.outputs.wiring:build_sumd",
-            channels=(sumd.MIN_CHANNELS, sumd.MAX_CHANNELS),
+            channels=(sumd_codec.MIN_CHANNELS, sumd_codec.MAX_CHANNELS),
             options={
                 "extended": Option(_boolean, False, "axes onto 900-2100 µs, not 1100-1900 µs"),
             },
@@ -166,12 +170,12 @@ PROTOCOLS: dict[str, OutputProtocol] = {
         OutputProtocol(
             "sbus",
             "Futaba SBUS: 16 channels, ch17/ch18, frame-lost and failsafe flags (8E2)",
-            default_baudrate=sbus.BAUDRATE,
+            default_baudrate=sbus_codec.BAUDRATE,
             default_rate_hz=100,
             frame_length=_sbus_frame_length,
             decoder_path="usb2rc.protocol.sbus:SbusDecoder",
             build_path="usb2rc.outputs.wiring:build_sbus",
-            bits_per_byte=sbus.BITS_PER_BYTE,
+            bits_per_byte=sbus_codec.BITS_PER_BYTE,
             channels=(1, 18),
             channels_required=True,
         ),

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 from usb2rc.config import ChannelRef
 from usb2rc.mapping import ChannelSource
-from usb2rc.scaling import node_button_bit
+from usb2rc.scaling import axis_to_rc11, button_to_rc11, node_button_bit
 from usb2rc.state import NodeFrame
 
 Nodes = Mapping[int, NodeFrame]
@@ -38,6 +38,9 @@ class WireScale:
 
     axis: Callable[[int], int]
     button: Callable[[bool], int]
+
+
+RC11_SCALE = WireScale(axis_to_rc11, button_to_rc11)  # CRSF and SBUS: 172..1811, centre 992
 
 
 def _axis_wire(value: int | None, unsigned: bool, scale: WireScale) -> int:
