@@ -8,7 +8,7 @@
 
 100000 baud, 8 data bits, even parity, 2 stop bits (12 bit times a byte), inverted on the
 wire (docs/PI.md, "SBUS wiring"). No checksum: a decoder takes a 0x0F ... 0x00 pair 24 bytes
-apart whose flags byte has its high nibble clear.
+apart (receivers do not check the flags byte's unused bits, and published frames set them).
 
 The encoder raises ValueError on bad input; the decoder never raises.
 """
@@ -76,8 +76,8 @@ def parse_frame(data: bytes | bytearray | memoryview) -> SbusFrame:
 class SbusDecoder:
     """Streaming SBUS decoder, the same contract as the other decoders.
 
-    A frame is 0x0F, 22 bytes, a flags byte with bits 4..7 clear, 0x00. Anything else skips
-    ONE byte. SBUS has no CRC (`crc_failures` stays 0; it is there for the common summary)."""
+    A frame is 0x0F, 22 bytes, a flags byte, 0x00. Anything else skips ONE byte. SBUS has
+    no CRC (`crc_failures` stays 0; it is there for the common summary)."""
 
     def __init__(self) -> None:
         self._buffer = bytearray()
@@ -112,7 +112,7 @@ class SbusDecoder:
             pos = start
             if end - start < FRAME_LEN:
                 break
-            if buffer[start + FRAME_LEN - 1] != FOOTER or buffer[start + FLAGS_AT] & 0xF0:
+            if buffer[start + FRAME_LEN - 1] != FOOTER:
                 self.bytes_skipped += 1
                 pos = start + 1
                 continue
