@@ -189,3 +189,27 @@ def wait_log(daemon: Any, pattern: re.Pattern[str]) -> str:
             raise AssertionError(f"{pattern.pattern!r} not in the log:\n{text[-3000:]}")
         time.sleep(0.05)
     return text
+
+
+def test_monitor_with_outputs_shows_the_module_link_quality(tmp_path: Path, replay_dir):
+    from usb2rc.commands import monitor
+    from usb2rc.config import load_config_text
+    from usb2rc.hid.replay import ReplayBackend
+
+    module = FakeModule()
+    install(replay_dir / "a.hid", recording(STICK_A))
+    config = load_config_text(
+        f"outputs:\n  - {{protocol: crsf, port: {module.path}, channels: [node0.x, node0.y]}}\n"
+    )
+    side = monitor.InputSide(config, ReplayBackend(str(replay_dir)), outputs=True)
+    side.start()
+    try:
+        deadline = time.monotonic() + WAIT_S
+        while "link quality 100% up" not in (text := monitor.snapshot_text(side.snapshot(), [])):
+            assert time.monotonic() < deadline, text
+            time.sleep(0.05)
+        assert f"outputs on {module.path}" in text
+        assert "following the module: 250 Hz" in text
+    finally:
+        side.stop()
+        module.close()
