@@ -261,3 +261,15 @@ def test_crsf_and_sbus_defaults() -> None:
     )
     assert (sbus_out.baudrate, sbus_out.rate_hz) == (100000, 100)
     assert [c.name for c in crsf_out.channels or ()] == ["node0.x", "node0.button1"]
+
+
+@given(st.lists(st.binary(max_size=80), max_size=8))
+def test_decoders_never_raise_and_account_for_every_byte(chunks: list[bytes]) -> None:
+    for decoder in (crsf.CrsfDecoder(), sbus.SbusDecoder()):
+        frames = [f for chunk in chunks for f in decoder.feed(chunk)] + decoder.flush()
+        size = crsf.RC_FRAME_LEN if isinstance(decoder, crsf.CrsfDecoder) else sbus.FRAME_LEN
+        assert decoder.bytes_in == sum(map(len, chunks))
+        if isinstance(decoder, sbus.SbusDecoder):
+            assert decoder.bytes_skipped + size * len(frames) == decoder.bytes_in
+        else:
+            assert decoder.bytes_skipped <= decoder.bytes_in

@@ -6,7 +6,8 @@ the hat, the service events an output would send, and each device's report count
 the daemon's own input side (hot-plug, one reader thread per device, the compiled mapping,
 the node table) and opens no serial port. On a terminal it redraws about 10 times a second
 (plain ANSI, fine over SSH); with `--plain`, or when stdout is not a terminal, it prints a
-text snapshot once a second.
+text snapshot once a second. With `--outputs` it runs the config's outputs too (their ports
+are opened) and shows each output's figures, a CRSF module's link quality and timing included.
 """
 
 from __future__ import annotations
