@@ -273,3 +273,57 @@ def test_decoders_never_raise_and_account_for_every_byte(chunks: list[bytes]) ->
             assert decoder.bytes_skipped + size * len(frames) == decoder.bytes_in
         else:
             assert decoder.bytes_skipped <= decoder.bytes_in
+
+
+# --- commands ----------------------------------------------------------------------------------
+
+FOUR = """outputs:
+  - {protocol: c2-16b, port: /dev/null}
+  - {protocol: crsf, port: /dev/ttyUSB0, channels: [node0.x, node0.y, node0.button1]}
+  - {protocol: sbus, port: /dev/ttyAMA0, channels: [node0.x, node0.y, node0.button1]}
+"""
+
+
+def test_check_and_icd_describe_crsf_and_sbus(tmp_path: Path, capsys) -> None:
+    from usb2rc.cli import main
+
+    path = tmp_path / "rc.yaml"
+    path.write_text(FOUR)
+    assert main(["check", "--config", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "crsf    /dev/ttyUSB0  400000 baud  250 Hz" in out
+    assert "sbus    /dev/ttyAMA0  100000 baud  100 Hz  8E2" in out
+    assert "3 channels: node0.x node0.y node0.button1" in out
+    assert main(["icd", "--config", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "## CRSF output 2 (/dev/ttyUSB0)" in out and "## SBUS output 3 (/dev/ttyAMA0)" in out
+    assert "| 3 | node0.button1 | button | 172 / 1811 (988 / 2012 µs) |" in out
+    assert "| 4..16 | (not listed) |  | 172 (988 µs) |" in out
+
+
+def test_decode_prints_crsf_and_sbus_frames(tmp_path: Path, capsys) -> None:
+    from usb2rc.cli import main
+
+    capture = tmp_path / "crsf.bin"
+    capture.write_bytes(
+        b"\x00" + crsf.encode_rc_channels([172] * 16) + crsf.encode_timing_sync(20000, -50)
+    )
+    assert main(["decode", "--protocol", "crsf", str(capture)]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.splitlines() == [
+        f"crsf rc-channels to 0xEE {[172] * 16}",
+        "crsf timing-correction interval 2000.0 us (500 Hz) offset -5.0 us",
+    ]
+    assert "bytes skipped 1" in captured.err
+    capture = tmp_path / "sbus.bin"
+    capture.write_bytes(sbus.encode_sbus([992] * 16, ch18=True, frame_lost=True, failsafe=True))
+    assert main(["decode", "--protocol", "sbus", "--json", str(capture)]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert record == {
+        "protocol": "sbus",
+        "channels": [992] * 16,
+        "ch17": False,
+        "ch18": True,
+        "frame_lost": True,
+        "failsafe": True,
+    }

@@ -51,7 +51,11 @@ class OutputContext:
 
 @dataclass
 class BuiltOutput:
-    """A running output's pieces: its link, its thread and, when it reads, its RX thread."""
+    """A running output's pieces: its link, its thread and, when it reads, its RX thread.
+
+    The daemon uses of `link` what `SerialLink` offers: `open_now()`, `is_open`, `url`,
+    `last_error`, `stats` (`LinkStats`) and `close()`; of `thread` a `TickThread`'s `start`,
+    `stop`, `join`, `stats`, `period_s`, `next_deadline` and `last_tick_monotonic`."""
 
     link: SerialLink
     thread: TickThread
