@@ -327,3 +327,42 @@ def test_decode_prints_crsf_and_sbus_frames(tmp_path: Path, capsys) -> None:
         "frame_lost": True,
         "failsafe": True,
     }
+
+
+EVENTS = st.lists(
+    st.one_of(
+        st.tuples(st.just("tick"), st.booleans()),
+        st.tuples(st.just("sync"), st.integers(0, 2_000_000), st.integers(-(2**31), 2**31 - 1)),
+        st.tuples(st.just("wait"), st.floats(0.0, 2.0)),
+        st.tuples(st.just("send")),
+    ),
+    max_size=40,
+)
+
+
+@given(EVENTS, st.floats(0.0, 0.01))
+def test_crsf_session_timing_invariants(events: list, min_interval: float) -> None:
+    """Whatever the module says and whenever: the next frame is always later than the one
+    before (at least half an interval), the interval stays within what the line carries and
+    100 ms, frames go out only while live, and a stale correction is not followed."""
+    session = _open_crsf(min_interval_s=min_interval)
+    now = due = 0.0
+    for event in events:
+        if event[0] == "tick":
+            frame = session.tick([992] * 4, event[1])
+            assert bool(frame) == (not event[1])
+        elif event[0] == "sync":
+            session.received(crsf.encode_timing_sync(event[1], event[2]), now)
+        elif event[0] == "wait":
+            now += event[1]
+        if event[0] != "send":
+            continue
+        interval = session.interval_s(now)
+        assert max(0.001, min_interval) <= interval <= 0.1 or interval == 0.004
+        if session.timing is None or now - session.timing.at > SYNC_STALE_S:
+            assert interval == 0.004
+        following = session.following(now)
+        nxt = session.next_send(due, now)
+        assert nxt >= due + interval / 2 - 1e-12
+        assert following or nxt == pytest.approx(due + 0.004)
+        due = nxt

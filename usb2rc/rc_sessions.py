@@ -129,6 +129,8 @@ class CrsfSession(FrameLineSession):
         """When the frame after the one due at `due` is due: one interval later (the
         module's while it sends timing corrections), shifted once by its last offset."""
         shift, self._shift_s = self._shift_s, 0.0
+        if not self.following(now):
+            shift = 0.0  # a correction gone stale no longer says where the module is
         return due + self.interval_s(now) + shift
 
     def link_text(self, now: float) -> str:
