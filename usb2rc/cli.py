@@ -27,6 +27,7 @@ COMMANDS: dict[str, str] = {
     "icd": "icd",
     "monitor": "monitor",
     "record": "record",
+    "install-system": "install_system",
 }
 
 

@@ -17,7 +17,7 @@ from usb2rc.hid.backend import Backend, DeviceInfo, DevicePermissionError
 from usb2rc.hid.choose import choose_backend
 from usb2rc.hid.hotplug import sort_by_port_path
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
-from usb2rc.hid.permissions import UDEV_RULES_FILE
+from usb2rc.hid.permissions import INSTALL_RULE
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -145,7 +145,7 @@ def no_devices_hint(replay: str | None) -> str:
     return (
         "No HID joysticks found. Plug one in, or try `usb2rc list --replay DIR` with "
         "hid-recorder files (the package ships some in usb2rc/data/demo). If a device is "
-        f"plugged in but missing, check its permissions: install {UDEV_RULES_FILE} "
+        f"plugged in but missing, check its permissions: install the udev rule with {INSTALL_RULE} "
         "(see `usb2rc list --all`)."
     )
 
