@@ -48,6 +48,7 @@ from usb2rc.config_model import (
     MatchConfig,
     OutputConfig,
 )
+from usb2rc.port_url import url_problem
 from usb2rc.yamlnodes import ConfigError, NodeReader, Problem, Where, compose, decode
 
 __all__ = [
@@ -147,7 +148,7 @@ def _read_output(reader: NodeReader, node: Node, path: str) -> OutputConfig | No
     values: dict[str, Any] = {"protocol": protocol, "where": reader.where(node, path)}
     values["rate_hz"] = DEFAULT_RATE_HZ[protocol]
     readers: dict[str, Callable[[Node, str], Any]] = {
-        "port": reader.string,
+        "port": lambda n, p: _read_port(reader, n, p),
         "baudrate": lambda n, p: reader.integer(n, p, 1200, 4_000_000),
         "rate_hz": lambda n, p: reader.number(n, p, 1, 1000),
         "line_feed": reader.boolean,
@@ -164,6 +165,16 @@ def _read_output(reader: NodeReader, node: Node, path: str) -> OutputConfig | No
         if channels is not None:
             values["channels"], values["channel_wheres"] = channels
     return OutputConfig(**values)
+
+
+def _read_port(reader: NodeReader, node: Node, path: str) -> str | None:
+    """A port name pyserial can parse (usb2rc.port_url): `foo://bar` is a config error."""
+    port = reader.string(node, path)
+    problem = None if port is None else url_problem(port)
+    if problem is not None:
+        reader.error(node, path, f"{port!r} is not a port pyserial can open: {problem}")
+        return None
+    return port
 
 
 def _read_channels(

@@ -3,6 +3,8 @@
 SOURCE is a file (read to its end), `-` for stdin, or a serial port: a character device
 path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C. One line
 per valid frame on stdout (`--json`: one JSON object per line); a summary on stderr at the end.
+Exit 0 when it found a frame, 1 when none (it says so, and names the other protocol when
+its frames are there), 2 for a port URL pyserial cannot parse.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import stat
 import sys
 from collections import Counter
@@ -42,7 +45,14 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
 
 def run(args: argparse.Namespace) -> int:
     decoder = SumdDecoder() if args.protocol == "sumd" else Decoder()
+    other = Decoder() if args.protocol == "sumd" else SumdDecoder()  # for the no-frame hint
     format_frame: Formatter = json_line if args.json else text_line
+    if problem := _port_url_problem(args.source):
+        print(
+            f"usb2rc decode: {args.source}: not a port pyserial can open: {problem}",
+            file=sys.stderr,
+        )
+        return 2
     try:
         chunks = open_source(args.source, args.baudrate)
     except (OSError, ValueError) as exc:
@@ -54,7 +64,9 @@ def run(args: argparse.Namespace) -> int:
         with closing(chunks):
             for chunk in chunks:
                 _print_frames(decoder.feed(chunk), format_frame, kinds)
+                other.feed(chunk)
         _print_frames(decoder.flush(), format_frame, kinds)
+        other.flush()
     except KeyboardInterrupt:
         pass
     except BrokenPipeError:
@@ -63,7 +75,29 @@ def run(args: argparse.Namespace) -> int:
         print(f"usb2rc decode: reading {args.source}: {_reason(exc)}", file=sys.stderr)
         status = 1
     print(summary(decoder, kinds), file=sys.stderr)
+    if decoder.frames == 0:
+        print(no_frame_hint(args.protocol, args.source, other), file=sys.stderr)
+        return status or 1
     return status
+
+
+def no_frame_hint(protocol: str, source: str, other: Decoder | SumdDecoder) -> str:
+    """What to try when SOURCE held no frame of `protocol`: the other one, if it is there."""
+    name = {"c2-16b": "C2-16B", "sumd": "SUMD"}
+    line = f"usb2rc decode: no {name[protocol]} frame found in {source}"
+    if other.frames == 0:
+        return line + " (nor a frame of the other protocol)"
+    other_protocol = "c2-16b" if protocol == "sumd" else "sumd"
+    again = shlex.join(["usb2rc", "decode", "--protocol", other_protocol, source])
+    return f"{line}, but {other.frames} {name[other_protocol]} frame(s): try `{again}`"
+
+
+def _port_url_problem(source: str) -> str | None:
+    if "://" not in source:
+        return None
+    from usb2rc.port_url import url_problem  # pyserial only when a port is named
+
+    return url_problem(source)
 
 
 # --- sources -------------------------------------------------------------------------------

@@ -13,6 +13,7 @@ import sys
 from dataclasses import dataclass, field
 from typing import Any
 
+from usb2rc.commands.arguments import replay_dir
 from usb2rc.hid.backend import Backend, DeviceInfo, DevicePermissionError
 from usb2rc.hid.choose import choose_backend
 from usb2rc.hid.hotplug import sort_by_port_path
@@ -28,7 +29,9 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--json", action="store_true", help="machine-readable output")
-    parser.add_argument("--replay", metavar="DIR", help="list the recordings in DIR instead")
+    parser.add_argument(
+        "--replay", metavar="DIR", type=replay_dir, help="list the recordings in DIR instead"
+    )
     parser.add_argument("--all", action="store_true", help="include non-joystick HID devices")
     parser.add_argument("--config", metavar="FILE", help="take Node-ID pins from this config")
     parser.set_defaults(func=run)

@@ -11,10 +11,12 @@ import sys
 import time
 from collections import Counter
 
+from usb2rc.commands.arguments import replay_dir
 from usb2rc.config import Config, ConfigError, load_config
 from usb2rc.daemon import Daemon, NoPortError
 from usb2rc.hid.backend import Backend
 from usb2rc.hid.choose import choose_backend
+from usb2rc.port_url import port_argument
 from usb2rc.sdnotify import Notifier
 from usb2rc.signals import DaemonSignals, install_daemon_signals
 
@@ -26,15 +28,29 @@ SERVICE_CONFIG = "/etc/usb2rc/usb2rc.yaml"
 def add_common_input_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="FILE", help="YAML config (default: zero config)")
     parser.add_argument(
-        "--replay", metavar="DIR", help="replay hid-recorder files in DIR instead of real devices"
+        "--replay",
+        metavar="DIR",
+        type=replay_dir,
+        help="replay hid-recorder files in DIR instead of real devices",
     )
     parser.add_argument("--replay-loop", action="store_true", help="replay each recording forever")
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    parser = subparsers.add_parser("run", help="run the daemon (the default command)")
+    parser = subparsers.add_parser(
+        "run",
+        help="run the daemon (the default command)",
+        description="Run the daemon: read the joysticks (or --replay recordings), map them as "
+        "the config says (zero config without one) and send the C2-16B / SUMD stream on each "
+        "output's serial port until SIGTERM or Ctrl-C. SIGHUP re-reads the config, SIGUSR1 "
+        "logs statistics. Exit 0 when stopped, 2 on a usage or config error, 1 otherwise.",
+    )
     add_common_input_args(parser)
-    parser.add_argument("--port", help="serial port or pyserial URL (overrides the first output)")
+    parser.add_argument(
+        "--port",
+        type=port_argument,
+        help="serial port or pyserial URL (overrides the first output)",
+    )
     parser.add_argument(
         "--log-level", default="info", choices=["debug", "info", "warning", "error"]
     )
