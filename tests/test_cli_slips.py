@@ -3,11 +3,10 @@ found nothing. Each through the real command line (`python -m usb2rc`)."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+from cli_harness import usb2rc
 
 from usb2rc.cli import COMMANDS
 from usb2rc.port_url import url_problem
@@ -15,18 +14,6 @@ from usb2rc.port_url import url_problem
 ROOT = Path(__file__).resolve().parent.parent
 SAMPLES = ROOT / "usb2rc" / "data" / "samples"
 DEMO = ROOT / "usb2rc" / "data" / "demo"
-
-
-def usb2rc(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "usb2rc", *args],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        stdin=subprocess.DEVNULL,
-        timeout=60,
-        check=False,
-    )
 
 
 # --- port names pyserial cannot parse: usage errors, not a missing cable --------------------

@@ -37,6 +37,11 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     parser.add_argument(
         "--replay", metavar="DIR", help="also bind each hid-recorder file in DIR as a device"
     )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="one JSON document: the problems as records (file, line, key, message, severity)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -152,6 +157,10 @@ def replay_lines(devices: list[BoundDevice], problems: list[str]) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.json:
+        from usb2rc.commands import check_json
+
+        return check_json.run(args)
     try:
         config = load_or_default(args.config)
     except ConfigError as exc:

@@ -38,6 +38,9 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     parser.add_argument("--config", metavar="FILE", help="YAML config (default: zero config)")
     parser.add_argument("--format", choices=FORMATS, default="markdown")
     parser.add_argument("--replay", metavar="DIR", help="also describe the devices in DIR")
+    parser.add_argument(
+        "--json", action="store_true", help="the same tables as one JSON document, for scripts"
+    )
     parser.set_defaults(func=run)
 
 
@@ -227,6 +230,10 @@ def replay_section(config: Config, directory: str, fmt: str) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.json:
+        from usb2rc.commands import icd_json
+
+        return icd_json.run(args)
     try:
         config = load_or_default(args.config)
     except ConfigError as exc:
