@@ -80,6 +80,9 @@ def test_decode_with_an_unknown_url_scheme_exits_2() -> None:
         ["run", "--port", "loop://"],
         ["monitor", "--seconds", "1", "--plain"],
         ["list"],
+        ["check"],
+        ["icd"],
+        ["record", "044f:b10a"],
     ],
 )
 def test_replay_of_a_missing_directory_exits_2(command: list[str], tmp_path: Path) -> None:

@@ -39,6 +39,8 @@ RUN = {
     "usb2rc demo --seconds 2",
     "usb2rc monitor --replay usb2rc/data/demo --seconds 2 --plain",
     "usb2rc install-system --print 70-usb2rc.rules",
+    "usb2rc check --config usb2rc/data/config/hotas.yaml --json",
+    "usb2rc icd --config usb2rc/data/config/hotas.yaml --json",
 }
 
 # Shown with sudo, they write or read the system's files: here they run in this order
@@ -72,6 +74,8 @@ PARSE_ONLY = {
     "usb2rc record 044f:b10a --seconds 10": HARDWARE,
     "usb2rc --config hotas.yaml --port /dev/ttyUSB0": HARDWARE,
     "usb2rc --config hotas.yaml --port /dev/ttyUSB0 --stats-interval 10": HARDWARE,
+    "usb2rc --config hotas.yaml --stats-interval 10 --stats-format json": PLACEHOLDER
+    + "; runs until stopped",
     "usb2rc --config hotas.yaml --port /dev/cu.usbserial-A10K1B2C": HARDWARE + " (macOS)",
     "usb2rc --config hotas.yaml --port COM3": HARDWARE + " (Windows)",
     "usb2rc --config hotas.yaml --port 'spy:///dev/ttyUSB0?file=/tmp/usb2rc-spy.txt'": HARDWARE,

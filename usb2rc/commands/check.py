@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from usb2rc.binding import DeviceBinding, MappingError
+from usb2rc.commands.arguments import replay_dir
 from usb2rc.config import (
     Config,
     ConfigError,
@@ -38,7 +39,10 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     )
     parser.add_argument("--config", metavar="FILE", help="YAML config (default: zero config)")
     parser.add_argument(
-        "--replay", metavar="DIR", help="also bind each hid-recorder file in DIR as a device"
+        "--replay",
+        metavar="DIR",
+        type=replay_dir,
+        help="also bind each hid-recorder file in DIR as a device",
     )
     parser.add_argument(
         "--json",

@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from usb2rc.binding import shaping_text, usage_label
+from usb2rc.commands.arguments import replay_dir
 from usb2rc.commands.check import bind_replay, device_record, load_or_default, output_records
 from usb2rc.config import (
     HAT_DIRECTIONS,
@@ -40,7 +41,9 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     )
     parser.add_argument("--config", metavar="FILE", help="YAML config (default: zero config)")
     parser.add_argument("--format", choices=FORMATS, default="markdown")
-    parser.add_argument("--replay", metavar="DIR", help="also describe the devices in DIR")
+    parser.add_argument(
+        "--replay", metavar="DIR", type=replay_dir, help="also describe the devices in DIR"
+    )
     parser.add_argument(
         "--json", action="store_true", help="the same tables as one JSON document, for scripts"
     )
