@@ -235,3 +235,21 @@ def test_root_commands_run_against_a_scratch_root(tmp_path: Path) -> None:
         )
         assert result.returncode == 0, f"{command}: exit {result.returncode}\n{result.stderr}"
     assert (tmp_path / "etc" / "usb2rc" / "usb2rc.yaml").is_file()
+
+
+def test_laptop_creates_the_group_the_udev_rule_names():
+    # udev skips GROUP= for a group that does not exist: the laptop steps must create it
+    rules = (ROOT / "usb2rc" / "data" / "system" / "70-usb2rc.rules").read_text()
+    named = set(re.findall(r'GROUP="([^"]+)"', rules))
+    laptop = (ROOT / "docs" / "LAPTOP.md").read_text()
+    created = set(re.findall(r"groupadd --system (\S+)", laptop))
+    assert named and named == created
+
+
+def test_install_docs_name_every_installed_path():
+    from usb2rc.commands.install_system import FILES
+
+    for doc in (ROOT / "docs" / "PI.md", SERVICE_NOTES):
+        text = doc.read_text()
+        missing = [f.target for f in FILES if f.target not in text]
+        assert not missing, f"{doc.name} does not say where these go: {missing}"
