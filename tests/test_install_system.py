@@ -177,6 +177,12 @@ def test_exec_start_names_the_running_usb2rc() -> None:
     assert running_program()[0].startswith("/")
 
 
+def test_a_relative_exec_is_a_usage_error(tmp_path: Path) -> None:
+    result = run_here("install-system", "--root", str(tmp_path), "--exec", "bin/usb2rc")
+    assert result.returncode == 2 and "--exec needs an absolute path" in result.stderr
+    assert not any(tmp_path.iterdir())
+
+
 def test_a_program_under_home_is_warned_about(tmp_path: Path) -> None:
     result = run_here("install-system", "--root", str(tmp_path), "--exec", "/home/pi/v/usb2rc")
     assert "ProtectHome" in result.stderr
@@ -210,3 +216,12 @@ def running_program_of_subprocess() -> list[str]:
         [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
     )
     return out.stdout.splitlines()
+
+
+def test_next_steps_name_the_installed_program(capsys: pytest.CaptureFixture[str]) -> None:
+    from usb2rc.commands.install_system import _print_advice
+
+    _print_advice(Path("/"), ["/opt/usb2rc/venv/bin/usb2rc"], [])
+    out = capsys.readouterr().out
+    assert "sudo /opt/usb2rc/venv/bin/usb2rc check --config /etc/usb2rc/usb2rc.yaml" in out
+    assert "systemctl daemon-reload" in out and "udevadm trigger" in out

@@ -55,6 +55,7 @@ BY_NAME = {f.name: f for f in (*FILES, *EXAMPLES)}
 
 NEXT_STEPS = (
     "sudo udevadm control --reload && sudo udevadm trigger --subsystem-match=hidraw",
+    "sudo {program} check --config " + CONFIG_TARGET,
     "sudo systemctl daemon-reload && sudo systemctl enable --now usb2rc",
 )
 
@@ -227,10 +228,9 @@ def run(args: argparse.Namespace) -> int:
     if args.print_name:
         sys.stdout.write(rendered(BY_NAME[args.print_name], program))
         return 0
-    if not os.path.isabs(program[0]):
-        print(
-            f"usb2rc install-system: --exec needs an absolute path: {program[0]}", file=sys.stderr
-        )
+    usage = _usage_problem(args.root, program)
+    if usage is not None:
+        print(f"usb2rc install-system: {usage}", file=sys.stderr)
         return 2
     config_text = _config_text(args.config)
     if config_text is None:
@@ -244,6 +244,14 @@ def run(args: argparse.Namespace) -> int:
         return 1
     _print_advice(root, program, problems)
     return 1 if problems else 0
+
+
+def _usage_problem(root: str, program: list[str]) -> str | None:
+    if sys.platform != "linux" and root == "/":
+        return "systemd and udev are Linux; --print shows the files, --root DIR writes them"
+    if not os.path.isabs(program[0]):
+        return f"--exec needs an absolute path (systemd runs it): {program[0]}"
+    return None
 
 
 def _config_text(path: str | None) -> str | None:
@@ -291,5 +299,6 @@ def _print_advice(root: Path, program: list[str], problems: list[str]) -> None:
     for problem in problems:
         print(f"usb2rc install-system: {problem}", file=sys.stderr)
     if root == Path("/"):
-        print(f"edit {CONFIG_TARGET} (the serial port), then:")
-        print("\n".join(f"  {step}" for step in NEXT_STEPS))
+        print(f"next: edit {CONFIG_TARGET} (the serial port: `port:` under `outputs:`), then")
+        command = shlex.join(program)
+        print("\n".join(f"  {step.format(program=command)}" for step in NEXT_STEPS))
