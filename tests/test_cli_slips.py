@@ -65,6 +65,12 @@ def test_a_config_port_pyserial_cannot_parse_is_a_config_error(tmp_path: Path) -
         assert result.stderr.startswith(expected), (command, result.stderr)
 
 
+def test_init_with_an_unknown_url_scheme_exits_2(tmp_path: Path) -> None:
+    result = usb2rc("init", "--replay", str(DEMO), "--port", "foo://bar", "-o", str(tmp_path / "x"))
+    assert result.returncode == 2 and "--port: 'foo://bar' is not a port" in result.stderr
+    assert not (tmp_path / "x").exists()
+
+
 def test_decode_with_an_unknown_url_scheme_exits_2() -> None:
     result = usb2rc("decode", "foo://bar")
     assert result.returncode == 2
@@ -80,6 +86,7 @@ def test_decode_with_an_unknown_url_scheme_exits_2() -> None:
         ["run", "--port", "loop://"],
         ["monitor", "--seconds", "1", "--plain"],
         ["list"],
+        ["init"],
         ["check"],
         ["icd"],
         ["record", "044f:b10a"],

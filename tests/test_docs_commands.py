@@ -38,6 +38,7 @@ RUN = {
     "usb2rc list --replay usb2rc/data/demo",
     "usb2rc demo --seconds 2",
     "usb2rc monitor --replay usb2rc/data/demo --seconds 2 --plain",
+    "usb2rc init --replay usb2rc/data/demo --port /dev/null",
     "usb2rc install-system --print 70-usb2rc.rules",
     "usb2rc check --config usb2rc/data/config/hotas.yaml --json",
     "usb2rc icd --config usb2rc/data/config/hotas.yaml --json",
@@ -73,6 +74,12 @@ PARSE_ONLY = {
     "usb2rc monitor --replay recordings/ --replay-loop": PLACEHOLDER + "; runs until Ctrl-C",
     "usb2rc record 044f:b10a --seconds 10": HARDWARE,
     "usb2rc --config hotas.yaml --port /dev/ttyUSB0": HARDWARE,
+    "usb2rc init --port /dev/serial0 -o my.yaml": HARDWARE,
+    "usb2rc calibrate --config my.yaml": HARDWARE + "; interactive (tests/test_calibrate_tmux.py)",
+    "usb2rc calibrate --config demo.yaml --replay usb2rc/data/demo --replay-loop": (
+        "interactive; tests/test_calibrate_tmux.py drives it in tmux"
+    ),
+    "usb2rc --config my.yaml": PLACEHOLDER,
     "usb2rc --config hotas.yaml --port /dev/ttyUSB0 --stats-interval 10": HARDWARE,
     "usb2rc --config hotas.yaml --stats-interval 10 --stats-format json": PLACEHOLDER
     + "; runs until stopped",

@@ -28,6 +28,8 @@ COMMANDS: dict[str, str] = {
     "icd": "icd",
     "monitor": "monitor",
     "record": "record",
+    "init": "init",
+    "calibrate": "calibrate",
     "install-system": "install_system",
 }
 
