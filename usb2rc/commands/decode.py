@@ -3,6 +3,8 @@
 SOURCE is a file (read to its end), `-` for stdin, or a serial port: a character device
 path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C. One line
 per valid frame on stdout (`--json`: one JSON object per line); a summary on stderr at the end.
+Exit 0 when it found a frame, 1 when none (it says so, and names the other protocol when
+its frames are there), 2 for a port URL pyserial cannot parse.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import argparse
 import dataclasses
 import json
 import os
+import shlex
 import stat
 import sys
 from collections import Counter
@@ -51,8 +54,16 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
 def run(args: argparse.Namespace) -> int:
     entry = protocol(args.protocol)
     decoder = entry.decoder()
+    # the other protocols' decoders, for the no-frame hint
+    others = {name: PROTOCOLS[name].decoder() for name in PROTOCOLS if name != args.protocol}
     format_frame: Formatter = json_line if args.json else text_line
     baudrate = args.baudrate or entry.default_baudrate
+    if problem := _port_url_problem(args.source):
+        print(
+            f"usb2rc decode: {args.source}: not a port pyserial can open: {problem}",
+            file=sys.stderr,
+        )
+        return 2
     try:
         chunks = open_source(args.source, baudrate, even_parity=args.protocol == "sbus")
     except (OSError, ValueError) as exc:
@@ -64,7 +75,11 @@ def run(args: argparse.Namespace) -> int:
         with closing(chunks):
             for chunk in chunks:
                 _print_frames(decoder.feed(chunk), format_frame, kinds)
+                for other in others.values():
+                    other.feed(chunk)
         _print_frames(decoder.flush(), format_frame, kinds)
+        for other in others.values():
+            other.flush()
     except KeyboardInterrupt:
         pass
     except BrokenPipeError:
@@ -73,7 +88,34 @@ def run(args: argparse.Namespace) -> int:
         print(f"usb2rc decode: reading {args.source}: {_reason(exc)}", file=sys.stderr)
         status = 1
     print(summary(decoder, kinds), file=sys.stderr)
+    if decoder.frames == 0:
+        found = {name: other.frames for name, other in others.items()}
+        print(no_frame_hint(args.protocol, args.source, found), file=sys.stderr)
+        return status or 1
     return status
+
+
+def no_frame_hint(protocol: str, source: str, found: dict[str, int]) -> str:
+    """What to try when SOURCE held no frame of `protocol`: the protocol whose frames are
+    there (the one with the most, when several decoders found some)."""
+    line = f"usb2rc decode: no {_shown(protocol)} frame found in {source}"
+    frames, best = max((count, name) for name, count in found.items())
+    if frames == 0:
+        return line + " (nor a frame of another protocol)"
+    again = shlex.join(["usb2rc", "decode", "--protocol", best, source])
+    return f"{line}, but {frames} {_shown(best)} frame(s): try `{again}`"
+
+
+def _shown(protocol: str) -> str:
+    return {"mavlink": "MAVLink"}.get(protocol, protocol.upper())
+
+
+def _port_url_problem(source: str) -> str | None:
+    if "://" not in source:
+        return None
+    from usb2rc.port_url import url_problem  # pyserial only when a port is named
+
+    return url_problem(source)
 
 
 # --- sources -------------------------------------------------------------------------------
