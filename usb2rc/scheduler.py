@@ -369,7 +369,11 @@ class RxThread(Worker):
 
 
 def is_request(frame: c2_16b.Frame) -> bool:
-    """A `<` config request or a `4` poll request: what the far end may ask."""
+    """A `<` config request or a `4` poll request: what the far end may ask.
+
+    Byte 4 does not matter (docs/ICD.md, "UART receive"): a `<`'s is the far end's message
+    code, a `4`'s a service code, which the ICD leaves TBD; a poll that carries one is still
+    a poll, and answering it costs at most one connect sequence (never queued twice)."""
     if isinstance(frame, c2_16b.DataFrame):
         return frame.status == c2_16b.CONFIG_REQUEST
     return frame.service is c2_16b.Service.POLL

@@ -3,6 +3,10 @@
 SOURCE is a file (read to its end), `-` for stdin, or a serial port: a character device
 path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C. One line
 per valid frame on stdout (`--json`: one JSON object per line); a summary on stderr at the end.
+
+Byte 4 is shown as it is: a data frame's message code (a `&` frame's destination ID, also
+given as `destination`), a service frame's service code (`code`; usb2rc sends 0, another
+implementation may not, docs/ICD.md "Service code").
 """
 
 from __future__ import annotations
@@ -17,7 +21,13 @@ from collections.abc import Callable, Generator, Iterable
 from contextlib import closing
 from typing import Any, BinaryIO
 
-from usb2rc.protocol.c2_16b import DATA_STATUS_NAMES, DataFrame, Decoder, ServiceFrame
+from usb2rc.protocol.c2_16b import (
+    DATA_STATUS_NAMES,
+    HANDOVER,
+    DataFrame,
+    Decoder,
+    ServiceFrame,
+)
 from usb2rc.protocol.sumd import SumdDecoder, SumdFrame
 
 AnyFrame = DataFrame | ServiceFrame | SumdFrame
@@ -147,7 +157,7 @@ def frame_kind(frame: AnyFrame) -> str:
 
 def json_record(frame: AnyFrame) -> dict[str, Any]:
     if isinstance(frame, DataFrame):
-        return {
+        record: dict[str, Any] = {
             "protocol": "c2-16b",
             "status": chr(frame.status),
             "node_id": frame.node_id,
@@ -156,6 +166,9 @@ def json_record(frame: AnyFrame) -> dict[str, Any]:
             "group1": frame.group1,
             "group2": frame.group2,
         }
+        if frame.status == HANDOVER:
+            record["destination"] = frame.code  # byte 4 of a `&` is the destination ID
+        return record
     if isinstance(frame, ServiceFrame):
         return _service_record(frame)
     return {"protocol": "sumd", "failsafe": frame.failsafe, "channels": list(frame.channels)}
@@ -167,6 +180,7 @@ def _service_record(frame: ServiceFrame) -> dict[str, Any]:
         "status": str(frame.service.value),
         "status_encoding": "binary" if frame.binary_status else "ascii",
         "node_id": frame.node_id,
+        "code": frame.code,
         "service": frame.service.service_name,
         "payload_hex": frame.payload.rstrip(b"\0").hex(),
     }
@@ -183,8 +197,9 @@ def json_line(frame: AnyFrame) -> str:
 
 def text_line(frame: AnyFrame) -> str:
     if isinstance(frame, DataFrame):
+        byte4 = f"to {frame.code}" if frame.status == HANDOVER else f"code {frame.code}"
         return (
-            f"{chr(frame.status)} node {frame.node_id} code {frame.code} axes {list(frame.axes)}"
+            f"{chr(frame.status)} node {frame.node_id} {byte4} axes {list(frame.axes)}"
             f" g1 0x{frame.group1:08X} g2 0x{frame.group2:08X}"
         )
     if isinstance(frame, ServiceFrame):
@@ -195,6 +210,8 @@ def text_line(frame: AnyFrame) -> str:
 
 def _service_text(frame: ServiceFrame) -> str:
     line = f"service {frame.service.service_name} node {frame.node_id}"
+    if frame.code:
+        line += f" code {frame.code}"
     payload = frame.payload.rstrip(b"\0")
     if frame.vid is not None:
         line += f" vid 0x{frame.vid:04X} pid 0x{frame.pid:04X}"
