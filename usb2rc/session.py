@@ -33,7 +33,10 @@ Invariants, whatever the line does (docs/ICD.md, "Service frames" and "A stalled
   drop frames: the receiver then sees a gap, never a code twice);
 - a service frame cut short is sent again;
 - after a flush the line starts over: the startup frame, a `2` for each node announced on the
-  line whose device left since, the connect sequence of every device present.
+  line whose device left since, the connect sequence of every device present;
+- a data frame's status is `!` unless the node is live and announced; then `&` while a
+  handover asks for it, else `%` while its battery is low, else `>` (docs/ICD.md, "Status
+  priority"). A `&` carries its destination in byte 4 and uses no message code.
 """
 
 from __future__ import annotations
@@ -120,6 +123,15 @@ class _Slot:
     startup: bool = False
     owed: _Owed | None = None
     data_node: int | None = None
+    handover: bool = False  # a `&` data frame: byte 4 is its destination, not a code
+
+
+@dataclass
+class _Burst:
+    """A press of a `frames: K` handover button: the `&` frames still owed to the line."""
+
+    destination: int
+    left: int
 
 
 @dataclass(frozen=True)
@@ -172,6 +184,8 @@ class C2Session:
         self._last_len = 0
         self._round_robin = 0
         self._warned_nodes = 0
+        self._pressed: set[int] = set()  # nodes whose handover button was down last tick
+        self._bursts: dict[int, _Burst] = {}  # `&` frames owed for a press (`frames: K`)
 
     # --- events from the line ------------------------------------------------------------
 
@@ -225,6 +239,7 @@ class C2Session:
         self._told.clear()
         self._left_told.clear()
         self._last, self._last_len = [], 0
+        self._bursts.clear()  # a press nobody saw: the pilot presses again
 
     # --- events from the far end ---------------------------------------------------------
 
@@ -272,6 +287,7 @@ class C2Session:
         `room_frames`: how many frames the line carries this tick (default: the baud rate's
         share of a tick). Call `wrote()` with what went out before the next tick."""
         self._track_presence(events)
+        self._follow_handover(frames)
         self._last, self._last_len = [], 0
         if not self.line_open:
             self._requests.clear()
@@ -302,8 +318,10 @@ class C2Session:
         ready = [f for f in frames if f.node_id not in held]
         for frame in self._choose_nodes(ready, frames, room - len(out)):
             live = not frame.failsafe and frame.node_id in announced
-            data = self._data_frame(frame, self._codes.get(frame.node_id, 0), live)
-            self._add(out, slots, data, _Slot(0, data_node=frame.node_id))
+            status, byte4 = self._status(frame, live)
+            data = self._data_frame(frame, status, byte4)
+            handover = status == c2_16b.HANDOVER
+            self._add(out, slots, data, _Slot(0, data_node=frame.node_id, handover=handover))
         self._last = slots
         self._last_len = sum(map(len, out))
         return b"".join(out)
@@ -372,7 +390,10 @@ class C2Session:
                 service += self._confirm(slot)
             if slot.data_node is not None and slot.end <= sent + unsure:
                 node = slot.data_node
-                self._codes[node] = (self._codes.get(node, 0) + 1) & 0xFF
+                if slot.handover:
+                    self._handover_sent(node)  # a `&` uses no message code
+                else:
+                    self._codes[node] = (self._codes.get(node, 0) + 1) & 0xFF
                 self._on_line.add(node)
                 data += 1
         if unsure:
@@ -468,11 +489,70 @@ class C2Session:
             _Owed(event, Service.DEVICE_TYPE, c2_16b.device_type(node, event.device_type, **kw)),
         ]
 
-    def _data_frame(self, frame: NodeFrame, code: int, live: bool) -> bytes:
+    # --- data statuses: `!`, `&`, `%`, `>` ------------------------------------------------
+
+    def _follow_handover(self, frames: Sequence[NodeFrame]) -> None:
+        """A handover button that went down since the last tick is a press: with `frames: K`
+        it owes K `&` frames (a press while a burst runs adds none)."""
+        pressed = set()
+        for frame in frames:
+            handover = frame.handover
+            if handover is None:
+                continue
+            pressed.add(frame.node_id)
+            if frame.node_id in self._pressed:
+                continue
+            how = "while held" if handover.frames is None else f"{handover.frames} frames"
+            log.info(
+                "%s: node %d asks for a handover to %d (%s)",
+                self.name,
+                frame.node_id,
+                handover.destination,
+                how,
+            )
+            if handover.frames is not None and frame.node_id not in self._bursts:
+                self._bursts[frame.node_id] = _Burst(handover.destination, handover.frames)
+        self._pressed = pressed
+
+    def _status(self, frame: NodeFrame, live: bool) -> tuple[int, int]:
+        """The frame's status and byte 4, by priority (docs/ICD.md, "Status priority"):
+        `!` whenever the node is not live and announced (its values are not live: a `&` or
+        `%` would present them as valid; a `!` ends a handover burst), then `&` (its
+        destination in byte 4), `%`, `>` (the node's message code in byte 4)."""
+        node = frame.node_id
+        code = self._codes.get(node, 0)
+        if not live:
+            burst = self._bursts.pop(node, None)
+            if burst is not None:
+                log.warning(
+                    "%s: node %d: handover to %d cut short by failsafe (%d `&` frames not sent)",
+                    self.name,
+                    node,
+                    burst.destination,
+                    burst.left,
+                )
+            return c2_16b.FAILSAFE, code
+        burst = self._bursts.get(node)
+        if burst is not None:
+            return c2_16b.HANDOVER, burst.destination
+        if frame.handover is not None and frame.handover.frames is None:
+            return c2_16b.HANDOVER, frame.handover.destination
+        if frame.low_battery:
+            return c2_16b.LOW_BATTERY, code
+        return c2_16b.LIVE, code
+
+    def _handover_sent(self, node: int) -> None:
+        burst = self._bursts.get(node)
+        if burst is not None:
+            burst.left -= 1
+            if burst.left <= 0:
+                del self._bursts[node]
+
+    def _data_frame(self, frame: NodeFrame, status: int, byte4: int) -> bytes:
         return c2_16b.encode_data(
-            c2_16b.LIVE if live else c2_16b.FAILSAFE,
+            status,
             frame.node_id,
-            code,
+            byte4,
             frame.axes,
             frame.group1,
             frame.group2,
