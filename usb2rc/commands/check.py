@@ -118,6 +118,8 @@ def describe_device(device: DeviceConfig) -> str:
         parts.append(f"{len(device.buttons)} buttons")
     for hat in device.hats:
         parts.append("hat1" if hat.to == "hat1" else "hat -> buttons")
+    if device.handover is not None:
+        parts.append(f"handover button {device.handover.button} -> {device.handover.destination}")
     return f"{device.name}: " + ", ".join(parts or ["nothing mapped"])
 
 
