@@ -137,7 +137,7 @@ def test_icd_says_when_a_node_sends_handover_and_low_battery(tmp_path: Path) -> 
     result = usb2rc("icd", "--config", str(config), "--format", "text")
     assert result.returncode == 0, result.stderr
     assert (
-        "Status `&` (byte 4 = destination 7): stick's HID button 5, 10 frames a press; "
+        "Status `&` (byte 4 = destination 7): HID button 5 of stick, 10 frames a press; "
         "no message code is used." in result.stdout
     )
-    assert "Status `%`: stick's Slider below 10 %." in result.stdout
+    assert "Status `%`: Slider of stick below 10 %." in result.stdout

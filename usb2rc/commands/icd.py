@@ -179,14 +179,14 @@ def status_lines(devices: Sequence[DeviceConfig]) -> list[str]:
         if handover is not None:
             how = "while held" if handover.frames is None else f"{handover.frames} frames a press"
             lines.append(
-                f"Status `&` (byte 4 = destination {handover.destination}): {device.name}'s "
-                f"HID button {handover.button}, {how}; no message code is used."
+                f"Status `&` (byte 4 = destination {handover.destination}): HID button "
+                f"{handover.button} of {device.name}, {how}; no message code is used."
             )
         if battery is not None:
-            source = usage_label(battery.usage, battery.occurrence)
+            source = f"{usage_label(battery.usage, battery.occurrence)} of {device.name}"
             if battery.auto:
                 source += " (if the device reports it)"
-            lines.append(f"Status `%`: {device.name}'s {source} below {battery.below:g} %.")
+            lines.append(f"Status `%`: {source} below {battery.below:g} %.")
     return [*lines, ""] if lines else []
 
 
