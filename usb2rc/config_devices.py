@@ -25,7 +25,8 @@ from usb2rc.config_model import (
     MatchConfig,
 )
 from usb2rc.config_status import read_handover, read_low_battery
-from usb2rc.hid.usages import GD_HAT_SWITCH, usage_from_name
+from usb2rc.config_usages import read_usage, read_usage_occurrence
+from usb2rc.hid.usages import GD_HAT_SWITCH
 from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
 from usb2rc.protocol.c2_16b import MAX_NODE_ID as NODE_ID_MAX
 from usb2rc.protocol.c2_16b import NODE_BUTTONS
@@ -38,40 +39,6 @@ AXIS_KEYS = (
     "invert", "trim", "unsigned", "failsafe",
 )  # fmt: skip
 HAT_KEYS = ("usage", "occurrence", "to")
-USAGES_ALLOWED = (
-    "a usage name such as X, Y, Z, Rx, Ry, Rz, Slider, Dial, Wheel, HatSwitch, Throttle, "
-    "Rudder, Aileron, Elevator, Accelerator, Brake, Steering, or 0xPPPPUUUU"
-)
-
-
-def read_usage(reader: NodeReader, node: Node, path: str) -> int | None:
-    """A usage by name (`X`, `Throttle`, case-insensitive) or number (`0xPPPPUUUU`)."""
-    value = reader.scalar(node)
-    text = f"0x{value:08X}" if isinstance(value, int) and not isinstance(value, bool) else None
-    text = text or (value if isinstance(value, str) else None)
-    if text is not None:
-        try:
-            return usage_from_name(text)
-        except (KeyError, ValueError):
-            pass
-    reader.error(node, path, f"unknown usage {show(node)}", USAGES_ALLOWED)
-    return None
-
-
-def read_usage_occurrence(
-    reader: NodeReader, items: Items, path: str, default: int
-) -> tuple[int | None, int]:
-    """A mapping's `usage` (default `default`) and `occurrence` (default 0); a bad usage is
-    None (the reader holds the problem)."""
-    usage: int | None = default
-    if "usage" in items:
-        usage = read_usage(reader, items["usage"][1], f"{path}.usage")
-    occurrence = 0
-    if "occurrence" in items:
-        occurrence = reader.integer(items["occurrence"][1], f"{path}.occurrence", 0, 255) or 0
-    return usage, occurrence
-
-
 # --------------------------------------------------------------------------- devices
 
 

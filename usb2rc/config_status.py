@@ -15,6 +15,7 @@ from usb2rc.config_model import (
     HandoverConfig,
     LowBatteryConfig,
 )
+from usb2rc.config_usages import read_usage_occurrence
 from usb2rc.hid.usages import GDC_BATTERY_STRENGTH
 from usb2rc.yamlnodes import NodeReader, show
 
@@ -58,8 +59,6 @@ def read_low_battery(reader: NodeReader, node: Node, path: str) -> LowBatteryCon
 
     Returns None for `false` (and after a problem, which the reader holds: the config is
     then rejected anyway)."""
-    from usb2rc.config_devices import read_usage_occurrence  # (it imports this module)
-
     if isinstance(node, ScalarNode):
         value = reader.scalar(node)
         if isinstance(value, bool):
