@@ -278,7 +278,9 @@ class Daemon:
             if isinstance(out.thread, C2Output):
                 line += (
                     f", data frames {st.data_frames}, service frames {st.service_frames}, "
-                    f"round-robin deferrals {st.deferred_nodes}"
+                    f"round-robin deferrals {st.deferred_nodes}, handover frames "
+                    f"{st.handover_frames} (cut by failsafe {st.handovers_cut}), low battery "
+                    f"frames {st.low_battery_frames}"
                 )
             if out.rx is not None:
                 dec = out.rx.decoder

@@ -60,6 +60,9 @@ class OutputStats:
     data_frames: int = 0
     service_frames: int = 0
     deferred_nodes: int = 0
+    handover_frames: int = 0  # `&`, `%` and the `&` a failsafe cut (docs/ICD.md, "Handover")
+    handovers_cut: int = 0
+    low_battery_frames: int = 0
     tick_errors: int = 0
     stalls: int = 0
     periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
@@ -299,6 +302,9 @@ class C2Output(_LineThread):
         self._take_received()
         delivered = self.send(self.c2.tick(events, frames))
         self.stats.deferred_nodes = self.c2.deferred_nodes
+        self.stats.handover_frames = self.c2.handover_frames
+        self.stats.handovers_cut = self.c2.handovers_cut
+        self.stats.low_battery_frames = self.c2.low_battery_frames
         if delivered is not None:
             self.stats.service_frames += delivered.service_frames
             self.stats.data_frames += delivered.data_frames

@@ -123,7 +123,7 @@ class _Slot:
     startup: bool = False
     owed: _Owed | None = None
     data_node: int | None = None
-    handover: bool = False  # a `&` data frame: byte 4 is its destination, not a code
+    status: int = 0  # a data frame's status byte (`&`: byte 4 is its destination, not a code)
 
 
 @dataclass
@@ -169,6 +169,9 @@ class C2Session:
         self.stalled = False  # a write put out less than it was given: wait for the drain
         self.stalls = 0
         self.deferred_nodes = 0
+        self.handover_frames = 0  # `&` frames that went out
+        self.handovers_cut = 0  # `&` frames a `!` took from a burst (never sent)
+        self.low_battery_frames = 0  # `%` frames that went out
         self._startup_due = True
         self._owed: deque[_Owed] = deque()
         self._codes: dict[int, int] = {}
@@ -320,8 +323,7 @@ class C2Session:
             live = not frame.failsafe and frame.node_id in announced
             status, byte4 = self._status(frame, live)
             data = self._data_frame(frame, status, byte4)
-            handover = status == c2_16b.HANDOVER
-            self._add(out, slots, data, _Slot(0, data_node=frame.node_id, handover=handover))
+            self._add(out, slots, data, _Slot(0, data_node=frame.node_id, status=status))
         self._last = slots
         self._last_len = sum(map(len, out))
         return b"".join(out)
@@ -390,10 +392,11 @@ class C2Session:
                 service += self._confirm(slot)
             if slot.data_node is not None and slot.end <= sent + unsure:
                 node = slot.data_node
-                if slot.handover:
+                if slot.status == c2_16b.HANDOVER:
                     self._handover_sent(node)  # a `&` uses no message code
                 else:
                     self._codes[node] = (self._codes.get(node, 0) + 1) & 0xFF
+                self.low_battery_frames += slot.status == c2_16b.LOW_BATTERY
                 self._on_line.add(node)
                 data += 1
         if unsure:
@@ -524,6 +527,7 @@ class C2Session:
         if not live:
             burst = self._bursts.pop(node, None)
             if burst is not None:
+                self.handovers_cut += burst.left
                 log.warning(
                     "%s: node %d: handover to %d cut short by failsafe (%d `&` frames not sent)",
                     self.name,
@@ -542,6 +546,7 @@ class C2Session:
         return c2_16b.LIVE, code
 
     def _handover_sent(self, node: int) -> None:
+        self.handover_frames += 1
         burst = self._bursts.get(node)
         if burst is not None:
             burst.left -= 1
