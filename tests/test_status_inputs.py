@@ -4,13 +4,15 @@ node table's frames (docs/CONFIG.md, "Handover and low battery")."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 from hid_encoder import decode as reference_decode
-from hid_encoder import ref_reports
+from hid_encoder import encode, ref_reports
 
-from usb2rc.binding import MappingError
+from usb2rc.binding import MappingError, default_binding
 from usb2rc.config import load_config_text
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
@@ -125,3 +127,23 @@ def test_the_node_frame_carries_the_handover_and_the_battery():
     source.record = ReaderRecord(decoder.state(), reports=2)
     (frame,) = table.frames()
     assert (frame.handover, frame.low_battery) == (None, False)
+
+
+def test_a_real_wireless_pad_gets_low_battery_with_zero_config():
+    """The Asus gamepad of hid-tools' test suite (tests/data/real-devices.json) reports
+    Battery Strength 0..255 in an input report: the default binding reads it."""
+    devices = json.loads((Path(__file__).parent / "data" / "real-devices.json").read_text())
+    (asus,) = [d for d in devices if d["name"].startswith("Asus gamepad")]
+    descriptor = bytes.fromhex(asus["hex"])
+    layout = parse_descriptor(descriptor)
+    (battery,) = [f for f in layout.inputs if f.usage == GDC_BATTERY_STRENGTH]
+    binding = default_binding(layout, "asus")
+    assert binding.battery is not None and binding.battery.index == battery.index
+    assert (binding.battery.lo, binding.battery.hi, binding.battery.below) == (0, 255, 20)
+    # written where hid-tools finds the field: 50 is 19.6 % of 0..255, 51 is 20 %
+    key = (GDC_BATTERY_STRENGTH, 0)
+    ref = next(r for r in ref_reports(descriptor).values() if key in r.values)
+    for level, low in ((50, True), (51, False)):
+        decoder = layout.make_decoder()
+        assert decoder.feed(encode(ref, {key: level}))
+        assert binding.apply(decoder.state()).low_battery is low
