@@ -225,8 +225,8 @@ def test_failsafe_wins_and_ends_a_burst():
     assert {chr(f.status) for f in heard(world, 2)} == {"&"}
     world.live.discard(1)  # its device is live no more: failsafe, whatever it asks
     assert [chr(f.status) for f in heard(world, 2) if f.node_id == 1] == ["!", "!"]
-    session = world.session
-    assert (session.handovers_cut, session.handover_frames) == (8, 6)  # node 0 still held
+    statuses = world.session.statuses
+    assert (statuses.handovers_cut, statuses.handover_frames) == (8, 6)  # node 0 still held
     world.live.add(1)  # back: the burst was ended by the `!`, the battery is still low
     assert [chr(f.status) for f in heard(world, 2) if f.node_id == 1] == ["%", "%"]
     world.pressed = set()
@@ -243,6 +243,6 @@ def test_low_battery_frames_use_message_codes():
     world.low.add(2)
     frames = heard(world, 3)
     assert [chr(f.status) for f in frames] == ["%"] * 3
-    assert world.session.low_battery_frames == 3
+    assert world.session.statuses.low_battery_frames == 3
     codes = [f.code for f in frames]
     assert codes == [codes[0], codes[0] + 1, codes[0] + 2]

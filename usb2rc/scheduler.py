@@ -302,9 +302,10 @@ class C2Output(_LineThread):
         self._take_received()
         delivered = self.send(self.c2.tick(events, frames))
         self.stats.deferred_nodes = self.c2.deferred_nodes
-        self.stats.handover_frames = self.c2.handover_frames
-        self.stats.handovers_cut = self.c2.handovers_cut
-        self.stats.low_battery_frames = self.c2.low_battery_frames
+        statuses = self.c2.statuses
+        self.stats.handover_frames = statuses.handover_frames
+        self.stats.handovers_cut = statuses.handovers_cut
+        self.stats.low_battery_frames = statuses.low_battery_frames
         if delivered is not None:
             self.stats.service_frames += delivered.service_frames
             self.stats.data_frames += delivered.data_frames

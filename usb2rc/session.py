@@ -46,6 +46,7 @@ from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 
+from usb2rc.data_status import DataStatuses
 from usb2rc.protocol import c2_16b, sumd
 from usb2rc.state import EventKind, NodeFrame, ServiceEvent
 
@@ -126,14 +127,6 @@ class _Slot:
     status: int = 0  # a data frame's status byte (`&`: byte 4 is its destination, not a code)
 
 
-@dataclass
-class _Burst:
-    """A press of a `frames: K` handover button: the `&` frames still owed to the line."""
-
-    destination: int
-    left: int
-
-
 @dataclass(frozen=True)
 class Delivered:
     """What `wrote()` found went out: frames counted once, as the stats want them."""
@@ -169,9 +162,7 @@ class C2Session:
         self.stalled = False  # a write put out less than it was given: wait for the drain
         self.stalls = 0
         self.deferred_nodes = 0
-        self.handover_frames = 0  # `&` frames that went out
-        self.handovers_cut = 0  # `&` frames a `!` took from a burst (never sent)
-        self.low_battery_frames = 0  # `%` frames that went out
+        self.statuses = DataStatuses(name)  # `!` `&` `%` `>`, and the handover presses
         self._startup_due = True
         self._owed: deque[_Owed] = deque()
         self._codes: dict[int, int] = {}
@@ -187,8 +178,6 @@ class C2Session:
         self._last_len = 0
         self._round_robin = 0
         self._warned_nodes = 0
-        self._pressed: set[int] = set()  # nodes whose handover button was down last tick
-        self._bursts: dict[int, _Burst] = {}  # `&` frames owed for a press (`frames: K`)
 
     # --- events from the line ------------------------------------------------------------
 
@@ -242,7 +231,7 @@ class C2Session:
         self._told.clear()
         self._left_told.clear()
         self._last, self._last_len = [], 0
-        self._bursts.clear()  # a press nobody saw: the pilot presses again
+        self.statuses.line_reset()
 
     # --- events from the far end ---------------------------------------------------------
 
@@ -290,7 +279,7 @@ class C2Session:
         `room_frames`: how many frames the line carries this tick (default: the baud rate's
         share of a tick). Call `wrote()` with what went out before the next tick."""
         self._track_presence(events)
-        self._follow_handover(frames)
+        self.statuses.follow(frames)
         self._last, self._last_len = [], 0
         if not self.line_open:
             self._requests.clear()
@@ -321,7 +310,8 @@ class C2Session:
         ready = [f for f in frames if f.node_id not in held]
         for frame in self._choose_nodes(ready, frames, room - len(out)):
             live = not frame.failsafe and frame.node_id in announced
-            status, byte4 = self._status(frame, live)
+            code = self._codes.get(frame.node_id, 0)
+            status, byte4 = self.statuses.choose(frame, live, code)
             data = self._data_frame(frame, status, byte4)
             self._add(out, slots, data, _Slot(0, data_node=frame.node_id, status=status))
         self._last = slots
@@ -392,11 +382,8 @@ class C2Session:
                 service += self._confirm(slot)
             if slot.data_node is not None and slot.end <= sent + unsure:
                 node = slot.data_node
-                if slot.status == c2_16b.HANDOVER:
-                    self._handover_sent(node)  # a `&` uses no message code
-                else:
+                if self.statuses.sent(node, slot.status):  # a `&` uses no message code
                     self._codes[node] = (self._codes.get(node, 0) + 1) & 0xFF
-                self.low_battery_frames += slot.status == c2_16b.LOW_BATTERY
                 self._on_line.add(node)
                 data += 1
         if unsure:
@@ -491,67 +478,6 @@ class C2Session:
             _Owed(event, Service.DEVICE_STRING, c2_16b.device_string(node, text, **kw)),
             _Owed(event, Service.DEVICE_TYPE, c2_16b.device_type(node, event.device_type, **kw)),
         ]
-
-    # --- data statuses: `!`, `&`, `%`, `>` ------------------------------------------------
-
-    def _follow_handover(self, frames: Sequence[NodeFrame]) -> None:
-        """A handover button that went down since the last tick is a press: with `frames: K`
-        it owes K `&` frames (a press while a burst runs adds none)."""
-        pressed = set()
-        for frame in frames:
-            handover = frame.handover
-            if handover is None:
-                continue
-            pressed.add(frame.node_id)
-            if frame.node_id in self._pressed:
-                continue
-            how = "while held" if handover.frames is None else f"{handover.frames} frames"
-            log.info(
-                "%s: node %d asks for a handover to %d (%s)",
-                self.name,
-                frame.node_id,
-                handover.destination,
-                how,
-            )
-            if handover.frames is not None and frame.node_id not in self._bursts:
-                self._bursts[frame.node_id] = _Burst(handover.destination, handover.frames)
-        self._pressed = pressed
-
-    def _status(self, frame: NodeFrame, live: bool) -> tuple[int, int]:
-        """The frame's status and byte 4, by priority (docs/ICD.md, "Status priority"):
-        `!` whenever the node is not live and announced (its values are not live: a `&` or
-        `%` would present them as valid; a `!` ends a handover burst), then `&` (its
-        destination in byte 4), `%`, `>` (the node's message code in byte 4)."""
-        node = frame.node_id
-        code = self._codes.get(node, 0)
-        if not live:
-            burst = self._bursts.pop(node, None)
-            if burst is not None:
-                self.handovers_cut += burst.left
-                log.warning(
-                    "%s: node %d: handover to %d cut short by failsafe (%d `&` frames not sent)",
-                    self.name,
-                    node,
-                    burst.destination,
-                    burst.left,
-                )
-            return c2_16b.FAILSAFE, code
-        burst = self._bursts.get(node)
-        if burst is not None:
-            return c2_16b.HANDOVER, burst.destination
-        if frame.handover is not None and frame.handover.frames is None:
-            return c2_16b.HANDOVER, frame.handover.destination
-        if frame.low_battery:
-            return c2_16b.LOW_BATTERY, code
-        return c2_16b.LIVE, code
-
-    def _handover_sent(self, node: int) -> None:
-        self.handover_frames += 1
-        burst = self._bursts.get(node)
-        if burst is not None:
-            burst.left -= 1
-            if burst.left <= 0:
-                del self._bursts[node]
 
     def _data_frame(self, frame: NodeFrame, status: int, byte4: int) -> bytes:
         return c2_16b.encode_data(
