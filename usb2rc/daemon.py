@@ -26,12 +26,12 @@ from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.lifecycle import DeviceLifecycle
 from usb2rc.mapping import Mapping, compile_mapping
-from usb2rc.outputs.sumd import SumdChannels
-from usb2rc.protocol import c2_16b
-from usb2rc.scheduler import C2Output, RxThread, SumdOutput, TickThread, queue_cap
-from usb2rc.session import C2Settings, frames_per_tick
+from usb2rc.outputs import protocol
+from usb2rc.outputs.wiring import OutputContext
+from usb2rc.scheduler import C2Output, CrsfOutput, RxThread, TickThread
 from usb2rc.state import Expected, ExpectedEntry, NodeTable
 from usb2rc.transport import SerialLink
+from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc")
 
@@ -56,7 +56,7 @@ class _Output:
     config: OutputConfig
     link: SerialLink
     thread: TickThread
-    rx: RxThread | None = None
+    rx: Worker | None = None
 
 
 def outputs_with_port(config: Config, port_override: str | None) -> tuple[OutputConfig, ...]:
@@ -86,6 +86,17 @@ def expected_nodes(config: Config | Mapping) -> Expected:
         expected = ExpectedEntry(entry.failsafe, entry.unsigned_slots)
         nodes.setdefault(entry.node_id, {})[entry.name] = expected
     return nodes
+
+
+def crsf_stats_text(output: CrsfOutput) -> str:
+    """A CRSF output's link quality, timing and what it withheld, for `stats`/`monitor`."""
+    session, decoder = output.crsf, output.crsf.decoder
+    return (
+        f"{session.link_text(time.monotonic())}, frames withheld (failsafe) "
+        f"{session.withheld}, rx frames {decoder.frames}, rx crc failures "
+        f"{decoder.crc_failures}, rx skipped {decoder.bytes_skipped}, timing corrections "
+        f"{session.timing_frames} (ignored {session.timing_ignored})"
+    )
 
 
 class Daemon:
@@ -125,29 +136,14 @@ class Daemon:
     # --- outputs ---------------------------------------------------------------------------
 
     def _make_output(self, index: int, out: OutputConfig) -> _Output:
+        """The protocol's build function (the registry in usb2rc/outputs) makes its pieces."""
         assert out.port
         name = f"output{index + 1}-{out.protocol}"
-        if out.protocol == "sumd":
-            channels = SumdChannels.of(self.mapping.sumd_channels(out), out.extended)
-            cap = queue_cap(channels.frame_length)
-            link = SerialLink(out.port, out.baudrate, max_queued_bytes=cap)
-            thread: TickThread = SumdOutput(
-                name, link, self.table, channels, out.rate_hz, self._tick, self._first_write
-            )
-            return _Output(out, link, thread)
-        settings = C2Settings(
-            rate_hz=out.rate_hz,
-            baudrate=out.baudrate,
-            line_feed=out.line_feed,
-            binary_status=out.service_status == "binary",
-            version=self.version,
+        context = OutputContext(
+            name, out, self.mapping, self.table, self._tick, self._first_write, self.version
         )
-        frame_len = c2_16b.FRAME_LEN + (1 if out.line_feed else 0)
-        tick_bytes = frames_per_tick(out.baudrate, out.rate_hz, frame_len) * frame_len
-        link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(tick_bytes))
-        c2 = C2Output(name, link, self.table, settings, self._tick, self._first_write)
-        rx = RxThread(f"{name}-rx", link, c2.received.put)
-        return _Output(out, link, c2, rx)
+        built = protocol(out.protocol).build(context)
+        return _Output(out, built.link, built.thread, built.rx)
 
     def _first_write(self) -> None:
         self._status("running: frames on " + ", ".join(o.link.url for o in self.outputs))
@@ -282,7 +278,9 @@ class Daemon:
                     f"{st.handover_frames} (cut by failsafe {st.handovers_cut}), low battery "
                     f"frames {st.low_battery_frames}"
                 )
-            if out.rx is not None:
+            if isinstance(out.thread, CrsfOutput):
+                line += ", " + crsf_stats_text(out.thread)
+            if isinstance(out.rx, RxThread):
                 dec = out.rx.decoder
                 line += (
                     f", rx bytes {link.bytes_read}, rx skipped {dec.bytes_skipped}, "

@@ -28,6 +28,7 @@ from usb2rc.hid.descriptor import DescriptorError, parse_descriptor
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.hid.replay import ReplayBackend
 from usb2rc.mapping import Mapping, compile_mapping
+from usb2rc.outputs import protocol
 from usb2rc.outputs.sumd_receivers import receiver_warnings
 
 
@@ -104,8 +105,15 @@ def describe_output(output: OutputConfig) -> str:
     if output.protocol == "c2-16b":
         lf = "line feed" if output.line_feed else "no line feed"
         return f"{text}  {lf}, service status {output.service_status}"
-    ranges = "900-2100 us" if output.extended else "1100-1900 us"
-    return f"{text}  axes {ranges}"
+    if output.protocol == "sumd":
+        ranges = "900-2100 us" if output.extended else "1100-1900 us"
+        return f"{text}  axes {ranges}"
+    if output.protocol == "crsf":
+        follow = "follows the module's rate" if output.option("follow_module") else "own rate"
+        return f"{text}  axes 172..1811 (988-2012 us), {follow}, no frames while failsafe"
+    if output.protocol == "sbus":
+        return f"{text}  8E2, axes 172..1811, frame-lost + failsafe flags while failsafe"
+    return text
 
 
 def describe_device(device: DeviceConfig) -> str:
@@ -127,7 +135,7 @@ def summary(config: Config, mapping: Mapping) -> list[str]:
     lines = [f"{config.source}: OK", "outputs:"]
     for output in config.outputs:
         lines.append(f"  {describe_output(output)}")
-        if output.protocol == "sumd":
+        if protocol(output.protocol).channels:
             names = [c.name for c in mapping.sumd_channels(output)]
             lines.append(f"    {len(names)} channels: {' '.join(names)}")
     lines.append("nodes:")

@@ -136,6 +136,24 @@ def default_layout_lines() -> list[str]:
     ]
 
 
+def rc11_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
+    """CRSF / SBUS channels: 11-bit values and what a receiver makes of them."""
+    rows: list[list[object]] = []
+    sources = mapping.sumd_channels(output)
+    for i, source in enumerate(sources, start=1):
+        digital = output.protocol == "sbus" and i > 16
+        if source.kind == "button":
+            wire = "flag off / on" if digital else "172 / 1811 (988 / 2012 µs)"
+            rows.append([i, source.name, "button", wire])
+        else:
+            kind = "axis, unsigned" if source.unsigned else "axis, signed"
+            wire = "flag on above 992" if digital else "172..1811, centre 992 (988..2012 µs)"
+            rows.append([i, source.name, kind, wire])
+    if len(sources) < 16:
+        rows.append([f"{len(sources) + 1}..16", "(not listed)", "", "172 (988 µs)"])
+    return rows
+
+
 def sumd_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
     lo, hi = (900, 2100) if output.extended else (1100, 1900)
     rows: list[list[object]] = []
@@ -230,7 +248,22 @@ def document(config: Config, fmt: str) -> list[str]:
         if output.protocol == "sumd":
             lines += heading(f"SUMD output {i + 1} ({output.port or '--port'})", 2, fmt)
             lines += table(["channel", "source", "kind", "µs"], sumd_rows(mapping, output), fmt)
+        elif output.protocol in RC11_NOTES:
+            name = output.protocol.upper()
+            lines += heading(f"{name} output {i + 1} ({output.port or '--port'})", 2, fmt)
+            lines += [RC11_NOTES[output.protocol], ""]
+            lines += table(["channel", "source", "kind", "wire"], rc11_rows(mapping, output), fmt)
     return lines
+
+
+RC11_NOTES = {
+    "crsf": "RC_CHANNELS_PACKED (0x16) to address 0xEE, 16 × 11 bits. While a listed channel's "
+    "node is in failsafe no RC frame is sent: the ExpressLRS module stops and the receiver's "
+    'own failsafe takes over (docs/ICD.md, "CRSF failsafe").',
+    "sbus": "25-byte frames, 100000 baud 8E2, inverted. While a listed channel's node is in "
+    'failsafe the frames carry the frame-lost and failsafe flags (docs/ICD.md, "SBUS output"); '
+    "channels 17 and 18 are the digital flags.",
+}
 
 
 def replay_section(config: Config, directory: str, fmt: str) -> list[str]:
