@@ -126,3 +126,19 @@ def test_icd_bad_config_exits_2() -> None:
     result = usb2rc("icd", "--config", str(CONFIGS / "broken" / "axis-clash.yaml"))
     assert result.returncode == 2
     assert "axis-clash.yaml:10:" in result.stderr
+
+
+def test_icd_says_when_a_node_sends_handover_and_low_battery(tmp_path: Path) -> None:
+    config = tmp_path / "status.yaml"
+    config.write_text(
+        "devices:\n  - name: stick\n    match: {vid: 0x044f}\n    node_id: 2\n"
+        "    handover: {button: 5, destination: 7, frames: 10}\n"
+        "    low_battery: {usage: Slider, below: 10}\n"
+    )
+    result = usb2rc("icd", "--config", str(config), "--format", "text")
+    assert result.returncode == 0, result.stderr
+    assert (
+        "Status `&` (byte 4 = destination 7): HID button 5 of stick, 10 frames a press; "
+        "no message code is used." in result.stdout
+    )
+    assert "Status `%`: Slider of stick below 10 %." in result.stdout

@@ -44,10 +44,13 @@ from usb2rc.config_model import (
     ChannelRef,
     Config,
     DeviceConfig,
+    HandoverConfig,
     HatConfig,
+    LowBatteryConfig,
     MatchConfig,
     OutputConfig,
 )
+from usb2rc.config_status import check_handovers
 from usb2rc.outputs import OutputProtocol, option_keys
 from usb2rc.outputs import protocol as output_protocol
 from usb2rc.port_url import url_problem
@@ -69,7 +72,9 @@ __all__ = [
     "Config",
     "ConfigError",
     "DeviceConfig",
+    "HandoverConfig",
     "HatConfig",
+    "LowBatteryConfig",
     "MatchConfig",
     "OutputConfig",
     "Problem",
@@ -105,6 +110,7 @@ def load_config_text(text: str, source: str = "<config>") -> Config:
     if config is not None:
         check_clashes(reader, config)
         check_channels(reader, config)
+        check_handovers(reader, config)
     if reader.problems:
         raise ConfigError(sorted(reader.problems, key=lambda p: p.line or 0))
     assert config is not None

@@ -304,6 +304,9 @@ class Daemon:
             record["data_frames"] = st.data_frames
             record["service_frames"] = st.service_frames
             record["round_robin_deferrals"] = st.deferred_nodes
+            record["handover_frames"] = st.handover_frames
+            record["handovers_cut"] = st.handovers_cut
+            record["low_battery_frames"] = st.low_battery_frames
         if isinstance(out.thread, CrsfOutput):
             record.update(crsf_stats(out.thread))
         if isinstance(out.rx, RxThread):

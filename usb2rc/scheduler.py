@@ -62,6 +62,9 @@ class OutputStats:
     data_frames: int = 0
     service_frames: int = 0
     deferred_nodes: int = 0
+    handover_frames: int = 0  # `&`, `%` and the `&` a failsafe cut (docs/ICD.md, "Handover")
+    handovers_cut: int = 0
+    low_battery_frames: int = 0
     tick_errors: int = 0
     stalls: int = 0
     periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
@@ -306,6 +309,10 @@ class C2Output(_LineThread):
         self._take_received()
         delivered = self.send(self.c2.tick(events, frames))
         self.stats.deferred_nodes = self.c2.deferred_nodes
+        statuses = self.c2.statuses
+        self.stats.handover_frames = statuses.handover_frames
+        self.stats.handovers_cut = statuses.handovers_cut
+        self.stats.low_battery_frames = statuses.low_battery_frames
         if delivered is not None:
             self.stats.service_frames += delivered.service_frames
             self.stats.data_frames += delivered.data_frames
@@ -446,7 +453,11 @@ class RxThread(ReplyRx):
 
 
 def is_request(frame: c2_16b.Frame) -> bool:
-    """A `<` config request or a `4` poll request: what the far end may ask."""
+    """A `<` config request or a `4` poll request: what the far end may ask.
+
+    Byte 4 does not matter (docs/ICD.md, "UART receive"): a `<`'s is the far end's message
+    code, a `4`'s a service code, which the ICD leaves TBD; a poll that carries one is still
+    a poll, and answering it costs at most one connect sequence (never queued twice)."""
     if isinstance(frame, c2_16b.DataFrame):
         return frame.status == c2_16b.CONFIG_REQUEST
     return frame.service is c2_16b.Service.POLL

@@ -1,8 +1,11 @@
 """`usb2rc check [--config FILE] [--replay DIR]`: validate a config before anything is sent.
 
 Exit 0 with a one-screen summary of outputs, nodes and channels; exit 2 with every error
-found, one `file:line: key: message` per line. With `--replay DIR`, each hid-recorder file in
-DIR is bound as the daemon would bind that device: its node and any usage it lacks.
+found, one `file:line: key: message` per line. Warnings (on stderr, `file:line: key: warning:
+...`) do not change the exit code: what the SUMD decoders of PX4, ArduPilot and Betaflight
+would not take of a SUMD output, and SUMD channels on a node no entry pins. With
+`--replay DIR`, each hid-recorder file in DIR is bound as the daemon would bind that device:
+its node and any usage it lacks.
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.hid.replay import ReplayBackend
 from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.outputs import protocol
+from usb2rc.outputs.sumd_receivers import receiver_warnings
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -134,6 +138,8 @@ def describe_device(device: DeviceConfig) -> str:
         parts.append(f"{len(device.buttons)} buttons")
     for hat in device.hats:
         parts.append("hat1" if hat.to == "hat1" else "hat -> buttons")
+    if device.handover is not None:
+        parts.append(f"handover button {device.handover.button} -> {device.handover.destination}")
     return f"{device.name}: " + ", ".join(parts or ["nothing mapped"])
 
 
@@ -154,6 +160,16 @@ def summary(config: Config, mapping: Mapping) -> list[str]:
     other = "default layout, automatic node" if config.defaults else "ignored (defaults: false)"
     lines.append(f"  devices without an entry: {other}")
     return lines
+
+
+def warnings(config: Config, mapping: Mapping) -> list[Problem]:
+    """What a receiver would not take (the config is still good: exit 0)."""
+    pinned = mapping.pinned_node_ids()
+    return [
+        problem
+        for output in config.outputs
+        for problem in receiver_warnings(output, mapping.sumd_channels(output), pinned)
+    ]
 
 
 def replay_lines(devices: list[BoundDevice], problems: list[str]) -> list[str]:
@@ -183,6 +199,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     mapping = compile_mapping(config)
     print("\n".join(summary(config, mapping)))
+    for warning in warnings(config, mapping):
+        print(warning, file=sys.stderr)
     if not args.replay:
         return 0
     devices, problems = bind_replay(mapping, args.replay)

@@ -5,6 +5,10 @@ path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C
 per valid frame on stdout (`--json`: one JSON object per line); a summary on stderr at the end.
 Exit 0 when it found a frame, 1 when none (it says so, and names the other protocol when
 its frames are there), 2 for a port URL pyserial cannot parse.
+
+Byte 4 is shown as it is: a data frame's message code (a `&` frame's destination ID, also
+given as `destination`), a service frame's service code (`code`; usb2rc sends 0, another
+implementation may not, docs/ICD.md "Service code").
 """
 
 from __future__ import annotations
@@ -23,7 +27,13 @@ from typing import Any, BinaryIO
 
 from usb2rc.outputs import PROTOCOLS, protocol
 from usb2rc.protocol import crsf
-from usb2rc.protocol.c2_16b import DATA_STATUS_NAMES, DataFrame, Decoder, ServiceFrame
+from usb2rc.protocol.c2_16b import (
+    DATA_STATUS_NAMES,
+    HANDOVER,
+    DataFrame,
+    Decoder,
+    ServiceFrame,
+)
 from usb2rc.protocol.sbus import SbusFrame
 from usb2rc.protocol.sumd import SumdDecoder, SumdFrame
 
@@ -216,15 +226,7 @@ _CRSF_KINDS: dict[type, str] = {
 
 def json_record(frame: AnyFrame) -> dict[str, Any]:
     if isinstance(frame, DataFrame):
-        return {
-            "protocol": "c2-16b",
-            "status": chr(frame.status),
-            "node_id": frame.node_id,
-            "code": frame.code,
-            "axes": list(frame.axes),
-            "group1": frame.group1,
-            "group2": frame.group2,
-        }
+        return _data_record(frame)
     if isinstance(frame, ServiceFrame):
         return _service_record(frame)
     if isinstance(frame, SumdFrame):
@@ -245,12 +247,28 @@ def json_record(frame: AnyFrame) -> dict[str, Any]:
     return {**record, **values}
 
 
+def _data_record(frame: DataFrame) -> dict[str, Any]:
+    record: dict[str, Any] = {
+        "protocol": "c2-16b",
+        "status": chr(frame.status),
+        "node_id": frame.node_id,
+        "code": frame.code,
+        "axes": list(frame.axes),
+        "group1": frame.group1,
+        "group2": frame.group2,
+    }
+    if frame.status == HANDOVER:
+        record["destination"] = frame.code  # byte 4 of a `&` is the destination ID
+    return record
+
+
 def _service_record(frame: ServiceFrame) -> dict[str, Any]:
     record: dict[str, Any] = {
         "protocol": "c2-16b",
         "status": str(frame.service.value),
         "status_encoding": "binary" if frame.binary_status else "ascii",
         "node_id": frame.node_id,
+        "code": frame.code,
         "service": frame.service.service_name,
         "payload_hex": frame.payload.rstrip(b"\0").hex(),
     }
@@ -267,8 +285,9 @@ def json_line(frame: AnyFrame) -> str:
 
 def text_line(frame: AnyFrame) -> str:
     if isinstance(frame, DataFrame):
+        byte4 = f"to {frame.code}" if frame.status == HANDOVER else f"code {frame.code}"
         return (
-            f"{chr(frame.status)} node {frame.node_id} code {frame.code} axes {list(frame.axes)}"
+            f"{chr(frame.status)} node {frame.node_id} {byte4} axes {list(frame.axes)}"
             f" g1 0x{frame.group1:08X} g2 0x{frame.group2:08X}"
         )
     if isinstance(frame, ServiceFrame):
@@ -302,6 +321,8 @@ def _crsf_text(frame: crsf.CrsfFrame) -> str:
 
 def _service_text(frame: ServiceFrame) -> str:
     line = f"service {frame.service.service_name} node {frame.node_id}"
+    if frame.code:
+        line += f" code {frame.code}"
     payload = frame.payload.rstrip(b"\0")
     if frame.vid is not None:
         line += f" vid 0x{frame.vid:04X} pid 0x{frame.pid:04X}"

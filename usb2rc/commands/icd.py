@@ -195,7 +195,26 @@ def node_section(config: Config, node_id: int, fmt: str) -> list[str]:
     lines += (
         table(["switch", "group 1 bit", "direction", "device", "hat"], rows, fmt) if rows else []
     )
-    return lines
+    return lines + status_lines(devices)
+
+
+def status_lines(devices: Sequence[DeviceConfig]) -> list[str]:
+    """When the node sends `&` and `%` (docs/ICD.md, "Status priority")."""
+    lines = []
+    for device in devices:
+        handover, battery = device.handover, device.low_battery
+        if handover is not None:
+            how = "while held" if handover.frames is None else f"{handover.frames} frames a press"
+            lines.append(
+                f"Status `&` (byte 4 = destination {handover.destination}): HID button "
+                f"{handover.button} of {device.name}, {how}; no message code is used."
+            )
+        if battery is not None:
+            source = f"{usage_label(battery.usage, battery.occurrence)} of {device.name}"
+            if battery.auto:
+                source += " (if the device reports it)"
+            lines.append(f"Status `%`: {source} below {battery.below:g} %.")
+    return [*lines, ""] if lines else []
 
 
 def _device_label(device: DeviceConfig) -> str:
@@ -217,6 +236,8 @@ def document(config: Config, fmt: str) -> list[str]:
         "(unsigned: without - 32768). Node buttons 1-24 are group 1 bits 0-23, node buttons",
         f"25-56 group 2 bits 0-31 (button n > {GROUP1_BUTTONS}: bit n - 25); group 1 bits 24-31",
         "are hat1. Unfed axes send 0, unfed bits 0.",
+        "Status: `!` in failsafe, else `&` (handover) while asked, else `%` while a battery is",
+        "low, else `>`.",
         "",
     ]
     lines += heading("Outputs", 2, fmt)
