@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import logging
 import threading
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import Any, Protocol
 
 from usb2rc.binding import DeviceBinding, NodeInputs
+from usb2rc.config_model import HandoverConfig
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import InputState
 from usb2rc.hid.reader import ReaderRecord
@@ -51,6 +52,9 @@ class NodeFrame:
     group1: int
     group2: int
     unsigned_slots: int = 0  # bit k set: axis slot k is a uint16 (binding.unsigned_slots)
+    # the status a live node asks for (the session decides: docs/ICD.md, "Status priority")
+    handover: HandoverConfig | None = None  # a handover button is down: `&`, and where to
+    low_battery: bool = False  # a device's battery is low: `%`
 
 
 @dataclass(frozen=True)
@@ -178,6 +182,8 @@ class _Node:
     def frame(self, subscriber: int | None = None, trims: TrimStore | None = None) -> NodeFrame:
         axes = [0] * AXIS_COUNT
         group1 = group2 = unsigned = 0
+        handover: HandoverConfig | None = None
+        low_battery = False
         for entry in self.expected.values():
             _merge_axes(axes, entry.inputs)
             unsigned |= entry.unsigned_slots
@@ -191,7 +197,19 @@ class _Node:
             group1 |= inputs.group1
             group2 |= inputs.group2
             unsigned |= attached.binding.unsigned_slots  # computed once, with the binding
-        return NodeFrame(self.node_id, self.failsafe, tuple(axes), group1, group2, unsigned)
+            if inputs.handover:  # one handover button per node (config_status)
+                handover = attached.binding.handover
+            low_battery = low_battery or inputs.low_battery
+        return NodeFrame(
+            self.node_id,
+            self.failsafe,
+            tuple(axes),
+            group1,
+            group2,
+            unsigned,
+            handover,
+            low_battery,
+        )
 
     def reasons(self) -> list[tuple[str, str]]:
         """Why the node is `!`: (kind, text) per device or entry it waits for."""
@@ -231,7 +249,7 @@ def _trimmed(inputs: NodeInputs, trims: dict[int, float], binding: DeviceBinding
         value, info = axes[slot], binding.axis_info[slot]
         if value is not None and info is not None:
             axes[slot] = add_trim(value, trim, info.unsigned)
-    return NodeInputs(tuple(axes), inputs.group1, inputs.group2)
+    return replace(inputs, axes=tuple(axes))
 
 
 def _merge_axes(axes: list[int], inputs: NodeInputs) -> None:
