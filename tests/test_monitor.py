@@ -36,13 +36,13 @@ X_LINE = re.compile(r"^\s*x\s+\[([#-]+)\]\s+([+-]\d+)\s+raw\s+(-?\d+|-)\s+<- (.*
 ANSI = re.compile(r"\x1b(\[[0-?]*[ -/]*[@-~]|\][^\x07]*\x07|[()][0-9A-Za-z]|[=>78])")
 WAIT_S = 20.0
 
-# X from one end to the other, each held 0.5 s, forever (--replay-loop); each lap starts
-# with a centred report (20 ms), so the neutral guard lets the node go live.
+# X from one end to the other, each held 0.5 s (the last one 0.4 s), forever
+# (--replay-loop); each lap starts centred for 0.3 s, so the neutral guard lets it go live.
 SWING = timed_recording(
     [
-        (0.0, StickState()),
-        (0.02, StickState(x=0, buttons=0x0001)),
-        (0.52, StickState(x=16383, hat=2)),
+        (0.0, StickState()),  # centred for a few 10 Hz snapshots: the guard lets it go live
+        (0.3, StickState(x=0, buttons=0x0001)),
+        (0.8, StickState(x=16383, hat=2)),
     ]
 )
 
@@ -96,7 +96,8 @@ def wait_until(read: Callable[[], str], done: Callable[[str], bool]) -> str:
 def check_screen(screen: str) -> None:
     sources = {source for _, _, source in x_lines(screen)}
     reporting = {(raw, sent) for raw, sent in x_raw_and_sent(screen) if raw != "-"}
-    assert reporting <= {("0", -32768), ("16383", 32767)}, screen
+    ends = {("0", -32768), ("16383", 32767), ("8192", scale(8192, 0, 16383))}  # and centred
+    assert reporting <= ends, screen
     assert any(s.startswith("Thrustmaster T.16000M: X (raw 0..16383") for s in sources), sources
     assert "node 0" in screen and "LIVE" in screen
     assert "device Thrustmaster T.16000M (044f:b10a, port replay-stick)" in screen

@@ -269,6 +269,7 @@ class NodeTable:
         self._nodes: dict[int, _Node] = {}
         self._by_key: dict[str, tuple[int, _Attached]] = {}
         self._outbox: list[list[ServiceEvent] | None] = []  # None: frames only (SUMD)
+        self._latching: list[bool] = []  # per subscriber: its frames show taps
         self._trims = TrimStore()
         self._stopping = False
         for node_id, entries in (expected or {}).items():
@@ -276,11 +277,13 @@ class NodeTable:
 
     # --- outputs -------------------------------------------------------------------------
 
-    def subscribe(self, events: bool = True) -> int:
-        """An output's subscription: its service events (events=False: none, for a SUMD
-        output) and its own latch of the buttons tapped between two of its frames."""
+    def subscribe(self, events: bool = True, taps: bool = True) -> int:
+        """An output's subscription: its service events (events=False: none, for a channel
+        output) and its own latch of the buttons tapped between two of its frames
+        (taps=False: the state as it is, for `monitor`'s view)."""
         with self._lock:
             self._outbox.append([] if events else None)
+            self._latching.append(taps)
             return len(self._outbox) - 1
 
     def collect(self, subscriber: int) -> tuple[list[ServiceEvent], list[NodeFrame]]:
@@ -317,6 +320,8 @@ class NodeTable:
 
     def _frames_locked(self, subscriber: int | None = None) -> tuple[list[NodeFrame], list[str]]:
         frames, changes = [], []
+        if subscriber is not None and not self._latching[subscriber]:
+            subscriber = None
         for node_id in sorted(self._nodes):
             node = self._nodes[node_id]
             frames.append(node.frame(subscriber, self._trims))

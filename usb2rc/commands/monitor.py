@@ -70,7 +70,8 @@ class InputSide:
         urls = ", ".join(out.link.url for out in self.daemon.outputs)
         self.ports = f"outputs on {urls}" if urls else "no serial port is opened"
         self.table = self.daemon.table
-        self.subscriber = self.table.subscribe()  # the service events an output would send
+        # the service events an output would send; buttons as they are now (no tap latch)
+        self.subscriber = self.table.subscribe(taps=False)
         self.events: deque[str] = deque(maxlen=200)
         self.event_total = 0
 
@@ -361,6 +362,10 @@ def _show_plain(side: InputSide, logs: _LogLines, until: float) -> None:
             print(snapshot_text(shown, logs.since(logs_seen)), flush=True)
             events_seen, logs_seen = snap.event_total, logs.total
             next_print += PLAIN_EVERY_S
+        else:
+            # between snapshots the nodes are still evaluated ~10 times a second, as the
+            # live view does: the neutral guard sees a stick at rest (docs/ICD.md)
+            side.table.frames()
         if now >= until:
             break
         time.sleep(max(0.0, min(REFRESH_S, until - now, next_print - now)))
