@@ -28,6 +28,7 @@ from yaml.nodes import Node
 
 from usb2rc.config_checks import channel_problem, check_channels, check_clashes, device_claims
 from usb2rc.config_devices import read_devices
+from usb2rc.config_mavlink import MAVLINK_KEYS, check_mavlink_output, read_mavlink_options
 from usb2rc.config_model import (
     CHANNEL_ALLOWED,
     DEFAULT_BAUDRATE,
@@ -80,10 +81,15 @@ __all__ = [
 TOP_KEYS = ("outputs", "devices", "defaults")
 OUTPUT_KEYS = (
     "protocol", "port", "baudrate", "rate_hz", "line_feed", "service_status", "channels",
-    "extended",
+    "extended", *MAVLINK_KEYS,
 )  # fmt: skip
 C2_ONLY_KEYS = ("line_feed", "service_status")
 SUMD_ONLY_KEYS = ("channels", "extended")
+NOT_OPTIONS = {  # keys other protocols have
+    "c2-16b": (*SUMD_ONLY_KEYS, *MAVLINK_KEYS),
+    "sumd": (*C2_ONLY_KEYS, *MAVLINK_KEYS),
+    "mavlink": (*C2_ONLY_KEYS, "extended"),
+}
 
 
 def load_config(path: str) -> Config:
@@ -140,7 +146,7 @@ def _read_output(reader: NodeReader, node: Node, path: str) -> OutputConfig | No
     protocol = reader.choice(items["protocol"][1], f"{path}.protocol", PROTOCOLS)
     if protocol is None:
         return None
-    wrong = SUMD_ONLY_KEYS if protocol == "c2-16b" else C2_ONLY_KEYS
+    wrong = NOT_OPTIONS[protocol]
     for key in wrong:
         if key in items:
             reader.error(items[key][0], f"{path}.{key}", f"not an option of {protocol} outputs")
@@ -160,20 +166,26 @@ def _read_output(reader: NodeReader, node: Node, path: str) -> OutputConfig | No
             if value is not None:
                 values[key] = value
     if "channels" in items and "channels" not in wrong:
-        channels = _read_channels(reader, items["channels"][1], f"{path}.channels")
+        counted = protocol != "mavlink"  # MAVLink's count depends on its message
+        channels = _read_channels(reader, items["channels"][1], f"{path}.channels", counted)
         if channels is not None:
             values["channels"], values["channel_wheres"] = channels
+    if protocol == "mavlink":
+        values["mavlink"] = read_mavlink_options(reader, items, path)
+        output = OutputConfig(**values)
+        check_mavlink_output(reader, node, items, path, output)
+        return output
     return OutputConfig(**values)
 
 
 def _read_channels(
-    reader: NodeReader, node: Node, path: str
+    reader: NodeReader, node: Node, path: str, counted: bool = True
 ) -> tuple[tuple[ChannelRef, ...], tuple[Where, ...]] | None:
     """The channel references (parsed here, once) and where each is; bad names reported."""
     entries = reader.sequence(node, path)
     if entries is None:
         return None
-    if not SUMD_MIN_CHANNELS <= len(entries) <= SUMD_MAX_CHANNELS:
+    if counted and not SUMD_MIN_CHANNELS <= len(entries) <= SUMD_MAX_CHANNELS:
         reader.error(
             node, path, f"{len(entries)} channels", f"{SUMD_MIN_CHANNELS}..{SUMD_MAX_CHANNELS}"
         )

@@ -18,8 +18,8 @@ from usb2rc.yamlnodes import Where
 
 MAX_HID_BUTTON = 65535
 HAT_DIRECTIONS = ("up", "up-right", "right", "down-right", "down", "down-left", "left", "up-left")
-PROTOCOLS = ("c2-16b", "sumd")
-DEFAULT_RATE_HZ = {"c2-16b": 50, "sumd": 100}
+PROTOCOLS = ("c2-16b", "sumd", "mavlink")
+DEFAULT_RATE_HZ = {"c2-16b": 50, "sumd": 100, "mavlink": 50}
 DEFAULT_BAUDRATE = 115200
 SUMD_MIN_CHANNELS, SUMD_MAX_CHANNELS = 2, 32
 SUMD_DEFAULT_SLOTS = ("x", "y", "z", "rz", "slider", "rx", "ry", "dial")
@@ -132,6 +132,17 @@ class DeviceConfig:
 
 
 @dataclass(frozen=True)
+class MavlinkOptions:
+    """A MAVLink output's own keys (docs/CONFIG.md, "MAVLink outputs")."""
+
+    message: str = "rc_channels_override"  # or "manual_control"
+    system_id: int = 255  # usb2rc as a GCS: ArduPilot's SYSID_MYGCS default
+    component_id: int = 190  # MAV_COMP_ID_MISSIONPLANNER
+    target_system: int = 1
+    target_component: int = 1  # MAV_COMP_ID_AUTOPILOT1
+
+
+@dataclass(frozen=True)
 class OutputConfig:
     """One serial output. `channels` (SUMD) are typed references; a Config built in code
     may give them as names (`("node0.x", "node0.y")`), parsed here once (ValueError when
@@ -145,6 +156,7 @@ class OutputConfig:
     service_status: str = "ascii"
     channels: tuple[ChannelRef, ...] | None = None  # SUMD; None: the default channel list
     extended: bool = False  # SUMD: axes onto 900-2100 µs instead of 1100-1900 µs
+    mavlink: MavlinkOptions | None = None  # MAVLink: message and IDs (config_mavlink.py)
     where: Where | None = None
     channel_wheres: tuple[Where, ...] = field(default=(), compare=False)  # one per channel
 
