@@ -153,6 +153,27 @@ def install(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
+class MavlinkStream:
+    """The far end of a MAVLink line as a receiver parses it: pymavlink's own parser (not
+    usb2rc's code), `feed(bytes) -> [message]`; bad data is counted, never returned."""
+
+    def __init__(self) -> None:
+        from pymavlink.dialects.v20 import common
+
+        self.parser = common.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.bad = 0
+
+    def feed(self, data: bytes) -> list[Any]:
+        messages = []
+        for message in self.parser.parse_buffer(data) or []:
+            if message.get_type() == "BAD_DATA":
+                self.bad += 1
+            else:
+                messages.append(message)
+        return messages
+
+
 @dataclass(frozen=True)
 class Seen:
     time: float
@@ -165,7 +186,13 @@ class PtyLine:
     def __init__(self, protocol: str = "c2-16b") -> None:
         self.master, self._slave = os.openpty()
         self.path = os.ttyname(self._slave)
-        self.decoder: Any = sumd.SumdDecoder() if protocol == "sumd" else c2_16b.Decoder()
+        self.decoder: Any = (
+            sumd.SumdDecoder()
+            if protocol == "sumd"
+            else MavlinkStream()
+            if protocol == "mavlink"
+            else c2_16b.Decoder()
+        )
         self.seen: list[Seen] = []
         self._cond = threading.Condition()
         self._stop = threading.Event()

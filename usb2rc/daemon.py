@@ -26,12 +26,28 @@ from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.lifecycle import DeviceLifecycle
 from usb2rc.mapping import Mapping, compile_mapping
+from usb2rc.outputs.mavlink import (
+    MavlinkChannels,
+    MavlinkSession,
+    MavlinkSettings,
+    heartbeat_bytes,
+    max_message_bytes,
+    stats_text,
+)
 from usb2rc.outputs.sumd import SumdChannels
 from usb2rc.protocol import c2_16b
-from usb2rc.scheduler import C2Output, RxThread, SumdOutput, TickThread, queue_cap
+from usb2rc.scheduler import (
+    C2Output,
+    MavlinkOutput,
+    RxThread,
+    SumdOutput,
+    TickThread,
+    queue_cap,
+)
 from usb2rc.session import C2Settings, frames_per_tick
 from usb2rc.state import Expected, ExpectedEntry, NodeTable
 from usb2rc.transport import SerialLink
+from usb2rc.transport_udp import UdpLink, is_udp_url
 
 log = logging.getLogger("usb2rc")
 
@@ -54,7 +70,7 @@ class NoPortError(ValueError):
 @dataclass
 class _Output:
     config: OutputConfig
-    link: SerialLink
+    link: SerialLink | UdpLink
     thread: TickThread
     rx: RxThread | None = None
 
@@ -135,6 +151,8 @@ class Daemon:
                 name, link, self.table, channels, out.rate_hz, self._tick, self._first_write
             )
             return _Output(out, link, thread)
+        if out.protocol == "mavlink":
+            return self._make_mavlink_output(name, out)
         settings = C2Settings(
             rate_hz=out.rate_hz,
             baudrate=out.baudrate,
@@ -148,6 +166,22 @@ class Daemon:
         c2 = C2Output(name, link, self.table, settings, self._tick, self._first_write)
         rx = RxThread(f"{name}-rx", link, c2.received.put)
         return _Output(out, link, c2, rx)
+
+    def _make_mavlink_output(self, name: str, out: OutputConfig) -> _Output:
+        """A MAVLink output on UDP (`udpout:` / `udpin:`) or on a serial port / URL."""
+        assert out.port and out.mavlink
+        channels = MavlinkChannels(self.mapping.sumd_channels(out), out.mavlink.message)
+        session = MavlinkSession(MavlinkSettings(**dataclasses.asdict(out.mavlink)))
+        link: SerialLink | UdpLink
+        if is_udp_url(out.port):
+            link = UdpLink(out.port)
+        else:
+            tick_bytes = heartbeat_bytes() + max_message_bytes(out.mavlink.message)
+            link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(tick_bytes))
+        thread = MavlinkOutput(
+            name, link, self.table, channels, session, out.rate_hz, self._tick, self._first_write
+        )
+        return _Output(out, link, thread)
 
     def _first_write(self) -> None:
         self._status("running: frames on " + ", ".join(o.link.url for o in self.outputs))
@@ -280,6 +314,8 @@ class Daemon:
                     f", data frames {st.data_frames}, service frames {st.service_frames}, "
                     f"round-robin deferrals {st.deferred_nodes}"
                 )
+            if isinstance(out.thread, MavlinkOutput):
+                line += ", " + stats_text(out.thread.mav)
             if out.rx is not None:
                 dec = out.rx.decoder
                 line += (

@@ -20,6 +20,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from usb2rc.outputs.mavlink import MavlinkChannels, MavlinkSession
 from usb2rc.outputs.sumd import SumdChannels
 from usb2rc.protocol import c2_16b
 from usb2rc.session import (  # noqa: F401 - re-exported: their home used to be here
@@ -34,6 +35,7 @@ from usb2rc.session import (  # noqa: F401 - re-exported: their home used to be 
 )
 from usb2rc.state import NodeTable
 from usb2rc.transport import LineEvent, SerialLink, Written
+from usb2rc.transport_udp import UdpLink
 from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc.scheduler")
@@ -175,8 +177,8 @@ class _LineThread(TickThread):
     def __init__(
         self,
         name: str,
-        link: SerialLink,
-        session: C2Session | SumdSession,
+        link: SerialLink | UdpLink,
+        session: C2Session | SumdSession | MavlinkSession,
         rate_hz: float,
         on_tick: Callable[[], None] | None,
         on_first_write: Callable[[], None] | None,
@@ -337,6 +339,41 @@ class SumdOutput(_LineThread):
             return
         values, failsafe = self.channels.evaluate(self.table.frames())
         self.send(self.sumd.tick(values, failsafe))
+
+
+class MavlinkOutput(_LineThread):
+    """MAVLink: a heartbeat a second and the control message each tick, one write (one
+    datagram on UDP) per message; the session decides what a failsafe sends
+    (`usb2rc.outputs.mavlink`). On UDP, what the far end sent is read here, once a tick
+    (the socket is non-blocking; udpin learns from it whom to send to)."""
+
+    def __init__(
+        self,
+        name: str,
+        link: SerialLink | UdpLink,
+        table: NodeTable,
+        channels: MavlinkChannels,
+        session: MavlinkSession,
+        rate_hz: float = 50.0,
+        on_tick: Callable[[], None] | None = None,
+        on_first_write: Callable[[], None] | None = None,
+    ) -> None:
+        super().__init__(name, link, session, rate_hz, on_tick, on_first_write)
+        self.mav = session
+        self.table = table
+        self.channels = channels
+
+    def tick(self) -> None:
+        self.follow_link()
+        if isinstance(self.link, UdpLink):
+            self.mav.received(self.link.take_received())
+        if not self.mav.line_open or self.mav.stalled:
+            return
+        values = self.channels.evaluate(self.table.frames())
+        for message in self.mav.tick(time.monotonic(), values):
+            self.send(message)
+            if self.mav.stalled or not self.mav.line_open:
+                break
 
 
 class RxThread(Worker):

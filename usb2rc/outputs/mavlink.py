@@ -304,6 +304,19 @@ class MavlinkSession:
                 far.last_heartbeat_from = (message.get_srcSystem(), message.get_srcComponent())
 
 
+def stats_text(session: MavlinkSession) -> str:
+    """The output's MAVLink counters, for the stats line (SIGUSR1) and `monitor`."""
+    far = session.far_end
+    seen = far.last_heartbeat_from
+    source = f" (last from {seen[0]}/{seen[1]})" if seen else ""
+    return (
+        f"{session.settings.message} {session.controls}, releases {session.releases}, "
+        f"silent failsafe ticks {session.silent_ticks}, heartbeats {session.heartbeats}, "
+        f"far end: messages {far.messages}, heartbeats {far.heartbeats}{source}, "
+        f"bad data {far.errors}"
+    )
+
+
 def max_message_bytes(message: str) -> int:
     """Bytes of one control message on the wire at most (MAVLink 2, unsigned; pymavlink cuts
     the payload's trailing zeros): for `check`'s bandwidth sum."""
