@@ -223,9 +223,9 @@ class MavlinkSession:
         if self._next_heartbeat is None or now >= self._next_heartbeat:
             messages.append(self._pack(self._heartbeat()))
             self.heartbeats += 1
-            base = now if self._next_heartbeat is None else self._next_heartbeat
-            # on time: every HEARTBEAT_S; after a pause, from now (no burst to catch up)
-            self._next_heartbeat = max(base + HEARTBEAT_S, now)
+            due = HEARTBEAT_S + (now if self._next_heartbeat is None else self._next_heartbeat)
+            # on time: every HEARTBEAT_S; after a pause, a second from now (no burst)
+            self._next_heartbeat = due if due > now else now + HEARTBEAT_S
         control = self._control(now, values)
         if control is not None:
             messages.append(self._pack(control))
