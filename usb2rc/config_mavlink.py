@@ -11,7 +11,7 @@ import difflib
 from yaml.nodes import Node
 
 from usb2rc.config_model import MavlinkOptions, OutputConfig
-from usb2rc.transport_udp import is_udp_url, parse_udp_url
+from usb2rc.udp_url import is_udp_url, parse_udp_url
 from usb2rc.yamlnodes import NodeReader
 
 Items = dict[str, tuple[Node, Node]]
@@ -23,6 +23,11 @@ MESSAGES = ("rc_channels_override", "manual_control")
 OVERRIDE_MAX_CHANNELS = 18
 MANUAL_AXES = 4  # x, y, z, r
 MANUAL_MAX_BUTTONS = 32
+# Bytes on the wire at most (MAVLink 2, unsigned), for the bandwidth of a serial line;
+# tests hold them to what pymavlink packs (outputs.mavlink.max_message_bytes).
+MESSAGE_BYTES = {"rc_channels_override": 50, "manual_control": 25}
+HEARTBEAT_BYTES = 21
+BITS_PER_BYTE = 10  # 8N1
 ID_RANGES = {
     "system_id": (1, 255),  # 0 is not a valid sender
     "component_id": (1, 255),
@@ -70,6 +75,8 @@ def check_mavlink_output(
     if "channels" in items:
         node = items["channels"][1]
     options = output.mavlink or MavlinkOptions()
+    if output.port and not is_udp_url(output.port):
+        _check_bandwidth(reader, node, items, path, output, options.message)
     channels = output.channels
     if options.message == "rc_channels_override":
         if channels is not None and not 1 <= len(channels) <= OVERRIDE_MAX_CHANNELS:
@@ -95,3 +102,27 @@ def check_mavlink_output(
         if i >= MANUAL_AXES and ref.kind != "button":
             message = f"{ref.name}: manual_control channels after x, y, z, r are buttons"
             reader.report(where.problem(message, "nodeN.buttonK"))
+
+
+def baud_needed(message: str, rate_hz: float) -> int:
+    """Bits per second a MAVLink output needs on a serial line: its control message each
+    tick and a heartbeat a second."""
+    return int((MESSAGE_BYTES[message] * rate_hz + HEARTBEAT_BYTES) * BITS_PER_BYTE + 0.999)
+
+
+def _check_bandwidth(
+    reader: NodeReader, node: Node, items: Items, path: str, output: OutputConfig, message: str
+) -> None:
+    needed = baud_needed(message, output.rate_hz)
+    if needed <= output.baudrate:
+        return
+    most_hz = (output.baudrate / BITS_PER_BYTE - HEARTBEAT_BYTES) / MESSAGE_BYTES[message]
+    key = "rate_hz" if "rate_hz" in items else "baudrate" if "baudrate" in items else None
+    at = items[key][1] if key else node
+    reader.error(
+        at,
+        f"{path}.{key or 'baudrate'}",
+        f"{message} at {output.rate_hz:g} Hz needs {needed} baud, more than the line's "
+        f"{output.baudrate}; it carries at most {max(0.0, most_hz):.0f} Hz",
+        "a lower rate_hz or a higher baudrate",
+    )

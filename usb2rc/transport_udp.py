@@ -20,38 +20,17 @@ import contextlib
 import logging
 import select
 import socket
-from dataclasses import dataclass
 
 from usb2rc.transport import LineEvent, LinkStats, Written
+from usb2rc.udp_url import is_udp_url, parse_udp_url
+
+__all__ = ["UdpLink", "is_udp_url", "parse_udp_url"]
 
 log = logging.getLogger("usb2rc.udp")
 
-SCHEMES = ("udpout", "udpin")
 MAX_DATAGRAMS_PER_POLL = 64  # what one tick reads at most: a flood cannot hold a tick up
 RECEIVE_SIZE = 65535
 KEEP_RECEIVED = 65536  # bytes kept for take_received() between ticks; older ones dropped
-
-
-@dataclass(frozen=True)
-class UdpAddress:
-    scheme: str  # "udpout" or "udpin"
-    host: str
-    port: int
-
-
-def is_udp_url(url: str) -> bool:
-    return url.split(":", 1)[0] in SCHEMES
-
-
-def parse_udp_url(url: str) -> UdpAddress:
-    """`udpout:127.0.0.1:14550` → UdpAddress; ValueError with a message a user can act on."""
-    scheme, _, rest = url.partition(":")
-    if scheme not in SCHEMES:
-        raise ValueError(f"{url!r} is not a UDP address (udpout:HOST:PORT or udpin:HOST:PORT)")
-    host, sep, port_text = rest.rpartition(":")
-    if not sep or not host or not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
-        raise ValueError(f"{url!r}: expected {scheme}:HOST:PORT with PORT 1..65535")
-    return UdpAddress(scheme, host.strip("[]"), int(port_text))
 
 
 class UdpLink:

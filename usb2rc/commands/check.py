@@ -20,11 +20,13 @@ from usb2rc.config import (
     Problem,
     load_config,
 )
+from usb2rc.config_mavlink import baud_needed
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DescriptorError, parse_descriptor
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.hid.replay import ReplayBackend
 from usb2rc.mapping import Mapping, compile_mapping
+from usb2rc.udp_url import is_udp_url
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -96,12 +98,29 @@ def _bind_one(
 
 def describe_output(output: OutputConfig) -> str:
     port = output.port or "(port from --port)"
-    text = f"{output.protocol:<7} {port}  {output.baudrate} baud  {output.rate_hz:g} Hz"
+    baud = "" if is_udp_url(port) else f"  {output.baudrate} baud"
+    text = f"{output.protocol:<7} {port}{baud}  {output.rate_hz:g} Hz"
     if output.protocol == "c2-16b":
         lf = "line feed" if output.line_feed else "no line feed"
         return f"{text}  {lf}, service status {output.service_status}"
+    if output.protocol == "mavlink" and output.mavlink is not None:
+        return f"{text}  {mavlink_text(output)}"
     ranges = "900-2100 us" if output.extended else "1100-1900 us"
     return f"{text}  axes {ranges}"
+
+
+def mavlink_text(output: OutputConfig) -> str:
+    """The MAVLink output's message, IDs and, on a serial line, the bandwidth it uses."""
+    opts = output.mavlink
+    assert opts is not None
+    text = (
+        f"{opts.message} to system {opts.target_system} component {opts.target_component}, "
+        f"as system {opts.system_id} component {opts.component_id}, heartbeat 1 Hz"
+    )
+    if output.port and is_udp_url(output.port):
+        return text + " (UDP: no baud rate)"
+    needed = baud_needed(opts.message, output.rate_hz)
+    return text + f", needs {needed} of {output.baudrate} baud"
 
 
 def describe_device(device: DeviceConfig) -> str:
@@ -121,7 +140,7 @@ def summary(config: Config, mapping: Mapping) -> list[str]:
     lines = [f"{config.source}: OK", "outputs:"]
     for output in config.outputs:
         lines.append(f"  {describe_output(output)}")
-        if output.protocol == "sumd":
+        if output.protocol in ("sumd", "mavlink"):
             names = [c.name for c in mapping.sumd_channels(output)]
             lines.append(f"    {len(names)} channels: {' '.join(names)}")
     lines.append("nodes:")

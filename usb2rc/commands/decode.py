@@ -1,8 +1,11 @@
-"""`usb2rc decode`: print the C2-16B or SUMD frames found in a capture file, stdin or a port.
+"""`usb2rc decode`: print the C2-16B, SUMD or MAVLink frames found in a capture file, stdin
+or a port.
 
 SOURCE is a file (read to its end), `-` for stdin, or a serial port: a character device
-path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C. One line
+path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C; for
+MAVLink also `udpin:HOST:PORT` (listen there, e.g. where usb2rc's `udpout:` sends). One line
 per valid frame on stdout (`--json`: one JSON object per line); a summary on stderr at the end.
+MAVLink is parsed by pymavlink: one line per message, its fields as pymavlink names them.
 """
 
 from __future__ import annotations
@@ -10,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import socket
 import stat
 import sys
 from collections import Counter
@@ -19,8 +23,9 @@ from typing import Any, BinaryIO
 
 from usb2rc.protocol.c2_16b import DATA_STATUS_NAMES, DataFrame, Decoder, ServiceFrame
 from usb2rc.protocol.sumd import SumdDecoder, SumdFrame
+from usb2rc.udp_url import is_udp_url, parse_udp_url
 
-AnyFrame = DataFrame | ServiceFrame | SumdFrame
+AnyFrame = DataFrame | ServiceFrame | SumdFrame | Any  # Any: a pymavlink message
 Formatter = Callable[[AnyFrame], str]
 READ_SIZE = 65536
 PORT_TIMEOUT_S = 0.5
@@ -29,19 +34,27 @@ PORT_TIMEOUT_S = 0.5
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "decode",
-        help="print the frames in a C2-16B / SUMD capture, stdin or serial port",
+        help="print the frames in a C2-16B / SUMD / MAVLink capture, stdin, port or UDP",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--protocol", choices=("c2-16b", "sumd"), default="c2-16b")
+    parser.add_argument("--protocol", choices=("c2-16b", "sumd", "mavlink"), default="c2-16b")
     parser.add_argument("--json", action="store_true", help="one JSON object per frame")
     parser.add_argument("--baudrate", type=int, default=115200, help="for ports (115200)")
     parser.add_argument("source", metavar="SOURCE", help="file, '-' (stdin), port or URL")
     parser.set_defaults(func=run)
 
 
+def make_decoder(protocol: str) -> Any:
+    if protocol == "mavlink":
+        from usb2rc.protocol.mavlink import MavlinkDecoder  # pymavlink only when asked for
+
+        return MavlinkDecoder()
+    return SumdDecoder() if protocol == "sumd" else Decoder()
+
+
 def run(args: argparse.Namespace) -> int:
-    decoder = SumdDecoder() if args.protocol == "sumd" else Decoder()
+    decoder = make_decoder(args.protocol)
     format_frame: Formatter = json_line if args.json else text_line
     try:
         chunks = open_source(args.source, args.baudrate)
@@ -73,6 +86,8 @@ def open_source(name: str, baudrate: int) -> Generator[bytes, None, None]:
     """Open SOURCE now (so errors surface before reading) and return its chunks."""
     if name == "-":
         return _read_stream(sys.stdin.buffer, close=False)
+    if is_udp_url(name):
+        return _read_udp(name)
     if "://" in name or _is_character_device(name):
         return _read_port(_open_port(name, baudrate))
     return _read_stream(open(name, "rb"), close=True)
@@ -112,6 +127,28 @@ def _read_port(port: Any) -> Generator[bytes, None, None]:
         port.close()
 
 
+def _read_udp(name: str) -> Generator[bytes, None, None]:
+    """`udpin:HOST:PORT`: bind there now and yield each datagram (until Ctrl-C)."""
+    address = parse_udp_url(name)
+    if address.scheme != "udpin":
+        raise ValueError(f"decode listens: give udpin:{address.host}:{address.port}")
+    family = socket.AF_INET6 if ":" in address.host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    try:
+        sock.bind((address.host, address.port))
+    except OSError:
+        sock.close()
+        raise
+    print(f"usb2rc decode: listening on {name}, Ctrl-C to stop", file=sys.stderr)
+
+    def datagrams() -> Generator[bytes, None, None]:
+        with sock:
+            while True:
+                yield sock.recv(65535)
+
+    return datagrams()
+
+
 def _reason(exc: BaseException) -> str:
     if isinstance(exc, FileNotFoundError):
         return "no such file or port"
@@ -142,7 +179,9 @@ def frame_kind(frame: AnyFrame) -> str:
         return frame.service.service_name
     if isinstance(frame, SumdFrame):
         return "failsafe" if frame.failsafe else "live"
-    return DATA_STATUS_NAMES[frame.status]
+    if isinstance(frame, DataFrame):
+        return DATA_STATUS_NAMES[frame.status]
+    return str(frame.get_type()).lower()  # a MAVLink message
 
 
 def json_record(frame: AnyFrame) -> dict[str, Any]:
@@ -158,7 +197,24 @@ def json_record(frame: AnyFrame) -> dict[str, Any]:
         }
     if isinstance(frame, ServiceFrame):
         return _service_record(frame)
-    return {"protocol": "sumd", "failsafe": frame.failsafe, "channels": list(frame.channels)}
+    if isinstance(frame, SumdFrame):
+        return {"protocol": "sumd", "failsafe": frame.failsafe, "channels": list(frame.channels)}
+    return {"protocol": "mavlink", **_mavlink_header(frame), **_mavlink_fields(frame)}
+
+
+def _mavlink_header(message: Any) -> dict[str, Any]:
+    return {
+        "message": message.get_type(),  # not "type": HEARTBEAT has a field of that name
+        "system": message.get_srcSystem(),
+        "component": message.get_srcComponent(),
+        "seq": message.get_seq(),
+    }
+
+
+def _mavlink_fields(message: Any) -> dict[str, Any]:
+    from usb2rc.protocol.mavlink import message_fields
+
+    return message_fields(message)
 
 
 def _service_record(frame: ServiceFrame) -> dict[str, Any]:
@@ -189,8 +245,15 @@ def text_line(frame: AnyFrame) -> str:
         )
     if isinstance(frame, ServiceFrame):
         return _service_text(frame)
-    state = "failsafe" if frame.failsafe else "live"
-    return f"sumd {state} {len(frame.channels)}ch {list(frame.channels)}"
+    if isinstance(frame, SumdFrame):
+        state = "failsafe" if frame.failsafe else "live"
+        return f"sumd {state} {len(frame.channels)}ch {list(frame.channels)}"
+    head = _mavlink_header(frame)
+    fields = " ".join(f"{k}={v}" for k, v in _mavlink_fields(frame).items())
+    return (
+        f"mavlink {head['message']} from {head['system']}/{head['component']} "
+        f"seq {head['seq']}: {fields}"
+    )
 
 
 def _service_text(frame: ServiceFrame) -> str:
@@ -207,7 +270,7 @@ def _service_text(frame: ServiceFrame) -> str:
     return line + (" (binary status)" if frame.binary_status else "")
 
 
-def summary(decoder: Decoder | SumdDecoder, kinds: Counter[str]) -> str:
+def summary(decoder: Any, kinds: Counter[str]) -> str:
     by_kind = ", ".join(f"{kind} {count}" for kind, count in _ordered(kinds.items()))
     return (
         f"summary: frames {decoder.frames} ({by_kind or 'none'}), "

@@ -27,6 +27,7 @@ from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT
 from usb2rc.scaling import node_button_bit
 
 FORMATS = ("markdown", "text")
+MANUAL_FIELDS = ("x", "y", "z", "r")  # MANUAL_CONTROL's axes, in channel order
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -148,6 +149,45 @@ def sumd_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
     return rows
 
 
+def mavlink_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
+    """RC_CHANNELS_OVERRIDE: channel n in µs; MANUAL_CONTROL: x, y, z, r, then button bits."""
+    message = output.mavlink.message if output.mavlink else "rc_channels_override"
+    rows: list[list[object]] = []
+    for i, source in enumerate(mapping.sumd_channels(output)):
+        kind = "button" if source.kind == "button" else "axis"
+        if message == "rc_channels_override":
+            span = "1000 / 2000" if kind == "button" else "1000..2000 (centre 1500)"
+            rows.append([f"chan{i + 1}_raw", source.name, kind, span])
+        elif i < len(MANUAL_FIELDS):
+            name = MANUAL_FIELDS[i]
+            lo = 0 if name == "z" else -1000
+            span = f"{lo} / 1000" if kind == "button" else f"{lo}..1000"
+            rows.append([name, source.name, kind, span])
+        else:
+            bit = i - len(MANUAL_FIELDS)
+            field = f"buttons bit {bit}" if bit < 16 else f"buttons2 bit {bit - 16}"
+            rows.append([field, source.name, kind, "1 pressed"])
+    return rows
+
+
+def mavlink_section(mapping: Mapping, output: OutputConfig, index: int, fmt: str) -> list[str]:
+    opts = output.mavlink
+    assert opts is not None
+    lines = heading(f"MAVLink output {index} ({output.port or '--port'})", 2, fmt)
+    lines += [
+        f"{opts.message} at {output.rate_hz:g} Hz to system {opts.target_system} component "
+        f"{opts.target_component}, and a HEARTBEAT (MAV_TYPE_GCS) at 1 Hz, from system "
+        f"{opts.system_id} component {opts.component_id}. Failsafe (a channel's node is): "
+        + (
+            "every channel released (0 on 1-8, 65534 on 9-18) for 1 s, then heartbeats only."
+            if opts.message == "rc_channels_override"
+            else "no MANUAL_CONTROL, heartbeats only (the autopilot's manual-control loss)."
+        ),
+        "",
+    ]
+    return lines + table(["field", "source", "kind", "range"], mavlink_rows(mapping, output), fmt)
+
+
 # --------------------------------------------------------------------------- document
 
 
@@ -209,6 +249,8 @@ def document(config: Config, fmt: str) -> list[str]:
         if output.protocol == "sumd":
             lines += heading(f"SUMD output {i + 1} ({output.port or '--port'})", 2, fmt)
             lines += table(["channel", "source", "kind", "µs"], sumd_rows(mapping, output), fmt)
+        elif output.protocol == "mavlink":
+            lines += mavlink_section(mapping, output, i + 1, fmt)
     return lines
 
 

@@ -16,8 +16,8 @@ Two pieces, both sans-IO (no thread, no socket, no clock: `now` is passed in):
     every node is live again: the vehicle's radio, or its own radio failsafe, has it;
   - manual_control: no MANUAL_CONTROL at all, so the autopilot's manual-control-lost
     failsafe fires (PX4 COM_RC_LOSS_T; ArduPilot's RC_OVERRIDE_TIME).
-  What the far end sends is parsed with a second pymavlink instance (`received`): its
-  heartbeats are counted for the stats.
+  What the far end sends is parsed with a second pymavlink instance
+  (`protocol.mavlink.MavlinkDecoder`, `received`): its heartbeats are counted for the stats.
 
 pymavlink packs every byte (`message.pack(mav)`); nothing here writes MAVLink by hand.
 """
@@ -32,6 +32,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from usb2rc.config import ChannelRef
 from usb2rc.mapping import ChannelSource
+from usb2rc.protocol.mavlink import MavlinkDecoder
 from usb2rc.scaling import (
     axis_to_manual,
     axis_to_manual_z,
@@ -158,19 +159,11 @@ def release_channels(count: int = OVERRIDE_MAX_CHANNELS) -> list[int]:
 
 @dataclass
 class FarEnd:
-    """What the far end sent, as pymavlink parsed it (for stats and `monitor`)."""
+    """What the far end sent, as pymavlink parsed it (for the stats line)."""
 
-    messages: int = 0
+    decoder: MavlinkDecoder = field(default_factory=MavlinkDecoder)
     heartbeats: int = 0
-    errors: int = 0
     last_heartbeat_from: tuple[int, int] | None = None  # (system, component)
-    parser: mavlink2.MAVLink = field(default_factory=lambda: _parser())
-
-
-def _parser() -> mavlink2.MAVLink:
-    parser = mavlink2.MAVLink(None)
-    parser.robust_parsing = True  # garbage is counted, never raised
-    return parser
 
 
 class MavlinkSession:
@@ -294,11 +287,7 @@ class MavlinkSession:
         if not data:
             return
         far = self.far_end
-        for message in far.parser.parse_buffer(data) or []:
-            if message.get_type() == "BAD_DATA":
-                far.errors += 1
-                continue
-            far.messages += 1
+        for message in far.decoder.feed(data):
             if message.get_type() == "HEARTBEAT":
                 far.heartbeats += 1
                 far.last_heartbeat_from = (message.get_srcSystem(), message.get_srcComponent())
@@ -312,8 +301,8 @@ def stats_text(session: MavlinkSession) -> str:
     return (
         f"{session.settings.message} {session.controls}, releases {session.releases}, "
         f"silent failsafe ticks {session.silent_ticks}, heartbeats {session.heartbeats}, "
-        f"far end: messages {far.messages}, heartbeats {far.heartbeats}{source}, "
-        f"bad data {far.errors}"
+        f"far end: messages {far.decoder.frames}, heartbeats {far.heartbeats}{source}, "
+        f"bytes skipped {far.decoder.bytes_skipped}"
     )
 
 
