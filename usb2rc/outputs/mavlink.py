@@ -306,6 +306,18 @@ def stats_text(session: MavlinkSession) -> str:
     )
 
 
+def preview_text(channels: MavlinkChannels, values: ControlValues) -> str:
+    """What the output sends for these values, in words (`usb2rc monitor`)."""
+    if values.failsafe:
+        if channels.message == RC_CHANNELS_OVERRIDE:
+            return "FAILSAFE: releases every channel to the RC radio for 1 s, then heartbeats only"
+        return "FAILSAFE: no MANUAL_CONTROL (manual control lost), heartbeats only"
+    if channels.message == RC_CHANNELS_OVERRIDE:
+        return "RC_CHANNELS_OVERRIDE µs " + " ".join(map(str, values.channels))
+    x, y, z, r = values.axes
+    return f"MANUAL_CONTROL x {x} y {y} z {z} r {r} buttons 0x{values.buttons:08X}"
+
+
 def max_message_bytes(message: str) -> int:
     """Bytes of one control message on the wire at most (MAVLink 2, unsigned; pymavlink cuts
     the payload's trailing zeros): for `check`'s bandwidth sum."""
