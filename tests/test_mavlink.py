@@ -241,6 +241,9 @@ def test_config_limits_match_the_output() -> None:
     assert config_mavlink.OVERRIDE_MAX_CHANNELS == mavlink.OVERRIDE_MAX_CHANNELS
     assert len(mavlink.MANUAL_AXES) == config_mavlink.MANUAL_AXES
     assert config_mavlink.MANUAL_MAX_BUTTONS == mavlink.MANUAL_MAX_BUTTONS
+    for message in mavlink.MESSAGES:  # the serial bandwidth check counts what pymavlink packs
+        assert config_mavlink.MESSAGE_BYTES[message] == mavlink.max_message_bytes(message)
+    assert config_mavlink.HEARTBEAT_BYTES == mavlink.heartbeat_bytes()
 
 
 # --- config ----------------------------------------------------------------------------------

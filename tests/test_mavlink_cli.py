@@ -11,20 +11,11 @@ import sys
 from pathlib import Path
 
 from daemon_harness import ROOT, StickState, install, recording, scale
+from test_check_icd_cli import usb2rc
 
 from usb2rc.outputs.mavlink import ControlValues, MavlinkSession, MavlinkSettings
 
 GOOD = ROOT / "tests" / "data" / "configs" / "good" / "mavlink.yaml"
-
-
-def usb2rc(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "usb2rc", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        cwd=ROOT,
-    )
 
 
 def session_bytes() -> list[bytes]:
