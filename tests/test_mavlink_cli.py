@@ -15,7 +15,7 @@ from test_check_icd_cli import usb2rc
 
 from usb2rc.outputs.mavlink import ControlValues, MavlinkSession, MavlinkSettings
 
-GOOD = ROOT / "tests" / "data" / "configs" / "good" / "mavlink.yaml"
+GOOD = ROOT / "config" / "mavlink.yaml"
 
 
 def session_bytes() -> list[bytes]:
