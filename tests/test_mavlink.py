@@ -243,7 +243,7 @@ def test_config_limits_match_the_output() -> None:
     assert config_mavlink.MANUAL_MAX_BUTTONS == mavlink.MANUAL_MAX_BUTTONS
     for message in mavlink.MESSAGES:  # the serial bandwidth check counts what pymavlink packs
         assert config_mavlink.MESSAGE_BYTES[message] == mavlink.max_message_bytes(message)
-    assert config_mavlink.HEARTBEAT_BYTES == mavlink.heartbeat_bytes()
+    assert mavlink.heartbeat_bytes() == config_mavlink.HEARTBEAT_BYTES
 
 
 # --- config ----------------------------------------------------------------------------------
@@ -355,10 +355,12 @@ def test_udpin_opens_with_the_first_datagram_and_answers_the_last_sender() -> No
     for sender in (first, second):
         sender.bind(("127.0.0.1", 0))
     try:
-        assert link.open_now() and link.line_event() is None  # nobody to talk to yet
+        assert not link.open_now() and link.line_event() is None  # nobody to talk to yet
+        assert not link.is_open and "nothing received yet" in link.last_error
         assert link.write(b"x").sent == 0
         first.sendto(b"hello", ("127.0.0.1", port))
         assert wait_until(lambda: link.line_event()) is LineEvent.OPENED
+        assert link.is_open and link.last_error == ""
         link.write(b"to-first")
         assert first.recv(100) == b"to-first"
         second.sendto(b"hi", ("127.0.0.1", port))

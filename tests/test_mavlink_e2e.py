@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import select
+import signal
 import socket
 import time
 from fractions import Fraction
@@ -144,3 +145,39 @@ def test_udp_and_pty_mavlink_outputs_two_devices_unplug_and_replug(tmp_path, rep
         assert daemon.stop() == 0
         udp.close()
         pty.close()
+
+
+def test_udpin_answers_the_vehicle_that_called_and_counts_its_heartbeats(tmp_path, replay_dir):
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    url = f"udpin:127.0.0.1:{port}"
+    config = tmp_path / "udpin.yaml"
+    config.write_text(f"outputs:\n  - protocol: mavlink\n    port: {url}\n")
+    install(replay_dir / "stick.hid", recording([STICK]))
+    vehicle = UdpLine()  # the autopilot: it calls first, then listens on the same socket
+    daemon = run_daemon(tmp_path, url, replay_dir, "--config", str(config))
+    try:
+        from pymavlink.dialects.v20 import common
+
+        mav = common.MAVLink(None, srcSystem=1, srcComponent=1)
+        beat = mav.heartbeat_encode(
+            common.MAV_TYPE_QUADROTOR, common.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4
+        ).pack(mav)
+        deadline = time.monotonic() + 10
+        while not of_type(vehicle.frames(), "RC_CHANNELS_OVERRIDE"):  # the daemon binds first
+            assert time.monotonic() < deadline, "no answer to the vehicle's heartbeats"
+            vehicle.sock.sendto(beat, ("127.0.0.1", port))
+            time.sleep(0.1)
+        x = pwm(STICK.x, 0, 16383)  # the default list: node 0's x, y, z, rz, ...
+        vehicle.wait_for(lambda ms: channels(of_type(ms, "RC_CHANNELS_OVERRIDE")[-1])[0] == x)
+        daemon.signal(signal.SIGUSR1)
+        deadline = time.monotonic() + 10
+        while "far end: messages" not in daemon.log():
+            assert time.monotonic() < deadline, daemon.log()
+            time.sleep(0.05)
+        assert "(last from 1/1)" in daemon.log()
+    finally:
+        assert daemon.stop() == 0
+        vehicle.close()

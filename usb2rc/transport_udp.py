@@ -52,7 +52,9 @@ class UdpLink:
 
     @property
     def is_open(self) -> bool:
-        return self._sock is not None
+        """There is a socket and somebody to send to (udpin: once a datagram came): until
+        then the daemon reports this output as waiting, as it does a missing serial port."""
+        return self._sock is not None and self._peer is not None
 
     @property
     def peer(self) -> tuple[str, int] | None:
@@ -60,17 +62,17 @@ class UdpLink:
         return self._peer
 
     def open_now(self) -> bool:
-        if self._sock is not None:
-            return True
-        try:
-            self._sock = self._open()
-        except OSError as exc:
-            self.last_error = f"{self.url}: {exc.strerror or exc}"
-            log.error("%s; retrying every second", self.last_error)
-            return False
-        self.stats.opens += 1
-        self.last_error = ""
-        return True
+        """Open the socket if it is not (never raises); True once there is a peer."""
+        if self._sock is None:
+            try:
+                self._sock = self._open()
+            except OSError as exc:
+                self.last_error = f"{self.url}: {exc.strerror or exc}"
+                log.error("%s; retrying every second", self.last_error)
+                return False
+            self.stats.opens += 1
+            self.last_error = "" if self._peer else f"{self.url}: nothing received yet"
+        return self.is_open
 
     def try_open(self) -> bool:
         """Opening a UDP socket does not wait on anything: done in the caller's thread."""
@@ -120,6 +122,7 @@ class UdpLink:
             self.stats.bytes_read += len(data)
             if self.address.scheme == "udpin":
                 self._peer = sender[:2]
+                self.last_error = ""
             self._received += data
             if len(self._received) > KEEP_RECEIVED:
                 del self._received[: len(self._received) - KEEP_RECEIVED]
