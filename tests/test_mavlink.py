@@ -28,8 +28,9 @@ from usb2rc.outputs.mavlink import (
     MavlinkSettings,
 )
 from usb2rc.scaling import axis_to_manual, axis_to_manual_z, axis_to_pwm
-from usb2rc.state import NodeFrame
-from usb2rc.transport import LineEvent
+from usb2rc.scheduler import MavlinkOutput
+from usb2rc.state import NodeFrame, NodeTable
+from usb2rc.transport import LineEvent, SerialLink
 from usb2rc.transport_udp import UdpLink, parse_udp_url
 
 INT16 = st.integers(-32768, 32767)
@@ -379,3 +380,38 @@ def test_udp_urls() -> None:
     for bad in ("udpout:14550", "udpin:host:", "udpout:host:70000", "tcp:h:1"):
         with pytest.raises(ValueError):
             parse_udp_url(bad)
+
+
+def test_the_output_thread_writes_each_message_and_counts_one_period_per_tick() -> None:
+    link = SerialLink("loop://", 115200)
+    assert link.open_now()
+    channels = MavlinkChannels([ChannelRef.axis(0, "x")])
+    out = MavlinkOutput("mav", link, NodeTable(), channels, MavlinkSession(MavlinkSettings()))
+    try:
+        out.tick()  # the line opens: a heartbeat, then (node 0 absent: failsafe) a release
+        out.tick()
+        assert out.stats.writes == 3 and len(out.stats.periods()) == 1
+        received = bytearray()
+
+        def three_messages() -> bool:
+            received.extend(link.read())
+            return len(parse_stream(bytes(received))) >= 3
+
+        wait_until(three_messages)
+        kinds = [(m.get_type(), channels_or_none(m)) for m in parse_stream(bytes(received))]
+        released = [0] * 8 + [65534] * 10
+        assert kinds == [
+            ("HEARTBEAT", None),
+            ("RC_CHANNELS_OVERRIDE", released),
+            ("RC_CHANNELS_OVERRIDE", released),
+        ]
+    finally:
+        link.close()
+
+
+def parse_stream(data: bytes) -> list[Any]:
+    return common.MAVLink(None).parse_buffer(data) or []
+
+
+def channels_or_none(message: Any) -> list[int] | None:
+    return channels(message) if message.get_type() == "RC_CHANNELS_OVERRIDE" else None
