@@ -35,6 +35,7 @@ RUN = {
     "usb2rc list --replay usb2rc/data/demo",
     "usb2rc demo --seconds 2",
     "usb2rc monitor --replay usb2rc/data/demo --seconds 2 --plain",
+    "usb2rc init --replay usb2rc/data/demo --port /dev/null",
 }
 
 HARDWARE = "needs a real joystick or serial port"
@@ -62,6 +63,12 @@ PARSE_ONLY = {
     "usb2rc monitor --replay recordings/ --replay-loop": PLACEHOLDER + "; runs until Ctrl-C",
     "usb2rc record 044f:b10a --seconds 10": HARDWARE,
     "usb2rc --config hotas.yaml --port /dev/ttyUSB0": HARDWARE,
+    "usb2rc init --port /dev/serial0 -o my.yaml": HARDWARE,
+    "usb2rc calibrate --config my.yaml": HARDWARE + "; interactive (tests/test_calibrate_tmux.py)",
+    "usb2rc calibrate --config demo.yaml --replay usb2rc/data/demo --replay-loop": (
+        "interactive; tests/test_calibrate_tmux.py drives it in tmux"
+    ),
+    "usb2rc --config my.yaml": PLACEHOLDER,
     "usb2rc --config hotas.yaml --port /dev/ttyUSB0 --stats-interval 10": HARDWARE,
     "usb2rc --config hotas.yaml --port /dev/cu.usbserial-A10K1B2C": HARDWARE + " (macOS)",
     "usb2rc --config hotas.yaml --port COM3": HARDWARE + " (Windows)",

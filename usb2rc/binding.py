@@ -83,6 +83,7 @@ class AxisInfo:
     unsigned: bool
     failsafe: int | None  # None: hold the last value
     shaping: str  # "linear" or e.g. "calibration 12/128/250, deadband 0.02, invert"
+    field_index: int | None = None  # the raw value's InputState.values index (None: buttons)
 
     @property
     def wire_range(self) -> tuple[int, int]:
@@ -355,6 +356,7 @@ def _field_axis(field: InputField, axis: AxisConfig | None, slot: str) -> tuple[
         bool(axis and axis.unsigned),
         axis.failsafe if axis else None,
         shaping_text(axis),
+        field.index,
     )
     return fn, info
 
@@ -427,16 +429,17 @@ def _configured_axis(layout: DeviceLayout, axis: AxisConfig) -> tuple[AxisFn, Ax
         f = _find_field(layout, axis.usage, axis.occurrence, axis.where, "usage")
         return _field_axis(f, axis, slot)
     lo, hi = (0, 1) if axis.buttons else (-1, 1)
+    index = None
     if axis.hat is not None:
         f = _find_field(layout, axis.hat, axis.occurrence, axis.where, "hat")
         label = f"{usage_label(f.usage, f.occurrence)} {axis.hat_axis}"
-        fn, lo, hi = _hat_axis(f, axis), f.logical_min, f.logical_max
+        fn, lo, hi, index = _hat_axis(f, axis), f.logical_min, f.logical_max, f.index
     else:
         assert axis.buttons is not None
         label = f"buttons {axis.buttons[0]}/{axis.buttons[1]} (-/+)"
         fn = _button_pair_axis(axis)
     shaping = shaping_text(axis)
-    info = AxisInfo(slot, label, lo, hi, axis.unsigned, axis.failsafe, shaping)
+    info = AxisInfo(slot, label, lo, hi, axis.unsigned, axis.failsafe, shaping, index)
     return fn, info
 
 

@@ -27,6 +27,8 @@ COMMANDS: dict[str, str] = {
     "icd": "icd",
     "monitor": "monitor",
     "record": "record",
+    "init": "init",
+    "calibrate": "calibrate",
 }
 
 

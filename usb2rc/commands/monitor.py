@@ -1,12 +1,12 @@
 """`usb2rc monitor [--config FILE] [--replay DIR] [--seconds N] [--plain]`: a live input view.
 
 For setting up a HOTAS: every node with its failsafe state, each axis as a bar with the value
-it would carry on the wire and the device and usage feeding it, the pressed node buttons and
-the hat, the service events an output would send, and each device's report count. It runs
-the daemon's own input side (hot-plug, one reader thread per device, the compiled mapping,
-the node table) and opens no serial port. On a terminal it redraws about 10 times a second
-(plain ANSI, fine over SSH); with `--plain`, or when stdout is not a terminal, it prints a
-text snapshot once a second.
+it would carry on the wire, the raw HID value it comes from and the device and usage feeding
+it, the pressed node buttons and the hat, the service events an output would send, and each
+device's report count. It runs the daemon's own input side (hot-plug, one reader thread per
+device, the compiled mapping, the node table) and opens no serial port. On a terminal it
+redraws about 10 times a second (plain ANSI, fine over SSH); with `--plain`, or when stdout
+is not a terminal, it prints a text snapshot once a second.
 """
 
 from __future__ import annotations
@@ -96,9 +96,11 @@ class InputSide:
             self.events.append(event_text(event))
             self.event_total += 1
         described = self.table.describe()
+        raw = self._raw_values()
         devices: dict[int, list[DeviceRow]] = {}
         for node_id, info, binding, present, _type in self.table.attachments():
-            devices.setdefault(node_id, []).append(DeviceRow(info, binding, present))
+            row = DeviceRow(info, binding, present, raw.get(info.key) if present else None)
+            devices.setdefault(node_id, []).append(row)
         nodes = [
             self._node(f, described.get(str(f.node_id), {}), devices.get(f.node_id, []))
             for f in frames
@@ -107,6 +109,11 @@ class InputSide:
         return Snapshot(
             nodes, list(self.events), self.event_total, self.daemon.stats_lines(), outputs
         )
+
+    def _raw_values(self) -> dict[str, tuple[int, ...]]:
+        """Each reporting device's raw input values (its reader's last record), by key."""
+        records = ((r.info.key, r.record) for r in self.daemon.lifecycle.readers)
+        return {key: record.state.values for key, record in records if record.reports}
 
     def _node(
         self, frame: NodeFrame, described: dict[str, Any], devices: list[DeviceRow]
@@ -149,6 +156,7 @@ class DeviceRow:
     info: DeviceInfo
     binding: DeviceBinding
     present: bool
+    raw: tuple[int, ...] | None = None  # its raw input values; None: not reporting
 
 
 @dataclass(frozen=True)
@@ -158,6 +166,10 @@ class AxisRow:
     lo: int
     hi: int
     source: str  # "T.16000M: X (raw 0..16383)" or "" (no device feeds the slot)
+    raw: int | None = None  # the raw HID value the sent one comes from; None: none now
+
+    def raw_text(self) -> str:
+        return f"raw {'-' if self.raw is None else self.raw:>6}"
 
 
 @dataclass(frozen=True)
@@ -203,7 +215,10 @@ def axis_rows(frame: NodeFrame, devices: list[DeviceRow]) -> list[AxisRow]:
             source += ", unsigned"
         if not feeder.present:
             source += ", LOST: " + ("holds" if info.failsafe is None else "failsafe value")
-        rows.append(AxisRow(name, value, lo, hi, source + ")"))
+        raw = None
+        if feeder.raw is not None and info.field_index is not None:
+            raw = feeder.raw[info.field_index]
+        rows.append(AxisRow(name, value, lo, hi, source + ")", raw))
     return rows
 
 
@@ -235,7 +250,7 @@ def node_text(node: NodeRow) -> list[str]:
     for axis in node.axes:
         lines.append(
             f"  {axis.slot:<6} [{bar(axis.value, axis.lo, axis.hi)}] {axis.value:+6d}  "
-            f"<- {axis.source}"
+            f"{axis.raw_text()}  <- {axis.source}"
         )
     lines.append(f"  buttons {' '.join(map(str, node.buttons)) or '-'}  hat {node.hat}")
     return lines
@@ -273,7 +288,7 @@ def render_live(snap: Snapshot, log_lines: list[str]) -> Any:
         for line in device_lines(node):
             parts.append(Text(line, style="red" if "LOST" in line else "dim"))
         table = Table(box=None, show_header=False, pad_edge=False, padding=(0, 1))
-        for column in ("slot", "bar", "value", "source"):
+        for column in ("slot", "bar", "value", "raw", "source"):
             if column == "source":
                 table.add_column(column, no_wrap=True, overflow="ellipsis")
             else:
@@ -283,6 +298,7 @@ def render_live(snap: Snapshot, log_lines: list[str]) -> Any:
                 axis.slot,
                 Text(f"[{bar(axis.value, axis.lo, axis.hi)}]", style="cyan"),
                 f"{axis.value:+6d}",
+                axis.raw_text(),
                 Text(f"<- {axis.source}", style="dim"),
             )
         parts.append(table)
