@@ -13,13 +13,14 @@ from pathlib import Path
 from daemon_harness import ROOT, StickState, install, recording, scale
 from test_check_icd_cli import usb2rc
 
-from usb2rc.outputs.mavlink import ControlValues, MavlinkSession, MavlinkSettings
+from usb2rc.config_model import MavlinkOptions
+from usb2rc.outputs.mavlink import ControlValues, MavlinkSession
 
 GOOD = ROOT / "config" / "mavlink.yaml"
 
 
 def session_bytes() -> list[bytes]:
-    session = MavlinkSession(MavlinkSettings(system_id=42, component_id=7))
+    session = MavlinkSession(MavlinkOptions(system_id=42, component_id=7))
     session.line_opened()
     return session.tick(0.0, ControlValues(False, channels=(1100, 1900))) + session.tick(
         0.02, ControlValues(True, channels=(1100, 1900))

@@ -17,15 +17,16 @@ from usb2rc.yamlnodes import NodeReader
 Items = dict[str, tuple[Node, Node]]
 
 MAVLINK_KEYS = ("message", "system_id", "component_id", "target_system", "target_component")
-# Kept here, not imported from outputs.mavlink: the config must load without pymavlink's
-# 2 MB dialect (check, icd); tests/test_mavlink.py holds both to the same values.
-MESSAGES = ("rc_channels_override", "manual_control")
+# The MAVLink output's facts, here so that the config loads without pymavlink's 2 MB
+# dialect (check, icd); usb2rc.outputs.mavlink imports them.
+RC_CHANNELS_OVERRIDE, MANUAL_CONTROL = "rc_channels_override", "manual_control"
+MESSAGES = (RC_CHANNELS_OVERRIDE, MANUAL_CONTROL)
 OVERRIDE_MAX_CHANNELS = 18
-MANUAL_AXES = 4  # x, y, z, r
-MANUAL_MAX_BUTTONS = 32
+MANUAL_AXES = ("x", "y", "z", "r")  # the first four channels of a manual_control output
+MANUAL_MAX_BUTTONS = 32  # buttons (bits 0-15) and buttons2 (16-31)
 # Bytes on the wire at most (MAVLink 2, unsigned), for the bandwidth of a serial line;
 # tests hold them to what pymavlink packs (outputs.mavlink.max_message_bytes).
-MESSAGE_BYTES = {"rc_channels_override": 50, "manual_control": 25}
+MESSAGE_BYTES = {RC_CHANNELS_OVERRIDE: 50, MANUAL_CONTROL: 25}
 HEARTBEAT_BYTES = 21
 BITS_PER_BYTE = 10  # 8N1
 ID_RANGES = {
@@ -78,13 +79,14 @@ def check_mavlink_output(
     if output.port and not is_udp_url(output.port):
         _check_bandwidth(reader, node, items, path, output, options.message)
     channels = output.channels
-    if options.message == "rc_channels_override":
+    if options.message == RC_CHANNELS_OVERRIDE:
         if channels is not None and not 1 <= len(channels) <= OVERRIDE_MAX_CHANNELS:
             reader.error(
                 node, f"{path}.channels", f"{len(channels)} channels", f"1..{OVERRIDE_MAX_CHANNELS}"
             )
         return
-    most = MANUAL_AXES + MANUAL_MAX_BUTTONS
+    axes = len(MANUAL_AXES)
+    most = axes + MANUAL_MAX_BUTTONS
     if channels is None:
         reader.error(
             node,
@@ -93,13 +95,11 @@ def check_mavlink_output(
             "nodeN.<slot> or nodeN.buttonK",
         )
         return
-    if not MANUAL_AXES <= len(channels) <= most:
-        reader.error(
-            node, f"{path}.channels", f"{len(channels)} channels", f"{MANUAL_AXES}..{most}"
-        )
+    if not axes <= len(channels) <= most:
+        reader.error(node, f"{path}.channels", f"{len(channels)} channels", f"{axes}..{most}")
     wheres = output.channel_wheres
     for i, (ref, where) in enumerate(zip(channels, wheres, strict=False)):
-        if i >= MANUAL_AXES and ref.kind != "button":
+        if i >= axes and ref.kind != "button":
             message = f"{ref.name}: manual_control channels after x, y, z, r are buttons"
             reader.report(where.problem(message, "nodeN.buttonK"))
 

@@ -29,7 +29,6 @@ from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.outputs.mavlink import (
     MavlinkChannels,
     MavlinkSession,
-    MavlinkSettings,
     heartbeat_bytes,
     max_message_bytes,
     stats_text,
@@ -171,7 +170,7 @@ class Daemon:
         """A MAVLink output on UDP (`udpout:` / `udpin:`) or on a serial port / URL."""
         assert out.port and out.mavlink
         channels = MavlinkChannels(self.mapping.sumd_channels(out), out.mavlink.message)
-        session = MavlinkSession(MavlinkSettings(**dataclasses.asdict(out.mavlink)))
+        session = MavlinkSession(out.mavlink)
         link: SerialLink | UdpLink
         if is_udp_url(out.port):
             link = UdpLink(out.port)

@@ -22,12 +22,12 @@ from usb2rc.config import (
     DeviceConfig,
     OutputConfig,
 )
+from usb2rc.config_mavlink import MANUAL_AXES, RC_CHANNELS_OVERRIDE
 from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT
 from usb2rc.scaling import node_button_bit
 
 FORMATS = ("markdown", "text")
-MANUAL_FIELDS = ("x", "y", "z", "r")  # MANUAL_CONTROL's axes, in channel order
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -151,20 +151,20 @@ def sumd_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
 
 def mavlink_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
     """RC_CHANNELS_OVERRIDE: channel n in µs; MANUAL_CONTROL: x, y, z, r, then button bits."""
-    message = output.mavlink.message if output.mavlink else "rc_channels_override"
+    message = output.mavlink.message if output.mavlink else RC_CHANNELS_OVERRIDE
     rows: list[list[object]] = []
     for i, source in enumerate(mapping.sumd_channels(output)):
         kind = "button" if source.kind == "button" else "axis"
-        if message == "rc_channels_override":
+        if message == RC_CHANNELS_OVERRIDE:
             span = "1000 / 2000" if kind == "button" else "1000..2000 (centre 1500)"
             rows.append([f"chan{i + 1}_raw", source.name, kind, span])
-        elif i < len(MANUAL_FIELDS):
-            name = MANUAL_FIELDS[i]
+        elif i < len(MANUAL_AXES):
+            name = MANUAL_AXES[i]
             lo = 0 if name == "z" else -1000
             span = f"{lo} / 1000" if kind == "button" else f"{lo}..1000"
             rows.append([name, source.name, kind, span])
         else:
-            bit = i - len(MANUAL_FIELDS)
+            bit = i - len(MANUAL_AXES)
             field = f"buttons bit {bit}" if bit < 16 else f"buttons2 bit {bit - 16}"
             rows.append([field, source.name, kind, "1 pressed"])
     return rows
@@ -180,7 +180,7 @@ def mavlink_section(mapping: Mapping, output: OutputConfig, index: int, fmt: str
         f"{opts.system_id} component {opts.component_id}. Failsafe (a channel's node is): "
         + (
             "every channel released (0 on 1-8, 65534 on 9-18) for 1 s, then heartbeats only."
-            if opts.message == "rc_channels_override"
+            if opts.message == RC_CHANNELS_OVERRIDE
             else "no MANUAL_CONTROL, heartbeats only (the autopilot's manual-control loss)."
         ),
         "",

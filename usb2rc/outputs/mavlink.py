@@ -31,6 +31,13 @@ from dataclasses import dataclass, field
 from pymavlink.dialects.v20 import common as mavlink2
 
 from usb2rc.config import ChannelRef
+from usb2rc.config_mavlink import (
+    MANUAL_AXES,
+    MESSAGES,
+    OVERRIDE_MAX_CHANNELS,
+    RC_CHANNELS_OVERRIDE,
+)
+from usb2rc.config_model import MavlinkOptions
 from usb2rc.mapping import ChannelSource
 from usb2rc.protocol.mavlink import MavlinkDecoder
 from usb2rc.scaling import (
@@ -43,14 +50,9 @@ from usb2rc.scaling import (
 from usb2rc.session import Delivered
 from usb2rc.state import NodeFrame
 
-RC_CHANNELS_OVERRIDE, MANUAL_CONTROL = "rc_channels_override", "manual_control"
-MESSAGES = (RC_CHANNELS_OVERRIDE, MANUAL_CONTROL)
-OVERRIDE_MAX_CHANNELS = 18
 OVERRIDE_FIRST_CHANNELS = 8  # channels 1-8: 0 releases; 9-18 (MAVLink 2 extensions): 65534
 RELEASE_LOW, RELEASE_HIGH = 0, 65534  # common.xml: 0 / UINT16_MAX-1 "release to the RC radio"
 IGNORE = 65535  # common.xml: UINT16_MAX "ignore this field" (channels not configured)
-MANUAL_AXES = ("x", "y", "z", "r")  # the first four channels of a manual_control output
-MANUAL_MAX_BUTTONS = 32  # buttons (bits 0-15) and buttons2 (16-31)
 HEARTBEAT_S = 1.0  # MAVLink's heartbeat rate: 1 Hz
 RELEASE_S = 1.0  # how long the release is repeated (datagrams get lost) before silence
 
@@ -143,15 +145,6 @@ class MavlinkChannels:
         return ControlValues(failsafe, axes=(axes[0], axes[1], axes[2], axes[3]), buttons=buttons)
 
 
-@dataclass(frozen=True)
-class MavlinkSettings:
-    message: str = RC_CHANNELS_OVERRIDE
-    system_id: int = 255  # a GCS: ArduPilot takes overrides only from SYSID_MYGCS (255)
-    component_id: int = 190  # MAV_COMP_ID_MISSIONPLANNER, as a GCS
-    target_system: int = 1
-    target_component: int = 1  # MAV_COMP_ID_AUTOPILOT1
-
-
 def release_channels(count: int = OVERRIDE_MAX_CHANNELS) -> list[int]:
     """RC_CHANNELS_OVERRIDE values that hand every channel back to the RC radio."""
     return [RELEASE_LOW if i < OVERRIDE_FIRST_CHANNELS else RELEASE_HIGH for i in range(count)]
@@ -171,7 +164,7 @@ class MavlinkSession:
     one `bytes` each (one datagram each on UDP), and `wrote(sent)` for each of them in
     order. The line events are those of `usb2rc.session.SumdSession`."""
 
-    def __init__(self, settings: MavlinkSettings) -> None:
+    def __init__(self, settings: MavlinkOptions) -> None:
         self.settings = settings
         self.mav = mavlink2.MAVLink(
             None, srcSystem=settings.system_id, srcComponent=settings.component_id
