@@ -41,6 +41,10 @@ from usb2rc.config_model import MavlinkOptions
 from usb2rc.mapping import ChannelSource
 from usb2rc.protocol.mavlink import MavlinkDecoder
 from usb2rc.scaling import (
+    MANUAL_MAX,
+    MANUAL_MIN,
+    MANUAL_Z_MAX,
+    MANUAL_Z_MIN,
     axis_to_manual,
     axis_to_manual_z,
     axis_to_pwm,
@@ -97,9 +101,14 @@ def _pwm(value: int | bool) -> int:
 
 
 def _manual(value: int | bool, field_name: str) -> int:
+    """A MANUAL_CONTROL axis field; a button there is the field's ends."""
     if field_name == "z":
-        return (1000 if value else 0) if isinstance(value, bool) else axis_to_manual_z(value)
-    return (1000 if value else -1000) if isinstance(value, bool) else axis_to_manual(value)
+        if isinstance(value, bool):
+            return MANUAL_Z_MAX if value else MANUAL_Z_MIN
+        return axis_to_manual_z(value)
+    if isinstance(value, bool):
+        return MANUAL_MAX if value else MANUAL_MIN
+    return axis_to_manual(value)
 
 
 @dataclass(frozen=True)
