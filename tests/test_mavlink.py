@@ -17,7 +17,8 @@ from pymavlink.dialects.v20 import common
 
 from usb2rc import config_mavlink
 from usb2rc.config import ConfigError, load_config_text
-from usb2rc.config_model import ChannelRef, MavlinkOptions
+from usb2rc.config_mavlink import MavlinkOptions
+from usb2rc.config_model import ChannelRef
 from usb2rc.outputs import mavlink
 from usb2rc.outputs.mavlink import (
     HEARTBEAT_S,
@@ -254,9 +255,10 @@ def errors(text: str) -> list[str]:
 def test_defaults() -> None:
     (out,) = load_config_text("outputs:\n  - protocol: mavlink\n    port: udpout:h:14550\n").outputs
     assert out.rate_hz == 50 and out.channels is None
-    assert out.mavlink is not None and out.mavlink.message == "rc_channels_override"
-    assert (out.mavlink.system_id, out.mavlink.component_id) == (255, 190)
-    assert (out.mavlink.target_system, out.mavlink.target_component) == (1, 1)
+    options = MavlinkOptions.of(out)
+    assert options.message == "rc_channels_override"
+    assert (options.system_id, options.component_id) == (255, 190)
+    assert (options.target_system, options.target_component) == (1, 1)
 
 
 @pytest.mark.parametrize(

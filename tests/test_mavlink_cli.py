@@ -13,7 +13,7 @@ from pathlib import Path
 from daemon_harness import ROOT, StickState, install, recording, scale
 from test_check_icd_cli import usb2rc
 
-from usb2rc.config_model import MavlinkOptions
+from usb2rc.config_mavlink import MavlinkOptions
 from usb2rc.outputs.mavlink import ControlValues, MavlinkSession
 
 GOOD = ROOT / "config" / "mavlink.yaml"

@@ -1,22 +1,45 @@
-"""The MAVLink output's keys in the config (part of config.py's schema; docs/CONFIG.md,
-"MAVLink outputs"): `message`, `system_id`, `component_id`, `target_system`,
-`target_component`, and the checks only a MAVLink output has: its channel count by message,
-MANUAL_CONTROL's layout (x, y, z, r, then buttons), a UDP port's address.
+"""The MAVLink output's keys in the config (docs/CONFIG.md, "MAVLink outputs"): `message`,
+`system_id`, `component_id`, `target_system`, `target_component`, read as the output
+registry's `Option`s (`OPTION_SPECS`) like every protocol's own keys, and the MAVLink facts
+the config, `check` and `icd` need. The checks only a MAVLink output has are the registry's
+`check` hook, `usb2rc.config_mavlink_check`.
+
+Imported by the registry (`usb2rc.outputs`), so it imports neither config_model nor pymavlink.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
+from dataclasses import dataclass
+from functools import partial
+from typing import Any, Protocol
 
 from yaml.nodes import Node
 
-from usb2rc.config_model import MavlinkOptions, OutputConfig
-from usb2rc.udp_url import is_udp_url, parse_udp_url
 from usb2rc.yamlnodes import NodeReader
 
-Items = dict[str, tuple[Node, Node]]
 
-MAVLINK_KEYS = ("message", "system_id", "component_id", "target_system", "target_component")
+class _Configured(Protocol):  # config_model.OutputConfig (which imports the registry)
+    def option(self, name: str) -> Any: ...
+
+
+@dataclass(frozen=True)
+class MavlinkOptions:
+    """A MAVLink output's own keys, with their defaults (the registry's Option defaults)."""
+
+    message: str = "rc_channels_override"  # or "manual_control"
+    system_id: int = 255  # usb2rc as a GCS: ArduPilot's SYSID_MYGCS default
+    component_id: int = 190  # MAV_COMP_ID_MISSIONPLANNER
+    target_system: int = 1
+    target_component: int = 1  # MAV_COMP_ID_AUTOPILOT1
+
+    @classmethod
+    def of(cls, output: _Configured) -> MavlinkOptions:
+        """A MAVLink output's options, as configured or defaulted."""
+        return cls(**{f.name: output.option(f.name) for f in dataclasses.fields(cls)})
+
+
 # The MAVLink output's facts, here so that the config loads without pymavlink's 2 MB
 # dialect (check, icd); usb2rc.outputs.mavlink imports them.
 RC_CHANNELS_OVERRIDE, MANUAL_CONTROL = "rc_channels_override", "manual_control"
@@ -24,6 +47,7 @@ MESSAGES = (RC_CHANNELS_OVERRIDE, MANUAL_CONTROL)
 OVERRIDE_MAX_CHANNELS = 18
 MANUAL_AXES = ("x", "y", "z", "r")  # the first four channels of a manual_control output
 MANUAL_MAX_BUTTONS = 32  # buttons (bits 0-15) and buttons2 (16-31)
+MOST_CHANNELS = max(OVERRIDE_MAX_CHANNELS, len(MANUAL_AXES) + MANUAL_MAX_BUTTONS)
 # Bytes on the wire at most (MAVLink 2, unsigned), for the bandwidth of a serial line;
 # tests hold them to what pymavlink packs (outputs.mavlink.max_message_bytes).
 MESSAGE_BYTES = {RC_CHANNELS_OVERRIDE: 50, MANUAL_CONTROL: 25}
@@ -37,20 +61,6 @@ ID_RANGES = {
 }
 
 
-def read_mavlink_options(reader: NodeReader, items: Items, path: str) -> MavlinkOptions:
-    options: dict[str, str | int] = {}
-    if "message" in items:
-        message = _message(reader, items["message"][1], f"{path}.message")
-        if message is not None:
-            options["message"] = message
-    for key, (lo, hi) in ID_RANGES.items():
-        if key in items:
-            value = reader.integer(items[key][1], f"{path}.{key}", lo, hi)
-            if value is not None:
-                options[key] = value
-    return MavlinkOptions(**options)  # type: ignore[arg-type]
-
-
 def _message(reader: NodeReader, node: Node, path: str) -> str | None:
     value = reader.string(node, path)
     if value is None:
@@ -62,46 +72,26 @@ def _message(reader: NodeReader, node: Node, path: str) -> str | None:
     return value
 
 
-def check_mavlink_output(
-    reader: NodeReader, node: Node, items: Items, path: str, output: OutputConfig
-) -> None:
-    """The channel count and layout for the message, and a UDP port's address; each problem
-    at the line of its key (the output's own line when the key is missing)."""
-    if output.port and is_udp_url(output.port):
-        try:
-            parse_udp_url(output.port)
-        except ValueError as exc:
-            at = items["port"][1] if "port" in items else node
-            reader.error(at, f"{path}.port", str(exc), "udpout:HOST:PORT, udpin:HOST:PORT")
-    if "channels" in items:
-        node = items["channels"][1]
-    options = output.mavlink or MavlinkOptions()
-    if output.port and not is_udp_url(output.port):
-        _check_bandwidth(reader, node, items, path, output, options.message)
-    channels = output.channels
-    if options.message == RC_CHANNELS_OVERRIDE:
-        if channels is not None and not 1 <= len(channels) <= OVERRIDE_MAX_CHANNELS:
-            reader.error(
-                node, f"{path}.channels", f"{len(channels)} channels", f"1..{OVERRIDE_MAX_CHANNELS}"
-            )
-        return
-    axes = len(MANUAL_AXES)
-    most = axes + MANUAL_MAX_BUTTONS
-    if channels is None:
-        reader.error(
-            node,
-            f"{path}.channels",
-            "missing: manual_control needs its channels: x, y, z, r, then up to 32 buttons",
-            "nodeN.<slot> or nodeN.buttonK",
-        )
-        return
-    if not axes <= len(channels) <= most:
-        reader.error(node, f"{path}.channels", f"{len(channels)} channels", f"{axes}..{most}")
-    wheres = output.channel_wheres
-    for i, (ref, where) in enumerate(zip(channels, wheres, strict=False)):
-        if i >= axes and ref.kind != "button":
-            message = f"{ref.name}: manual_control channels after x, y, z, r are buttons"
-            reader.report(where.problem(message, "nodeN.buttonK"))
+def _mavlink_id(key: str, reader: NodeReader, node: Node, path: str) -> Any:
+    low, high = ID_RANGES[key]
+    return reader.integer(node, path, low, high)
+
+
+def _options() -> dict[str, tuple[Any, Any, str]]:
+    """(read, default, doc) of each key: the registry makes its `Option`s of them."""
+    docs = {
+        "system_id": "usb2rc's own MAVLink system ID (a GCS)",
+        "component_id": "usb2rc's own MAVLink component ID",
+        "target_system": "the vehicle's system ID (0: every system)",
+        "target_component": "the autopilot's component ID (0: every component)",
+    }
+    message_doc = "rc_channels_override or manual_control"
+    options: dict[str, tuple[Any, Any, str]] = {
+        "message": (_message, MavlinkOptions.message, message_doc)
+    }
+    for key, doc in docs.items():
+        options[key] = (partial(_mavlink_id, key), getattr(MavlinkOptions, key), doc)
+    return options
 
 
 def baud_needed(message: str, rate_hz: float) -> int:
@@ -110,19 +100,4 @@ def baud_needed(message: str, rate_hz: float) -> int:
     return int((MESSAGE_BYTES[message] * rate_hz + HEARTBEAT_BYTES) * BITS_PER_BYTE + 0.999)
 
 
-def _check_bandwidth(
-    reader: NodeReader, node: Node, items: Items, path: str, output: OutputConfig, message: str
-) -> None:
-    needed = baud_needed(message, output.rate_hz)
-    if needed <= output.baudrate:
-        return
-    most_hz = (output.baudrate / BITS_PER_BYTE - HEARTBEAT_BYTES) / MESSAGE_BYTES[message]
-    key = "rate_hz" if "rate_hz" in items else "baudrate" if "baudrate" in items else None
-    at = items[key][1] if key else node
-    reader.error(
-        at,
-        f"{path}.{key or 'baudrate'}",
-        f"{message} at {output.rate_hz:g} Hz needs {needed} baud, more than the line's "
-        f"{output.baudrate}; it carries at most {max(0.0, most_hz):.0f} Hz",
-        "a lower rate_hz or a higher baudrate",
-    )
+OPTION_SPECS = _options()

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
+from usb2rc.outputs import PROTOCOLS as OUTPUT_PROTOCOLS
 from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
 from usb2rc.protocol.c2_16b import MAX_NODE_ID as NODE_ID_MAX
 from usb2rc.protocol.c2_16b import NODE_BUTTONS
@@ -18,8 +19,8 @@ from usb2rc.yamlnodes import Where
 
 MAX_HID_BUTTON = 65535
 HAT_DIRECTIONS = ("up", "up-right", "right", "down-right", "down", "down-left", "left", "up-left")
-PROTOCOLS = ("c2-16b", "sumd", "mavlink")
-DEFAULT_RATE_HZ = {"c2-16b": 50, "sumd": 100, "mavlink": 50}
+PROTOCOLS = tuple(OUTPUT_PROTOCOLS)  # the registry in usb2rc/outputs/__init__.py
+DEFAULT_RATE_HZ = {name: entry.default_rate_hz for name, entry in OUTPUT_PROTOCOLS.items()}
 DEFAULT_BAUDRATE = 115200
 SUMD_MIN_CHANNELS, SUMD_MAX_CHANNELS = 2, 32
 SUMD_DEFAULT_SLOTS = ("x", "y", "z", "rz", "slider", "rx", "ry", "dial")
@@ -132,17 +133,6 @@ class DeviceConfig:
 
 
 @dataclass(frozen=True)
-class MavlinkOptions:
-    """A MAVLink output's own keys (docs/CONFIG.md, "MAVLink outputs")."""
-
-    message: str = "rc_channels_override"  # or "manual_control"
-    system_id: int = 255  # usb2rc as a GCS: ArduPilot's SYSID_MYGCS default
-    component_id: int = 190  # MAV_COMP_ID_MISSIONPLANNER
-    target_system: int = 1
-    target_component: int = 1  # MAV_COMP_ID_AUTOPILOT1
-
-
-@dataclass(frozen=True)
 class OutputConfig:
     """One serial output. `channels` (SUMD) are typed references; a Config built in code
     may give them as names (`("node0.x", "node0.y")`), parsed here once (ValueError when
@@ -156,9 +146,17 @@ class OutputConfig:
     service_status: str = "ascii"
     channels: tuple[ChannelRef, ...] | None = None  # SUMD; None: the default channel list
     extended: bool = False  # SUMD: axes onto 900-2100 µs instead of 1100-1900 µs
-    mavlink: MavlinkOptions | None = None  # MAVLink: message and IDs (config_mavlink.py)
     where: Where | None = None
     channel_wheres: tuple[Where, ...] = field(default=(), compare=False)  # one per channel
+    # Protocol-only keys that are not fields above (the registry's `options`), as set.
+    options: tuple[tuple[str, Any], ...] = ()
+
+    def option(self, name: str) -> Any:
+        """A protocol-only key's value: as configured, else the registry's default."""
+        for key, value in self.options:
+            if key == name:
+                return value
+        return OUTPUT_PROTOCOLS[self.protocol].options[name].default
 
     def __post_init__(self) -> None:
         given: tuple[ChannelRef | str, ...] | None = self.channels

@@ -26,27 +26,13 @@ from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.lifecycle import DeviceLifecycle
 from usb2rc.mapping import Mapping, compile_mapping
-from usb2rc.outputs.mavlink import (
-    MavlinkChannels,
-    MavlinkSession,
-    heartbeat_bytes,
-    max_message_bytes,
-    stats_text,
-)
-from usb2rc.outputs.sumd import SumdChannels
-from usb2rc.protocol import c2_16b
-from usb2rc.scheduler import (
-    C2Output,
-    MavlinkOutput,
-    RxThread,
-    SumdOutput,
-    TickThread,
-    queue_cap,
-)
-from usb2rc.session import C2Settings, frames_per_tick
+from usb2rc.outputs import protocol
+from usb2rc.outputs.wiring import OutputContext
+from usb2rc.scheduler import C2Output, RxThread, TickThread
 from usb2rc.state import Expected, ExpectedEntry, NodeTable
 from usb2rc.transport import SerialLink
-from usb2rc.transport_udp import UdpLink, is_udp_url
+from usb2rc.transport_udp import UdpLink
+from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc")
 
@@ -71,7 +57,7 @@ class _Output:
     config: OutputConfig
     link: SerialLink | UdpLink
     thread: TickThread
-    rx: RxThread | None = None
+    rx: Worker | None = None
 
 
 def outputs_with_port(config: Config, port_override: str | None) -> tuple[OutputConfig, ...]:
@@ -140,47 +126,14 @@ class Daemon:
     # --- outputs ---------------------------------------------------------------------------
 
     def _make_output(self, index: int, out: OutputConfig) -> _Output:
+        """The protocol's build function (the registry in usb2rc/outputs) makes its pieces."""
         assert out.port
         name = f"output{index + 1}-{out.protocol}"
-        if out.protocol == "sumd":
-            channels = SumdChannels.of(self.mapping.sumd_channels(out), out.extended)
-            cap = queue_cap(channels.frame_length)
-            link = SerialLink(out.port, out.baudrate, max_queued_bytes=cap)
-            thread: TickThread = SumdOutput(
-                name, link, self.table, channels, out.rate_hz, self._tick, self._first_write
-            )
-            return _Output(out, link, thread)
-        if out.protocol == "mavlink":
-            return self._make_mavlink_output(name, out)
-        settings = C2Settings(
-            rate_hz=out.rate_hz,
-            baudrate=out.baudrate,
-            line_feed=out.line_feed,
-            binary_status=out.service_status == "binary",
-            version=self.version,
+        context = OutputContext(
+            name, out, self.mapping, self.table, self._tick, self._first_write, self.version
         )
-        frame_len = c2_16b.FRAME_LEN + (1 if out.line_feed else 0)
-        tick_bytes = frames_per_tick(out.baudrate, out.rate_hz, frame_len) * frame_len
-        link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(tick_bytes))
-        c2 = C2Output(name, link, self.table, settings, self._tick, self._first_write)
-        rx = RxThread(f"{name}-rx", link, c2.received.put)
-        return _Output(out, link, c2, rx)
-
-    def _make_mavlink_output(self, name: str, out: OutputConfig) -> _Output:
-        """A MAVLink output on UDP (`udpout:` / `udpin:`) or on a serial port / URL."""
-        assert out.port and out.mavlink
-        channels = MavlinkChannels(self.mapping.sumd_channels(out), out.mavlink.message)
-        session = MavlinkSession(out.mavlink)
-        link: SerialLink | UdpLink
-        if is_udp_url(out.port):
-            link = UdpLink(out.port)
-        else:
-            tick_bytes = heartbeat_bytes() + max_message_bytes(out.mavlink.message)
-            link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(tick_bytes))
-        thread = MavlinkOutput(
-            name, link, self.table, channels, session, out.rate_hz, self._tick, self._first_write
-        )
-        return _Output(out, link, thread)
+        built = protocol(out.protocol).build(context)
+        return _Output(out, built.link, built.thread, built.rx)
 
     def _first_write(self) -> None:
         self._status("running: frames on " + ", ".join(o.link.url for o in self.outputs))
@@ -313,9 +266,10 @@ class Daemon:
                     f", data frames {st.data_frames}, service frames {st.service_frames}, "
                     f"round-robin deferrals {st.deferred_nodes}"
                 )
-            if isinstance(out.thread, MavlinkOutput):
-                line += ", " + stats_text(out.thread.mav)
-            if out.rx is not None:
+            extra = out.thread.protocol_stats()
+            if extra:
+                line += ", " + extra
+            if isinstance(out.rx, RxThread):
                 dec = out.rx.decoder
                 line += (
                     f", rx bytes {link.bytes_read}, rx skipped {dec.bytes_skipped}, "

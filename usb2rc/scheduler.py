@@ -5,7 +5,8 @@ follows the link (`line_event()`: a new port, a lost one; `drained()` after a st
 `discard_stale()`: the session is told `line_flushed()` or `line_drained()`), takes
 the node table's events and snapshot, asks the session for the tick's bytes, writes them in
 one `write()` and tells the session how many went out. A late tick is counted, never caught
-up with a burst. An RX thread per C2-16B output decodes what the far end sends and hands the
+up with a burst (MAVLink writes each message of a tick on its own: one datagram each on
+UDP). An RX thread per C2-16B output decodes what the far end sends and hands the
 frames to the output thread, whose session answers `<` and `4` requests.
 """
 
@@ -19,15 +20,17 @@ import traceback
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-from usb2rc.outputs.mavlink import MavlinkChannels, MavlinkSession
-from usb2rc.outputs.sumd import SumdChannels
+from usb2rc.outputs.channels import OutputChannels
 from usb2rc.protocol import c2_16b
+from usb2rc.rc_sessions import CrsfSession
 from usb2rc.session import (  # noqa: F401 - re-exported: their home used to be here
     BITS_PER_BYTE_ON_WIRE,
     C2Session,
     C2Settings,
     Delivered,
+    FrameLineSession,
     SumdSession,
     baud_needed,
     device_string_text,
@@ -37,6 +40,9 @@ from usb2rc.state import NodeTable
 from usb2rc.transport import LineEvent, SerialLink, Written
 from usb2rc.transport_udp import UdpLink
 from usb2rc.worker import Worker
+
+if TYPE_CHECKING:  # pymavlink's dialect is loaded only with a MAVLink output
+    from usb2rc.outputs.mavlink import MavlinkChannels, MavlinkSession
 
 log = logging.getLogger("usb2rc.scheduler")
 
@@ -118,7 +124,7 @@ class TickThread(Worker):
                 self.stats.ticks += 1
                 self.last_tick_monotonic = time.monotonic()
                 self._safe_call(self.on_tick)
-            deadline += self.period_s
+            deadline = self.next_due(deadline)
             behind = time.monotonic() - deadline
             if behind >= 0:  # a whole tick lost: skip it, never burst to catch up
                 missed = int(behind // self.period_s) + 1
@@ -129,6 +135,11 @@ class TickThread(Worker):
     def wait(self, delay_s: float) -> bool:
         """Between ticks: wait delay_s, or less if stopped (then True)."""
         return self.sleep(delay_s)
+
+    def next_due(self, due: float) -> float:
+        """When the tick after the one due at `due` is due (an output whose session sets
+        its own pace, CRSF, overrides this)."""
+        return due + self.period_s
 
     def _safe_tick(self) -> bool:
         """One tick; a bug in it is logged (once per kind) and counted, never kills the
@@ -160,6 +171,10 @@ class TickThread(Worker):
     def finish(self) -> None:
         """Called once in the thread after the last tick."""
 
+    def protocol_stats(self) -> str:
+        """What only this protocol counts, for the stats line (`stats_lines`, `monitor`)."""
+        return ""
+
     def note_write(self) -> None:
         now = time.monotonic()
         if self._last_write:
@@ -178,7 +193,7 @@ class _LineThread(TickThread):
         self,
         name: str,
         link: SerialLink | UdpLink,
-        session: C2Session | SumdSession | MavlinkSession,
+        session: C2Session | FrameLineSession | MavlinkSession,
         rate_hz: float,
         on_tick: Callable[[], None] | None,
         on_first_write: Callable[[], None] | None,
@@ -314,38 +329,105 @@ class C2Output(_LineThread):
             self.c2.received(frame)
 
 
-class SumdOutput(_LineThread):
-    """HoTT SUMD: one frame of the configured channels per tick (100 Hz); the channels'
-    values are the SUMD output's (`usb2rc.outputs.sumd.SumdChannels`)."""
+class ChannelOutput(_LineThread):
+    """A channel output (SUMD, CRSF, SBUS): one frame of the configured channels per tick;
+    the values are the output's channels' (`usb2rc.outputs.channels.OutputChannels`), the
+    frame the session's."""
 
     def __init__(
         self,
         name: str,
         link: SerialLink,
         table: NodeTable,
-        channels: SumdChannels,
-        rate_hz: float = 100.0,
+        channels: OutputChannels,
+        session: FrameLineSession,
+        rate_hz: float,
         on_tick: Callable[[], None] | None = None,
         on_first_write: Callable[[], None] | None = None,
     ) -> None:
-        self.sumd = SumdSession()
-        super().__init__(name, link, self.sumd, rate_hz, on_tick, on_first_write)
+        super().__init__(name, link, session, rate_hz, on_tick, on_first_write)
+        self.frame_session = session
         self.table = table
         self.channels = channels
 
     def tick(self) -> None:
         self.follow_link()
-        if not self.sumd.line_open or self.sumd.stalled:
+        if not self.frame_session.line_open or self.frame_session.stalled:
             return
         values, failsafe = self.channels.evaluate(self.table.frames())
-        self.send(self.sumd.tick(values, failsafe))
+        self.send(self.frame_session.tick(values, failsafe))
+
+
+class SumdOutput(ChannelOutput):
+    """HoTT SUMD: one frame of the configured channels per tick (100 Hz)."""
+
+    def __init__(
+        self,
+        name: str,
+        link: SerialLink,
+        table: NodeTable,
+        channels: OutputChannels,
+        rate_hz: float = 100.0,
+        on_tick: Callable[[], None] | None = None,
+        on_first_write: Callable[[], None] | None = None,
+    ) -> None:
+        self.sumd = SumdSession()
+        super().__init__(name, link, table, channels, self.sumd, rate_hz, on_tick, on_first_write)
+
+
+class CrsfOutput(ChannelOutput):
+    """CRSF to a transmitter module: RC frames at the module's pace when it gives one; what
+    the module sends back comes from the RX thread (`received`, a queue) into the session."""
+
+    def __init__(
+        self,
+        name: str,
+        link: SerialLink,
+        table: NodeTable,
+        channels: OutputChannels,
+        session: CrsfSession,
+        on_tick: Callable[[], None] | None = None,
+        on_first_write: Callable[[], None] | None = None,
+    ) -> None:
+        rate_hz = 1.0 / session.configured_interval_s
+        super().__init__(name, link, table, channels, session, rate_hz, on_tick, on_first_write)
+        self.crsf = session
+        # bytes the module sent, with when they were read (RX thread -> this thread)
+        self.received: queue.SimpleQueue[tuple[bytes, float]] = queue.SimpleQueue()
+
+    def tick(self) -> None:
+        while True:
+            try:
+                data, at = self.received.get_nowait()
+            except queue.Empty:
+                break
+            self.crsf.received(data, at)
+        super().tick()
+
+    def next_due(self, due: float) -> float:
+        """The session says when: the module's interval and phase while it sends timing
+        corrections, the configured rate otherwise."""
+        now = time.monotonic()
+        self.period_s = self.crsf.interval_s(now)
+        return self.crsf.next_send(due, now)
+
+    def protocol_stats(self) -> str:
+        """The module's link quality, timing and what was withheld."""
+        session, decoder = self.crsf, self.crsf.decoder
+        return (
+            f"{session.link_text(time.monotonic())}, frames withheld (failsafe) "
+            f"{session.withheld}, rx frames {decoder.frames}, rx crc failures "
+            f"{decoder.crc_failures}, rx skipped {decoder.bytes_skipped}, timing corrections "
+            f"{session.timing_frames} (ignored {session.timing_ignored})"
+        )
 
 
 class MavlinkOutput(_LineThread):
     """MAVLink: a heartbeat a second and the control message each tick, one write (one
     datagram on UDP) per message; the session decides what a failsafe sends
-    (`usb2rc.outputs.mavlink`). On UDP, what the far end sent is read here, once a tick
-    (the socket is non-blocking; udpin learns from it whom to send to)."""
+    (`usb2rc.outputs.mavlink`). What the far end sent reaches the session here, once a
+    tick: on UDP read from the socket (non-blocking; udpin learns from it whom to send to),
+    on a serial line from the RX thread (`received`, a queue, as CRSF's)."""
 
     def __init__(
         self,
@@ -363,11 +445,19 @@ class MavlinkOutput(_LineThread):
         self.table = table
         self.channels = channels
         self._first_in_tick = True
+        # bytes a serial far end sent, with when they were read (RX thread -> this thread)
+        self.received: queue.SimpleQueue[tuple[bytes, float]] = queue.SimpleQueue()
 
     def tick(self) -> None:
         self.follow_link()
         if isinstance(self.link, UdpLink):
             self.mav.received(self.link.take_received())
+        while True:
+            try:
+                data, _at = self.received.get_nowait()
+            except queue.Empty:
+                break
+            self.mav.received(data)
         if not self.mav.line_open or self.mav.stalled:
             return
         values = self.channels.evaluate(self.table.frames())
@@ -386,19 +476,22 @@ class MavlinkOutput(_LineThread):
         else:
             self.stats.writes += 1
 
+    def protocol_stats(self) -> str:
+        from usb2rc.outputs.mavlink import stats_text  # pymavlink: only with a MAVLink output
 
-class RxThread(Worker):
-    """Reads what the far end sends on a C2-16B line and hands each frame to `on_frame`
-    (the output thread's queue: its session answers `<` and `4` requests)."""
+        return stats_text(self.mav)
+
+
+class ReplyRx(Worker):
+    """Reads what the far end of a channel output sends (a CRSF module's telemetry) and
+    hands the bytes, with when they were read, to `on_bytes` (the output thread's queue)."""
 
     def __init__(
-        self, name: str, link: SerialLink, on_frame: Callable[[c2_16b.Frame], None]
+        self, name: str, link: SerialLink, on_bytes: Callable[[tuple[bytes, float]], None]
     ) -> None:
         super().__init__(name)
         self.link = link
-        self.on_frame = on_frame
-        self.decoder = c2_16b.Decoder()
-        self.requests = 0
+        self.on_bytes = on_bytes
 
     def run(self) -> None:
         while not self.stopping:
@@ -407,8 +500,24 @@ class RxThread(Worker):
                 continue
             data = self.link.read()
             if data:
-                for frame in self.decoder.feed(data):
-                    self._hand_over(frame)
+                self.on_bytes((data, time.monotonic()))
+
+
+class RxThread(ReplyRx):
+    """Reads what the far end sends on a C2-16B line and hands each frame to `on_frame`
+    (the output thread's queue: its session answers `<` and `4` requests)."""
+
+    def __init__(
+        self, name: str, link: SerialLink, on_frame: Callable[[c2_16b.Frame], None]
+    ) -> None:
+        super().__init__(name, link, self._decode)
+        self.on_frame = on_frame
+        self.decoder = c2_16b.Decoder()
+        self.requests = 0
+
+    def _decode(self, received: tuple[bytes, float]) -> None:
+        for frame in self.decoder.feed(received[0]):
+            self._hand_over(frame)
 
     def _hand_over(self, frame: c2_16b.Frame) -> None:
         if is_request(frame):

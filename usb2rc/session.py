@@ -490,11 +490,13 @@ class C2Session:
         return len(self._owed)
 
 
-class SumdSession:
-    """The SUMD line: one frame a tick while the line is open and not stalled.
+class FrameLineSession:
+    """A channel output's line: one frame a tick while the line is open and not stalled.
 
-    SUMD has no service state, so a stall only stops the frames (the values would be stale);
-    a frame cut short fails the receiver's CRC and is not sent again."""
+    Such a protocol has no service state, so a stall only stops the frames (the values would
+    be stale); a frame cut short fails the receiver's check and is not sent again. A
+    subclass says what the frame is (`frame`); SUMD here, CRSF and SBUS in
+    `usb2rc.rc_sessions`."""
 
     def __init__(self) -> None:
         self.line_open = False
@@ -515,11 +517,15 @@ class SumdSession:
         """The stale frames were dropped: nothing to announce, the next frame is fresh."""
         self.stalled = False
 
+    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        """This tick's frame of the channels' wire values (b"": nothing this tick)."""
+        raise NotImplementedError
+
     def tick(self, channels: Sequence[int], failsafe: bool) -> bytes:
         self._last_len = 0
         if not self.line_open or self.stalled:
             return b""
-        frame = sumd.encode_sumd(channels, failsafe=failsafe)
+        frame = self.frame(channels, failsafe)
         self._last_len = len(frame)
         return frame
 
@@ -531,3 +537,10 @@ class SumdSession:
         self.stalled = self.stalled or stalled
         self._last_len = 0
         return Delivered(0, 1 if whole else 0, stalled)
+
+
+class SumdSession(FrameLineSession):
+    """The SUMD line: one frame a tick (status 0x81 while failsafe)."""
+
+    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        return sumd.encode_sumd(channels, failsafe=failsafe)

@@ -20,12 +20,13 @@ from usb2rc.config import (
     Problem,
     load_config,
 )
-from usb2rc.config_mavlink import baud_needed
+from usb2rc.config_mavlink import MavlinkOptions, baud_needed
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DescriptorError, parse_descriptor
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.hid.replay import ReplayBackend
 from usb2rc.mapping import Mapping, compile_mapping
+from usb2rc.outputs import protocol
 from usb2rc.udp_url import is_udp_url
 
 
@@ -103,16 +104,22 @@ def describe_output(output: OutputConfig) -> str:
     if output.protocol == "c2-16b":
         lf = "line feed" if output.line_feed else "no line feed"
         return f"{text}  {lf}, service status {output.service_status}"
-    if output.protocol == "mavlink" and output.mavlink is not None:
+    if output.protocol == "sumd":
+        ranges = "900-2100 us" if output.extended else "1100-1900 us"
+        return f"{text}  axes {ranges}"
+    if output.protocol == "crsf":
+        follow = "follows the module's rate" if output.option("follow_module") else "own rate"
+        return f"{text}  axes 172..1811 (988-2012 us), {follow}, no frames while failsafe"
+    if output.protocol == "sbus":
+        return f"{text}  8E2, axes 172..1811, frame-lost + failsafe flags while failsafe"
+    if output.protocol == "mavlink":
         return f"{text}  {mavlink_text(output)}"
-    ranges = "900-2100 us" if output.extended else "1100-1900 us"
-    return f"{text}  axes {ranges}"
+    return text
 
 
 def mavlink_text(output: OutputConfig) -> str:
     """The MAVLink output's message, IDs and, on a serial line, the bandwidth it uses."""
-    opts = output.mavlink
-    assert opts is not None
+    opts = MavlinkOptions.of(output)
     text = (
         f"{opts.message} to system {opts.target_system} component {opts.target_component}, "
         f"as system {opts.system_id} component {opts.component_id}, heartbeat 1 Hz"
@@ -140,7 +147,7 @@ def summary(config: Config, mapping: Mapping) -> list[str]:
     lines = [f"{config.source}: OK", "outputs:"]
     for output in config.outputs:
         lines.append(f"  {describe_output(output)}")
-        if output.protocol in ("sumd", "mavlink"):
+        if protocol(output.protocol).channels:
             names = [c.name for c in mapping.sumd_channels(output)]
             lines.append(f"    {len(names)} channels: {' '.join(names)}")
     lines.append("nodes:")

@@ -1,5 +1,5 @@
-"""`usb2rc decode`: print the C2-16B, SUMD or MAVLink frames found in a capture file, stdin
-or a port.
+"""`usb2rc decode`: print the C2-16B, SUMD, CRSF, SBUS or MAVLink frames in a capture, stdin,
+a port or (MAVLink) a UDP port. The decoder is the output registry's (`usb2rc.outputs`).
 
 SOURCE is a file (read to its end), `-` for stdin, or a serial port: a character device
 path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C; for
@@ -11,6 +11,7 @@ MAVLink is parsed by pymavlink: one line per message, its fields as pymavlink na
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import socket
@@ -19,13 +20,17 @@ import sys
 from collections import Counter
 from collections.abc import Callable, Generator, Iterable
 from contextlib import closing
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, TypeGuard
 
+from usb2rc.outputs import PROTOCOLS, protocol
+from usb2rc.protocol import crsf
 from usb2rc.protocol.c2_16b import DATA_STATUS_NAMES, DataFrame, Decoder, ServiceFrame
+from usb2rc.protocol.sbus import SbusFrame
 from usb2rc.protocol.sumd import SumdDecoder, SumdFrame
 from usb2rc.udp_url import is_udp_url, parse_udp_url
 
-AnyFrame = DataFrame | ServiceFrame | SumdFrame | Any  # Any: a pymavlink message
+# Any: a pymavlink message (pymavlink is imported only for --protocol mavlink)
+AnyFrame = DataFrame | ServiceFrame | SumdFrame | SbusFrame | crsf.CrsfFrame | Any
 Formatter = Callable[[AnyFrame], str]
 READ_SIZE = 65536
 PORT_TIMEOUT_S = 0.5
@@ -34,30 +39,29 @@ PORT_TIMEOUT_S = 0.5
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "decode",
-        help="print the frames in a C2-16B / SUMD / MAVLink capture, stdin, port or UDP",
+        help="print the frames in a C2-16B / SUMD / CRSF / SBUS / MAVLink capture, stdin, "
+        "port or UDP",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--protocol", choices=("c2-16b", "sumd", "mavlink"), default="c2-16b")
+    parser.add_argument("--protocol", choices=tuple(PROTOCOLS), default="c2-16b")
     parser.add_argument("--json", action="store_true", help="one JSON object per frame")
-    parser.add_argument("--baudrate", type=int, default=115200, help="for ports (115200)")
+    parser.add_argument(
+        "--baudrate",
+        type=int,
+        help="for ports (the protocol's default: 115200; crsf 400000; sbus 100000, 8E2)",
+    )
     parser.add_argument("source", metavar="SOURCE", help="file, '-' (stdin), port or URL")
     parser.set_defaults(func=run)
 
 
-def make_decoder(protocol: str) -> Any:
-    if protocol == "mavlink":
-        from usb2rc.protocol.mavlink import MavlinkDecoder  # pymavlink only when asked for
-
-        return MavlinkDecoder()
-    return SumdDecoder() if protocol == "sumd" else Decoder()
-
-
 def run(args: argparse.Namespace) -> int:
-    decoder = make_decoder(args.protocol)
+    entry = protocol(args.protocol)
+    decoder = entry.decoder()
     format_frame: Formatter = json_line if args.json else text_line
+    baudrate = args.baudrate or entry.default_baudrate
     try:
-        chunks = open_source(args.source, args.baudrate)
+        chunks = open_source(args.source, baudrate, even_parity=args.protocol == "sbus")
     except (OSError, ValueError) as exc:
         print(f"usb2rc decode: cannot open {args.source}: {_reason(exc)}", file=sys.stderr)
         return 1
@@ -82,14 +86,17 @@ def run(args: argparse.Namespace) -> int:
 # --- sources -------------------------------------------------------------------------------
 
 
-def open_source(name: str, baudrate: int) -> Generator[bytes, None, None]:
-    """Open SOURCE now (so errors surface before reading) and return its chunks."""
+def open_source(
+    name: str, baudrate: int, *, even_parity: bool = False
+) -> Generator[bytes, None, None]:
+    """Open SOURCE now (so errors surface before reading) and return its chunks; a port
+    with `even_parity` is opened 8E2 (SBUS)."""
     if name == "-":
         return _read_stream(sys.stdin.buffer, close=False)
     if is_udp_url(name):
         return _read_udp(name)
     if "://" in name or _is_character_device(name):
-        return _read_port(_open_port(name, baudrate))
+        return _read_port(_open_port(name, baudrate, even_parity))
     return _read_stream(open(name, "rb"), close=True)
 
 
@@ -109,10 +116,13 @@ def _read_stream(stream: BinaryIO, close: bool) -> Generator[bytes, None, None]:
             stream.close()
 
 
-def _open_port(name: str, baudrate: int) -> Any:
+def _open_port(name: str, baudrate: int, even_parity: bool = False) -> Any:
     import serial  # only ports need pyserial
 
-    port = serial.serial_for_url(name, baudrate=baudrate, timeout=PORT_TIMEOUT_S)
+    framing: dict[str, Any] = {}
+    if even_parity:
+        framing = {"parity": serial.PARITY_EVEN, "stopbits": serial.STOPBITS_TWO}
+    port = serial.serial_for_url(name, baudrate=baudrate, timeout=PORT_TIMEOUT_S, **framing)
     print(f"usb2rc decode: reading {name} at {baudrate} baud, Ctrl-C to stop", file=sys.stderr)
     return port
 
@@ -179,9 +189,25 @@ def frame_kind(frame: AnyFrame) -> str:
         return frame.service.service_name
     if isinstance(frame, SumdFrame):
         return "failsafe" if frame.failsafe else "live"
+    if isinstance(frame, SbusFrame):
+        return "failsafe" if frame.failsafe else "frame-lost" if frame.frame_lost else "live"
     if isinstance(frame, DataFrame):
         return DATA_STATUS_NAMES[frame.status]
-    return str(frame.get_type()).lower()  # a MAVLink message
+    if _is_mavlink(frame):
+        return str(frame.get_type()).lower()
+    return _CRSF_KINDS.get(type(frame), "other")
+
+
+def _is_mavlink(frame: AnyFrame) -> TypeGuard[Any]:
+    """A pymavlink message (told by its module: pymavlink is imported for mavlink only)."""
+    return type(frame).__module__.startswith("pymavlink.")
+
+
+_CRSF_KINDS: dict[type, str] = {
+    crsf.RcChannels: "rc-channels",
+    crsf.LinkStatistics: "link-statistics",
+    crsf.TimingSync: "timing-correction",
+}
 
 
 def json_record(frame: AnyFrame) -> dict[str, Any]:
@@ -199,7 +225,9 @@ def json_record(frame: AnyFrame) -> dict[str, Any]:
         return _service_record(frame)
     if isinstance(frame, SumdFrame):
         return {"protocol": "sumd", "failsafe": frame.failsafe, "channels": list(frame.channels)}
-    return {"protocol": "mavlink", **_mavlink_header(frame), **_mavlink_fields(frame)}
+    if _is_mavlink(frame):
+        return {"protocol": "mavlink", **_mavlink_header(frame), **_mavlink_fields(frame)}
+    return _rc11_record(frame)
 
 
 def _mavlink_header(message: Any) -> dict[str, Any]:
@@ -215,6 +243,23 @@ def _mavlink_fields(message: Any) -> dict[str, Any]:
     from usb2rc.protocol.mavlink import message_fields
 
     return message_fields(message)
+
+
+def _rc11_record(frame: SbusFrame | crsf.CrsfFrame) -> dict[str, Any]:
+    if isinstance(frame, SbusFrame):
+        return {"protocol": "sbus", **dataclasses.asdict(frame), "channels": list(frame.channels)}
+    record: dict[str, Any] = {"protocol": "crsf", "frame": frame_kind(frame)}
+    if isinstance(frame, crsf.OtherFrame):
+        return {
+            **record,
+            "address": frame.address,
+            "type": frame.type,
+            "payload_hex": frame.payload.hex(),
+        }
+    values = dataclasses.asdict(frame)
+    if isinstance(frame, crsf.RcChannels):
+        values["channels"] = list(frame.channels)
+    return {**record, **values}
 
 
 def _service_record(frame: ServiceFrame) -> dict[str, Any]:
@@ -248,12 +293,35 @@ def text_line(frame: AnyFrame) -> str:
     if isinstance(frame, SumdFrame):
         state = "failsafe" if frame.failsafe else "live"
         return f"sumd {state} {len(frame.channels)}ch {list(frame.channels)}"
-    head = _mavlink_header(frame)
-    fields = " ".join(f"{k}={v}" for k, v in _mavlink_fields(frame).items())
-    return (
-        f"mavlink {head['message']} from {head['system']}/{head['component']} "
-        f"seq {head['seq']}: {fields}"
-    )
+    if _is_mavlink(frame):
+        head = _mavlink_header(frame)
+        fields = " ".join(f"{k}={v}" for k, v in _mavlink_fields(frame).items())
+        return (
+            f"mavlink {head['message']} from {head['system']}/{head['component']} "
+            f"seq {head['seq']}: {fields}"
+        )
+    if isinstance(frame, SbusFrame):
+        flags = [n for n in ("ch17", "ch18", "frame_lost", "failsafe") if getattr(frame, n)]
+        return f"sbus {frame_kind(frame)} {list(frame.channels)} flags {' '.join(flags) or '-'}"
+    return _crsf_text(frame)
+
+
+def _crsf_text(frame: crsf.CrsfFrame) -> str:
+    if isinstance(frame, crsf.RcChannels):
+        return f"crsf rc-channels to 0x{frame.address:02X} {list(frame.channels)}"
+    if isinstance(frame, crsf.LinkStatistics):
+        return (
+            f"crsf link-statistics LQ {frame.uplink_link_quality}% up "
+            f"{frame.downlink_link_quality}% down, RSSI -{frame.uplink_rssi_1}/"
+            f"-{frame.uplink_rssi_2} dBm, SNR {frame.uplink_snr} dB, RF mode {frame.rf_mode}, "
+            f"tx power {frame.uplink_tx_power}"
+        )
+    if isinstance(frame, crsf.TimingSync):
+        return (
+            f"crsf timing-correction interval {frame.rate / 10:.1f} us "
+            f"({1 / frame.interval_s:.0f} Hz) offset {frame.offset / 10:+.1f} us"
+        )
+    return f"crsf type 0x{frame.type:02X} to 0x{frame.address:02X} payload {frame.payload.hex()}"
 
 
 def _service_text(frame: ServiceFrame) -> str:
@@ -270,7 +338,7 @@ def _service_text(frame: ServiceFrame) -> str:
     return line + (" (binary status)" if frame.binary_status else "")
 
 
-def summary(decoder: Any, kinds: Counter[str]) -> str:
+def summary(decoder: Decoder | SumdDecoder | Any, kinds: Counter[str]) -> str:
     by_kind = ", ".join(f"{kind} {count}" for kind, count in _ordered(kinds.items()))
     return (
         f"summary: frames {decoder.frames} ({by_kind or 'none'}), "

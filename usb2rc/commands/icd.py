@@ -22,7 +22,7 @@ from usb2rc.config import (
     DeviceConfig,
     OutputConfig,
 )
-from usb2rc.config_mavlink import MANUAL_AXES, RC_CHANNELS_OVERRIDE
+from usb2rc.config_mavlink import MANUAL_AXES, RC_CHANNELS_OVERRIDE, MavlinkOptions
 from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT
 from usb2rc.scaling import node_button_bit
@@ -137,6 +137,24 @@ def default_layout_lines() -> list[str]:
     ]
 
 
+def rc11_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
+    """CRSF / SBUS channels: 11-bit values and what a receiver makes of them."""
+    rows: list[list[object]] = []
+    sources = mapping.sumd_channels(output)
+    for i, source in enumerate(sources, start=1):
+        digital = output.protocol == "sbus" and i > 16
+        if source.kind == "button":
+            wire = "flag off / on" if digital else "172 / 1811 (988 / 2012 µs)"
+            rows.append([i, source.name, "button", wire])
+        else:
+            kind = "axis, unsigned" if source.unsigned else "axis, signed"
+            wire = "flag on above 992" if digital else "172..1811, centre 992 (988..2012 µs)"
+            rows.append([i, source.name, kind, wire])
+    if len(sources) < 16:
+        rows.append([f"{len(sources) + 1}..16", "(not listed)", "", "172 (988 µs)"])
+    return rows
+
+
 def sumd_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
     lo, hi = (900, 2100) if output.extended else (1100, 1900)
     rows: list[list[object]] = []
@@ -151,7 +169,7 @@ def sumd_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
 
 def mavlink_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
     """RC_CHANNELS_OVERRIDE: channel n in µs; MANUAL_CONTROL: x, y, z, r, then button bits."""
-    message = output.mavlink.message if output.mavlink else RC_CHANNELS_OVERRIDE
+    message = MavlinkOptions.of(output).message
     rows: list[list[object]] = []
     for i, source in enumerate(mapping.sumd_channels(output)):
         kind = "button" if source.kind == "button" else "axis"
@@ -171,8 +189,7 @@ def mavlink_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
 
 
 def mavlink_section(mapping: Mapping, output: OutputConfig, index: int, fmt: str) -> list[str]:
-    opts = output.mavlink
-    assert opts is not None
+    opts = MavlinkOptions.of(output)
     lines = heading(f"MAVLink output {index} ({output.port or '--port'})", 2, fmt)
     lines += [
         f"{opts.message} at {output.rate_hz:g} Hz to system {opts.target_system} component "
@@ -251,7 +268,22 @@ def document(config: Config, fmt: str) -> list[str]:
             lines += table(["channel", "source", "kind", "µs"], sumd_rows(mapping, output), fmt)
         elif output.protocol == "mavlink":
             lines += mavlink_section(mapping, output, i + 1, fmt)
+        elif output.protocol in RC11_NOTES:
+            name = output.protocol.upper()
+            lines += heading(f"{name} output {i + 1} ({output.port or '--port'})", 2, fmt)
+            lines += [RC11_NOTES[output.protocol], ""]
+            lines += table(["channel", "source", "kind", "wire"], rc11_rows(mapping, output), fmt)
     return lines
+
+
+RC11_NOTES = {
+    "crsf": "RC_CHANNELS_PACKED (0x16) to address 0xEE, 16 × 11 bits. While a listed channel's "
+    "node is in failsafe no RC frame is sent: the ExpressLRS module stops and the receiver's "
+    'own failsafe takes over (docs/ICD.md, "CRSF failsafe").',
+    "sbus": "25-byte frames, 100000 baud 8E2, inverted. While a listed channel's node is in "
+    'failsafe the frames carry the frame-lost and failsafe flags (docs/ICD.md, "SBUS output"); '
+    "channels 17 and 18 are the digital flags.",
+}
 
 
 def replay_section(config: Config, directory: str, fmt: str) -> list[str]:

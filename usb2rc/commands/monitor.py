@@ -4,9 +4,11 @@ For setting up a HOTAS: every node with its failsafe state, each axis as a bar w
 it would carry on the wire, the raw HID value it comes from and the device and usage feeding
 it, the pressed node buttons and the hat, the service events an output would send, and each
 device's report count. It runs the daemon's own input side (hot-plug, one reader thread per
-device, the compiled mapping, the node table) and opens no serial port. On a terminal it
-redraws about 10 times a second (plain ANSI, fine over SSH); with `--plain`, or when stdout
-is not a terminal, it prints a text snapshot once a second.
+device, the compiled mapping, the node table) and opens no serial port unless `--outputs`
+asks. On a terminal it redraws about 10 times a second (plain ANSI, fine over SSH); with
+`--plain`, or when stdout is not a terminal, it prints a text snapshot once a second. With
+`--outputs` it runs the config's outputs too (their ports are opened) and shows each
+output's figures, a CRSF module's link quality and timing included.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from typing import Any
 from usb2rc.binding import DeviceBinding, describe_button_runs
 from usb2rc.commands.run import add_common_input_args, load_or_report, make_backend
 from usb2rc.config import Config
-from usb2rc.daemon import Daemon
+from usb2rc.daemon import Daemon, NoPortError
 from usb2rc.hid.backend import Backend, DeviceInfo, ErrorCode
 from usb2rc.protocol.c2_16b import AXIS_NAMES
 from usb2rc.receiver import NodeView
@@ -50,6 +52,12 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     parser.add_argument(
         "--plain", action="store_true", help="print a text snapshot every second instead"
     )
+    parser.add_argument(
+        "--outputs",
+        action="store_true",
+        help="also run the config's outputs (opens their ports) and show each output's "
+        "figures, a CRSF module's link quality included",
+    )
     parser.set_defaults(func=run)
 
 
@@ -60,11 +68,13 @@ def output_previews(config: Config, daemon: Daemon) -> list[tuple[str, Preview]]
     """For each MAVLink output: what it would send from a node snapshot (no port opened)."""
     previews: list[tuple[str, Preview]] = []
     for i, out in enumerate(config.outputs):
-        if out.protocol != "mavlink" or out.mavlink is None:
+        if out.protocol != "mavlink":
             continue
+        from usb2rc.config_mavlink import MavlinkOptions
         from usb2rc.outputs.mavlink import MavlinkChannels, preview_text
 
-        channels = MavlinkChannels(daemon.mapping.sumd_channels(out), out.mavlink.message)
+        message = MavlinkOptions.of(out).message
+        channels = MavlinkChannels(daemon.mapping.sumd_channels(out), message)
 
         def preview(frames: list[NodeFrame], channels: MavlinkChannels = channels) -> str:
             return preview_text(channels, channels.evaluate(frames))
@@ -76,8 +86,10 @@ def output_previews(config: Config, daemon: Daemon) -> list[tuple[str, Preview]]
 class InputSide:
     """The daemon with its outputs left out: hot-plug, readers, mapping and the node table."""
 
-    def __init__(self, config: Config, backend: Backend) -> None:
-        self.daemon = Daemon(config, backend, outputs=False)
+    def __init__(self, config: Config, backend: Backend, outputs: bool = False) -> None:
+        self.daemon = Daemon(config, backend, outputs=outputs)
+        urls = ", ".join(out.link.url for out in self.daemon.outputs)
+        self.ports = f"outputs on {urls}" if urls else "no serial port is opened"
         self.table = self.daemon.table
         self.previews = output_previews(config, self.daemon)
         self.subscriber = self.table.subscribe()  # the service events an output would send
@@ -105,10 +117,9 @@ class InputSide:
             self._node(f, described.get(str(f.node_id), {}), devices.get(f.node_id, []))
             for f in frames
         ]
+        stats = self.daemon.stats_lines()
         outputs = [f"{name}: {preview(frames)}" for name, preview in self.previews]
-        return Snapshot(
-            nodes, list(self.events), self.event_total, self.daemon.stats_lines(), outputs
-        )
+        return Snapshot(nodes, list(self.events), self.event_total, stats, self.ports, outputs)
 
     def _raw_values(self) -> dict[str, tuple[int, ...]]:
         """Each reporting device's raw input values (its reader's last record), by key."""
@@ -188,7 +199,8 @@ class Snapshot:
     nodes: list[NodeRow]
     events: list[str]
     event_total: int
-    device_stats: list[str] = field(default_factory=list)
+    device_stats: list[str] = field(default_factory=list)  # and the outputs', with --outputs
+    ports: str = "no serial port is opened"
     outputs: list[str] = field(default_factory=list)  # what each MAVLink output would send
 
 
@@ -257,7 +269,7 @@ def node_text(node: NodeRow) -> list[str]:
 
 
 def snapshot_text(snap: Snapshot, log_lines: list[str]) -> str:
-    head = f"usb2rc monitor: {len(snap.nodes)} node(s); no serial port is opened"
+    head = f"usb2rc monitor: {len(snap.nodes)} node(s); {snap.ports}"
     lines = [head]
     for node in snap.nodes:
         lines += node_text(node)
@@ -279,7 +291,7 @@ def render_live(snap: Snapshot, log_lines: list[str]) -> Any:
     from rich.text import Text
 
     parts: list[Any] = [
-        Text(f"usb2rc monitor: {len(snap.nodes)} node(s); no serial port is opened; Ctrl-C stops")
+        Text(f"usb2rc monitor: {len(snap.nodes)} node(s); {snap.ports}; Ctrl-C stops")
     ]
     for node in snap.nodes:
         style = "bold red" if node.failsafe else "bold green"
@@ -375,6 +387,11 @@ def run(args: argparse.Namespace) -> int:
     config = load_or_report(args.config)
     if config is None:
         return 2
+    try:
+        side = InputSide(config, make_backend(args), outputs=args.outputs)
+    except NoPortError as exc:
+        print(f"usb2rc monitor --outputs: {exc}", file=sys.stderr)
+        return 2
     logs = _LogLines()
     logger = logging.getLogger("usb2rc")
     old_level, old_propagate = logger.level, logger.propagate
@@ -382,7 +399,6 @@ def run(args: argparse.Namespace) -> int:
     logger.setLevel(logging.INFO)
     logger.propagate = False
     until = time.monotonic() + args.seconds if args.seconds > 0 else float("inf")
-    side = InputSide(config, make_backend(args))
     try:
         side.start()
         show = _show_plain if args.plain or not sys.stdout.isatty() else _show_live

@@ -36,8 +36,8 @@ from usb2rc.config_mavlink import (
     MESSAGES,
     OVERRIDE_MAX_CHANNELS,
     RC_CHANNELS_OVERRIDE,
+    MavlinkOptions,
 )
-from usb2rc.config_model import MavlinkOptions
 from usb2rc.mapping import ChannelSource
 from usb2rc.protocol.mavlink import MavlinkDecoder
 from usb2rc.scaling import (
