@@ -140,7 +140,7 @@ def test_the_suggested_deadband_covers_the_spread_at_rest(lo, below, above, down
     assert suggested == 0 or suggested < noise * DEADBAND_MARGIN + 0.01
     assert round(suggested, 2) == suggested
     if noise * DEADBAND_MARGIN <= MAX_SUGGESTED_DEADBAND:
-        # the rest values read as 0 through the deadband (docs/CONFIG.md, "Shaped axes")
+        # the rest values read as 0 through the deadband (docs/CONFIG.md, "Axes": shaped axes)
         for v in (low, high):
             x = (v - cal.center) / ((cal.center - cal.min) if v < cal.center else above)
             assert abs(x) <= suggested

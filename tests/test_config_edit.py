@@ -14,7 +14,7 @@ from usb2rc.config import Calibration, load_config_text
 from usb2rc.config_edit import AxisCalibration, EditError, set_calibrations
 from usb2rc.starter_config import starter_config
 
-HOTAS = (ROOT / "config" / "hotas.yaml").read_text()
+HOTAS = (ROOT / "usb2rc" / "data" / "config" / "hotas.yaml").read_text()
 CAL = Calibration(10, 500, 1000)
 
 

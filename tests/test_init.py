@@ -102,10 +102,11 @@ def test_awkward_product_names_and_ports_stay_strings(tmp_path):
     name = 'Joy: "Pro" #1 - yes'
     install(tmp_path / "joy.hid", recording([StickState()], name=name))
     plugged, _ = read_devices(str(tmp_path))
-    text = starter_config(plugged, "socket://localhost:5000 # not a comment")
+    port = "/dev/serial/by-id/usb-FTDI_#1: not a comment"  # a path pyserial takes as it is
+    text = starter_config(plugged, port)
     config = load_config_text(text, "x.yaml")
     assert config.devices[0].name == "joy-pro-1-yes"
-    assert config.outputs[0].port == "socket://localhost:5000 # not a comment"
+    assert config.outputs[0].port == port
     assert f"# {name} 044f:b10a" in text
 
 
@@ -143,7 +144,9 @@ def test_without_output_prints_the_config(capsys):
 def test_no_devices_and_a_missing_folder(tmp_path, capsys):
     assert main(["init", "--replay", str(tmp_path)]) == 1
     assert "No devices" in capsys.readouterr().err
-    assert main(["init", "--replay", str(tmp_path / "nope")]) == 2
+    with pytest.raises(SystemExit) as usage_error:  # argparse: --replay's type check
+        main(["init", "--replay", str(tmp_path / "nope")])
+    assert usage_error.value.code == 2
     assert "no such directory" in capsys.readouterr().err
 
 

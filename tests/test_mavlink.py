@@ -30,6 +30,7 @@ from usb2rc.outputs.mavlink import (
 from usb2rc.scaling import axis_to_manual, axis_to_manual_z, axis_to_pwm
 from usb2rc.scheduler import MavlinkOutput
 from usb2rc.state import NodeFrame, NodeTable
+from usb2rc.stats_text import output_line
 from usb2rc.transport import LineEvent, SerialLink
 from usb2rc.transport_udp import UdpLink, parse_udp_url
 
@@ -234,7 +235,8 @@ def test_the_far_end_is_parsed_and_garbage_is_counted() -> None:
     session.received(b"\x00garbage" + beat.pack(vehicle))
     assert session.far_end.heartbeats == 1 and session.far_end.last_heartbeat_from == (1, 1)
     assert session.far_end.decoder.bytes_skipped >= 1
-    assert "far end: messages 1, heartbeats 1 (last from 1/1)" in mavlink.stats_text(session)
+    record = {"name": "mav", "url": "udpout:h:1", **mavlink.stats_record(session)}
+    assert "far end: messages 1, heartbeats 1, (last from 1/1)" in output_line(record)
 
 
 def test_the_bandwidth_check_counts_what_pymavlink_packs() -> None:

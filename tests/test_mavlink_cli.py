@@ -16,7 +16,7 @@ from test_check_icd_cli import usb2rc
 from usb2rc.config_mavlink import MavlinkOptions
 from usb2rc.outputs.mavlink import ControlValues, MavlinkSession
 
-GOOD = ROOT / "config" / "mavlink.yaml"
+GOOD = ROOT / "usb2rc" / "data" / "config" / "mavlink.yaml"
 
 
 def session_bytes() -> list[bytes]:

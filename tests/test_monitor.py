@@ -225,7 +225,7 @@ def test_unplug_shows_failsafe_lost_device_and_events(tmp_path):
 
 
 def test_config_nodes_merged_devices_and_waiting_entry():
-    config = load_config(ROOT / "config" / "hotas.yaml")
+    config = load_config(ROOT / "usb2rc" / "data" / "config" / "hotas.yaml")
     side = monitor.InputSide(config, ReplayBackend(ROOT / "usb2rc" / "data" / "demo"))
     side.start()
     try:

@@ -44,12 +44,16 @@ from usb2rc.config_model import (
     ChannelRef,
     Config,
     DeviceConfig,
+    HandoverConfig,
     HatConfig,
+    LowBatteryConfig,
     MatchConfig,
     OutputConfig,
 )
+from usb2rc.config_status import check_handovers
 from usb2rc.outputs import OutputProtocol, option_keys
 from usb2rc.outputs import protocol as output_protocol
+from usb2rc.port_url import url_problem
 from usb2rc.yamlnodes import ConfigError, NodeReader, Problem, Where, compose, decode
 
 __all__ = [
@@ -68,7 +72,9 @@ __all__ = [
     "Config",
     "ConfigError",
     "DeviceConfig",
+    "HandoverConfig",
     "HatConfig",
+    "LowBatteryConfig",
     "MatchConfig",
     "OutputConfig",
     "Problem",
@@ -104,6 +110,7 @@ def load_config_text(text: str, source: str = "<config>") -> Config:
     if config is not None:
         check_clashes(reader, config)
         check_channels(reader, config)
+        check_handovers(reader, config)
     if reader.problems:
         raise ConfigError(sorted(reader.problems, key=lambda p: p.line or 0))
     assert config is not None
@@ -151,7 +158,7 @@ def _read_output(reader: NodeReader, node: Node, path: str) -> OutputConfig | No
         "baudrate": entry.default_baudrate,
     }
     if "port" in items:
-        values["port"] = reader.string(items["port"][1], f"{path}.port")
+        values["port"] = _read_port(reader, items["port"][1], f"{path}.port")
     if "baudrate" in items:
         values["baudrate"] = reader.integer(
             items["baudrate"][1], f"{path}.baudrate", 1200, 4_000_000
@@ -198,6 +205,16 @@ def _check_bandwidth(
         reader.error(items["protocol"][0], f"{path}.protocol", problem)
     else:
         reader.error(items[key][1], f"{path}.{key}", problem)
+
+
+def _read_port(reader: NodeReader, node: Node, path: str) -> str | None:
+    """A port name pyserial can parse (usb2rc.port_url): `foo://bar` is a config error."""
+    port = reader.string(node, path)
+    problem = None if port is None else url_problem(port)
+    if problem is not None:
+        reader.error(node, path, f"{port!r} is not a port pyserial can open: {problem}")
+        return None
+    return port
 
 
 def _read_channels(

@@ -3,7 +3,7 @@
 `usb2rc calibrate` must keep the user's comments, key alignment, quoting and indentation. A
 YAML round trip (load, change, dump) re-emits the whole file: ruamel.yaml's round-trip mode
 keeps comments but not the alignment `x:  {usage: X}` (it changed 9 lines of
-config/hotas.yaml with no edit at all). So this module edits the text in place: it composes
+the starter hotas.yaml with no edit at all). So this module edits the text in place: it composes
 the file (`yamlnodes.compose`, the parser the config reader uses), finds each axis's node by
 its position, and splices new text into exactly the spans that change:
 

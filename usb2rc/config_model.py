@@ -11,6 +11,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from usb2rc.hid.usages import GDC_BATTERY_STRENGTH
 from usb2rc.outputs import PROTOCOLS as OUTPUT_PROTOCOLS
 from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
 from usb2rc.protocol.c2_16b import MAX_NODE_ID as NODE_ID_MAX
@@ -112,6 +113,36 @@ class HatConfig:
 
 
 @dataclass(frozen=True)
+class HandoverConfig:
+    """A HID button that makes the node send `&` (handover) frames to `destination`
+    (docs/ICD.md, "Handover"): while it is held (`frames` None), or `frames` frames a press."""
+
+    button: int  # HID button of the device, 1-based
+    destination: int  # 0..255: byte 4 of the `&` frames
+    frames: int | None = None
+    where: Where | None = field(default=None, compare=False)
+
+
+LOW_BATTERY_PERCENT = 20  # the default threshold: below 20 % of the field's range
+
+
+@dataclass(frozen=True)
+class LowBatteryConfig:
+    """A value that makes the node send `%` (low battery) frames while it is below `below`
+    percent of its logical range (docs/ICD.md, "Low battery"). `auto`: the default, used
+    only when the device has the usage (Battery Strength); a configured one must exist."""
+
+    usage: int = GDC_BATTERY_STRENGTH
+    occurrence: int = 0
+    below: float = LOW_BATTERY_PERCENT
+    auto: bool = True
+    where: Where | None = field(default=None, compare=False)
+
+
+AUTO_LOW_BATTERY = LowBatteryConfig()
+
+
+@dataclass(frozen=True)
 class MatchConfig:
     vid: int | None = None
     pid: int | None = None
@@ -130,6 +161,8 @@ class DeviceConfig:
     hats: tuple[HatConfig, ...]
     default_layout: bool  # True when the entry lists none of axes / buttons / hats
     where: Where
+    handover: HandoverConfig | None = None
+    low_battery: LowBatteryConfig | None = AUTO_LOW_BATTERY  # None: `low_battery: false`
 
 
 @dataclass(frozen=True)

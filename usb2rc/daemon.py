@@ -17,8 +17,9 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
-from usb2rc import __version__
+from usb2rc import __version__, stats_text
 from usb2rc.config import Config, OutputConfig
 from usb2rc.hid.backend import Backend, Device
 from usb2rc.hid.descriptor import DeviceLayout
@@ -248,46 +249,69 @@ class Daemon:
     # --- stats -----------------------------------------------------------------------------
 
     def stats_lines(self) -> list[str]:
-        lines = []
-        for out in self.outputs:
-            st, link = out.thread.stats, out.link.stats
-            p99 = st.period_p99_error_ms(out.thread.period_s)
-            line = (
-                f"{out.thread.name} {out.link.url}: writes {st.writes}, ticks {st.ticks}, "
-                f"late {st.late_ticks}, missed {st.missed_ticks}, p99 |period error| "
-                f"{p99:.3f} ms, bytes {link.bytes_written}, queue-full skips "
-                f"{link.writes_skipped_queue_full}, write timeouts {link.write_timeouts}, "
-                f"short writes {link.short_writes}, stalls {st.stalls}, "
-                f"stale flushes {link.flushes}, "
-                f"line lost {link.losses}x, tick errors {st.tick_errors}"
-            )
-            if isinstance(out.thread, C2Output):
-                line += (
-                    f", data frames {st.data_frames}, service frames {st.service_frames}, "
-                    f"round-robin deferrals {st.deferred_nodes}"
-                )
-            extra = out.thread.protocol_stats()
-            if extra:
-                line += ", " + extra
-            if isinstance(out.rx, RxThread):
-                dec = out.rx.decoder
-                line += (
-                    f", rx bytes {link.bytes_read}, rx skipped {dec.bytes_skipped}, "
-                    f"rx crc failures {dec.crc_failures}, requests {out.rx.requests}"
-                )
-            lines.append(line)
+        return stats_text.stats_lines(self.stats_record())
+
+    def stats_record(self) -> dict[str, Any]:
+        """Every counter, per output and per device (keys: usb2rc.stats_text); plain JSON
+        values, so `run --stats-format json` prints it as it is."""
         now = time.monotonic()
         uptime = max(1e-9, now - self.started_at)
-        for reader in self.lifecycle.readers:
-            info, record = reader.info, reader.record
-            age = f"{now - record.at:.2f} s" if record.at is not None else "never"
-            line = (
-                f"device {info.product or info.path} ({info.port_path}): "
-                f"{record.reports} reports ({record.reports / uptime:.1f}/s avg), "
-                f"bad {record.bad_reports}, last report {age} ago"
-            )
-            busy_s = getattr(reader.device, "busy_s", None)  # the replay backend's own work
-            if busy_s is not None:
-                line += f", backend busy {busy_s * 1000:.1f} ms"
-            lines.append(line)
-        return lines
+        return {
+            "uptime_s": round(uptime, 3),
+            "outputs": [self._output_stats(out) for out in self.outputs],
+            "devices": [
+                self._device_stats(reader, now, uptime) for reader in self.lifecycle.readers
+            ],
+        }
+
+    def _output_stats(self, out: _Output) -> dict[str, Any]:
+        st, link = out.thread.stats, out.link.stats
+        record: dict[str, Any] = {
+            "name": out.thread.name,
+            "url": out.link.url,
+            "writes": st.writes,
+            "ticks": st.ticks,
+            "late_ticks": st.late_ticks,
+            "missed_ticks": st.missed_ticks,
+            "period_p99_error_ms": st.period_p99_error_ms(out.thread.period_s),
+            "bytes_written": link.bytes_written,
+            "queue_full_skips": link.writes_skipped_queue_full,
+            "write_timeouts": link.write_timeouts,
+            "short_writes": link.short_writes,
+            "stalls": st.stalls,
+            "stale_flushes": link.flushes,
+            "line_losses": link.losses,
+            "tick_errors": st.tick_errors,
+        }
+        if isinstance(out.thread, C2Output):
+            record["data_frames"] = st.data_frames
+            record["service_frames"] = st.service_frames
+            record["round_robin_deferrals"] = st.deferred_nodes
+            record["handover_frames"] = st.handover_frames
+            record["handovers_cut"] = st.handovers_cut
+            record["low_battery_frames"] = st.low_battery_frames
+        record.update(out.thread.protocol_stats())
+        if isinstance(out.rx, RxThread):
+            record["rx_bytes"] = link.bytes_read
+            record["rx_skipped"] = out.rx.decoder.bytes_skipped
+            record["rx_crc_failures"] = out.rx.decoder.crc_failures
+            record["rx_requests"] = out.rx.requests
+        return record
+
+    @staticmethod
+    def _device_stats(reader: DeviceReader, now: float, uptime: float) -> dict[str, Any]:
+        info, record = reader.info, reader.record
+        stats: dict[str, Any] = {
+            "name": info.product or info.path,
+            "port_path": info.port_path,
+            "vid": info.vid,
+            "pid": info.pid,
+            "reports": record.reports,
+            "reports_per_s": record.reports / uptime,
+            "bad_reports": record.bad_reports,
+            "last_report_age_s": None if record.at is None else now - record.at,
+        }
+        busy_s = getattr(reader.device, "busy_s", None)  # the replay backend's own work
+        if busy_s is not None:
+            stats["backend_busy_ms"] = busy_s * 1000
+        return stats

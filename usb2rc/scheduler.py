@@ -20,7 +20,7 @@ import traceback
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from usb2rc.outputs.channels import OutputChannels
 from usb2rc.protocol import c2_16b
@@ -68,6 +68,9 @@ class OutputStats:
     data_frames: int = 0
     service_frames: int = 0
     deferred_nodes: int = 0
+    handover_frames: int = 0  # `&`, `%` and the `&` a failsafe cut (docs/ICD.md, "Handover")
+    handovers_cut: int = 0
+    low_battery_frames: int = 0
     tick_errors: int = 0
     stalls: int = 0
     periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
@@ -171,9 +174,10 @@ class TickThread(Worker):
     def finish(self) -> None:
         """Called once in the thread after the last tick."""
 
-    def protocol_stats(self) -> str:
-        """What only this protocol counts, for the stats line (`stats_lines`, `monitor`)."""
-        return ""
+    def protocol_stats(self) -> dict[str, Any]:
+        """What only this protocol counts, for the stats record (`Daemon.stats_record`; the
+        labels of its keys are in `usb2rc.stats_text`)."""
+        return {}
 
     def note_write(self) -> None:
         now = time.monotonic()
@@ -316,6 +320,10 @@ class C2Output(_LineThread):
         self._take_received()
         delivered = self.send(self.c2.tick(events, frames))
         self.stats.deferred_nodes = self.c2.deferred_nodes
+        statuses = self.c2.statuses
+        self.stats.handover_frames = statuses.handover_frames
+        self.stats.handovers_cut = statuses.handovers_cut
+        self.stats.low_battery_frames = statuses.low_battery_frames
         if delivered is not None:
             self.stats.service_frames += delivered.service_frames
             self.stats.data_frames += delivered.data_frames
@@ -411,15 +419,22 @@ class CrsfOutput(ChannelOutput):
         self.period_s = self.crsf.interval_s(now)
         return self.crsf.next_send(due, now)
 
-    def protocol_stats(self) -> str:
-        """The module's link quality, timing and what was withheld."""
+    def protocol_stats(self) -> dict[str, Any]:
+        """The module's link quality, timing and what was withheld: the figures for
+        scripts, and `module`, the line a person reads."""
         session, decoder = self.crsf, self.crsf.decoder
-        return (
-            f"{session.link_text(time.monotonic())}, frames withheld (failsafe) "
-            f"{session.withheld}, rx frames {decoder.frames}, rx crc failures "
-            f"{decoder.crc_failures}, rx skipped {decoder.bytes_skipped}, timing corrections "
-            f"{session.timing_frames} (ignored {session.timing_ignored})"
-        )
+        link = session.link
+        return {
+            "module": session.link_text(time.monotonic()),
+            "link_quality_up": None if link is None else link.uplink_link_quality,
+            "link_quality_down": None if link is None else link.downlink_link_quality,
+            "frames_withheld": session.withheld,
+            "module_rx_frames": decoder.frames,
+            "module_rx_crc_failures": decoder.crc_failures,
+            "module_rx_skipped": decoder.bytes_skipped,
+            "timing_corrections": session.timing_frames,
+            "timing_corrections_ignored": session.timing_ignored,
+        }
 
 
 class MavlinkOutput(_LineThread):
@@ -476,10 +491,10 @@ class MavlinkOutput(_LineThread):
         else:
             self.stats.writes += 1
 
-    def protocol_stats(self) -> str:
-        from usb2rc.outputs.mavlink import stats_text  # pymavlink: only with a MAVLink output
+    def protocol_stats(self) -> dict[str, Any]:
+        from usb2rc.outputs.mavlink import stats_record  # pymavlink: with a MAVLink output
 
-        return stats_text(self.mav)
+        return stats_record(self.mav)
 
 
 class ReplyRx(Worker):
@@ -526,7 +541,11 @@ class RxThread(ReplyRx):
 
 
 def is_request(frame: c2_16b.Frame) -> bool:
-    """A `<` config request or a `4` poll request: what the far end may ask."""
+    """A `<` config request or a `4` poll request: what the far end may ask.
+
+    Byte 4 does not matter (docs/ICD.md, "UART receive"): a `<`'s is the far end's message
+    code, a `4`'s a service code, which the ICD leaves TBD; a poll that carries one is still
+    a poll, and answering it costs at most one connect sequence (never queued twice)."""
     if isinstance(frame, c2_16b.DataFrame):
         return frame.status == c2_16b.CONFIG_REQUEST
     return frame.service is c2_16b.Service.POLL

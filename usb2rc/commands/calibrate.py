@@ -32,6 +32,7 @@ from usb2rc.calibration import (
     Step,
     Wizard,
 )
+from usb2rc.commands.arguments import replay_dir
 from usb2rc.commands.list_devices import UnreadableDevice, read_layout
 from usb2rc.config import Config, ConfigError, DeviceConfig, load_config
 from usb2rc.config_edit import AxisCalibration, EditError, set_calibrations
@@ -57,7 +58,9 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     )
     parser.add_argument("device", nargs="?", metavar="DEVICE", help="only this config entry")
     parser.add_argument("--config", metavar="FILE", help="the config to write into (required)")
-    parser.add_argument("--replay", metavar="DIR", help="hid-recorder files in DIR as devices")
+    parser.add_argument(
+        "--replay", metavar="DIR", type=replay_dir, help="hid-recorder files in DIR as devices"
+    )
     parser.add_argument("--replay-loop", action="store_true", help="replay each recording forever")
     parser.set_defaults(func=run)
 
@@ -399,8 +402,6 @@ def load(path: str | None) -> tuple[Config, str]:
 
 def prepare(args: argparse.Namespace) -> tuple[Config, str, list[LiveDevice], list[AxisTarget]]:
     config, text = load(args.config)
-    if args.replay and not os.path.isdir(args.replay):
-        raise UsageError(f"--replay {args.replay}: no such directory")
     only = wanted_entry(config, args.device)
     if not (sys.stdin.isatty() and sys.stdout.isatty()):
         raise UsageError("calibrate is interactive: run it in a terminal")

@@ -6,6 +6,12 @@ path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C
 MAVLink also `udpin:HOST:PORT` (listen there, e.g. where usb2rc's `udpout:` sends). One line
 per valid frame on stdout (`--json`: one JSON object per line); a summary on stderr at the end.
 MAVLink is parsed by pymavlink: one line per message, its fields as pymavlink names them.
+Exit 0 when it found a frame, 1 when none (it says so, and names the other protocol when
+its frames are there), 2 for a port URL pyserial cannot parse.
+
+Byte 4 is shown as it is: a data frame's message code (a `&` frame's destination ID, also
+given as `destination`), a service frame's service code (`code`; usb2rc sends 0, another
+implementation may not, docs/ICD.md "Service code").
 """
 
 from __future__ import annotations
@@ -14,6 +20,7 @@ import argparse
 import dataclasses
 import json
 import os
+import shlex
 import socket
 import stat
 import sys
@@ -24,7 +31,13 @@ from typing import Any, BinaryIO, TypeGuard
 
 from usb2rc.outputs import PROTOCOLS, protocol
 from usb2rc.protocol import crsf
-from usb2rc.protocol.c2_16b import DATA_STATUS_NAMES, DataFrame, Decoder, ServiceFrame
+from usb2rc.protocol.c2_16b import (
+    DATA_STATUS_NAMES,
+    HANDOVER,
+    DataFrame,
+    Decoder,
+    ServiceFrame,
+)
 from usb2rc.protocol.sbus import SbusFrame
 from usb2rc.protocol.sumd import SumdDecoder, SumdFrame
 from usb2rc.udp_url import is_udp_url, parse_udp_url
@@ -58,8 +71,16 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
 def run(args: argparse.Namespace) -> int:
     entry = protocol(args.protocol)
     decoder = entry.decoder()
+    # the other protocols' decoders, for the no-frame hint
+    others = {name: PROTOCOLS[name].decoder() for name in PROTOCOLS if name != args.protocol}
     format_frame: Formatter = json_line if args.json else text_line
     baudrate = args.baudrate or entry.default_baudrate
+    if problem := _port_url_problem(args.source):
+        print(
+            f"usb2rc decode: {args.source}: not a port pyserial can open: {problem}",
+            file=sys.stderr,
+        )
+        return 2
     try:
         chunks = open_source(args.source, baudrate, even_parity=args.protocol == "sbus")
     except (OSError, ValueError) as exc:
@@ -71,7 +92,11 @@ def run(args: argparse.Namespace) -> int:
         with closing(chunks):
             for chunk in chunks:
                 _print_frames(decoder.feed(chunk), format_frame, kinds)
+                for other in others.values():
+                    other.feed(chunk)
         _print_frames(decoder.flush(), format_frame, kinds)
+        for other in others.values():
+            other.flush()
     except KeyboardInterrupt:
         pass
     except BrokenPipeError:
@@ -80,7 +105,34 @@ def run(args: argparse.Namespace) -> int:
         print(f"usb2rc decode: reading {args.source}: {_reason(exc)}", file=sys.stderr)
         status = 1
     print(summary(decoder, kinds), file=sys.stderr)
+    if decoder.frames == 0:
+        found = {name: other.frames for name, other in others.items()}
+        print(no_frame_hint(args.protocol, args.source, found), file=sys.stderr)
+        return status or 1
     return status
+
+
+def no_frame_hint(protocol: str, source: str, found: dict[str, int]) -> str:
+    """What to try when SOURCE held no frame of `protocol`: the protocol whose frames are
+    there (the one with the most, when several decoders found some)."""
+    line = f"usb2rc decode: no {_shown(protocol)} frame found in {source}"
+    frames, best = max((count, name) for name, count in found.items())
+    if frames == 0:
+        return line + " (nor a frame of another protocol)"
+    again = shlex.join(["usb2rc", "decode", "--protocol", best, source])
+    return f"{line}, but {frames} {_shown(best)} frame(s): try `{again}`"
+
+
+def _shown(protocol: str) -> str:
+    return {"mavlink": "MAVLink"}.get(protocol, protocol.upper())
+
+
+def _port_url_problem(source: str) -> str | None:
+    if "://" not in source:
+        return None
+    from usb2rc.port_url import url_problem  # pyserial only when a port is named
+
+    return url_problem(source)
 
 
 # --- sources -------------------------------------------------------------------------------
@@ -212,15 +264,7 @@ _CRSF_KINDS: dict[type, str] = {
 
 def json_record(frame: AnyFrame) -> dict[str, Any]:
     if isinstance(frame, DataFrame):
-        return {
-            "protocol": "c2-16b",
-            "status": chr(frame.status),
-            "node_id": frame.node_id,
-            "code": frame.code,
-            "axes": list(frame.axes),
-            "group1": frame.group1,
-            "group2": frame.group2,
-        }
+        return _data_record(frame)
     if isinstance(frame, ServiceFrame):
         return _service_record(frame)
     if isinstance(frame, SumdFrame):
@@ -262,12 +306,28 @@ def _rc11_record(frame: SbusFrame | crsf.CrsfFrame) -> dict[str, Any]:
     return {**record, **values}
 
 
+def _data_record(frame: DataFrame) -> dict[str, Any]:
+    record: dict[str, Any] = {
+        "protocol": "c2-16b",
+        "status": chr(frame.status),
+        "node_id": frame.node_id,
+        "code": frame.code,
+        "axes": list(frame.axes),
+        "group1": frame.group1,
+        "group2": frame.group2,
+    }
+    if frame.status == HANDOVER:
+        record["destination"] = frame.code  # byte 4 of a `&` is the destination ID
+    return record
+
+
 def _service_record(frame: ServiceFrame) -> dict[str, Any]:
     record: dict[str, Any] = {
         "protocol": "c2-16b",
         "status": str(frame.service.value),
         "status_encoding": "binary" if frame.binary_status else "ascii",
         "node_id": frame.node_id,
+        "code": frame.code,
         "service": frame.service.service_name,
         "payload_hex": frame.payload.rstrip(b"\0").hex(),
     }
@@ -284,8 +344,9 @@ def json_line(frame: AnyFrame) -> str:
 
 def text_line(frame: AnyFrame) -> str:
     if isinstance(frame, DataFrame):
+        byte4 = f"to {frame.code}" if frame.status == HANDOVER else f"code {frame.code}"
         return (
-            f"{chr(frame.status)} node {frame.node_id} code {frame.code} axes {list(frame.axes)}"
+            f"{chr(frame.status)} node {frame.node_id} {byte4} axes {list(frame.axes)}"
             f" g1 0x{frame.group1:08X} g2 0x{frame.group2:08X}"
         )
     if isinstance(frame, ServiceFrame):
@@ -326,6 +387,8 @@ def _crsf_text(frame: crsf.CrsfFrame) -> str:
 
 def _service_text(frame: ServiceFrame) -> str:
     line = f"service {frame.service.service_name} node {frame.node_id}"
+    if frame.code:
+        line += f" code {frame.code}"
     payload = frame.payload.rstrip(b"\0")
     if frame.vid is not None:
         line += f" vid 0x{frame.vid:04X} pid 0x{frame.pid:04X}"

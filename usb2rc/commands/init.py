@@ -15,10 +15,12 @@ import argparse
 import os
 import sys
 
+from usb2rc.commands.arguments import replay_dir
 from usb2rc.commands.list_devices import UnreadableDevice, no_devices_hint, read_layout
 from usb2rc.config import ConfigError, load_config_text
 from usb2rc.hid.choose import choose_backend
 from usb2rc.hid.hotplug import initial_devices
+from usb2rc.port_url import port_argument
 from usb2rc.starter_config import PluggedDevice, SkippedDevice, device_label, starter_config
 from usb2rc.textfile import write_atomically
 
@@ -30,9 +32,16 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--replay", metavar="DIR", help="take the devices from recordings in DIR")
+    parser.add_argument(
+        "--replay",
+        metavar="DIR",
+        type=replay_dir,
+        help="take the devices from recordings in DIR",
+    )
     parser.add_argument("-o", "--output", metavar="FILE", help="write here (default: stdout)")
-    parser.add_argument("--port", help="serial port or pyserial URL of the C2-16B output")
+    parser.add_argument(
+        "--port", type=port_argument, help="serial port or pyserial URL of the C2-16B output"
+    )
     parser.add_argument("--force", action="store_true", help="replace FILE if it exists")
     parser.set_defaults(func=run)
 
@@ -52,9 +61,6 @@ def read_devices(replay: str | None) -> tuple[list[PluggedDevice], list[SkippedD
 def run(args: argparse.Namespace) -> int:
     if args.output and os.path.exists(args.output) and not args.force:
         print(f"usb2rc init: {args.output} exists; --force replaces it", file=sys.stderr)
-        return 2
-    if args.replay and not os.path.isdir(args.replay):
-        print(f"usb2rc init: --replay {args.replay}: no such directory", file=sys.stderr)
         return 2
     try:
         plugged, skipped = read_devices(args.replay)

@@ -13,11 +13,12 @@ import sys
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
+from usb2rc.commands.arguments import replay_dir
 from usb2rc.hid.backend import Backend, DeviceInfo, DevicePermissionError
 from usb2rc.hid.choose import choose_backend
 from usb2rc.hid.hotplug import sort_by_port_path
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
-from usb2rc.hid.permissions import UDEV_RULES_FILE
+from usb2rc.hid.permissions import INSTALL_RULE
 
 if TYPE_CHECKING:
     from usb2rc.hid.descriptor import DeviceLayout
@@ -31,7 +32,9 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--json", action="store_true", help="machine-readable output")
-    parser.add_argument("--replay", metavar="DIR", help="list the recordings in DIR instead")
+    parser.add_argument(
+        "--replay", metavar="DIR", type=replay_dir, help="list the recordings in DIR instead"
+    )
     parser.add_argument("--all", action="store_true", help="include non-joystick HID devices")
     parser.add_argument("--config", metavar="FILE", help="take Node-ID pins from this config")
     parser.set_defaults(func=run)
@@ -158,7 +161,7 @@ def no_devices_hint(replay: str | None) -> str:
     return (
         "No HID joysticks found. Plug one in, or try `usb2rc list --replay DIR` with "
         "hid-recorder files (the package ships some in usb2rc/data/demo). If a device is "
-        f"plugged in but missing, check its permissions: install {UDEV_RULES_FILE} "
+        f"plugged in but missing, check its permissions: install the udev rule with {INSTALL_RULE} "
         "(see `usb2rc list --all`)."
     )
 

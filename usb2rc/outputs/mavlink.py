@@ -27,6 +27,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -295,17 +296,22 @@ class MavlinkSession:
                 far.last_heartbeat_from = (message.get_srcSystem(), message.get_srcComponent())
 
 
-def stats_text(session: MavlinkSession) -> str:
-    """The output's MAVLink counters, for the stats line (SIGUSR1) and `monitor`."""
+def stats_record(session: MavlinkSession) -> dict[str, Any]:
+    """The output's MAVLink counters, for the stats record (labels: `usb2rc.stats_text`)."""
     far = session.far_end
-    seen = far.last_heartbeat_from
-    source = f" (last from {seen[0]}/{seen[1]})" if seen else ""
-    return (
-        f"{session.settings.message} {session.controls}, releases {session.releases}, "
-        f"silent failsafe ticks {session.silent_ticks}, heartbeats {session.heartbeats}, "
-        f"far end: messages {far.decoder.frames}, heartbeats {far.heartbeats}{source}, "
-        f"bytes skipped {far.decoder.bytes_skipped}"
-    )
+    record: dict[str, Any] = {
+        "mavlink_message": session.settings.message,
+        "control_messages": session.controls,
+        "releases": session.releases,
+        "silent_failsafe_ticks": session.silent_ticks,
+        "heartbeats_sent": session.heartbeats,
+        "far_end_messages": far.decoder.frames,
+        "far_end_heartbeats": far.heartbeats,
+    }
+    if far.last_heartbeat_from is not None:
+        record["far_end_heartbeat_from"] = "{}/{}".format(*far.last_heartbeat_from)
+    record["far_end_skipped"] = far.decoder.bytes_skipped
+    return record
 
 
 def preview_text(channels: MavlinkChannels, values: ControlValues) -> str:
