@@ -8,60 +8,36 @@ heartbeats), a replug brings the values back."""
 from __future__ import annotations
 
 import os
-import select
 import signal
 import socket
 import time
 from fractions import Fraction
 from typing import Any
 
-from daemon_harness import PtyLine, StickState, install, recording, run_daemon, scale
-
-RELEASED = [0] * 8 + [65534] * 10  # channels 1-8: 0; 9-18: UINT16_MAX-1 (common.xml)
-
-
-class UdpLine(PtyLine):
-    """A UDP listener as the far end (a GCS / MAVLink router on udpin): what arrives is
-    parsed by pymavlink (daemon_harness.MavlinkStream)."""
-
-    def __init__(self) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.url = f"udpout:127.0.0.1:{self.sock.getsockname()[1]}"
-        super().__init__("mavlink")
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            if not select.select([self.sock], [], [], 0.05)[0]:
-                continue
-            data = self.sock.recv(65535)
-            messages = self.decoder.feed(data)
-            with self._cond:
-                self._received(time.monotonic(), data, messages)
-                self._cond.notify_all()
-
-    def close(self) -> None:
-        super().close()
-        self.sock.close()
+from daemon_harness import (
+    RELEASED,
+    PtyLine,
+    StickState,
+    UdpLine,
+    channels,
+    install,
+    of_type,
+    pwm_of_int16,
+    recording,
+    run_daemon,
+    scale,
+)
 
 
 def pwm(raw: int, lo: int, hi: int) -> int:
     """A raw HID value onto 1000..2000 µs: the ICD's int16 scaling, then linear onto µs."""
-    return 1000 + round(Fraction(scale(raw, lo, hi) + 32768, 65535) * 1000)
+    return pwm_of_int16(scale(raw, lo, hi))
 
 
 def manual(raw: int, lo: int, hi: int) -> int:
     """A raw HID value onto MANUAL_CONTROL's -1000..1000 (each half on its own)."""
     v = scale(raw, lo, hi)
     return round(Fraction(v * 1000, 32768 if v < 0 else 32767))
-
-
-def of_type(messages: list[Any], kind: str) -> list[Any]:
-    return [m for m in messages if m.get_type() == kind]
-
-
-def channels(message: Any) -> list[int]:
-    return [getattr(message, f"chan{i}_raw") for i in range(1, 19)]
 
 
 CONFIG = """
