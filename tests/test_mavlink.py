@@ -414,3 +414,34 @@ def parse_stream(data: bytes) -> list[Any]:
 
 def channels_or_none(message: Any) -> list[int] | None:
     return channels(message) if message.get_type() == "RC_CHANNELS_OVERRIDE" else None
+
+
+def test_the_registry_builds_a_serial_output_whose_far_end_is_read() -> None:
+    """`mavlink` through the registry on a serial line: an RX thread hands what the far end
+    sent to the session (loop:// echoes usb2rc's own heartbeats back, so it sees them)."""
+    from usb2rc.mapping import compile_mapping
+    from usb2rc.outputs import protocol
+    from usb2rc.outputs.wiring import OutputContext
+    from usb2rc.scheduler import ReplyRx
+
+    config = load_config_text(
+        "outputs:\n  - {protocol: mavlink, port: 'loop://', channels: [node0.x]}\n"
+    )
+    (out,) = config.outputs
+    context = OutputContext("mav", out, compile_mapping(config), NodeTable())
+    built = protocol("mavlink").build(context)
+    assert isinstance(built.thread, MavlinkOutput) and isinstance(built.rx, ReplyRx)
+    assert built.link.open_now()
+    built.thread.start()
+    built.rx.start()
+    try:
+        wait_until(lambda: built.thread.mav.far_end.heartbeats >= 1)
+        assert built.thread.mav.far_end.last_heartbeat_from == (255, 190)
+        stats = built.thread.protocol_stats()
+        assert stats["far_end_heartbeats"] >= 1 and stats["releases"] >= 1  # node 0 absent
+    finally:
+        built.thread.stop()
+        built.rx.stop()
+        built.thread.join(5)
+        built.rx.join(5)
+        built.link.close()
