@@ -113,3 +113,19 @@ def test_monitor_shows_what_each_mavlink_output_would_send(tmp_path: Path) -> No
     # node 3 has no device: the override output is in failsafe; MANUAL_CONTROL reads node 0
     assert "mavlink udpout:127.0.0.1:9: FAILSAFE: releases every channel" in out.stdout
     assert "MANUAL_CONTROL x 1000 y -1000 z 1000 r -1000 buttons 0x00000001" in out.stdout
+
+
+def test_pymavlink_is_imported_only_with_a_mavlink_output() -> None:
+    """The registry names MAVLink's decoder and build function as strings: the daemon, the
+    config and the commands load without pymavlink's 2 MB dialect (a Pi's start time)."""
+    code = (
+        "import sys\n"
+        "import usb2rc.daemon, usb2rc.config, usb2rc.outputs.wiring\n"
+        "from usb2rc.commands import check, decode, icd, monitor\n"
+        "print(sorted(m for m in sys.modules if m.startswith('pymavlink')))\n"
+        "from usb2rc.outputs import protocol\n"
+        "protocol('mavlink').decoder()\n"
+        "print('pymavlink' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split("\n")[:2] == ["[]", "True"]
