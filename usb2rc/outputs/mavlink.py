@@ -24,11 +24,9 @@ pymavlink packs every byte (`message.pack(mav)`); nothing here writes MAVLink by
 
 from __future__ import annotations
 
-import dataclasses
-
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -231,7 +229,7 @@ class MavlinkSession:
         if not self.line_open or self.stalled:
             return []
         if self._stopping:
-            values = dataclasses.replace(values, failsafe=True)
+            values = replace(values, failsafe=True)
             self._stop_ticked = True
         messages: list[bytes] = []
         if self._next_heartbeat is None or now >= self._next_heartbeat:
