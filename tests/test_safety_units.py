@@ -356,3 +356,46 @@ def test_a_hat_trim_steps_once_per_push() -> None:
         table.frames()
     assert table.describe()["1"]["trims"] == {"y": 0.02}  # +1 +1 -1 steps
     assert table.frames()[0].axes[1] == centre + 655  # 0.02 of 32767.5
+
+
+# --- stopping: the other channel outputs --------------------------------------------------
+
+
+def test_sbus_and_crsf_stopping_send_their_failsafe() -> None:
+    from usb2rc.protocol import sbus
+    from usb2rc.rc_sessions import CrsfSession, SbusSession
+
+    sbus_line = SbusSession()
+    sbus_line.line_opened()
+    sbus_line.stopping()
+    frame = sbus_line.tick([992] * 16, failsafe=False)
+    assert sbus.parse_frame(frame).failsafe and sbus.parse_frame(frame).frame_lost
+    sbus_line.wrote(len(frame))
+    assert sbus_line.stop_done
+    crsf_line = CrsfSession(0.004)
+    crsf_line.line_opened()
+    assert crsf_line.tick([992] * 16, failsafe=False)  # live: an RC frame
+    crsf_line.wrote(26)
+    crsf_line.stopping()
+    assert crsf_line.tick([992] * 16, failsafe=False) == b""  # its failsafe is silence
+    assert crsf_line.stop_done
+
+
+def test_mavlink_stopping_releases_the_override_in_one_tick() -> None:
+    from usb2rc.config_mavlink import MavlinkOptions
+    from usb2rc.outputs.mavlink import ControlValues, MavlinkSession
+    from usb2rc.protocol.mavlink import MavlinkDecoder
+
+    session = MavlinkSession(MavlinkOptions())
+    session.line_opened()
+    for message in session.tick(0.0, ControlValues(False, channels=(1500,) * 8)):
+        session.wrote(len(message))
+    session.stopping()
+    assert not session.stop_done
+    messages = session.tick(0.02, ControlValues(False, channels=(1500,) * 8))
+    decoded = MavlinkDecoder().feed(b"".join(messages))
+    override = [m for m in decoded if m.get_type() == "RC_CHANNELS_OVERRIDE"]
+    assert override and override[-1].chan1_raw == 0  # 0: released to the radio
+    for message in messages:
+        session.wrote(len(message))
+    assert session.stop_done
