@@ -52,6 +52,7 @@ outputs:
     channels: [node0.y, node0.x, node1.slider, node0.rz, node0.button1, node1.button2]
 """
 
+CENTRED = StickState()  # plugged at rest first: the neutral guard (docs/ICD.md)
 STICK = StickState(x=0, y=12000, rz=255, slider=0, buttons=0b01)
 THROTTLE = StickState(x=16383, y=4000, rz=0, slider=200, buttons=0b10)
 
@@ -61,8 +62,8 @@ def test_udp_and_pty_mavlink_outputs_two_devices_unplug_and_replug(tmp_path, rep
     config = tmp_path / "mavlink.yaml"
     config.write_text(CONFIG.format(udp=udp.url, pty=pty.path))
     stick, throttle = replay_dir / "a-stick.hid", replay_dir / "b-throttle.hid"
-    install(stick, recording([STICK]))  # node 0 (port-path order)
-    install(throttle, recording([THROTTLE]))  # node 1
+    install(stick, recording([CENTRED, STICK]))  # node 0 (port-path order)
+    install(throttle, recording([CENTRED, THROTTLE]))  # node 1
     override = [
         pwm(STICK.x, 0, 16383),
         pwm(THROTTLE.y, 0, 16383),
@@ -108,7 +109,7 @@ def test_udp_and_pty_mavlink_outputs_two_devices_unplug_and_replug(tmp_path, rep
         assert "MANUAL_CONTROL" not in after[first:second]  # a whole second without one
         assert udp.decoder.bad == 0 and pty.decoder.bad == 0
 
-        install(stick, recording([STICK]))  # replug: values again
+        install(stick, recording([CENTRED, STICK]))  # replug: values again
         seen = len(udp.frames())
         udp.wait_for(
             lambda ms: any(
@@ -131,7 +132,7 @@ def test_udpin_answers_the_vehicle_that_called_and_counts_its_heartbeats(tmp_pat
     url = f"udpin:127.0.0.1:{port}"
     config = tmp_path / "udpin.yaml"
     config.write_text(f"outputs:\n  - protocol: mavlink\n    port: {url}\n")
-    install(replay_dir / "stick.hid", recording([STICK]))
+    install(replay_dir / "stick.hid", recording([CENTRED, STICK]))
     vehicle = UdpLine()  # the autopilot: it calls first, then listens on the same socket
     daemon = run_daemon(tmp_path, url, replay_dir, "--config", str(config))
     try:
