@@ -399,3 +399,20 @@ def test_mavlink_stopping_releases_the_override_in_one_tick() -> None:
     for message in messages:
         session.wrote(len(message))
     assert session.stop_done
+
+
+def test_icd_says_what_each_device_must_rest_at_and_its_trim_switches() -> None:
+    from usb2rc.commands import icd
+
+    config = load_config_text(
+        TRIM_ENTRY.format(limit=0.2)
+        + "      slider: {usage: Slider, arm: low, arm_tolerance: 0.05}\n"
+        + "      rz: {usage: Rz, arm: any}\n",
+        "t.yaml",
+    )
+    text = "\n".join(icd.document(config, "markdown"))
+    assert (
+        "Neutral guard of stick: x centre on a Joystick or Game Pad (±0.1), slider low (±0.05)."
+        in text
+    )
+    assert "Trim switch of x (stick): HID buttons 3 (-) / 4 (+), step 0.05, limit ±0.2." in text

@@ -27,6 +27,8 @@ from usb2rc.config import (
     OutputConfig,
 )
 from usb2rc.config_mavlink import MANUAL_AXES, RC_CHANNELS_OVERRIDE, MavlinkOptions
+from usb2rc.guard import DEFAULT_TOLERANCE, default_arm, normalize_arm
+from usb2rc.hid.usages import GD_JOYSTICK
 from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT
 from usb2rc.scaling import node_button_bit
@@ -234,7 +236,49 @@ def node_section(config: Config, node_id: int, fmt: str) -> list[str]:
     lines += (
         table(["switch", "group 1 bit", "direction", "device", "hat"], rows, fmt) if rows else []
     )
-    return lines + status_lines(devices)
+    return lines + status_lines(devices) + guard_lines(devices)
+
+
+def guard_lines(devices: Sequence[DeviceConfig]) -> list[str]:
+    """What each device must rest at after a plug before its node goes `>`, and its trim
+    switches (docs/ICD.md, "Neutral guard"; docs/CONFIG.md, "Trims")."""
+    lines = []
+    for device in devices:
+        if device.default_layout:
+            lines.append(
+                f"Neutral guard of {device.name}: X, Y and Rz at the centre on a Joystick or "
+                "Game Pad, a Simulation Controls Throttle low (the default layout)."
+            )
+            continue
+        rests = [r for r in (_axis_rest(axis) for axis in device.axes) if r]
+        lines.append(f"Neutral guard of {device.name}: {', '.join(rests) or 'none'}.")
+        for axis in device.axes:
+            switch = axis.trim_switch
+            if switch is None:
+                continue
+            by = (
+                f"HID buttons {switch.buttons[0]} (-) / {switch.buttons[1]} (+)"
+                if switch.buttons
+                else f"{usage_label(switch.hat or 0, switch.occurrence)} {switch.hat_axis}"
+            )
+            lines.append(
+                f"Trim switch of {axis.slot} ({device.name}): {by}, step {switch.step:g}, "
+                f"limit ±{switch.limit:g}."
+            )
+    return [*lines, ""] if lines else []
+
+
+def _axis_rest(axis: AxisConfig) -> str:
+    """`x centre`, `z low (±0.05)`, `x centre on a Joystick or Game Pad`; "" when `any`."""
+    if axis.arm is not None:
+        arm, where = normalize_arm(axis.arm), ""
+    else:
+        arm = default_arm(axis.usage, GD_JOYSTICK)
+        where = " on a Joystick or Game Pad" if arm != default_arm(axis.usage, 0) else ""
+    if arm == "any":
+        return ""
+    tolerance = DEFAULT_TOLERANCE if axis.arm_tolerance is None else axis.arm_tolerance
+    return f"{axis.slot} {arm}{where} (±{tolerance:g})"
 
 
 def status_lines(devices: Sequence[DeviceConfig]) -> list[str]:
