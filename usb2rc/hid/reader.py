@@ -22,7 +22,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from usb2rc.hid.backend import Device, DeviceGone, ErrorCode
 from usb2rc.hid.descriptor import InputState
@@ -40,6 +40,7 @@ class Decoder(Protocol):
     def state(self) -> InputState: ...
 
 
+@runtime_checkable
 class ButtonsDecoder(Decoder, Protocol):
     """A decoder whose current button mask is cheap to read (descriptor.ReportDecoder): the
     reader then notes every press, for the taps between two ticks."""
@@ -91,7 +92,8 @@ class DeviceReader(Worker):
         self.record = ReaderRecord(decoder.state())
         self._reports = 0  # counted by the reader thread; published with the state
         self._bad_reports = 0
-        self._track_presses = hasattr(decoder, "buttons")
+        # the decoder, where its button mask can be read per report (fakes in tests: None)
+        self._press_decoder = decoder if isinstance(decoder, ButtonsDecoder) else None
         self._buttons = 0  # the mask after the last report, for rising edges
         self._presses: tuple[tuple[int, int], ...] = ()
         self._press_serial = 0
@@ -122,8 +124,8 @@ class DeviceReader(Worker):
     def _handle(self, report: bytes) -> None:
         if self.decoder.feed(report):
             self._reports += 1
-            if self._track_presses:
-                self._note_buttons(self.decoder.buttons)  # type: ignore[attr-defined]
+            if self._press_decoder is not None:
+                self._note_buttons(self._press_decoder.buttons)
         else:
             self._bad_reports += 1
 
@@ -140,7 +142,7 @@ class DeviceReader(Worker):
         per tick per device: locals instead of a method call and two attribute writes per
         report."""
         read, feed = self.device.read, self.decoder.feed
-        decoder: ButtonsDecoder | None = self.decoder if self._track_presses else None  # type: ignore[assignment]
+        decoder = self._press_decoder
         accepted = refused = 0
         while (report := read(0.0)) is not None:
             if feed(report):
