@@ -8,6 +8,7 @@ harness's own scaling (daemon_harness.expected_frame), not from the code under t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from daemon_harness import T16000M_DESCRIPTOR, StickState, expected_frame
@@ -174,3 +175,44 @@ def test_every_press_shows_in_the_next_frame_of_each_output(ops: list) -> None:
             if presses_since[k] <= PRESSES_KEPT:  # the press log's bound (docs/ICD.md, "Taps")
                 assert frame.group1 & 0xF == buttons | pressed_since[k]
             pressed_since[k], presses_since[k] = 0, 0
+
+
+# --- trims --------------------------------------------------------------------------------
+
+TRIM_OPS = st.lists(  # fewer presses between two frames than the press log keeps
+    st.one_of(st.tuples(st.just("press"), st.sampled_from([1, 2])), st.just(("frame",))),
+    max_size=PRESSES_KEPT,
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(TRIM_OPS, st.sampled_from([0.01, 0.05, 0.3]), st.sampled_from([0.0, 0.1, 0.25]))
+def test_a_trim_steps_once_per_press_and_never_leaves_its_limit(
+    ops: list, step: float, limit: float
+) -> None:
+    """Button 1 steps down, 2 up; presses between two frames all count (the press log);
+    the value is the steps summed and clamped at each step (docs/CONFIG.md, "Trims")."""
+    from usb2rc.trims import TrimSwitch
+
+    switch = TrimSwitch(0, step, limit, minus=1, plus=2)
+    binding = default_binding(LAYOUT, "T.16000M")
+    binding.trim_switches = (switch,)
+    table = NodeTable()
+    centred = record_of(StickState())
+    source = Source(centred)
+    table.add_device(0, info("k"), binding, source, "JOYSTICK")
+    table.frames()  # live: trims step from now on
+    presses: tuple[tuple[int, int], ...] = ()
+    model = 0.0
+    for op in ops:
+        if op[0] == "press":
+            serial = len(presses) + 1
+            presses = (*presses, (serial, 1 << (op[1] - 1)))[-PRESSES_KEPT:]
+            source.record = ReaderRecord(centred.state, 1 + serial, 0, None, presses, serial)
+            model = max(-limit, min(limit, model + (step if op[1] == 2 else -step)))
+        else:
+            frame = table.frames()[0]
+            trim = table.describe()["0"]["trims"].get("x", 0.0)
+            assert abs(trim - model) < 1e-6 and abs(trim) <= limit
+            offset = math.floor(trim * 32767.5 + 0.5)  # docs/CONFIG.md, "Trims"
+            assert frame.axes[0] == expected_frame(StickState())[0][0] + offset

@@ -145,11 +145,12 @@ class _Attached:
                 position = switch.position(record.state)
                 before = self.trim_positions.get(switch.slot, 0)
                 self.trim_positions[switch.slot] = position
-                steps = position if position != before else 0
+                steps = [position] if position and position != before else []
             else:
-                steps = switch.presses(rising)
+                steps = switch.presses(rising)  # one step per press, in order
             if steps and self.armed:
-                value = store.step(node_id, switch, steps)
+                for step in steps:  # each within the limit, as a transmitter's trim
+                    value = store.step(node_id, switch, step)
                 log.info("node %d: %s trim %+.3f", node_id, AXIS_NAMES[switch.slot], value)
 
     def same_device(self, info: DeviceInfo, binding: DeviceBinding) -> bool:

@@ -40,10 +40,11 @@ class TrimSwitch:
             return hat_component(direction, self.hat_axis)
         return bool(state.buttons & self.plus) - bool(state.buttons & self.minus)
 
-    def presses(self, rising: Iterable[int]) -> int:
-        """Steps from button presses (the reader's rising-edge masks): +1 per plus press,
-        -1 per minus press. Every press counts, even a tap between two ticks."""
-        return sum(bool(mask & self.plus) - bool(mask & self.minus) for mask in rising)
+    def presses(self, rising: Iterable[int]) -> list[int]:
+        """The steps of button presses (the reader's rising-edge masks, in order): +1 per
+        plus press, -1 per minus press. Every press counts, even a tap between two ticks."""
+        steps = (bool(mask & self.plus) - bool(mask & self.minus) for mask in rising)
+        return [step for step in steps if step]
 
 
 def stepped(value: float, steps: int, switch: TrimSwitch) -> float:
