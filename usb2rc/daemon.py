@@ -217,8 +217,8 @@ class Daemon:
 
     def stop(self) -> None:
         self.monitor.stop()
-        readers = self.lifecycle.shutdown(JOIN_TIMEOUT_S)
         self.table.stop()  # every node `!` from here; each output sends it before it closes
+        readers = self.lifecycle.shutdown(JOIN_TIMEOUT_S)
         for out in self.outputs:
             out.thread.stop()
             if out.rx is not None:
