@@ -157,6 +157,40 @@ def test_fault_line_raises_eio_after_earlier_events(tmp_path: Path) -> None:
     assert not isinstance(caught.value, DeviceGone)
 
 
+def test_bad_event_line_is_found_when_played_then_the_file_is_a_problem(
+    tmp_path: Path,
+) -> None:
+    # The scan reads the header only; the events are parsed as they are played.
+    text = recording_text(numbered(3, step=0.001)) + "E: soon 2 00 01\n"
+    install_file(tmp_path / "b.hid", text)
+    backend = ReplayBackend(tmp_path, loop=True)
+    [info] = backend.enumerate()
+    device = backend.open(info)
+    assert read_all(device, 3) == [i.to_bytes(2, "little") for i in range(3)]
+    with pytest.raises(OSError) as caught:
+        device.read(5.0)
+    assert caught.value.errno == errno.EIO
+    assert "b.hid:9: bad timestamp 'soon'" in str(caught.value)
+    assert backend.enumerate() == []
+    [problem] = backend.problems
+    assert "b.hid: not a hid-recorder file" in problem and "b.hid:9" in problem
+    with pytest.raises(DeviceOpenError):
+        backend.open(info)
+
+
+def test_a_file_changed_after_its_bad_line_is_a_device_again(tmp_path: Path) -> None:
+    install_file(tmp_path / "b.hid", recording_text(numbered(1)) + "E: 0.0 3 00\n")
+    backend = ReplayBackend(tmp_path)
+    device = backend.open(backend.enumerate()[0])
+    assert read_all(device, 1) == [b"\x00\x00"]
+    with pytest.raises(OSError):
+        device.read(1.0)
+    assert backend.enumerate() == []
+    install_file(tmp_path / "b.hid", recording_text(numbered(2)))
+    [info] = backend.enumerate()
+    assert read_all(backend.open(info), 2) == [b"\x00\x00", b"\x01\x00"]
+
+
 def test_closed_device_read_fails(tmp_path: Path) -> None:
     install_file(tmp_path / "s.hid", recording_text([]))
     backend = ReplayBackend(tmp_path)

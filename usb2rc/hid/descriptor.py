@@ -28,6 +28,7 @@ Where the spec leaves room, usb2rc does what the Linux kernel's hid-core does:
 
 from __future__ import annotations
 
+import functools
 import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -148,6 +149,14 @@ class DeviceLayout:
 
     def make_decoder(self) -> ReportDecoder:
         return ReportDecoder(self)
+
+    @functools.cached_property
+    def report_plans(self) -> dict[int, _ReportPlan]:
+        """The decode plan of each input report ID, compiled once per layout: a device of a
+        model seen before gets the cached layout (`parse_descriptor`), so a replug compiles
+        nothing (compiling is Python that competes with the scheduler for the GIL). Plans
+        hold no state; each ReportDecoder keeps its own values."""
+        return {rid: _compile_report(self, rid) for rid in self.input_report_lengths}
 
 
 def _representable(bit_size: int, signed: bool) -> tuple[int, int]:
@@ -583,13 +592,20 @@ def _merge_button_fields(fields: list[ButtonField]) -> list[ButtonField]:
 def parse_descriptor(data: bytes) -> DeviceLayout:
     """Parse a HID report descriptor into the layout of its input reports.
 
-    Raises DescriptorError (and nothing else) for a descriptor usb2rc cannot use."""
+    Raises DescriptorError (and nothing else) for a descriptor usb2rc cannot use. A layout is
+    immutable, so the same descriptor bytes give the same (cached) layout: a replugged
+    device or another of the same model costs no parse (nor a plan: `report_plans`)."""
     try:
-        return _Parser().parse(bytes(data))
+        return _parse_cached(bytes(data))
     except DescriptorError:
         raise
     except Exception as exc:  # a bug here must not take the daemon down with another type
         raise DescriptorError(f"descriptor not understood: {exc!r}") from exc
+
+
+@functools.lru_cache(maxsize=64)
+def _parse_cached(data: bytes) -> DeviceLayout:
+    return _Parser().parse(data)
 
 
 # --------------------------------------------------------------------------------------------
@@ -728,7 +744,7 @@ class ReportDecoder:
         self.layout = layout
         self.reports = 0
         self.bad_reports = 0
-        self._plans = {rid: _compile_report(layout, rid) for rid in layout.input_report_lengths}
+        self._plans = layout.report_plans
         self._plan = None if layout.uses_report_ids else self._plans[0]
         initial = layout.initial_state()
         self._values = list(initial.values)
