@@ -142,13 +142,15 @@ class ReplayBackend:
         self.speed = speed
         self.problems: list[str] = []  # files that are not usable recordings, from enumerate()
         self._lock = threading.Lock()
-        self._cache: dict[Path, ReplayFile | str] = {}  # file read or the problem text
-        self._cache_ids: dict[Path, StatId] = {}
+        # By file name (str: the scan runs 10 times a second, and Path hashing and
+        # comparing cost more than the stat): the file read, or the problem text.
+        self._cache: dict[str, ReplayFile | str] = {}
+        self._cache_ids: dict[str, StatId] = {}
         self._reported: set[str] = set()
 
-    def _candidates(self) -> list[tuple[Path, StatId]]:
-        """The visible files and their stat: one `stat` each (scandir knows the type).
-        Raises OSError when the directory cannot be listed."""
+    def _candidates(self) -> list[tuple[str, StatId]]:
+        """The visible files' names and stats, by name: one `stat` each (scandir knows the
+        type). Raises OSError when the directory cannot be listed."""
         found = []
         with os.scandir(self.directory) as entries:
             for entry in entries:
@@ -156,32 +158,35 @@ class ReplayBackend:
                     continue
                 try:
                     if entry.is_file():
-                        found.append((Path(entry.path), _id_of(entry.stat())))
+                        found.append((entry.name, _id_of(entry.stat())))
                 except OSError:
                     continue  # gone meanwhile
-        return sorted(found)
+        found.sort()
+        return found
 
-    def _load_cached(self, path: Path, stat_id: StatId | None) -> ReplayFile | str | None:
+    def _load_cached(self, name: str, stat_id: StatId | None) -> ReplayFile | str | None:
         if stat_id is None:
             return None
         with self._lock:
-            if self._cache_ids.get(path) == stat_id:
-                return self._cache[path]
+            if self._cache_ids.get(name) == stat_id:
+                return self._cache[name]
+        path = self.directory / name
         try:
             entry: ReplayFile | str = load_replay_file(path)
         except (RecordingError, OSError, ValueError) as exc:
             entry = _not_a_recording(path, exc)
         with self._lock:
-            self._cache[path] = entry
-            self._cache_ids[path] = stat_id
+            self._cache[name] = entry
+            self._cache_ids[name] = stat_id
         return entry
 
     def _broken(self, source: ReplayFile, exc: RecordingError) -> None:
         """A device found a bad line while playing: from now on this file (as long as it is
         not changed) is a problem, not a device, so it is not opened again and again."""
+        name = source.path.name
         with self._lock:
-            if self._cache_ids.get(source.path) == source.stat_id:
-                self._cache[source.path] = _not_a_recording(source.path, exc)
+            if self._cache_ids.get(name) == source.stat_id:
+                self._cache[name] = _not_a_recording(source.path, exc)
 
     def _report_problem(self, problem: str) -> None:
         if problem not in self._reported:
@@ -197,8 +202,8 @@ class ReplayBackend:
             with self._lock:
                 self.problems = [f"{self.directory}: cannot list the replay directory: {exc}"]
             return []
-        for path, stat_id in candidates:
-            entry = self._load_cached(path, stat_id)
+        for name, stat_id in candidates:
+            entry = self._load_cached(name, stat_id)
             if isinstance(entry, str):
                 problems.append(entry)
                 self._report_problem(entry)
@@ -206,17 +211,18 @@ class ReplayBackend:
                 infos.append(entry.info)
         with self._lock:
             self.problems = problems
-            self._forget_gone({path for path, _ in candidates})
+            if len(self._cache) > len(candidates):
+                self._forget_gone({name for name, _ in candidates})
         return infos
 
-    def _forget_gone(self, present: set[Path]) -> None:
+    def _forget_gone(self, present: set[str]) -> None:
         """Drop what is cached for files that are gone (under the lock)."""
-        for path in [p for p in self._cache if p not in present]:
-            del self._cache[path], self._cache_ids[path]
+        for name in [n for n in self._cache if n not in present]:
+            del self._cache[name], self._cache_ids[name]
 
     def open(self, info: DeviceInfo) -> ReplayDevice:
         path = Path(info.path)
-        entry = self._load_cached(path, _stat_id(path))
+        entry = self._load_cached(path.name, _stat_id(path))
         if entry is None or (isinstance(entry, ReplayFile) and entry.info.key != info.key):
             raise DeviceGone(f"{path}: replay file is gone")
         if isinstance(entry, str):
