@@ -6,13 +6,16 @@
 #   systemd-analyze security  (offline; fails above MAX_EXPOSURE)
 #   systemd-sysusers --root   (creates the user in a scratch root)
 #   udevadm verify            (systemd >= 254; skipped with a note on older udev)
+#   grep                      (RestartPreventExitStatus=2: a config error must not restart in a
+#                              loop; Documentation= names the notes install-system writes)
 set -eu
 
-MAX_EXPOSURE=${MAX_EXPOSURE:-2.0}
+MAX_EXPOSURE=${MAX_EXPOSURE:-1.0}
 here=$(cd "$(dirname "$0")/.." && pwd)
-unit="$here/systemd/usb2rc.service"
-rules="$here/systemd/70-usb2rc.rules"
-sysusers="$here/systemd/usb2rc.sysusers"
+system="$here/usb2rc/data/system"  # package data: the wheel ships these (usb2rc install-system)
+unit="$system/usb2rc.service"
+rules="$system/70-usb2rc.rules"
+sysusers="$system/usb2rc.sysusers"
 
 if ! command -v systemd-analyze >/dev/null 2>&1; then
     apt-get update -qq
@@ -21,6 +24,12 @@ fi
 
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
+
+echo "== unit directives"
+grep -qx 'RestartPreventExitStatus=2' "$unit" || { echo "no RestartPreventExitStatus=2" >&2; exit 1; }
+grep -qx 'Documentation=file:/usr/share/doc/usb2rc/SERVICE.md' "$unit" || {
+    echo "no Documentation= naming the installed SERVICE.md" >&2; exit 1; }
+echo "present"
 
 echo "== systemd-analyze verify"
 sed 's|^ExecStart=/opt/usb2rc/venv/bin/usb2rc |ExecStart=/bin/true |' "$unit" >"$tmp/usb2rc.service"

@@ -19,6 +19,9 @@ daemon's) and prints one JSON line per decoded frame. What is measured:
   T.16000M at 1000 reports/s each; utime+stime from /proc/PID/stat over --cpu-seconds after
   --warmup, VmRSS/VmHWM from /proc/PID/status; SIGUSR1 stats at the start and the end of the
   window give each device's report rate (it must be ~1000/s) and late/missed ticks.
+  With `--extra-outputs sumd crsf sbus` the daemon runs those outputs too, at their default
+  rates, each on a pty of its own (drained by a thread here; the C2-16B output stays on the
+  reader's pty): the CPU figure is then the daemon with every output.
 - start: spawning `python -m usb2rc run ...` (one replayed device) -> the startup frame
   (service 8) and the first data frame on the pty; median of --starts.
 - stop: SIGTERM -> the process has exited (every start trial and the cpu run).
@@ -36,6 +39,7 @@ import json
 import logging
 import os
 import re
+import select
 import signal
 import statistics
 import subprocess
@@ -373,13 +377,59 @@ class DaemonProcess:
         return took
 
 
-def run_cpu(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
+EXTRA_OUTPUTS = ("sumd", "crsf", "sbus")
+EXTRA_CHANNELS = "[node0.x, node0.y, node0.rz, node0.slider, node0.button1]"
+
+
+class PtyDrain:
+    """Far ends for the extra outputs: one pty each, read and dropped by one thread."""
+
+    def __init__(self, count: int) -> None:
+        pairs = [os.openpty() for _ in range(count)]
+        self.masters = [m for m, _ in pairs]
+        self._slaves = [s for _, s in pairs]
+        self.paths = [os.ttyname(s) for s in self._slaves]
+        self.bytes_read = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="pty drain", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            ready, _, _ = select.select(self.masters, [], [], 0.1)
+            for fd in ready:
+                self.bytes_read += len(os.read(fd, 65536))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        for fd in self.masters + self._slaves:
+            os.close(fd)
+
+
+def extra_outputs_config(workdir: Path, protocols: Sequence[str], paths: Sequence[str]) -> Path:
+    """C2-16B (its port from --port) plus each extra output at its default rate."""
+    lines = ["outputs:", "  - protocol: c2-16b"]
+    for protocol, path in zip(protocols, paths, strict=True):
+        lines.append(f"  - {{protocol: {protocol}, port: {path}, channels: {EXTRA_CHANNELS}}}")
+    config = workdir / "outputs.yaml"
+    config.write_text("\n".join(lines) + "\n")
+    return config
+
+
+def run_cpu(
+    workdir: Path, warmup: float, window: float, extra_outputs: Sequence[str] = ()
+) -> dict[str, Any]:
     replay_dir = workdir / "khz"
     replay_dir.mkdir()
     for i in range(4):
         (replay_dir / f"stick{i}.hid").write_text(khz_recording(4.0, f"Thrustmaster T.16000M {i}"))
     reader = PtyReader(workdir)
-    daemon = DaemonProcess(replay_dir, reader.path, workdir / "cpu.log")
+    drain = PtyDrain(len(extra_outputs))
+    extra: list[str] = []
+    if extra_outputs:
+        extra = ["--config", str(extra_outputs_config(workdir, extra_outputs, drain.paths))]
+    daemon = DaemonProcess(replay_dir, reader.path, workdir / "cpu.log", extra)
     try:
         reader.wait_for(lambda f: {x["n"] for x in f if x["k"] == "d"} >= {0, 1, 2, 3}, 20,
                         "data frames of 4 nodes")  # fmt: skip
@@ -392,6 +442,7 @@ def run_cpu(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
         memory = daemon.memory_kb()
     finally:
         stop_s = daemon.terminate()
+        drain.close()
     frames = reader.data(t0)
     reader.close()
     times = [f["t"] for f in frames if f["t"] <= t1]
@@ -677,7 +728,7 @@ def one_run(args: argparse.Namespace) -> dict[str, Any]:
         if "period" in parts:
             result.update(run_period_latency(workdir, args.seconds, args.report_ms))
         if "cpu" in parts:
-            result.update(run_cpu(workdir, args.warmup, args.cpu_seconds))
+            result.update(run_cpu(workdir, args.warmup, args.cpu_seconds, args.extra_outputs))
         cpu_stop = result.pop("stop_s", 0.0)
         if "plug" in parts:
             result.update(run_plug_while_live(workdir, args.plug_seconds, args.plug_rounds))
@@ -709,6 +760,13 @@ def main() -> None:
     parser.add_argument("--plug-seconds", type=float, default=5.0, help="plug windows (5)")
     parser.add_argument("--plug-rounds", type=int, default=3, help="plug rounds (3)")
     parser.add_argument("--only", nargs="+", choices=PARTS, help="run only these parts")
+    parser.add_argument(
+        "--extra-outputs",
+        nargs="+",
+        choices=EXTRA_OUTPUTS,
+        default=(),
+        help="the CPU run also drives these outputs at their default rates",
+    )
     parser.add_argument("--runs", type=int, default=1, help="repeat; medians over runs")
     parser.add_argument("--json", metavar="PATH", help="also write the JSON result here")
     parser.add_argument("--reader-fd", type=int, help=argparse.SUPPRESS)
@@ -727,6 +785,7 @@ def main() -> None:
         f"daemon bench: {args.runs} run(s), period/latency {args.seconds:g} s, CPU window "
         f"{args.cpu_seconds:g} s, plug windows {args.plug_rounds} x {args.plug_seconds:g} s, "
         f"{args.starts} starts, "
+        f"outputs {' + '.join(('c2-16b', *args.extra_outputs))}, "
         "load average "
         f"{os.getloadavg()[0]:.2f} on {os.cpu_count()} cores"
     )

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from rc_reference import RefCrsfReader, RefSbusReader
+
 from usb2rc.protocol import c2_16b, sumd
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -159,13 +161,22 @@ class Seen:
     frame: Any  # c2_16b.DataFrame | c2_16b.ServiceFrame | sumd.SumdFrame
 
 
+# The far end's decoder per protocol: CRSF and SBUS are read with the tests' own decoder,
+# written from the protocol descriptions (rc_reference.py), not with usb2rc's codecs.
+DECODERS: dict[str, Callable[[], Any]] = {
+    "sumd": sumd.SumdDecoder,
+    "crsf": RefCrsfReader,
+    "sbus": RefSbusReader,
+}
+
+
 class PtyLine:
     """A pty pair; the test holds the master (the far end), the daemon opens the slave."""
 
     def __init__(self, protocol: str = "c2-16b") -> None:
         self.master, self._slave = os.openpty()
         self.path = os.ttyname(self._slave)
-        self.decoder: Any = sumd.SumdDecoder() if protocol == "sumd" else c2_16b.Decoder()
+        self.decoder: Any = DECODERS.get(protocol, c2_16b.Decoder)()
         self.seen: list[Seen] = []
         self._cond = threading.Condition()
         self._stop = threading.Event()

@@ -357,13 +357,22 @@ def test_unknown_status_is_skipped_without_a_crc_failure() -> None:
     assert (decoder.crc_failures, decoder.bytes_skipped) == (0, len(bogus))
 
 
-def test_service_status_with_a_message_code_is_not_a_frame() -> None:
-    wire = bytearray(c2_16b.connected(1, line_feed=False))
-    wire[4] = 1
+@pytest.mark.parametrize("binary", [False, True])
+def test_a_service_frame_with_a_service_code_is_decoded_with_it(binary: bool) -> None:
+    """The ICD calls byte 4 "Message Code or Service Code" and leaves the service codes
+    TBD: a CRC-valid service frame is a frame whatever byte 4 holds (docs/ICD.md)."""
+    wire = bytearray(c2_16b.poll_request(7, binary_status=binary, line_feed=False))
+    wire[4] = 0x9C
     wire[33:35] = c2_16b.crc16_arc(bytes(wire[:33])).to_bytes(2, "little")
     frames, decoder = decode_all(bytes(wire))
-    assert frames == []
-    assert decoder.crc_failures == 0
+    assert frames == [ServiceFrame(Service.POLL, 7, b"", binary, 0x9C)]
+    assert (decoder.crc_failures, decoder.bytes_skipped) == (0, 0)
+    assert encode(frames[0], line_feed=False) == bytes(wire)
+
+
+def test_the_service_code_is_range_checked_when_encoding() -> None:
+    with pytest.raises(ValueError, match="service code"):
+        encode_service(Service.CONNECTED, 1, code=256)
 
 
 def test_header_split_over_chunks() -> None:

@@ -16,7 +16,8 @@ DATA = Path(__file__).parent / "data"
 CONFIGS = DATA / "configs"
 REPO = Path(__file__).parent.parent
 BROKEN = sorted((CONFIGS / "broken").glob("*.yaml"))
-GOOD = sorted((CONFIGS / "good").glob("*.yaml")) + sorted((REPO / "config").glob("*.yaml"))
+STARTERS = REPO / "usb2rc" / "data" / "config"  # the starter configs the package ships
+GOOD = sorted((CONFIGS / "good").glob("*.yaml")) + sorted(STARTERS.glob("*.yaml"))
 
 
 def usb2rc(*args: str) -> subprocess.CompletedProcess[str]:
@@ -58,7 +59,7 @@ def test_missing_file_exits_2() -> None:
 
 
 def test_summary_lists_nodes_and_channels() -> None:
-    result = usb2rc("check", "--config", str(REPO / "config" / "hotas.yaml"))
+    result = usb2rc("check", "--config", str(STARTERS / "hotas.yaml"))
     lines = result.stdout.splitlines()
     assert "  node 2: pedals: axes rz x y" in lines
     assert any(
@@ -103,7 +104,7 @@ def test_check_replay_binds_devices_and_reports_missing_usage(tmp_path: Path) ->
 
 
 def test_icd_markdown_names_sources_and_sumd_ranges() -> None:
-    result = usb2rc("icd", "--config", str(REPO / "config" / "hotas.yaml"), "--format", "markdown")
+    result = usb2rc("icd", "--config", str(STARTERS / "hotas.yaml"), "--format", "markdown")
     assert result.returncode == 0, result.stderr
     out = result.stdout
     assert "## Node 1" in out and "## Node 2" in out
@@ -125,3 +126,19 @@ def test_icd_bad_config_exits_2() -> None:
     result = usb2rc("icd", "--config", str(CONFIGS / "broken" / "axis-clash.yaml"))
     assert result.returncode == 2
     assert "axis-clash.yaml:10:" in result.stderr
+
+
+def test_icd_says_when_a_node_sends_handover_and_low_battery(tmp_path: Path) -> None:
+    config = tmp_path / "status.yaml"
+    config.write_text(
+        "devices:\n  - name: stick\n    match: {vid: 0x044f}\n    node_id: 2\n"
+        "    handover: {button: 5, destination: 7, frames: 10}\n"
+        "    low_battery: {usage: Slider, below: 10}\n"
+    )
+    result = usb2rc("icd", "--config", str(config), "--format", "text")
+    assert result.returncode == 0, result.stderr
+    assert (
+        "Status `&` (byte 4 = destination 7): HID button 5 of stick, 10 frames a press; "
+        "no message code is used." in result.stdout
+    )
+    assert "Status `%`: Slider of stick below 10 %." in result.stdout

@@ -93,6 +93,8 @@ def random_data_frame(rng: random.Random) -> Built:
         "group1": groups[0],
         "group2": groups[1],
     }
+    if status == ord("&"):
+        record["destination"] = code  # byte 4 of a handover is the destination ID
     return Built(wire, record)
 
 
@@ -113,13 +115,16 @@ def random_service_frame(rng: random.Random) -> Built:
     service = rng.randint(1, 8)
     binary = rng.random() < 0.5
     node_id = rng.randrange(256)
+    code = 0 if rng.random() < 0.5 else rng.randrange(256)  # a service code: ICD, TBD
     payload, fields = random_service_payload(rng, service)
-    wire = c2_frame(service if binary else 0x30 + service, node_id, 0, payload.ljust(28, b"\0"))
+    status = service if binary else 0x30 + service
+    wire = c2_frame(status, node_id, code, payload.ljust(28, b"\0"))
     record = {
         "protocol": "c2-16b",
         "status": str(service),
         "status_encoding": "binary" if binary else "ascii",
         "node_id": node_id,
+        "code": code,
         "service": SERVICE_NAMES[service],
         "payload_hex": payload.rstrip(b"\0").hex(),
         **fields,
@@ -413,3 +418,28 @@ def test_text_lines_for_other_services(tmp_path: Path, capsys: pytest.CaptureFix
         "service error node 4 error 0x02 (binary status)",
         "service poll node 9 payload 0102",
     ]
+
+
+def test_service_codes_and_handover_destinations(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Byte 4 of a CRC-valid service frame may be anything (the ICD's service codes are TBD):
+    the frame is shown with its code, never skipped; a `&` shows byte 4 as its destination."""
+    capture = tmp_path / "codes.bin"
+    poll = c2_frame(ord("4"), 9, 0x41, bytes(28))
+    startup = c2_frame(0x08, 0xFF, 0xFF, b"other 2.0".ljust(28, b"\0"))
+    handover = c2_frame(ord("&"), 1, 7, struct.pack("<10h2I", *([0] * 10), 1, 0))
+    capture.write_bytes(poll + b"\n" + startup + handover)
+    assert run_in_process(str(capture)) == 0
+    out, err = capsys.readouterr()
+    assert out.splitlines() == [
+        "service poll node 9 code 65",
+        'service startup node 255 code 255 "other 2.0" (binary status)',
+        "& node 1 to 7 axes [0, 0, 0, 0, 0, 0, 0, 0, 0, 0] g1 0x00000001 g2 0x00000000",
+    ]
+    assert "frames 3 (" in err and "bytes skipped 0" in err
+    assert run_in_process("--json", str(capture)) == 0
+    records = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [(r["status"], r["code"]) for r in records] == [("4", 0x41), ("8", 0xFF), ("&", 7)]
+    assert records[0]["service"] == "poll" and records[1]["text"] == "other 2.0"
+    assert records[2]["destination"] == 7

@@ -2,9 +2,10 @@
 
 Each command line found in a fenced code block must parse with usb2rc's own parser (with the
 default-command rule of `usb2rc.cli.main`). The ones that can run here, offline, run and
-must exit 0; the rest (hardware, root, placeholders, endless) are listed as parse-only with
-the reason. A command in the docs that is in neither list fails the test, and so does a
-listed command the docs no longer show: the lists and the docs move together.
+must exit 0; the ones that need root run against a scratch root (ROOTED); the rest
+(hardware, placeholders, endless) are listed as parse-only with the reason. A command in
+the docs that is in no list fails the test, and so does a listed command the docs no longer
+show: the lists and the docs move together.
 """
 
 from __future__ import annotations
@@ -22,27 +23,41 @@ import pytest
 from usb2rc import cli
 
 ROOT = Path(__file__).resolve().parent.parent
-DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+# The service notes ship in the package (usb2rc install-system writes them beside the unit).
+SERVICE_NOTES = ROOT / "usb2rc" / "data" / "system" / "SERVICE.md"
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), SERVICE_NOTES]
 
 # Run offline from the repository root; each must exit 0.
 RUN = {
     "usb2rc decode usb2rc/data/samples/c2-16b-sample.bin",
     "usb2rc decode --protocol sumd usb2rc/data/samples/sumd-sample.bin",
-    "usb2rc icd --config config/hotas.yaml",
-    "usb2rc check --config config/hotas.yaml",
-    "usb2rc check --config config/hotas.yaml --replay usb2rc/data/demo",
+    "usb2rc icd --config usb2rc/data/config/hotas.yaml",
+    "usb2rc check --config usb2rc/data/config/hotas.yaml",
+    "usb2rc check --config usb2rc/data/config/hotas.yaml --replay usb2rc/data/demo",
     "usb2rc describe usb2rc/data/demo/throttle.hid",
     "usb2rc list --replay usb2rc/data/demo",
     "usb2rc demo --seconds 2",
     "usb2rc monitor --replay usb2rc/data/demo --seconds 2 --plain",
+    "usb2rc init --replay usb2rc/data/demo --port /dev/null",
+    "usb2rc install-system --print 70-usb2rc.rules",
+    "usb2rc check --config usb2rc/data/config/hotas.yaml --json",
+    "usb2rc icd --config usb2rc/data/config/hotas.yaml --json",
 }
+
+# Shown with sudo, they write or read the system's files: here they run in this order
+# against a scratch root (install-system gets --root, and each absolute /etc or /usr path
+# moves under it), and must exit 0.
+ROOTED = [
+    "usb2rc install-system",
+    "usb2rc check --config /etc/usb2rc/usb2rc.yaml",
+]
 
 HARDWARE = "needs a real joystick or serial port"
 PLACEHOLDER = "names the reader's own file"
 PARSE_ONLY = {
     "usb2rc demo --seconds 30": "30 s is too slow here; `demo --seconds 2` runs",
     "usb2rc --port /dev/ttyUSB0": HARDWARE,
-    "usb2rc --config config/hotas.yaml": HARDWARE + " (/dev/serial0, /dev/ttyUSB0)",
+    "usb2rc --config usb2rc/data/config/hotas.yaml": HARDWARE + " (/dev/serial0, /dev/ttyUSB0)",
     "usb2rc run --replay DIR --port PORT": PLACEHOLDER,
     "usb2rc decode /dev/ttyUSB1": HARDWARE,
     "usb2rc decode --json /dev/ttyUSB1": HARDWARE,
@@ -52,7 +67,6 @@ PARSE_ONLY = {
     "usb2rc describe rec.hid": PLACEHOLDER,
     "usb2rc describe stick.hid": PLACEHOLDER,
     "usb2rc check --config my.yaml": PLACEHOLDER,
-    "usb2rc check --config /etc/usb2rc/usb2rc.yaml": "the installed service's config (root)",
     "usb2rc icd --config my.yaml": PLACEHOLDER,
     "usb2rc monitor": HARDWARE + "; runs until Ctrl-C",
     "usb2rc monitor --config my.yaml": PLACEHOLDER,
@@ -60,7 +74,15 @@ PARSE_ONLY = {
     "usb2rc monitor --replay recordings/ --replay-loop": PLACEHOLDER + "; runs until Ctrl-C",
     "usb2rc record 044f:b10a --seconds 10": HARDWARE,
     "usb2rc --config hotas.yaml --port /dev/ttyUSB0": HARDWARE,
+    "usb2rc init --port /dev/serial0 -o my.yaml": HARDWARE,
+    "usb2rc calibrate --config my.yaml": HARDWARE + "; interactive (tests/test_calibrate_tmux.py)",
+    "usb2rc calibrate --config demo.yaml --replay usb2rc/data/demo --replay-loop": (
+        "interactive; tests/test_calibrate_tmux.py drives it in tmux"
+    ),
+    "usb2rc --config my.yaml": PLACEHOLDER,
     "usb2rc --config hotas.yaml --port /dev/ttyUSB0 --stats-interval 10": HARDWARE,
+    "usb2rc --config hotas.yaml --stats-interval 10 --stats-format json": PLACEHOLDER
+    + "; runs until stopped",
     "usb2rc --config hotas.yaml --port /dev/cu.usbserial-A10K1B2C": HARDWARE + " (macOS)",
     "usb2rc --config hotas.yaml --port COM3": HARDWARE + " (Windows)",
     "usb2rc --config hotas.yaml --port 'spy:///dev/ttyUSB0?file=/tmp/usb2rc-spy.txt'": HARDWARE,
@@ -124,8 +146,14 @@ def documented() -> dict[str, list[str]]:
     return seen
 
 
-def parse(command: str) -> argparse.Namespace:
+# Folders the docs name as placeholders: --replay wants a directory that exists.
+PLACEHOLDER_DIRS = {"DIR", "recordings/"}
+
+
+def parse(command: str, scratch: Path | None = None) -> argparse.Namespace:
     argv = shlex.split(command)[1:]
+    if scratch is not None:
+        argv = [str(scratch) if word in PLACEHOLDER_DIRS else word for word in argv]
     parser = cli.build_parser()
     subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     argv = cli._with_default_command(argv, set(subparsers.choices))
@@ -151,16 +179,17 @@ def test_extraction_rules():
 def test_every_documented_command_is_classified():
     seen = documented()
     assert seen, "no usb2rc command found in the docs"
-    assert not RUN & set(PARSE_ONLY)
-    unclassified = {cmd: where for cmd, where in seen.items() if cmd not in RUN | set(PARSE_ONLY)}
-    assert not unclassified, f"add these to RUN or PARSE_ONLY: {unclassified}"
-    stale = (RUN | set(PARSE_ONLY)) - set(seen)
+    classified = [*RUN, *PARSE_ONLY, *ROOTED]
+    assert len(classified) == len(set(classified)), "a command in two lists"
+    unclassified = {cmd: where for cmd, where in seen.items() if cmd not in classified}
+    assert not unclassified, f"add these to RUN, ROOTED or PARSE_ONLY: {unclassified}"
+    stale = set(classified) - set(seen)
     assert not stale, f"no longer in the docs: {sorted(stale)}"
 
 
-@pytest.mark.parametrize("command", sorted(RUN | set(PARSE_ONLY)))
-def test_documented_command_parses(command):
-    args = parse(command)
+@pytest.mark.parametrize("command", sorted(RUN | set(PARSE_ONLY) | set(ROOTED)))
+def test_documented_command_parses(command, tmp_path):
+    args = parse(command, tmp_path)
     assert getattr(args, "func", None), command
 
 
@@ -189,3 +218,45 @@ def test_offline_commands_run_and_exit_0():
         elif not out.strip():
             failures.append(f"{command}: printed nothing")
     assert not failures, "\n\n".join(failures)
+
+
+def rooted(command: str, root: Path) -> list[str]:
+    """The command's arguments with system paths under root (and --root for install-system)."""
+    args = [
+        str(root) + word if word.startswith(("/etc/", "/usr/")) else word
+        for word in shlex.split(command)[1:]
+    ]
+    return [*args, "--root", str(root)] if args[:1] == ["install-system"] else args
+
+
+def test_root_commands_run_against_a_scratch_root(tmp_path: Path) -> None:
+    for command in ROOTED:
+        result = subprocess.run(
+            [sys.executable, "-m", "usb2rc", *rooted(command, tmp_path)],
+            cwd=ROOT,
+            stdin=subprocess.DEVNULL,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=False,
+        )
+        assert result.returncode == 0, f"{command}: exit {result.returncode}\n{result.stderr}"
+    assert (tmp_path / "etc" / "usb2rc" / "usb2rc.yaml").is_file()
+
+
+def test_laptop_creates_the_group_the_udev_rule_names():
+    # udev skips GROUP= for a group that does not exist: the laptop steps must create it
+    rules = (ROOT / "usb2rc" / "data" / "system" / "70-usb2rc.rules").read_text()
+    named = set(re.findall(r'GROUP="([^"]+)"', rules))
+    laptop = (ROOT / "docs" / "LAPTOP.md").read_text()
+    created = set(re.findall(r"groupadd --system (\S+)", laptop))
+    assert named and named == created
+
+
+def test_install_docs_name_every_installed_path():
+    from usb2rc.commands.install_system import FILES
+
+    for doc in (ROOT / "docs" / "PI.md", SERVICE_NOTES):
+        text = doc.read_text()
+        missing = [f.target for f in FILES if f.target not in text]
+        assert not missing, f"{doc.name} does not say where these go: {missing}"

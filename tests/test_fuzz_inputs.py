@@ -38,7 +38,11 @@ DEVICES = {
     d["name"]: bytes.fromhex(d["hex"]) for d in json.loads((DATA / "real-devices.json").read_text())
 }
 LAYOUTS = {name: parse_descriptor(desc) for name, desc in DEVICES.items()}
-GOOD_CONFIGS = {p.name: p.read_text() for p in sorted((DATA / "configs" / "good").glob("*.yaml"))}
+STARTERS = ROOT / "usb2rc" / "data" / "config"  # the starter configs the package ships
+GOOD_CONFIGS = {
+    p.name: p.read_text()
+    for p in sorted((DATA / "configs" / "good").glob("*.yaml")) + sorted(STARTERS.glob("*.yaml"))
+}
 BROKEN_CONFIGS = {
     p.name: p.read_text() for p in sorted((DATA / "configs" / "broken").glob("*.yaml"))
 }

@@ -333,7 +333,8 @@ def test_open_errors_name_the_fix(tmp_path: Path, monkeypatch) -> None:
     with pytest.raises(DevicePermissionError) as caught:
         backend.open(info)
     message = str(caught.value)
-    assert "/dev/hidraw7" in message and "systemd/70-usb2rc.rules" in message
+    assert "/dev/hidraw7" in message and "`usb2rc install-system`" in message
+    assert "/etc/udev/rules.d/70-usb2rc.rules" in message and "systemd/" not in message
     assert "sudo udevadm control --reload && sudo udevadm trigger" in message
     assert "group" in message
     monkeypatch.setattr(hidapi_backend.os, "access", lambda p, mode: True)

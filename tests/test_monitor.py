@@ -32,7 +32,7 @@ from usb2rc.state import EventKind, ServiceEvent
 
 ROWS, COLS = 50, 140
 LOW, HIGH = "-" * monitor.BAR_WIDTH, "#" * monitor.BAR_WIDTH
-X_LINE = re.compile(r"^\s*x\s+\[([#-]+)\]\s+([+-]\d+)\s+<- (.*)$", re.MULTILINE)
+X_LINE = re.compile(r"^\s*x\s+\[([#-]+)\]\s+([+-]\d+)\s+raw\s+(-?\d+|-)\s+<- (.*)$", re.MULTILINE)
 ANSI = re.compile(r"\x1b(\[[0-?]*[ -/]*[@-~]|\][^\x07]*\x07|[()][0-9A-Za-z]|[=>78])")
 WAIT_S = 20.0
 
@@ -61,12 +61,18 @@ def monitor_argv(folder: Path, *extra: str) -> list[str]:
 
 
 def x_lines(screen: str) -> set[tuple[str, int, str]]:
-    return {(m[1], int(m[2]), m[3]) for m in X_LINE.finditer(screen)}
+    return {(m[1], int(m[2]), m[4]) for m in X_LINE.finditer(screen)}
+
+
+def x_raw_and_sent(screen: str) -> set[tuple[str, int]]:
+    """(raw, sent) of each x line: the raw HID value beside the value it sends."""
+    return {(m[3], int(m[2])) for m in X_LINE.finditer(screen)}
 
 
 def both_ends_seen(screen: str) -> bool:
     seen = {(bar, value) for bar, value, _ in x_lines(screen)}
-    return (LOW, -32768) in seen and (HIGH, 32767) in seen
+    ends = {("0", -32768), ("16383", 32767)}  # each raw end beside the value it sends
+    return (LOW, -32768) in seen and (HIGH, 32767) in seen and ends <= x_raw_and_sent(screen)
 
 
 def wait_until(read: Callable[[], str], done: Callable[[str], bool]) -> str:
@@ -82,6 +88,8 @@ def wait_until(read: Callable[[], str], done: Callable[[str], bool]) -> str:
 
 def check_screen(screen: str) -> None:
     sources = {source for _, _, source in x_lines(screen)}
+    reporting = {(raw, sent) for raw, sent in x_raw_and_sent(screen) if raw != "-"}
+    assert reporting <= {("0", -32768), ("16383", 32767)}, screen
     assert any(s.startswith("Thrustmaster T.16000M: X (raw 0..16383") for s in sources), sources
     assert "node 0" in screen and "LIVE" in screen
     assert "device Thrustmaster T.16000M (044f:b10a, port replay-stick)" in screen
@@ -217,7 +225,7 @@ def test_unplug_shows_failsafe_lost_device_and_events(tmp_path):
 
 
 def test_config_nodes_merged_devices_and_waiting_entry():
-    config = load_config(ROOT / "config" / "hotas.yaml")
+    config = load_config(ROOT / "usb2rc" / "data" / "config" / "hotas.yaml")
     side = monitor.InputSide(config, ReplayBackend(ROOT / "usb2rc" / "data" / "demo"))
     side.start()
     try:

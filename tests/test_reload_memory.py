@@ -1,7 +1,7 @@
 """A config reload keeps nothing of the config before it (issue 11: ~100 KB per SIGHUP).
 
 In-process: no YAML node outlives a load, and a few hundred loads allocate nothing that
-stays (tracemalloc). Slow: 1500 SIGHUPs to the real daemon with config/hotas.yaml, each
+stays (tracemalloc). Slow: 1500 SIGHUPs to the real daemon with the starter hotas.yaml, each
 waited for in its log, and its RSS from /proc flat after a warm-up.
 """
 
@@ -19,7 +19,7 @@ from daemon_harness import ROOT, DaemonProcess, PtyLine, StickState, install, re
 
 from usb2rc.config import load_config
 
-HOTAS = str(ROOT / "config" / "hotas.yaml")
+HOTAS = str(ROOT / "usb2rc" / "data" / "config" / "hotas.yaml")
 
 
 def yaml_nodes() -> int:
@@ -97,7 +97,7 @@ def test_1500_sighups_keep_rss_flat(tmp_path):
     replay.mkdir()
     install(replay / "stick.hid", recording([StickState()]))  # bound by the stick entry
     c2, sumd = PtyLine(), PtyLine("sumd")
-    config = tmp_path / "hotas.yaml"  # config/hotas.yaml, its SUMD port a pty we own
+    config = tmp_path / "hotas.yaml"  # the starter hotas.yaml, its SUMD port a pty we own
     config.write_text(Path(HOTAS).read_text().replace("/dev/ttyUSB0", sumd.path))
     args = ["--port", c2.path, "--replay", str(replay), "--config", str(config)]
     daemon = DaemonProcess([*args, "--log-level", "info"], tmp_path / "d.log")

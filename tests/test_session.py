@@ -37,6 +37,7 @@ Service = c2_16b.Service
 CONNECT = (Service.CONNECTED, Service.VID_PID, Service.DEVICE_STRING, Service.DEVICE_TYPE)
 CONNECT_NAMES = ["connected", "vid-pid", "device-string", "device-type"]
 NODES = 3
+LIVE = c2_16b.LIVE
 
 
 @dataclass
@@ -136,9 +137,11 @@ class Receiver:
     def _data(self, line: LineView, frame: c2_16b.DataFrame) -> None:
         node = frame.node_id
         assert node not in line.owes_disconnect, f"node {node} sent data before its `2`"
-        if frame.status == c2_16b.LIVE:
-            assert node in line.announced, f"node {node} `>` before its 1,6,5,7"
-        line.last_status[node] = frame.status
+        if frame.status != c2_16b.FAILSAFE:  # `>`, and `&` / `%`, which are live too
+            assert node in line.announced, f"node {node} `{chr(frame.status)}` before 1,6,5,7"
+        line.last_status[node] = c2_16b.FAILSAFE if frame.status == c2_16b.FAILSAFE else LIVE
+        if frame.status == c2_16b.HANDOVER:
+            return  # byte 4 is the destination: `&` frames use no message code
         dropped = self.dropped.get(node, 0)
         if node in self.codes:
             skipped = (frame.code - self.codes[node] - 1) & 0xFF

@@ -1,4 +1,5 @@
-"""Statistics: SIGUSR1 and `--stats-interval` log per-output and per-device figures.
+"""Statistics: SIGUSR1 and `--stats-interval` log per-output and per-device figures
+(`--stats-format json`: one JSON line per dump on stdout).
 
 The daemon runs as a subprocess on real ptys (a C2-16B and a SUMD output) with a replayed
 T.16000M; the far end sends garbage and a `<` request so the receive figures move too.
@@ -6,8 +7,11 @@ T.16000M; the far end sends garbage and a `<` request so the receive figures mov
 
 from __future__ import annotations
 
+import json
 import re
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -24,6 +28,7 @@ from daemon_harness import (
     services,
 )
 
+from usb2rc import stats_text
 from usb2rc.protocol import c2_16b, sumd
 
 STATES = [StickState(), StickState(x=0, buttons=1), StickState(x=16383, hat=4)]
@@ -141,3 +146,62 @@ def test_stats_interval_logs_periodically(tmp_path, line, sumd_line, replay_dir)
         assert writes == sorted(writes) and writes[-1] > writes[0]
     finally:
         assert daemon.stop() == 0
+
+
+def json_stats(text: str) -> list[dict]:
+    return [json.loads(line)["stats"] for line in text.splitlines() if line.startswith('{"stats"')]
+
+
+def test_sigusr1_with_json_stats_writes_one_json_line(tmp_path, line, sumd_line, replay_dir):
+    daemon = started(tmp_path, line, sumd_line, replay_dir, "--stats-format", "json")
+    try:
+        daemon.signal(signal.SIGUSR1)
+        text = wait_log(daemon, lambda t: len(json_stats(t)) >= 1)
+        daemon.signal(signal.SIGUSR1)
+        text = wait_log(daemon, lambda t: len(json_stats(t)) >= 2)
+    finally:
+        assert daemon.stop() == 0
+    first, second = json_stats(text)
+    assert "stats: output1" not in text  # json instead of the log lines, not as well
+    c2, sumd_out = first["outputs"]
+    assert (c2["name"], c2["url"]) == ("output1-c2-16b", line.path)
+    assert (sumd_out["name"], sumd_out["url"]) == ("output2-sumd", sumd_line.path)
+    assert "data_frames" in c2 and "data_frames" not in sumd_out  # C2-16B only
+    (device,) = first["devices"]
+    assert (device["name"], device["port_path"]) == ("Thrustmaster T.16000M", "replay-stick")
+    assert (device["reports"], device["bad_reports"]) == (len(STATES), 0)
+    # a fresh record each dump (the pty is not read now: the writes may have stalled)
+    assert second["uptime_s"] > first["uptime_s"]
+    assert second["outputs"][0]["ticks"] >= c2["ticks"]
+    # the log lines are the same record in words: the text format's regexes read them
+    assert C2_LINE.search("stats: " + stats_text.output_line(c2))
+    assert SUMD_LINE.search("stats: " + stats_text.output_line(sumd_out))
+    assert DEVICE_LINE.search("stats: " + stats_text.device_line(device))
+
+
+def test_json_stats_reader_going_away_does_not_stop_the_daemon(tmp_path, replay_dir):
+    # `usb2rc run --stats-format json | head -1`: once head is gone, the stats go to the log
+    install(replay_dir / "stick.hid", recording(STATES))
+    log_path = tmp_path / "daemon.log"
+    with open(log_path, "wb") as log_file:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "usb2rc", "run", "--replay", str(replay_dir), "--port",
+             "loop://", "--stats-format", "json", "--stats-interval", "0.2"],
+            stdout=subprocess.PIPE, stderr=log_file, stdin=subprocess.DEVNULL,
+        )  # fmt: skip
+        try:
+            assert proc.stdout is not None
+            assert json.loads(proc.stdout.readline())["stats"]["outputs"]
+            proc.stdout.close()
+            deadline = time.monotonic() + WAIT_S
+            while "stats: output1-c2-16b loop://" not in log_path.read_text():
+                assert proc.poll() is None, log_path.read_text()
+                assert time.monotonic() < deadline, log_path.read_text()
+                time.sleep(0.05)
+            assert "stdout is gone" in log_path.read_text()
+            proc.send_signal(signal.SIGTERM)
+            assert proc.wait(timeout=WAIT_S) == 0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()

@@ -14,7 +14,15 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
-from usb2rc.config_model import HAT_DIRECTIONS, AxisConfig, DeviceConfig, HatConfig
+from usb2rc.config_model import (
+    AUTO_LOW_BATTERY,
+    HAT_DIRECTIONS,
+    AxisConfig,
+    DeviceConfig,
+    HandoverConfig,
+    HatConfig,
+    LowBatteryConfig,
+)
 from usb2rc.hid.descriptor import DeviceLayout, InputField, InputState
 from usb2rc.hid.usages import (
     GD_DIAL,
@@ -70,6 +78,8 @@ class NodeInputs:
     axes: tuple[int | None, ...]  # 10 slots, None: this device does not feed the slot
     group1: int
     group2: int
+    handover: bool = False  # the handover button is down (docs/ICD.md, "Handover")
+    low_battery: bool = False  # the battery value is below its threshold ("Low battery")
 
 
 @dataclass(frozen=True)
@@ -83,6 +93,7 @@ class AxisInfo:
     unsigned: bool
     failsafe: int | None  # None: hold the last value
     shaping: str  # "linear" or e.g. "calibration 12/128/250, deadband 0.02, invert"
+    field_index: int | None = None  # the raw value's InputState.values index (None: buttons)
 
     @property
     def wire_range(self) -> tuple[int, int]:
@@ -133,6 +144,22 @@ class ButtonRun:
     mask: int
     group: int
     dest: int
+
+
+@dataclass(frozen=True)
+class BatteryPlan:
+    """Low battery: the field's raw value below `below` percent of its logical range."""
+
+    index: int  # InputState.values index
+    lo: int
+    hi: int
+    below: float  # percent
+    label: str  # "BatteryStrength", for describe()
+
+    def is_low(self, values: Sequence[int]) -> bool:
+        # (v - lo) / (hi - lo) < below / 100, without a division (a range of one value
+        # is never low: it says nothing)
+        return (values[self.index] - self.lo) * 100 < self.below * (self.hi - self.lo)
 
 
 @dataclass(frozen=True)
@@ -247,8 +274,13 @@ class DeviceBinding:
         hats: Sequence[HatPlan],
         hat_notes: Sequence[str] = (),
         where: Where | None = None,
+        handover: HandoverConfig | None = None,
+        battery: BatteryPlan | None = None,
     ) -> None:
         self.name = name
+        self.handover = handover  # what the node's `&` frames say (state.NodeFrame)
+        self._handover_mask = 1 << (handover.button - 1) if handover else 0
+        self.battery = battery
         self.node_id = node_id
         self.where = where
         self._axes = tuple((slot, fn) for slot, fn, _, _ in axes)
@@ -288,7 +320,10 @@ class DeviceBinding:
                 g1, g2 = plan.table[k]
                 groups[0] |= g1
                 groups[1] |= g2
-        return NodeInputs(tuple(axes), groups[0], groups[1])
+        low = self.battery is not None and self.battery.is_low(values)
+        return NodeInputs(
+            tuple(axes), groups[0], groups[1], bool(buttons & self._handover_mask), low
+        )
 
     def failsafe(self, last: NodeInputs | None = None) -> NodeInputs:
         """Axes: the configured failsafe value, else the last value (0 if none); no buttons."""
@@ -307,6 +342,13 @@ class DeviceBinding:
         lines += [f"  axis {info.describe()}" for info in self.axis_info if info is not None]
         lines += [f"  {line}" for line in describe_button_runs(self.button_runs)]
         lines += [f"  {note}" for note in self.hat_notes]
+        if self.handover is not None:
+            h = self.handover
+            how = "while held" if h.frames is None else f"{h.frames} frames a press"
+            lines.append(f"  handover: HID button {h.button} -> `&` to {h.destination} ({how})")
+        if self.battery is not None:
+            b = self.battery
+            lines.append(f"  low battery: {b.label} below {b.below:g} % -> `%`")
         return lines
 
 
@@ -355,6 +397,7 @@ def _field_axis(field: InputField, axis: AxisConfig | None, slot: str) -> tuple[
         bool(axis and axis.unsigned),
         axis.failsafe if axis else None,
         shaping_text(axis),
+        field.index,
     )
     return fn, info
 
@@ -392,7 +435,38 @@ def first_hat(layout: DeviceLayout) -> InputField | None:
     return next((f for f in layout.inputs if f.usage == GD_HAT_SWITCH), None)
 
 
-def default_binding(layout: DeviceLayout, name: str, node_id: int | None = None) -> DeviceBinding:
+def battery_plan(layout: DeviceLayout, config: LowBatteryConfig | None) -> BatteryPlan | None:
+    """The low-battery plan of a device: the configured field (MappingError if the device
+    lacks it), the automatic one where the device reports Battery Strength, or none."""
+    if config is None:
+        return None
+    for f in layout.inputs:
+        if f.usage == config.usage and f.occurrence == config.occurrence:
+            label = usage_label(f.usage, f.occurrence)
+            return BatteryPlan(f.index, f.logical_min, f.logical_max, config.below, label)
+    if config.auto or config.where is None:
+        return None
+    _find_field(layout, config.usage, config.occurrence, config.where, "low_battery usage")
+    return None  # not reached: _find_field raised
+
+
+def handover_of(layout: DeviceLayout, device: DeviceConfig) -> HandoverConfig | None:
+    """The entry's handover, checked against the device: its button must exist."""
+    handover = device.handover
+    if handover is not None and handover.button > layout.button_count:
+        raise MappingError(
+            f"{handover.where or device.where}: handover button {handover.button} is not in "
+            f"this device (its buttons: 1..{layout.button_count})"
+        )
+    return handover
+
+
+def default_binding(
+    layout: DeviceLayout,
+    name: str,
+    node_id: int | None = None,
+    device: DeviceConfig | None = None,
+) -> DeviceBinding:
     axes = []
     for slot, f in default_axis_fields(layout):
         fn, info = _field_axis(f, None, slot)
@@ -402,7 +476,12 @@ def default_binding(layout: DeviceLayout, name: str, node_id: int | None = None)
     if hat is not None:
         hats.append(hat_table(hat, "hat1"))
         notes.append(f"hat {usage_label(hat.usage, hat.occurrence)} -> hat1 (group 1 bits 24-31)")
-    return DeviceBinding(name, node_id, axes, DEFAULT_BUTTON_RUNS, hats, notes)
+    handover = handover_of(layout, device) if device else None
+    battery = battery_plan(layout, device.low_battery if device else AUTO_LOW_BATTERY)
+    where = device.where if device else None
+    return DeviceBinding(
+        name, node_id, axes, DEFAULT_BUTTON_RUNS, hats, notes, where, handover, battery
+    )
 
 
 # --------------------------------------------------------------------------- configured
@@ -427,16 +506,17 @@ def _configured_axis(layout: DeviceLayout, axis: AxisConfig) -> tuple[AxisFn, Ax
         f = _find_field(layout, axis.usage, axis.occurrence, axis.where, "usage")
         return _field_axis(f, axis, slot)
     lo, hi = (0, 1) if axis.buttons else (-1, 1)
+    index = None
     if axis.hat is not None:
         f = _find_field(layout, axis.hat, axis.occurrence, axis.where, "hat")
         label = f"{usage_label(f.usage, f.occurrence)} {axis.hat_axis}"
-        fn, lo, hi = _hat_axis(f, axis), f.logical_min, f.logical_max
+        fn, lo, hi, index = _hat_axis(f, axis), f.logical_min, f.logical_max, f.index
     else:
         assert axis.buttons is not None
         label = f"buttons {axis.buttons[0]}/{axis.buttons[1]} (-/+)"
         fn = _button_pair_axis(axis)
     shaping = shaping_text(axis)
-    info = AxisInfo(slot, label, lo, hi, axis.unsigned, axis.failsafe, shaping)
+    info = AxisInfo(slot, label, lo, hi, axis.unsigned, axis.failsafe, shaping, index)
     return fn, info
 
 
@@ -446,9 +526,7 @@ def configured_binding(
     """The entry's binding on this device; `button_runs`: the entry's, compiled already.
     Raises MappingError naming the config line when a usage is not in the device."""
     if device.default_layout:
-        binding = default_binding(layout, device.name, device.node_id)
-        binding.where = device.where
-        return binding
+        return default_binding(layout, device.name, device.node_id, device)
     if button_runs is None:
         button_runs = compile_button_runs([(r.hid, r.node) for r in device.buttons])
     axes = []
@@ -460,7 +538,11 @@ def configured_binding(
         f = _find_field(layout, hat.usage, hat.occurrence, hat.where, "hat")
         hats.append(hat_table(f, hat.to))
         notes.append(_hat_note(f, hat))
-    return DeviceBinding(device.name, device.node_id, axes, button_runs, hats, notes, device.where)
+    handover = handover_of(layout, device)
+    battery = battery_plan(layout, device.low_battery)
+    return DeviceBinding(
+        device.name, device.node_id, axes, button_runs, hats, notes, device.where, handover, battery
+    )
 
 
 def _hat_note(f: InputField, hat: HatConfig) -> str:

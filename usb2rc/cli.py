@@ -8,6 +8,7 @@ sub-parser and sets `func=run` on it; `run(args) -> int` returns the exit status
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import os
 import sys
@@ -27,6 +28,9 @@ COMMANDS: dict[str, str] = {
     "icd": "icd",
     "monitor": "monitor",
     "record": "record",
+    "init": "init",
+    "calibrate": "calibrate",
+    "install-system": "install_system",
 }
 
 
@@ -62,6 +66,20 @@ def _with_default_command(argv: list[str], known: set[str]) -> list[str]:
     return ["run", *argv]
 
 
+def _unknown_command(argv: list[str], known: set[str]) -> str | None:
+    """The error for `usb2rc bogus`: a first word that is no option and no command (the
+    default command `run` takes no positional argument, so it cannot be meant for it)."""
+    if not argv or argv[0].startswith("-") or argv[0] in known:
+        return None
+    close = difflib.get_close_matches(argv[0], sorted(known), n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return f"unknown command {argv[0]!r}{hint}; commands: {', '.join(known_in_order(known))}"
+
+
+def known_in_order(known: set[str]) -> list[str]:
+    return [name for name in COMMANDS if name in known]
+
+
 def _install_early_signals(args_list: list[str]) -> None:
     """Before anything slow (build_parser imports every command, then the config is read).
 
@@ -84,6 +102,9 @@ def main(argv: list[str] | None = None) -> int:
         action for action in parser._actions if isinstance(action, argparse._SubParsersAction)
     )
     known = set(subparsers.choices)
+    unknown = _unknown_command(args_list, known)
+    if unknown is not None:
+        parser.error(unknown)  # exit 2
     if "run" in known:
         args_list = _with_default_command(args_list, known)
     args = parser.parse_args(args_list)

@@ -21,7 +21,7 @@ public names (import them from here):
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import dataclasses
 from typing import Any
 
 from yaml.nodes import Node
@@ -44,10 +44,16 @@ from usb2rc.config_model import (
     ChannelRef,
     Config,
     DeviceConfig,
+    HandoverConfig,
     HatConfig,
+    LowBatteryConfig,
     MatchConfig,
     OutputConfig,
 )
+from usb2rc.config_status import check_handovers
+from usb2rc.outputs import OutputProtocol, option_keys
+from usb2rc.outputs import protocol as output_protocol
+from usb2rc.port_url import url_problem
 from usb2rc.yamlnodes import ConfigError, NodeReader, Problem, Where, compose, decode
 
 __all__ = [
@@ -66,7 +72,9 @@ __all__ = [
     "Config",
     "ConfigError",
     "DeviceConfig",
+    "HandoverConfig",
     "HatConfig",
+    "LowBatteryConfig",
     "MatchConfig",
     "OutputConfig",
     "Problem",
@@ -78,12 +86,9 @@ __all__ = [
 ]
 
 TOP_KEYS = ("outputs", "devices", "defaults")
-OUTPUT_KEYS = (
-    "protocol", "port", "baudrate", "rate_hz", "line_feed", "service_status", "channels",
-    "extended",
-)  # fmt: skip
-C2_ONLY_KEYS = ("line_feed", "service_status")
-SUMD_ONLY_KEYS = ("channels", "extended")
+COMMON_OUTPUT_KEYS = ("protocol", "port", "baudrate", "rate_hz")
+OUTPUT_KEYS = (*COMMON_OUTPUT_KEYS, "channels", *option_keys())
+_CONFIG_FIELDS = {f.name for f in dataclasses.fields(OutputConfig)}
 
 
 def load_config(path: str) -> Config:
@@ -105,6 +110,7 @@ def load_config_text(text: str, source: str = "<config>") -> Config:
     if config is not None:
         check_clashes(reader, config)
         check_channels(reader, config)
+        check_handovers(reader, config)
     if reader.problems:
         raise ConfigError(sorted(reader.problems, key=lambda p: p.line or 0))
     assert config is not None
@@ -137,46 +143,87 @@ def _read_output(reader: NodeReader, node: Node, path: str) -> OutputConfig | No
     if "protocol" not in items:
         reader.error(node, f"{path}.protocol", "missing", ", ".join(PROTOCOLS))
         return None
-    protocol = reader.choice(items["protocol"][1], f"{path}.protocol", PROTOCOLS)
-    if protocol is None:
+    name = reader.choice(items["protocol"][1], f"{path}.protocol", PROTOCOLS)
+    if name is None:
         return None
-    wrong = SUMD_ONLY_KEYS if protocol == "c2-16b" else C2_ONLY_KEYS
-    for key in wrong:
-        if key in items:
-            reader.error(items[key][0], f"{path}.{key}", f"not an option of {protocol} outputs")
-    values: dict[str, Any] = {"protocol": protocol, "where": reader.where(node, path)}
-    values["rate_hz"] = DEFAULT_RATE_HZ[protocol]
-    readers: dict[str, Callable[[Node, str], Any]] = {
-        "port": reader.string,
-        "baudrate": lambda n, p: reader.integer(n, p, 1200, 4_000_000),
-        "rate_hz": lambda n, p: reader.number(n, p, 1, 1000),
-        "line_feed": reader.boolean,
-        "service_status": lambda n, p: reader.choice(n, p, ("ascii", "binary")),
-        "extended": reader.boolean,
+    entry = output_protocol(name)
+    own = {*COMMON_OUTPUT_KEYS, *entry.options, *(("channels",) if entry.channels else ())}
+    for key in items:
+        if key not in own:
+            reader.error(items[key][0], f"{path}.{key}", f"not an option of {name} outputs")
+    values: dict[str, Any] = {
+        "protocol": name,
+        "where": reader.where(node, path),
+        "rate_hz": entry.default_rate_hz,
+        "baudrate": entry.default_baudrate,
     }
-    for key, read in readers.items():
-        if key in items and key not in wrong:
-            value = read(items[key][1], f"{path}.{key}")
-            if value is not None:
+    if "port" in items:
+        values["port"] = _read_port(reader, items["port"][1], f"{path}.port")
+    if "baudrate" in items:
+        values["baudrate"] = reader.integer(
+            items["baudrate"][1], f"{path}.baudrate", 1200, 4_000_000
+        )
+    if "rate_hz" in items:
+        values["rate_hz"] = reader.number(items["rate_hz"][1], f"{path}.rate_hz", 1, 1000)
+    options: list[tuple[str, Any]] = []
+    for key, option in entry.options.items():
+        if key in items:
+            value = option.read(reader, items[key][1], f"{path}.{key}")
+            if value is not None and key in _CONFIG_FIELDS:
                 values[key] = value
-    if "channels" in items and "channels" not in wrong:
-        channels = _read_channels(reader, items["channels"][1], f"{path}.channels")
+            elif value is not None:
+                options.append((key, value))
+    values["options"] = tuple(options)
+    if entry.channels and "channels" in items:
+        channels = _read_channels(reader, items["channels"][1], f"{path}.channels", entry)
         if channels is not None:
             values["channels"], values["channel_wheres"] = channels
-    return OutputConfig(**values)
+    elif entry.channels_required:
+        reader.error(node, f"{path}.channels", f"missing: {name} outputs list their channels")
+    values = {key: value for key, value in values.items() if value is not None}
+    output = OutputConfig(**values)
+    _check_bandwidth(reader, entry, output, items, path)
+    return output
+
+
+def _check_bandwidth(
+    reader: NodeReader, entry: OutputProtocol, output: OutputConfig, items: Any, path: str
+) -> None:
+    """One frame a tick must fit the line: frame bytes × rate × bit times a byte ≤ baud."""
+    if not entry.channels:
+        return  # C2-16B sends as many nodes a tick as fit, round-robin (docs/ICD.md)
+    count = len(output.channels) if output.channels is not None else len(SUMD_DEFAULT_SLOTS)
+    problem = entry.bandwidth_problem(output.baudrate, output.rate_hz, count)
+    if problem is None:
+        return
+    key = "rate_hz" if "rate_hz" in items else "baudrate" if "baudrate" in items else None
+    if key is None:
+        reader.error(items["protocol"][0], f"{path}.protocol", problem)
+    else:
+        reader.error(items[key][1], f"{path}.{key}", problem)
+
+
+def _read_port(reader: NodeReader, node: Node, path: str) -> str | None:
+    """A port name pyserial can parse (usb2rc.port_url): `foo://bar` is a config error."""
+    port = reader.string(node, path)
+    problem = None if port is None else url_problem(port)
+    if problem is not None:
+        reader.error(node, path, f"{port!r} is not a port pyserial can open: {problem}")
+        return None
+    return port
 
 
 def _read_channels(
-    reader: NodeReader, node: Node, path: str
+    reader: NodeReader, node: Node, path: str, output: OutputProtocol
 ) -> tuple[tuple[ChannelRef, ...], tuple[Where, ...]] | None:
     """The channel references (parsed here, once) and where each is; bad names reported."""
     entries = reader.sequence(node, path)
     if entries is None:
         return None
-    if not SUMD_MIN_CHANNELS <= len(entries) <= SUMD_MAX_CHANNELS:
-        reader.error(
-            node, path, f"{len(entries)} channels", f"{SUMD_MIN_CHANNELS}..{SUMD_MAX_CHANNELS}"
-        )
+    assert output.channels is not None
+    low, high = output.channels
+    if not low <= len(entries) <= high:
+        reader.error(node, path, f"{len(entries)} channels", f"{low}..{high}")
     refs: list[ChannelRef] = []
     wheres: list[Where] = []
     for i, entry in enumerate(entries):

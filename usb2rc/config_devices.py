@@ -13,6 +13,7 @@ from typing import Any
 from yaml.nodes import Node, ScalarNode
 
 from usb2rc.config_model import (
+    AUTO_LOW_BATTERY,
     HAT_DIRECTIONS,
     MAX_HID_BUTTON,
     AxisConfig,
@@ -20,41 +21,24 @@ from usb2rc.config_model import (
     Calibration,
     DeviceConfig,
     HatConfig,
+    LowBatteryConfig,
     MatchConfig,
 )
-from usb2rc.hid.usages import GD_HAT_SWITCH, usage_from_name
+from usb2rc.config_status import read_handover, read_low_battery
+from usb2rc.config_usages import read_usage, read_usage_occurrence
+from usb2rc.hid.usages import GD_HAT_SWITCH
 from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
 from usb2rc.protocol.c2_16b import MAX_NODE_ID as NODE_ID_MAX
 from usb2rc.protocol.c2_16b import NODE_BUTTONS
 from usb2rc.yamlnodes import Items, NodeReader, show
 
-DEVICE_KEYS = ("name", "match", "node_id", "axes", "buttons", "hats")
+DEVICE_KEYS = ("name", "match", "node_id", "axes", "buttons", "hats", "handover", "low_battery")
 MATCH_KEYS = ("vid", "pid", "serial", "port", "product")
 AXIS_KEYS = (
     "usage", "occurrence", "hat", "axis", "buttons", "calibration", "deadband", "expo",
     "invert", "trim", "unsigned", "failsafe",
 )  # fmt: skip
 HAT_KEYS = ("usage", "occurrence", "to")
-USAGES_ALLOWED = (
-    "a usage name such as X, Y, Z, Rx, Ry, Rz, Slider, Dial, Wheel, HatSwitch, Throttle, "
-    "Rudder, Aileron, Elevator, Accelerator, Brake, Steering, or 0xPPPPUUUU"
-)
-
-
-def read_usage(reader: NodeReader, node: Node, path: str) -> int | None:
-    """A usage by name (`X`, `Throttle`, case-insensitive) or number (`0xPPPPUUUU`)."""
-    value = reader.scalar(node)
-    text = f"0x{value:08X}" if isinstance(value, int) and not isinstance(value, bool) else None
-    text = text or (value if isinstance(value, str) else None)
-    if text is not None:
-        try:
-            return usage_from_name(text)
-        except (KeyError, ValueError):
-            pass
-    reader.error(node, path, f"unknown usage {show(node)}", USAGES_ALLOWED)
-    return None
-
-
 # --------------------------------------------------------------------------- devices
 
 
@@ -96,8 +80,15 @@ def _read_device(reader: NodeReader, node: Node, path: str) -> DeviceConfig | No
     if "hats" in items:
         hats = reader.list_of(items["hats"][1], f"{path}.hats", _read_hat)
     default_layout = not any(key in items for key in ("axes", "buttons", "hats"))
+    handover = None
+    if "handover" in items:
+        handover = read_handover(reader, items["handover"][1], f"{path}.handover")
+    low_battery: LowBatteryConfig | None = AUTO_LOW_BATTERY
+    if "low_battery" in items:
+        low_battery = read_low_battery(reader, items["low_battery"][1], f"{path}.low_battery")
+    where = reader.where(node, path)
     return DeviceConfig(
-        name, match, node_id, axes, buttons, hats, default_layout, reader.where(node, path)
+        name, match, node_id, axes, buttons, hats, default_layout, where, handover, low_battery
     )
 
 
@@ -327,12 +318,7 @@ def _read_hat(reader: NodeReader, node: Node, path: str) -> HatConfig | None:
     items = reader.mapping(node, path, HAT_KEYS)
     if items is None:
         return None
-    usage: int | None = GD_HAT_SWITCH
-    if "usage" in items:
-        usage = read_usage(reader, items["usage"][1], f"{path}.usage")
-    occurrence = 0
-    if "occurrence" in items:
-        occurrence = reader.integer(items["occurrence"][1], f"{path}.occurrence", 0, 255) or 0
+    usage, occurrence = read_usage_occurrence(reader, items, path, GD_HAT_SWITCH)
     if "to" not in items:
         reader.error(node, f"{path}.to", "missing", "hat1, or a list of 8 node buttons")
         return None

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
+from usb2rc.hid.usages import GDC_BATTERY_STRENGTH
+from usb2rc.outputs import PROTOCOLS as OUTPUT_PROTOCOLS
 from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
 from usb2rc.protocol.c2_16b import MAX_NODE_ID as NODE_ID_MAX
 from usb2rc.protocol.c2_16b import NODE_BUTTONS
@@ -18,8 +20,8 @@ from usb2rc.yamlnodes import Where
 
 MAX_HID_BUTTON = 65535
 HAT_DIRECTIONS = ("up", "up-right", "right", "down-right", "down", "down-left", "left", "up-left")
-PROTOCOLS = ("c2-16b", "sumd")
-DEFAULT_RATE_HZ = {"c2-16b": 50, "sumd": 100}
+PROTOCOLS = tuple(OUTPUT_PROTOCOLS)  # the registry in usb2rc/outputs/__init__.py
+DEFAULT_RATE_HZ = {name: entry.default_rate_hz for name, entry in OUTPUT_PROTOCOLS.items()}
 DEFAULT_BAUDRATE = 115200
 SUMD_MIN_CHANNELS, SUMD_MAX_CHANNELS = 2, 32
 SUMD_DEFAULT_SLOTS = ("x", "y", "z", "rz", "slider", "rx", "ry", "dial")
@@ -111,6 +113,36 @@ class HatConfig:
 
 
 @dataclass(frozen=True)
+class HandoverConfig:
+    """A HID button that makes the node send `&` (handover) frames to `destination`
+    (docs/ICD.md, "Handover"): while it is held (`frames` None), or `frames` frames a press."""
+
+    button: int  # HID button of the device, 1-based
+    destination: int  # 0..255: byte 4 of the `&` frames
+    frames: int | None = None
+    where: Where | None = field(default=None, compare=False)
+
+
+LOW_BATTERY_PERCENT = 20  # the default threshold: below 20 % of the field's range
+
+
+@dataclass(frozen=True)
+class LowBatteryConfig:
+    """A value that makes the node send `%` (low battery) frames while it is below `below`
+    percent of its logical range (docs/ICD.md, "Low battery"). `auto`: the default, used
+    only when the device has the usage (Battery Strength); a configured one must exist."""
+
+    usage: int = GDC_BATTERY_STRENGTH
+    occurrence: int = 0
+    below: float = LOW_BATTERY_PERCENT
+    auto: bool = True
+    where: Where | None = field(default=None, compare=False)
+
+
+AUTO_LOW_BATTERY = LowBatteryConfig()
+
+
+@dataclass(frozen=True)
 class MatchConfig:
     vid: int | None = None
     pid: int | None = None
@@ -129,6 +161,8 @@ class DeviceConfig:
     hats: tuple[HatConfig, ...]
     default_layout: bool  # True when the entry lists none of axes / buttons / hats
     where: Where
+    handover: HandoverConfig | None = None
+    low_battery: LowBatteryConfig | None = AUTO_LOW_BATTERY  # None: `low_battery: false`
 
 
 @dataclass(frozen=True)
@@ -147,6 +181,15 @@ class OutputConfig:
     extended: bool = False  # SUMD: axes onto 900-2100 µs instead of 1100-1900 µs
     where: Where | None = None
     channel_wheres: tuple[Where, ...] = field(default=(), compare=False)  # one per channel
+    # Protocol-only keys that are not fields above (the registry's `options`), as set.
+    options: tuple[tuple[str, Any], ...] = ()
+
+    def option(self, name: str) -> Any:
+        """A protocol-only key's value: as configured, else the registry's default."""
+        for key, value in self.options:
+            if key == name:
+                return value
+        return OUTPUT_PROTOCOLS[self.protocol].options[name].default
 
     def __post_init__(self) -> None:
         given: tuple[ChannelRef | str, ...] | None = self.channels

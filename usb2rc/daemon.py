@@ -17,8 +17,9 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
-from usb2rc import __version__
+from usb2rc import __version__, stats_text
 from usb2rc.config import Config, OutputConfig
 from usb2rc.hid.backend import Backend, Device
 from usb2rc.hid.descriptor import DeviceLayout
@@ -26,12 +27,12 @@ from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.lifecycle import DeviceLifecycle
 from usb2rc.mapping import Mapping, compile_mapping
-from usb2rc.outputs.sumd import SumdChannels
-from usb2rc.protocol import c2_16b
-from usb2rc.scheduler import C2Output, RxThread, SumdOutput, TickThread, queue_cap
-from usb2rc.session import C2Settings, frames_per_tick
+from usb2rc.outputs import protocol
+from usb2rc.outputs.wiring import OutputContext
+from usb2rc.scheduler import C2Output, CrsfOutput, RxThread, TickThread
 from usb2rc.state import Expected, ExpectedEntry, NodeTable
 from usb2rc.transport import SerialLink
+from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc")
 
@@ -56,7 +57,7 @@ class _Output:
     config: OutputConfig
     link: SerialLink
     thread: TickThread
-    rx: RxThread | None = None
+    rx: Worker | None = None
 
 
 def outputs_with_port(config: Config, port_override: str | None) -> tuple[OutputConfig, ...]:
@@ -86,6 +87,24 @@ def expected_nodes(config: Config | Mapping) -> Expected:
         expected = ExpectedEntry(entry.failsafe, entry.unsigned_slots)
         nodes.setdefault(entry.node_id, {})[entry.name] = expected
     return nodes
+
+
+def crsf_stats(output: CrsfOutput) -> dict[str, Any]:
+    """A CRSF output's link quality, timing and what it withheld, for `stats`/`monitor`:
+    the figures for scripts, and `module`, the line a person reads."""
+    session, decoder = output.crsf, output.crsf.decoder
+    link = session.link
+    return {
+        "module": session.link_text(time.monotonic()),
+        "link_quality_up": None if link is None else link.uplink_link_quality,
+        "link_quality_down": None if link is None else link.downlink_link_quality,
+        "frames_withheld": session.withheld,
+        "module_rx_frames": decoder.frames,
+        "module_rx_crc_failures": decoder.crc_failures,
+        "module_rx_skipped": decoder.bytes_skipped,
+        "timing_corrections": session.timing_frames,
+        "timing_corrections_ignored": session.timing_ignored,
+    }
 
 
 class Daemon:
@@ -125,29 +144,14 @@ class Daemon:
     # --- outputs ---------------------------------------------------------------------------
 
     def _make_output(self, index: int, out: OutputConfig) -> _Output:
+        """The protocol's build function (the registry in usb2rc/outputs) makes its pieces."""
         assert out.port
         name = f"output{index + 1}-{out.protocol}"
-        if out.protocol == "sumd":
-            channels = SumdChannels.of(self.mapping.sumd_channels(out), out.extended)
-            cap = queue_cap(channels.frame_length)
-            link = SerialLink(out.port, out.baudrate, max_queued_bytes=cap)
-            thread: TickThread = SumdOutput(
-                name, link, self.table, channels, out.rate_hz, self._tick, self._first_write
-            )
-            return _Output(out, link, thread)
-        settings = C2Settings(
-            rate_hz=out.rate_hz,
-            baudrate=out.baudrate,
-            line_feed=out.line_feed,
-            binary_status=out.service_status == "binary",
-            version=self.version,
+        context = OutputContext(
+            name, out, self.mapping, self.table, self._tick, self._first_write, self.version
         )
-        frame_len = c2_16b.FRAME_LEN + (1 if out.line_feed else 0)
-        tick_bytes = frames_per_tick(out.baudrate, out.rate_hz, frame_len) * frame_len
-        link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(tick_bytes))
-        c2 = C2Output(name, link, self.table, settings, self._tick, self._first_write)
-        rx = RxThread(f"{name}-rx", link, c2.received.put)
-        return _Output(out, link, c2, rx)
+        built = protocol(out.protocol).build(context)
+        return _Output(out, built.link, built.thread, built.rx)
 
     def _first_write(self) -> None:
         self._status("running: frames on " + ", ".join(o.link.url for o in self.outputs))
@@ -262,43 +266,70 @@ class Daemon:
     # --- stats -----------------------------------------------------------------------------
 
     def stats_lines(self) -> list[str]:
-        lines = []
-        for out in self.outputs:
-            st, link = out.thread.stats, out.link.stats
-            p99 = st.period_p99_error_ms(out.thread.period_s)
-            line = (
-                f"{out.thread.name} {out.link.url}: writes {st.writes}, ticks {st.ticks}, "
-                f"late {st.late_ticks}, missed {st.missed_ticks}, p99 |period error| "
-                f"{p99:.3f} ms, bytes {link.bytes_written}, queue-full skips "
-                f"{link.writes_skipped_queue_full}, write timeouts {link.write_timeouts}, "
-                f"short writes {link.short_writes}, stalls {st.stalls}, "
-                f"stale flushes {link.flushes}, "
-                f"line lost {link.losses}x, tick errors {st.tick_errors}"
-            )
-            if isinstance(out.thread, C2Output):
-                line += (
-                    f", data frames {st.data_frames}, service frames {st.service_frames}, "
-                    f"round-robin deferrals {st.deferred_nodes}"
-                )
-            if out.rx is not None:
-                dec = out.rx.decoder
-                line += (
-                    f", rx bytes {link.bytes_read}, rx skipped {dec.bytes_skipped}, "
-                    f"rx crc failures {dec.crc_failures}, requests {out.rx.requests}"
-                )
-            lines.append(line)
+        return stats_text.stats_lines(self.stats_record())
+
+    def stats_record(self) -> dict[str, Any]:
+        """Every counter, per output and per device (keys: usb2rc.stats_text); plain JSON
+        values, so `run --stats-format json` prints it as it is."""
         now = time.monotonic()
         uptime = max(1e-9, now - self.started_at)
-        for reader in self.lifecycle.readers:
-            info, record = reader.info, reader.record
-            age = f"{now - record.at:.2f} s" if record.at is not None else "never"
-            line = (
-                f"device {info.product or info.path} ({info.port_path}): "
-                f"{record.reports} reports ({record.reports / uptime:.1f}/s avg), "
-                f"bad {record.bad_reports}, last report {age} ago"
-            )
-            busy_s = getattr(reader.device, "busy_s", None)  # the replay backend's own work
-            if busy_s is not None:
-                line += f", backend busy {busy_s * 1000:.1f} ms"
-            lines.append(line)
-        return lines
+        return {
+            "uptime_s": round(uptime, 3),
+            "outputs": [self._output_stats(out) for out in self.outputs],
+            "devices": [
+                self._device_stats(reader, now, uptime) for reader in self.lifecycle.readers
+            ],
+        }
+
+    def _output_stats(self, out: _Output) -> dict[str, Any]:
+        st, link = out.thread.stats, out.link.stats
+        record: dict[str, Any] = {
+            "name": out.thread.name,
+            "url": out.link.url,
+            "writes": st.writes,
+            "ticks": st.ticks,
+            "late_ticks": st.late_ticks,
+            "missed_ticks": st.missed_ticks,
+            "period_p99_error_ms": st.period_p99_error_ms(out.thread.period_s),
+            "bytes_written": link.bytes_written,
+            "queue_full_skips": link.writes_skipped_queue_full,
+            "write_timeouts": link.write_timeouts,
+            "short_writes": link.short_writes,
+            "stalls": st.stalls,
+            "stale_flushes": link.flushes,
+            "line_losses": link.losses,
+            "tick_errors": st.tick_errors,
+        }
+        if isinstance(out.thread, C2Output):
+            record["data_frames"] = st.data_frames
+            record["service_frames"] = st.service_frames
+            record["round_robin_deferrals"] = st.deferred_nodes
+            record["handover_frames"] = st.handover_frames
+            record["handovers_cut"] = st.handovers_cut
+            record["low_battery_frames"] = st.low_battery_frames
+        if isinstance(out.thread, CrsfOutput):
+            record.update(crsf_stats(out.thread))
+        if isinstance(out.rx, RxThread):
+            record["rx_bytes"] = link.bytes_read
+            record["rx_skipped"] = out.rx.decoder.bytes_skipped
+            record["rx_crc_failures"] = out.rx.decoder.crc_failures
+            record["rx_requests"] = out.rx.requests
+        return record
+
+    @staticmethod
+    def _device_stats(reader: DeviceReader, now: float, uptime: float) -> dict[str, Any]:
+        info, record = reader.info, reader.record
+        stats: dict[str, Any] = {
+            "name": info.product or info.path,
+            "port_path": info.port_path,
+            "vid": info.vid,
+            "pid": info.pid,
+            "reports": record.reports,
+            "reports_per_s": record.reports / uptime,
+            "bad_reports": record.bad_reports,
+            "last_report_age_s": None if record.at is None else now - record.at,
+        }
+        busy_s = getattr(reader.device, "busy_s", None)  # the replay backend's own work
+        if busy_s is not None:
+            stats["backend_busy_ms"] = busy_s * 1000
+        return stats

@@ -23,6 +23,8 @@ class NodeView:
     group2: int = 0
     frames: int = 0
     code_gaps: int = 0
+    coded: bool = False  # a frame with a message code came (`&` frames carry none)
+    handover_to: int | None = None  # the destination of the last `&` frame
     product: str = ""
     device_type: str = ""
     vid_pid: str = ""
@@ -63,10 +65,15 @@ class ReceiverModel:
 
     def _data(self, frame: c2_16b.DataFrame, now: float) -> None:
         node = self._node(frame.node_id)
-        if node.frames and frame.code != (node.code + 1) & 0xFF:
-            node.code_gaps += 1
+        if frame.status == c2_16b.HANDOVER:
+            # byte 4 is the destination, not a code: the code count goes on after the `&`s
+            # (docs/ICD.md, "Handover")
+            node.handover_to = frame.code
+        else:
+            if node.coded and frame.code != (node.code + 1) & 0xFF:
+                node.code_gaps += 1
+            node.code, node.coded = frame.code, True
         node.status = chr(frame.status)
-        node.code = frame.code
         node.axes = tuple(frame.axes)
         node.group1, node.group2 = frame.group1, frame.group2
         node.frames += 1
@@ -91,6 +98,8 @@ class ReceiverModel:
             detail = node.device_type
         elif frame.service == c2_16b.Service.ERROR:
             detail = f"error code {frame.error_code}"
+        if frame.code:  # a service code (byte 4): usb2rc sends none, others may
+            detail = f"{detail} (service code {frame.code})".lstrip()
         self._log(f"node {frame.node_id}: {name} {detail}".rstrip())
 
     def _log(self, event: str) -> None:

@@ -20,13 +20,15 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from usb2rc.outputs.sumd import SumdChannels
+from usb2rc.outputs.channels import OutputChannels
 from usb2rc.protocol import c2_16b
+from usb2rc.rc_sessions import CrsfSession
 from usb2rc.session import (  # noqa: F401 - re-exported: their home used to be here
     BITS_PER_BYTE_ON_WIRE,
     C2Session,
     C2Settings,
     Delivered,
+    FrameLineSession,
     SumdSession,
     baud_needed,
     device_string_text,
@@ -60,6 +62,9 @@ class OutputStats:
     data_frames: int = 0
     service_frames: int = 0
     deferred_nodes: int = 0
+    handover_frames: int = 0  # `&`, `%` and the `&` a failsafe cut (docs/ICD.md, "Handover")
+    handovers_cut: int = 0
+    low_battery_frames: int = 0
     tick_errors: int = 0
     stalls: int = 0
     periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
@@ -116,7 +121,7 @@ class TickThread(Worker):
                 self.stats.ticks += 1
                 self.last_tick_monotonic = time.monotonic()
                 self._safe_call(self.on_tick)
-            deadline += self.period_s
+            deadline = self.next_due(deadline)
             behind = time.monotonic() - deadline
             if behind >= 0:  # a whole tick lost: skip it, never burst to catch up
                 missed = int(behind // self.period_s) + 1
@@ -127,6 +132,11 @@ class TickThread(Worker):
     def wait(self, delay_s: float) -> bool:
         """Between ticks: wait delay_s, or less if stopped (then True)."""
         return self.sleep(delay_s)
+
+    def next_due(self, due: float) -> float:
+        """When the tick after the one due at `due` is due (an output whose session sets
+        its own pace, CRSF, overrides this)."""
+        return due + self.period_s
 
     def _safe_tick(self) -> bool:
         """One tick; a bug in it is logged (once per kind) and counted, never kills the
@@ -176,7 +186,7 @@ class _LineThread(TickThread):
         self,
         name: str,
         link: SerialLink,
-        session: C2Session | SumdSession,
+        session: C2Session | FrameLineSession,
         rate_hz: float,
         on_tick: Callable[[], None] | None,
         on_first_write: Callable[[], None] | None,
@@ -299,6 +309,10 @@ class C2Output(_LineThread):
         self._take_received()
         delivered = self.send(self.c2.tick(events, frames))
         self.stats.deferred_nodes = self.c2.deferred_nodes
+        statuses = self.c2.statuses
+        self.stats.handover_frames = statuses.handover_frames
+        self.stats.handovers_cut = statuses.handovers_cut
+        self.stats.low_battery_frames = statuses.low_battery_frames
         if delivered is not None:
             self.stats.service_frames += delivered.service_frames
             self.stats.data_frames += delivered.data_frames
@@ -312,45 +326,99 @@ class C2Output(_LineThread):
             self.c2.received(frame)
 
 
-class SumdOutput(_LineThread):
-    """HoTT SUMD: one frame of the configured channels per tick (100 Hz); the channels'
-    values are the SUMD output's (`usb2rc.outputs.sumd.SumdChannels`)."""
+class ChannelOutput(_LineThread):
+    """A channel output (SUMD, CRSF, SBUS): one frame of the configured channels per tick;
+    the values are the output's channels' (`usb2rc.outputs.channels.OutputChannels`), the
+    frame the session's."""
 
     def __init__(
         self,
         name: str,
         link: SerialLink,
         table: NodeTable,
-        channels: SumdChannels,
-        rate_hz: float = 100.0,
+        channels: OutputChannels,
+        session: FrameLineSession,
+        rate_hz: float,
         on_tick: Callable[[], None] | None = None,
         on_first_write: Callable[[], None] | None = None,
     ) -> None:
-        self.sumd = SumdSession()
-        super().__init__(name, link, self.sumd, rate_hz, on_tick, on_first_write)
+        super().__init__(name, link, session, rate_hz, on_tick, on_first_write)
+        self.frame_session = session
         self.table = table
         self.channels = channels
 
     def tick(self) -> None:
         self.follow_link()
-        if not self.sumd.line_open or self.sumd.stalled:
+        if not self.frame_session.line_open or self.frame_session.stalled:
             return
         values, failsafe = self.channels.evaluate(self.table.frames())
-        self.send(self.sumd.tick(values, failsafe))
+        self.send(self.frame_session.tick(values, failsafe))
 
 
-class RxThread(Worker):
-    """Reads what the far end sends on a C2-16B line and hands each frame to `on_frame`
-    (the output thread's queue: its session answers `<` and `4` requests)."""
+class SumdOutput(ChannelOutput):
+    """HoTT SUMD: one frame of the configured channels per tick (100 Hz)."""
 
     def __init__(
-        self, name: str, link: SerialLink, on_frame: Callable[[c2_16b.Frame], None]
+        self,
+        name: str,
+        link: SerialLink,
+        table: NodeTable,
+        channels: OutputChannels,
+        rate_hz: float = 100.0,
+        on_tick: Callable[[], None] | None = None,
+        on_first_write: Callable[[], None] | None = None,
+    ) -> None:
+        self.sumd = SumdSession()
+        super().__init__(name, link, table, channels, self.sumd, rate_hz, on_tick, on_first_write)
+
+
+class CrsfOutput(ChannelOutput):
+    """CRSF to a transmitter module: RC frames at the module's pace when it gives one; what
+    the module sends back comes from the RX thread (`received`, a queue) into the session."""
+
+    def __init__(
+        self,
+        name: str,
+        link: SerialLink,
+        table: NodeTable,
+        channels: OutputChannels,
+        session: CrsfSession,
+        on_tick: Callable[[], None] | None = None,
+        on_first_write: Callable[[], None] | None = None,
+    ) -> None:
+        rate_hz = 1.0 / session.configured_interval_s
+        super().__init__(name, link, table, channels, session, rate_hz, on_tick, on_first_write)
+        self.crsf = session
+        # bytes the module sent, with when they were read (RX thread -> this thread)
+        self.received: queue.SimpleQueue[tuple[bytes, float]] = queue.SimpleQueue()
+
+    def tick(self) -> None:
+        while True:
+            try:
+                data, at = self.received.get_nowait()
+            except queue.Empty:
+                break
+            self.crsf.received(data, at)
+        super().tick()
+
+    def next_due(self, due: float) -> float:
+        """The session says when: the module's interval and phase while it sends timing
+        corrections, the configured rate otherwise."""
+        now = time.monotonic()
+        self.period_s = self.crsf.interval_s(now)
+        return self.crsf.next_send(due, now)
+
+
+class ReplyRx(Worker):
+    """Reads what the far end of a channel output sends (a CRSF module's telemetry) and
+    hands the bytes, with when they were read, to `on_bytes` (the output thread's queue)."""
+
+    def __init__(
+        self, name: str, link: SerialLink, on_bytes: Callable[[tuple[bytes, float]], None]
     ) -> None:
         super().__init__(name)
         self.link = link
-        self.on_frame = on_frame
-        self.decoder = c2_16b.Decoder()
-        self.requests = 0
+        self.on_bytes = on_bytes
 
     def run(self) -> None:
         while not self.stopping:
@@ -359,8 +427,24 @@ class RxThread(Worker):
                 continue
             data = self.link.read()
             if data:
-                for frame in self.decoder.feed(data):
-                    self._hand_over(frame)
+                self.on_bytes((data, time.monotonic()))
+
+
+class RxThread(ReplyRx):
+    """Reads what the far end sends on a C2-16B line and hands each frame to `on_frame`
+    (the output thread's queue: its session answers `<` and `4` requests)."""
+
+    def __init__(
+        self, name: str, link: SerialLink, on_frame: Callable[[c2_16b.Frame], None]
+    ) -> None:
+        super().__init__(name, link, self._decode)
+        self.on_frame = on_frame
+        self.decoder = c2_16b.Decoder()
+        self.requests = 0
+
+    def _decode(self, received: tuple[bytes, float]) -> None:
+        for frame in self.decoder.feed(received[0]):
+            self._hand_over(frame)
 
     def _hand_over(self, frame: c2_16b.Frame) -> None:
         if is_request(frame):
@@ -369,7 +453,11 @@ class RxThread(Worker):
 
 
 def is_request(frame: c2_16b.Frame) -> bool:
-    """A `<` config request or a `4` poll request: what the far end may ask."""
+    """A `<` config request or a `4` poll request: what the far end may ask.
+
+    Byte 4 does not matter (docs/ICD.md, "UART receive"): a `<`'s is the far end's message
+    code, a `4`'s a service code, which the ICD leaves TBD; a poll that carries one is still
+    a poll, and answering it costs at most one connect sequence (never queued twice)."""
     if isinstance(frame, c2_16b.DataFrame):
         return frame.status == c2_16b.CONFIG_REQUEST
     return frame.service is c2_16b.Service.POLL

@@ -33,7 +33,10 @@ Invariants, whatever the line does (docs/ICD.md, "Service frames" and "A stalled
   drop frames: the receiver then sees a gap, never a code twice);
 - a service frame cut short is sent again;
 - after a flush the line starts over: the startup frame, a `2` for each node announced on the
-  line whose device left since, the connect sequence of every device present.
+  line whose device left since, the connect sequence of every device present;
+- a data frame's status is `!` unless the node is live and announced; then `&` while a
+  handover asks for it, else `%` while its battery is low, else `>` (docs/ICD.md, "Status
+  priority"). A `&` carries its destination in byte 4 and uses no message code.
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 
+from usb2rc.data_status import DataStatuses
 from usb2rc.protocol import c2_16b, sumd
 from usb2rc.state import EventKind, NodeFrame, ServiceEvent
 
@@ -120,6 +124,7 @@ class _Slot:
     startup: bool = False
     owed: _Owed | None = None
     data_node: int | None = None
+    status: int = 0  # a data frame's status byte (`&`: byte 4 is its destination, not a code)
 
 
 @dataclass(frozen=True)
@@ -157,6 +162,7 @@ class C2Session:
         self.stalled = False  # a write put out less than it was given: wait for the drain
         self.stalls = 0
         self.deferred_nodes = 0
+        self.statuses = DataStatuses(name)  # `!` `&` `%` `>`, and the handover presses
         self._startup_due = True
         self._owed: deque[_Owed] = deque()
         self._codes: dict[int, int] = {}
@@ -225,6 +231,7 @@ class C2Session:
         self._told.clear()
         self._left_told.clear()
         self._last, self._last_len = [], 0
+        self.statuses.line_reset()
 
     # --- events from the far end ---------------------------------------------------------
 
@@ -272,6 +279,7 @@ class C2Session:
         `room_frames`: how many frames the line carries this tick (default: the baud rate's
         share of a tick). Call `wrote()` with what went out before the next tick."""
         self._track_presence(events)
+        self.statuses.follow(frames)
         self._last, self._last_len = [], 0
         if not self.line_open:
             self._requests.clear()
@@ -302,8 +310,10 @@ class C2Session:
         ready = [f for f in frames if f.node_id not in held]
         for frame in self._choose_nodes(ready, frames, room - len(out)):
             live = not frame.failsafe and frame.node_id in announced
-            data = self._data_frame(frame, self._codes.get(frame.node_id, 0), live)
-            self._add(out, slots, data, _Slot(0, data_node=frame.node_id))
+            code = self._codes.get(frame.node_id, 0)
+            status, byte4 = self.statuses.choose(frame, live, code)
+            data = self._data_frame(frame, status, byte4)
+            self._add(out, slots, data, _Slot(0, data_node=frame.node_id, status=status))
         self._last = slots
         self._last_len = sum(map(len, out))
         return b"".join(out)
@@ -372,7 +382,8 @@ class C2Session:
                 service += self._confirm(slot)
             if slot.data_node is not None and slot.end <= sent + unsure:
                 node = slot.data_node
-                self._codes[node] = (self._codes.get(node, 0) + 1) & 0xFF
+                if self.statuses.sent(node, slot.status):  # a `&` uses no message code
+                    self._codes[node] = (self._codes.get(node, 0) + 1) & 0xFF
                 self._on_line.add(node)
                 data += 1
         if unsure:
@@ -468,11 +479,11 @@ class C2Session:
             _Owed(event, Service.DEVICE_TYPE, c2_16b.device_type(node, event.device_type, **kw)),
         ]
 
-    def _data_frame(self, frame: NodeFrame, code: int, live: bool) -> bytes:
+    def _data_frame(self, frame: NodeFrame, status: int, byte4: int) -> bytes:
         return c2_16b.encode_data(
-            c2_16b.LIVE if live else c2_16b.FAILSAFE,
+            status,
             frame.node_id,
-            code,
+            byte4,
             frame.axes,
             frame.group1,
             frame.group2,
@@ -490,11 +501,13 @@ class C2Session:
         return len(self._owed)
 
 
-class SumdSession:
-    """The SUMD line: one frame a tick while the line is open and not stalled.
+class FrameLineSession:
+    """A channel output's line: one frame a tick while the line is open and not stalled.
 
-    SUMD has no service state, so a stall only stops the frames (the values would be stale);
-    a frame cut short fails the receiver's CRC and is not sent again."""
+    Such a protocol has no service state, so a stall only stops the frames (the values would
+    be stale); a frame cut short fails the receiver's check and is not sent again. A
+    subclass says what the frame is (`frame`); SUMD here, CRSF and SBUS in
+    `usb2rc.rc_sessions`."""
 
     def __init__(self) -> None:
         self.line_open = False
@@ -515,11 +528,15 @@ class SumdSession:
         """The stale frames were dropped: nothing to announce, the next frame is fresh."""
         self.stalled = False
 
+    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        """This tick's frame of the channels' wire values (b"": nothing this tick)."""
+        raise NotImplementedError
+
     def tick(self, channels: Sequence[int], failsafe: bool) -> bytes:
         self._last_len = 0
         if not self.line_open or self.stalled:
             return b""
-        frame = sumd.encode_sumd(channels, failsafe=failsafe)
+        frame = self.frame(channels, failsafe)
         self._last_len = len(frame)
         return frame
 
@@ -531,3 +548,10 @@ class SumdSession:
         self.stalled = self.stalled or stalled
         self._last_len = 0
         return Delivered(0, 1 if whole else 0, stalled)
+
+
+class SumdSession(FrameLineSession):
+    """The SUMD line: one frame a tick (status 0x81 while failsafe)."""
+
+    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        return sumd.encode_sumd(channels, failsafe=failsafe)

@@ -18,6 +18,7 @@ from enum import Enum
 from typing import Any, Protocol
 
 from usb2rc.binding import DeviceBinding, NodeInputs
+from usb2rc.config_model import HandoverConfig
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.protocol.c2_16b import AXIS_COUNT
@@ -48,6 +49,9 @@ class NodeFrame:
     group1: int
     group2: int
     unsigned_slots: int = 0  # bit k set: axis slot k is a uint16 (binding.unsigned_slots)
+    # the status a live node asks for (the session decides: docs/ICD.md, "Status priority")
+    handover: HandoverConfig | None = None  # a handover button is down: `&`, and where to
+    low_battery: bool = False  # a device's battery is low: `%`
 
 
 @dataclass(frozen=True)
@@ -123,6 +127,8 @@ class _Node:
     def frame(self) -> NodeFrame:
         axes = [0] * AXIS_COUNT
         group1 = group2 = unsigned = 0
+        handover: HandoverConfig | None = None
+        low_battery = False
         for entry in self.expected.values():
             _merge_axes(axes, entry.inputs)
             unsigned |= entry.unsigned_slots
@@ -132,7 +138,19 @@ class _Node:
             group1 |= inputs.group1
             group2 |= inputs.group2
             unsigned |= attached.binding.unsigned_slots  # computed once, with the binding
-        return NodeFrame(self.node_id, self.failsafe, tuple(axes), group1, group2, unsigned)
+            if inputs.handover:  # one handover button per node (config_status)
+                handover = attached.binding.handover
+            low_battery = low_battery or inputs.low_battery
+        return NodeFrame(
+            self.node_id,
+            self.failsafe,
+            tuple(axes),
+            group1,
+            group2,
+            unsigned,
+            handover,
+            low_battery,
+        )
 
     def failsafe_change(self) -> str | None:
         """A log line when the node entered or left failsafe since the last call."""

@@ -132,9 +132,13 @@ class SerialLink:
         write_timeout_s: float = 0.005,
         max_queued_bytes: int = 4096,
         reopen_interval_s: float = 1.0,
+        parity: str = serial.PARITY_NONE,
+        stopbits: float = serial.STOPBITS_ONE,
     ) -> None:
         self.url = url
         self.baudrate = baudrate
+        self.parity = parity  # SBUS: even parity, two stop bits (8E2)
+        self.stopbits = stopbits
         self.write_timeout_s = write_timeout_s
         self.max_queued_bytes = max_queued_bytes
         self.reopen_interval_s = reopen_interval_s
@@ -192,6 +196,8 @@ class SerialLink:
             port = serial.serial_for_url(
                 self.url,
                 baudrate=self.baudrate,
+                parity=self.parity,
+                stopbits=self.stopbits,
                 timeout=0.05,
                 write_timeout=self.write_timeout_s,
                 exclusive=True,

@@ -1,17 +1,24 @@
 """`usb2rc check [--config FILE] [--replay DIR]`: validate a config before anything is sent.
 
 Exit 0 with a one-screen summary of outputs, nodes and channels; exit 2 with every error
-found, one `file:line: key: message` per line. With `--replay DIR`, each hid-recorder file in
-DIR is bound as the daemon would bind that device: its node and any usage it lacks.
+found, one `file:line: key: message` per line. Warnings (on stderr, `file:line: key: warning:
+...`) do not change the exit code: what the SUMD decoders of PX4, ArduPilot and Betaflight
+would not take of a SUMD output, and SUMD channels on a node no entry pins. With
+`--replay DIR`, each hid-recorder file in DIR is bound as the daemon would bind that device:
+its node and any usage it lacks.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import re
 import sys
 from dataclasses import dataclass
+from typing import Any
 
 from usb2rc.binding import DeviceBinding, MappingError
+from usb2rc.commands.arguments import replay_dir
 from usb2rc.config import (
     Config,
     ConfigError,
@@ -25,6 +32,8 @@ from usb2rc.hid.descriptor import DescriptorError, parse_descriptor
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.hid.replay import ReplayBackend
 from usb2rc.mapping import Mapping, compile_mapping
+from usb2rc.outputs import protocol
+from usb2rc.outputs.sumd_receivers import receiver_warnings
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -35,7 +44,15 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     )
     parser.add_argument("--config", metavar="FILE", help="YAML config (default: zero config)")
     parser.add_argument(
-        "--replay", metavar="DIR", help="also bind each hid-recorder file in DIR as a device"
+        "--replay",
+        metavar="DIR",
+        type=replay_dir,
+        help="also bind each hid-recorder file in DIR as a device",
+    )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="one JSON document: the problems as records (file, line, key, message, severity)",
     )
     parser.set_defaults(func=run)
 
@@ -100,8 +117,15 @@ def describe_output(output: OutputConfig) -> str:
     if output.protocol == "c2-16b":
         lf = "line feed" if output.line_feed else "no line feed"
         return f"{text}  {lf}, service status {output.service_status}"
-    ranges = "900-2100 us" if output.extended else "1100-1900 us"
-    return f"{text}  axes {ranges}"
+    if output.protocol == "sumd":
+        ranges = "900-2100 us" if output.extended else "1100-1900 us"
+        return f"{text}  axes {ranges}"
+    if output.protocol == "crsf":
+        follow = "follows the module's rate" if output.option("follow_module") else "own rate"
+        return f"{text}  axes 172..1811 (988-2012 us), {follow}, no frames while failsafe"
+    if output.protocol == "sbus":
+        return f"{text}  8E2, axes 172..1811, frame-lost + failsafe flags while failsafe"
+    return text
 
 
 def describe_device(device: DeviceConfig) -> str:
@@ -114,6 +138,8 @@ def describe_device(device: DeviceConfig) -> str:
         parts.append(f"{len(device.buttons)} buttons")
     for hat in device.hats:
         parts.append("hat1" if hat.to == "hat1" else "hat -> buttons")
+    if device.handover is not None:
+        parts.append(f"handover button {device.handover.button} -> {device.handover.destination}")
     return f"{device.name}: " + ", ".join(parts or ["nothing mapped"])
 
 
@@ -121,7 +147,7 @@ def summary(config: Config, mapping: Mapping) -> list[str]:
     lines = [f"{config.source}: OK", "outputs:"]
     for output in config.outputs:
         lines.append(f"  {describe_output(output)}")
-        if output.protocol == "sumd":
+        if protocol(output.protocol).channels:
             names = [c.name for c in mapping.sumd_channels(output)]
             lines.append(f"    {len(names)} channels: {' '.join(names)}")
     lines.append("nodes:")
@@ -134,6 +160,16 @@ def summary(config: Config, mapping: Mapping) -> list[str]:
     other = "default layout, automatic node" if config.defaults else "ignored (defaults: false)"
     lines.append(f"  devices without an entry: {other}")
     return lines
+
+
+def warnings(config: Config, mapping: Mapping) -> list[Problem]:
+    """What a receiver would not take (the config is still good: exit 0)."""
+    pinned = mapping.pinned_node_ids()
+    return [
+        problem
+        for output in config.outputs
+        for problem in receiver_warnings(output, mapping.sumd_channels(output), pinned)
+    ]
 
 
 def replay_lines(devices: list[BoundDevice], problems: list[str]) -> list[str]:
@@ -152,6 +188,8 @@ def replay_lines(devices: list[BoundDevice], problems: list[str]) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.json:
+        return run_json(args)
     try:
         config = load_or_default(args.config)
     except ConfigError as exc:
@@ -161,8 +199,97 @@ def run(args: argparse.Namespace) -> int:
         return 2
     mapping = compile_mapping(config)
     print("\n".join(summary(config, mapping)))
+    for warning in warnings(config, mapping):
+        print(warning, file=sys.stderr)
     if not args.replay:
         return 0
     devices, problems = bind_replay(mapping, args.replay)
     print("\n".join(replay_lines(devices, problems)))
     return 2 if any(d.error for d in devices) else 0
+
+
+# --------------------------------------------------------------------------- --json
+# `usb2rc check --json`: the same verdict as `check`, as one JSON document on stdout.
+#
+#     {"config": FILE | null, "ok": bool,
+#      "problems": [{"file", "line", "key", "message", "severity", "allowed", "suggestion"}],
+#      "outputs": [...], "replay": [...]}   # replay: with --replay DIR only
+#
+# Every config problem is an `error` (exit 2, as without --json); with `--replay DIR`, a device
+# that cannot be bound is an `error` too (at the config line it names, `recording`: which
+# device) and a file in DIR that is no usable recording a `warning` (the exit stays 0, as
+# the text summary only lists it).
+
+
+def problem_record(problem: Problem, severity: str = "error") -> dict[str, Any]:
+    return {
+        "file": problem.source,
+        "line": problem.line,
+        "key": problem.key,
+        "message": problem.message,
+        "severity": severity,
+        "allowed": problem.allowed or None,
+        "suggestion": problem.suggestion,
+    }
+
+
+def output_records(config: Config) -> list[dict[str, Any]]:
+    return [
+        {
+            "protocol": out.protocol,
+            "port": out.port,
+            "baudrate": out.baudrate,
+            "rate_hz": out.rate_hz,
+        }
+        for out in config.outputs
+    ]
+
+
+def device_record(device: BoundDevice) -> dict[str, Any]:
+    info = device.info
+    return {
+        "file": info.path,
+        "vid": info.vid,
+        "pid": info.pid,
+        "product": info.product,
+        "used": device.binding is not None and not device.error,
+        "node_id": device.node_id,
+        "entry": device.binding.name if device.binding is not None else None,
+        "error": device.error or None,
+    }
+
+
+# A mapping error names the config line it comes from: `file:line: key: message`.
+CONFIG_LINE = re.compile(r"^(?P<file>.+?):(?P<line>\d+): (?P<key>[^\s:]+): (?P<message>.+)$")
+
+
+def bind_problem(device: BoundDevice) -> dict[str, Any]:
+    """A device the config does not fit: at the config line when the error names one (for
+    an editor to jump to), else at the recording; `recording` says which device it was."""
+    match = CONFIG_LINE.match(device.error)
+    if match is None:
+        problem = Problem(device.info.path, None, None, device.error)
+    else:
+        problem = Problem(match["file"], int(match["line"]), match["key"], match["message"])
+    return {**problem_record(problem), "recording": device.info.path}
+
+
+def run_json(args: argparse.Namespace) -> int:
+    document: dict[str, Any] = {"config": args.config, "ok": True, "problems": []}
+    try:
+        config = load_or_default(args.config)
+    except ConfigError as exc:
+        document["ok"] = False
+        document["problems"] = [problem_record(p) for p in exc.problems]
+        print(json.dumps(document, indent=2))
+        return 2
+    document["outputs"] = output_records(config)
+    if args.replay:
+        devices, problems = bind_replay(compile_mapping(config), args.replay)
+        document["replay"] = [device_record(d) for d in devices]
+        document["problems"] = [bind_problem(d) for d in devices if d.error] + [
+            problem_record(Problem(args.replay, None, None, p), "warning") for p in problems
+        ]
+        document["ok"] = not any(d.error for d in devices)
+    print(json.dumps(document, indent=2))
+    return 0 if document["ok"] else 2

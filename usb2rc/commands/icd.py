@@ -9,11 +9,15 @@ bits, and each SUMD output's channel list with its µs ranges. For a receiver-si
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from usb2rc.binding import shaping_text, usage_label
-from usb2rc.commands.check import bind_replay, load_or_default
+from usb2rc.commands.arguments import replay_dir
+from usb2rc.commands.check import bind_replay, device_record, load_or_default, output_records
 from usb2rc.config import (
     HAT_DIRECTIONS,
     AxisConfig,
@@ -37,7 +41,12 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     )
     parser.add_argument("--config", metavar="FILE", help="YAML config (default: zero config)")
     parser.add_argument("--format", choices=FORMATS, default="markdown")
-    parser.add_argument("--replay", metavar="DIR", help="also describe the devices in DIR")
+    parser.add_argument(
+        "--replay", metavar="DIR", type=replay_dir, help="also describe the devices in DIR"
+    )
+    parser.add_argument(
+        "--json", action="store_true", help="the same tables as one JSON document, for scripts"
+    )
     parser.set_defaults(func=run)
 
 
@@ -136,6 +145,24 @@ def default_layout_lines() -> list[str]:
     ]
 
 
+def rc11_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
+    """CRSF / SBUS channels: 11-bit values and what a receiver makes of them."""
+    rows: list[list[object]] = []
+    sources = mapping.sumd_channels(output)
+    for i, source in enumerate(sources, start=1):
+        digital = output.protocol == "sbus" and i > 16
+        if source.kind == "button":
+            wire = "flag off / on" if digital else "172 / 1811 (988 / 2012 µs)"
+            rows.append([i, source.name, "button", wire])
+        else:
+            kind = "axis, unsigned" if source.unsigned else "axis, signed"
+            wire = "flag on above 992" if digital else "172..1811, centre 992 (988..2012 µs)"
+            rows.append([i, source.name, kind, wire])
+    if len(sources) < 16:
+        rows.append([f"{len(sources) + 1}..16", "(not listed)", "", "172 (988 µs)"])
+    return rows
+
+
 def sumd_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
     lo, hi = (900, 2100) if output.extended else (1100, 1900)
     rows: list[list[object]] = []
@@ -168,7 +195,26 @@ def node_section(config: Config, node_id: int, fmt: str) -> list[str]:
     lines += (
         table(["switch", "group 1 bit", "direction", "device", "hat"], rows, fmt) if rows else []
     )
-    return lines
+    return lines + status_lines(devices)
+
+
+def status_lines(devices: Sequence[DeviceConfig]) -> list[str]:
+    """When the node sends `&` and `%` (docs/ICD.md, "Status priority")."""
+    lines = []
+    for device in devices:
+        handover, battery = device.handover, device.low_battery
+        if handover is not None:
+            how = "while held" if handover.frames is None else f"{handover.frames} frames a press"
+            lines.append(
+                f"Status `&` (byte 4 = destination {handover.destination}): HID button "
+                f"{handover.button} of {device.name}, {how}; no message code is used."
+            )
+        if battery is not None:
+            source = f"{usage_label(battery.usage, battery.occurrence)} of {device.name}"
+            if battery.auto:
+                source += " (if the device reports it)"
+            lines.append(f"Status `%`: {source} below {battery.below:g} %.")
+    return [*lines, ""] if lines else []
 
 
 def _device_label(device: DeviceConfig) -> str:
@@ -190,6 +236,8 @@ def document(config: Config, fmt: str) -> list[str]:
         "(unsigned: without - 32768). Node buttons 1-24 are group 1 bits 0-23, node buttons",
         f"25-56 group 2 bits 0-31 (button n > {GROUP1_BUTTONS}: bit n - 25); group 1 bits 24-31",
         "are hat1. Unfed axes send 0, unfed bits 0.",
+        "Status: `!` in failsafe, else `&` (handover) while asked, else `%` while a battery is",
+        "low, else `>`.",
         "",
     ]
     lines += heading("Outputs", 2, fmt)
@@ -209,7 +257,22 @@ def document(config: Config, fmt: str) -> list[str]:
         if output.protocol == "sumd":
             lines += heading(f"SUMD output {i + 1} ({output.port or '--port'})", 2, fmt)
             lines += table(["channel", "source", "kind", "µs"], sumd_rows(mapping, output), fmt)
+        elif output.protocol in RC11_NOTES:
+            name = output.protocol.upper()
+            lines += heading(f"{name} output {i + 1} ({output.port or '--port'})", 2, fmt)
+            lines += [RC11_NOTES[output.protocol], ""]
+            lines += table(["channel", "source", "kind", "wire"], rc11_rows(mapping, output), fmt)
     return lines
+
+
+RC11_NOTES = {
+    "crsf": "RC_CHANNELS_PACKED (0x16) to address 0xEE, 16 × 11 bits. While a listed channel's "
+    "node is in failsafe no RC frame is sent: the ExpressLRS module stops and the receiver's "
+    'own failsafe takes over (docs/ICD.md, "CRSF failsafe").',
+    "sbus": "25-byte frames, 100000 baud 8E2, inverted. While a listed channel's node is in "
+    'failsafe the frames carry the frame-lost and failsafe flags (docs/ICD.md, "SBUS output"); '
+    "channels 17 and 18 are the digital flags.",
+}
 
 
 def replay_section(config: Config, directory: str, fmt: str) -> list[str]:
@@ -227,6 +290,8 @@ def replay_section(config: Config, directory: str, fmt: str) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.json:
+        return run_json(args)
     try:
         config = load_or_default(args.config)
     except ConfigError as exc:
@@ -236,4 +301,84 @@ def run(args: argparse.Namespace) -> int:
     if args.replay:
         lines += replay_section(config, args.replay, args.format)
     print("\n".join(lines).rstrip())
+    return 0
+
+
+# --------------------------------------------------------------------------- --json
+# `usb2rc icd --json`: the application ICD's tables as one JSON document, for scripts.
+#
+# The rows are the ones the markdown / text document above prints, each a
+# record; values are the same (an axis range "-32768..32767", a failsafe "hold last" or a
+# number):
+#
+#     {"config": FILE | null,
+#      "outputs": [{"protocol", "port", "baudrate", "rate_hz"}],
+#      "nodes": [{"node_id", "devices": [{"name", "match", "default_layout"}],
+#                 "axes": [{"slot", "device", "source", "kind", "range", "failsafe", "shaping"}],
+#                 "buttons": [{"button", "group", "bit", "device", "source"}],
+#                 "hats": [{"switch", "bit", "direction", "device", "hat"}]}],
+#      "devices_without_entry": "default layout, automatic node" | "ignored",
+#      "sumd": [{"output", "port", "channels": [{"channel", "source", "kind", "us"}]}],
+#      "replay": [...]}                                   # with --replay DIR only
+
+AXIS_KEYS = ("slot", "device", "source", "kind", "range", "failsafe", "shaping")
+BUTTON_KEYS = ("button", "group", "bit", "device", "source")
+HAT_KEYS = ("switch", "bit", "direction", "device", "hat")
+SUMD_KEYS = ("channel", "source", "kind", "us")
+
+
+def records(keys: Sequence[str], rows: Sequence[Sequence[object]]) -> list[dict[str, object]]:
+    return [dict(zip(keys, row, strict=True)) for row in rows]
+
+
+def device_entry(device: DeviceConfig) -> dict[str, Any]:
+    match = {k: v for k, v in dataclasses.asdict(device.match).items() if v is not None}
+    return {"name": device.name, "match": match, "default_layout": device.default_layout}
+
+
+def node_record(config: Config, node_id: int) -> dict[str, Any]:
+    devices = [d for d in config.devices if d.node_id == node_id]
+    configured = [d for d in devices if not d.default_layout]
+    return {
+        "node_id": node_id,
+        "devices": [device_entry(d) for d in devices],
+        "axes": records(AXIS_KEYS, axis_rows(configured)),
+        "buttons": records(BUTTON_KEYS, button_rows(configured)),
+        "hats": records(HAT_KEYS, hat_rows(configured)),
+    }
+
+
+def json_document(config: Config) -> dict[str, Any]:
+    mapping = compile_mapping(config)
+    return {
+        "config": config.source,
+        "outputs": output_records(config),
+        "nodes": [node_record(config, n) for n in sorted(mapping.pinned_node_ids())],
+        "devices_without_entry": (
+            "default layout, automatic node" if config.defaults else "ignored"
+        ),
+        "sumd": [
+            {
+                "output": i + 1,
+                "port": out.port,
+                "channels": records(SUMD_KEYS, sumd_rows(mapping, out)),
+            }
+            for i, out in enumerate(config.outputs)
+            if out.protocol == "sumd"
+        ],
+    }
+
+
+def run_json(args: argparse.Namespace) -> int:
+    try:
+        config = load_or_default(args.config)
+    except ConfigError as exc:
+        print("\n".join(exc.errors), file=sys.stderr)
+        return 2
+    doc = json_document(config)
+    if args.replay:
+        devices, problems = bind_replay(compile_mapping(config), args.replay)
+        doc["replay"] = [device_record(d) for d in devices]
+        doc["replay_problems"] = problems
+    print(json.dumps(doc, indent=2, ensure_ascii=False))
     return 0

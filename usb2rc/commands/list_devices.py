@@ -11,13 +11,17 @@ import argparse
 import json
 import sys
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from usb2rc.commands.arguments import replay_dir
 from usb2rc.hid.backend import Backend, DeviceInfo, DevicePermissionError
 from usb2rc.hid.choose import choose_backend
 from usb2rc.hid.hotplug import sort_by_port_path
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
-from usb2rc.hid.permissions import UDEV_RULES_FILE
+from usb2rc.hid.permissions import INSTALL_RULE
+
+if TYPE_CHECKING:
+    from usb2rc.hid.descriptor import DeviceLayout
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -28,7 +32,9 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--json", action="store_true", help="machine-readable output")
-    parser.add_argument("--replay", metavar="DIR", help="list the recordings in DIR instead")
+    parser.add_argument(
+        "--replay", metavar="DIR", type=replay_dir, help="list the recordings in DIR instead"
+    )
     parser.add_argument("--all", action="store_true", help="include non-joystick HID devices")
     parser.add_argument("--config", metavar="FILE", help="take Node-ID pins from this config")
     parser.set_defaults(func=run)
@@ -58,29 +64,39 @@ def load_mapping(path: str | None) -> Any:
     return compile_mapping(load_config(path))
 
 
-def inspect(backend: Backend, info: DeviceInfo, mapping: Any) -> Row:
-    """Open the device, parse its descriptor, bind it: would usb2rc use it, and if not why."""
+class UnreadableDevice(Exception):
+    """A device whose layout cannot be read; the message says why (permission, descriptor)."""
+
+
+def read_layout(backend: Backend, info: DeviceInfo) -> DeviceLayout:
+    """Open the device and parse its report descriptor; raises UnreadableDevice."""
     from usb2rc.hid.descriptor import DescriptorError, parse_descriptor
 
+    try:
+        device = backend.open(info)
+    except DevicePermissionError as exc:
+        raise UnreadableDevice(exc.strerror or str(exc)) from None
+    except OSError as exc:
+        raise UnreadableDevice(f"cannot open: {exc.strerror or exc}") from None
+    try:
+        return parse_descriptor(device.report_descriptor())
+    except (DescriptorError, OSError) as exc:
+        raise UnreadableDevice(f"report descriptor unusable: {exc}") from None
+    finally:
+        device.close()
+
+
+def inspect(backend: Backend, info: DeviceInfo, mapping: Any) -> Row:
+    """Open the device, parse its descriptor, bind it: would usb2rc use it, and if not why."""
     row = Row(info)
     if not info.usable:
         row.problem = f"not a joystick-like device ({info.usage_name})"
         return row
     try:
-        device = backend.open(info)
-    except DevicePermissionError as exc:
-        row.problem = exc.strerror or str(exc)
+        layout = read_layout(backend, info)
+    except UnreadableDevice as exc:
+        row.problem = str(exc)
         return row
-    except OSError as exc:
-        row.problem = f"cannot open: {exc.strerror or exc}"
-        return row
-    try:
-        layout = parse_descriptor(device.report_descriptor())
-    except (DescriptorError, OSError) as exc:
-        row.problem = f"report descriptor unusable: {exc}"
-        return row
-    finally:
-        device.close()
     binding = mapping.bind(info, layout) if mapping is not None else None
     if mapping is not None and binding is None:
         row.problem = "ignored by the config"
@@ -145,7 +161,7 @@ def no_devices_hint(replay: str | None) -> str:
     return (
         "No HID joysticks found. Plug one in, or try `usb2rc list --replay DIR` with "
         "hid-recorder files (the package ships some in usb2rc/data/demo). If a device is "
-        f"plugged in but missing, check its permissions: install {UDEV_RULES_FILE} "
+        f"plugged in but missing, check its permissions: install the udev rule with {INSTALL_RULE} "
         "(see `usb2rc list --all`)."
     )
 

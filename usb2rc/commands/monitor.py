@@ -1,12 +1,14 @@
 """`usb2rc monitor [--config FILE] [--replay DIR] [--seconds N] [--plain]`: a live input view.
 
 For setting up a HOTAS: every node with its failsafe state, each axis as a bar with the value
-it would carry on the wire and the device and usage feeding it, the pressed node buttons and
-the hat, the service events an output would send, and each device's report count. It runs
-the daemon's own input side (hot-plug, one reader thread per device, the compiled mapping,
-the node table) and opens no serial port. On a terminal it redraws about 10 times a second
-(plain ANSI, fine over SSH); with `--plain`, or when stdout is not a terminal, it prints a
-text snapshot once a second.
+it would carry on the wire, the raw HID value it comes from and the device and usage feeding
+it, the pressed node buttons and the hat, the service events an output would send, and each
+device's report count. It runs the daemon's own input side (hot-plug, one reader thread per
+device, the compiled mapping, the node table) and opens no serial port unless `--outputs`
+asks. On a terminal it redraws about 10 times a second (plain ANSI, fine over SSH); with
+`--plain`, or when stdout is not a terminal, it prints a text snapshot once a second. With
+`--outputs` it runs the config's outputs too (their ports are opened) and shows each
+output's figures, a CRSF module's link quality and timing included.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from typing import Any
 from usb2rc.binding import DeviceBinding, describe_button_runs
 from usb2rc.commands.run import add_common_input_args, load_or_report, make_backend
 from usb2rc.config import Config
-from usb2rc.daemon import Daemon
+from usb2rc.daemon import Daemon, NoPortError
 from usb2rc.hid.backend import Backend, DeviceInfo, ErrorCode
 from usb2rc.protocol.c2_16b import AXIS_NAMES
 from usb2rc.receiver import NodeView
@@ -48,6 +50,12 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     parser.add_argument(
         "--plain", action="store_true", help="print a text snapshot every second instead"
     )
+    parser.add_argument(
+        "--outputs",
+        action="store_true",
+        help="also run the config's outputs (opens their ports) and show each output's "
+        "figures, a CRSF module's link quality included",
+    )
     parser.set_defaults(func=run)
 
 
@@ -57,8 +65,10 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
 class InputSide:
     """The daemon with its outputs left out: hot-plug, readers, mapping and the node table."""
 
-    def __init__(self, config: Config, backend: Backend) -> None:
-        self.daemon = Daemon(config, backend, outputs=False)
+    def __init__(self, config: Config, backend: Backend, outputs: bool = False) -> None:
+        self.daemon = Daemon(config, backend, outputs=outputs)
+        urls = ", ".join(out.link.url for out in self.daemon.outputs)
+        self.ports = f"outputs on {urls}" if urls else "no serial port is opened"
         self.table = self.daemon.table
         self.subscriber = self.table.subscribe()  # the service events an output would send
         self.events: deque[str] = deque(maxlen=200)
@@ -76,14 +86,22 @@ class InputSide:
             self.events.append(event_text(event))
             self.event_total += 1
         described = self.table.describe()
+        raw = self._raw_values()
         devices: dict[int, list[DeviceRow]] = {}
         for node_id, info, binding, present, _type in self.table.attachments():
-            devices.setdefault(node_id, []).append(DeviceRow(info, binding, present))
+            row = DeviceRow(info, binding, present, raw.get(info.key) if present else None)
+            devices.setdefault(node_id, []).append(row)
         nodes = [
             self._node(f, described.get(str(f.node_id), {}), devices.get(f.node_id, []))
             for f in frames
         ]
-        return Snapshot(nodes, list(self.events), self.event_total, self.daemon.stats_lines())
+        stats = self.daemon.stats_lines()
+        return Snapshot(nodes, list(self.events), self.event_total, stats, self.ports)
+
+    def _raw_values(self) -> dict[str, tuple[int, ...]]:
+        """Each reporting device's raw input values (its reader's last record), by key."""
+        records = ((r.info.key, r.record) for r in self.daemon.lifecycle.readers)
+        return {key: record.state.values for key, record in records if record.reports}
 
     def _node(
         self, frame: NodeFrame, described: dict[str, Any], devices: list[DeviceRow]
@@ -126,6 +144,7 @@ class DeviceRow:
     info: DeviceInfo
     binding: DeviceBinding
     present: bool
+    raw: tuple[int, ...] | None = None  # its raw input values; None: not reporting
 
 
 @dataclass(frozen=True)
@@ -135,6 +154,10 @@ class AxisRow:
     lo: int
     hi: int
     source: str  # "T.16000M: X (raw 0..16383)" or "" (no device feeds the slot)
+    raw: int | None = None  # the raw HID value the sent one comes from; None: none now
+
+    def raw_text(self) -> str:
+        return f"raw {'-' if self.raw is None else self.raw:>6}"
 
 
 @dataclass(frozen=True)
@@ -153,7 +176,8 @@ class Snapshot:
     nodes: list[NodeRow]
     events: list[str]
     event_total: int
-    device_stats: list[str] = field(default_factory=list)
+    device_stats: list[str] = field(default_factory=list)  # and the outputs', with --outputs
+    ports: str = "no serial port is opened"
 
 
 def device_label(info: DeviceInfo) -> str:
@@ -179,7 +203,10 @@ def axis_rows(frame: NodeFrame, devices: list[DeviceRow]) -> list[AxisRow]:
             source += ", unsigned"
         if not feeder.present:
             source += ", LOST: " + ("holds" if info.failsafe is None else "failsafe value")
-        rows.append(AxisRow(name, value, lo, hi, source + ")"))
+        raw = None
+        if feeder.raw is not None and info.field_index is not None:
+            raw = feeder.raw[info.field_index]
+        rows.append(AxisRow(name, value, lo, hi, source + ")", raw))
     return rows
 
 
@@ -211,14 +238,14 @@ def node_text(node: NodeRow) -> list[str]:
     for axis in node.axes:
         lines.append(
             f"  {axis.slot:<6} [{bar(axis.value, axis.lo, axis.hi)}] {axis.value:+6d}  "
-            f"<- {axis.source}"
+            f"{axis.raw_text()}  <- {axis.source}"
         )
     lines.append(f"  buttons {' '.join(map(str, node.buttons)) or '-'}  hat {node.hat}")
     return lines
 
 
 def snapshot_text(snap: Snapshot, log_lines: list[str]) -> str:
-    head = f"usb2rc monitor: {len(snap.nodes)} node(s); no serial port is opened"
+    head = f"usb2rc monitor: {len(snap.nodes)} node(s); {snap.ports}"
     lines = [head]
     for node in snap.nodes:
         lines += node_text(node)
@@ -239,7 +266,7 @@ def render_live(snap: Snapshot, log_lines: list[str]) -> Any:
     from rich.text import Text
 
     parts: list[Any] = [
-        Text(f"usb2rc monitor: {len(snap.nodes)} node(s); no serial port is opened; Ctrl-C stops")
+        Text(f"usb2rc monitor: {len(snap.nodes)} node(s); {snap.ports}; Ctrl-C stops")
     ]
     for node in snap.nodes:
         style = "bold red" if node.failsafe else "bold green"
@@ -248,7 +275,7 @@ def render_live(snap: Snapshot, log_lines: list[str]) -> Any:
         for line in device_lines(node):
             parts.append(Text(line, style="red" if "LOST" in line else "dim"))
         table = Table(box=None, show_header=False, pad_edge=False, padding=(0, 1))
-        for column in ("slot", "bar", "value", "source"):
+        for column in ("slot", "bar", "value", "raw", "source"):
             if column == "source":
                 table.add_column(column, no_wrap=True, overflow="ellipsis")
             else:
@@ -258,6 +285,7 @@ def render_live(snap: Snapshot, log_lines: list[str]) -> Any:
                 axis.slot,
                 Text(f"[{bar(axis.value, axis.lo, axis.hi)}]", style="cyan"),
                 f"{axis.value:+6d}",
+                axis.raw_text(),
                 Text(f"<- {axis.source}", style="dim"),
             )
         parts.append(table)
@@ -332,6 +360,11 @@ def run(args: argparse.Namespace) -> int:
     config = load_or_report(args.config)
     if config is None:
         return 2
+    try:
+        side = InputSide(config, make_backend(args), outputs=args.outputs)
+    except NoPortError as exc:
+        print(f"usb2rc monitor --outputs: {exc}", file=sys.stderr)
+        return 2
     logs = _LogLines()
     logger = logging.getLogger("usb2rc")
     old_level, old_propagate = logger.level, logger.propagate
@@ -339,7 +372,6 @@ def run(args: argparse.Namespace) -> int:
     logger.setLevel(logging.INFO)
     logger.propagate = False
     until = time.monotonic() + args.seconds if args.seconds > 0 else float("inf")
-    side = InputSide(config, make_backend(args))
     try:
         side.start()
         show = _show_plain if args.plain or not sys.stdout.isatty() else _show_live

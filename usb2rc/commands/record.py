@@ -13,6 +13,7 @@ import sys
 import time
 from typing import TextIO
 
+from usb2rc.commands.arguments import replay_dir
 from usb2rc.commands.list_devices import make_backend
 from usb2rc.hid.backend import Device, DeviceGone, DeviceInfo
 from usb2rc.hid.recording import RecordedEvent, Recording, format_event, format_header
@@ -30,7 +31,9 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     )
     parser.add_argument("device", metavar="DEVICE", help="hidraw path, vid:pid or replay stem")
     parser.add_argument("--seconds", type=float, help="stop after this many seconds")
-    parser.add_argument("--replay", metavar="DIR", help="record from the recordings in DIR")
+    parser.add_argument(
+        "--replay", metavar="DIR", type=replay_dir, help="record from the recordings in DIR"
+    )
     parser.set_defaults(func=run)
 
 

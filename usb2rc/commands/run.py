@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import atexit
+import json
 import logging
 import os
 import queue
@@ -11,30 +12,47 @@ import sys
 import time
 from collections import Counter
 
+from usb2rc.commands.arguments import replay_dir
 from usb2rc.config import Config, ConfigError, load_config
 from usb2rc.daemon import Daemon, NoPortError
 from usb2rc.hid.backend import Backend
 from usb2rc.hid.choose import choose_backend
+from usb2rc.port_url import port_argument
 from usb2rc.sdnotify import Notifier
 from usb2rc.signals import DaemonSignals, install_daemon_signals
 
 log = logging.getLogger("usb2rc")
 
 SERVICE_CONFIG = "/etc/usb2rc/usb2rc.yaml"
+STATS_FORMATS = ("text", "json")
 
 
 def add_common_input_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="FILE", help="YAML config (default: zero config)")
     parser.add_argument(
-        "--replay", metavar="DIR", help="replay hid-recorder files in DIR instead of real devices"
+        "--replay",
+        metavar="DIR",
+        type=replay_dir,
+        help="replay hid-recorder files in DIR instead of real devices",
     )
     parser.add_argument("--replay-loop", action="store_true", help="replay each recording forever")
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    parser = subparsers.add_parser("run", help="run the daemon (the default command)")
+    parser = subparsers.add_parser(
+        "run",
+        help="run the daemon (the default command)",
+        description="Run the daemon: read the joysticks (or --replay recordings), map them as "
+        "the config says (zero config without one) and send the C2-16B / SUMD stream on each "
+        "output's serial port until SIGTERM or Ctrl-C. SIGHUP re-reads the config, SIGUSR1 "
+        "logs statistics. Exit 0 when stopped, 2 on a usage or config error, 1 otherwise.",
+    )
     add_common_input_args(parser)
-    parser.add_argument("--port", help="serial port or pyserial URL (overrides the first output)")
+    parser.add_argument(
+        "--port",
+        type=port_argument,
+        help="serial port or pyserial URL (overrides the first output)",
+    )
     parser.add_argument(
         "--log-level", default="info", choices=["debug", "info", "warning", "error"]
     )
@@ -44,6 +62,12 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         default=0.0,
         metavar="S",
         help="log statistics every S seconds (also on SIGUSR1)",
+    )
+    parser.add_argument(
+        "--stats-format",
+        choices=STATS_FORMATS,
+        default="text",
+        help="text: log lines (stderr); json: one JSON object per dump on stdout, for scripts",
     )
     parser.set_defaults(func=run)
 
@@ -109,6 +133,7 @@ def serve(
     stats_interval: float,
     notifier: Notifier | None = None,
     signals: DaemonSignals | None = None,
+    stats_format: str = "text",
 ) -> int:
     """Run until SIGTERM/SIGINT; SIGHUP reloads the config, SIGUSR1 logs statistics.
 
@@ -122,7 +147,7 @@ def serve(
         return 0
     try:
         daemon.start()  # inside: a start that fails half-way still stops what it started
-        _main_loop(daemon, config_path, stats_interval, notifier, signals)
+        _main_loop(daemon, config_path, stats_interval, notifier, signals, stats_format)
     finally:
         signals.stopping()
         daemon.stop()
@@ -140,6 +165,7 @@ def _main_loop(
     stats_interval: float,
     notifier: Notifier | None,
     signals: DaemonSignals,
+    stats_format: str = "text",
 ) -> None:
     """Serve the signals' requests until a stop; stats every `stats_interval` s (if > 0)."""
     next_stats = time.monotonic() + stats_interval if stats_interval > 0 else None
@@ -158,8 +184,25 @@ def _main_loop(
         if what == "reload":
             _reload_notified(daemon, config_path, notifier)
         elif what == "stats":
-            for line in daemon.stats_lines():
-                log.info("stats: %s", line)
+            stats_format = write_stats(daemon, stats_format)
+
+
+def write_stats(daemon: Daemon, stats_format: str) -> str:
+    """text: a log line per output and device; json: `{"stats": ...}` on one stdout line
+    (the log stays on stderr, so `usb2rc run --stats-format json | jq` reads only these).
+    Returns the format for the next dump: a reader that went away must not stop the
+    stream, so the stats go to the log from then on."""
+    if stats_format == "json":
+        line = json.dumps({"stats": daemon.stats_record()}, separators=(",", ":"))
+        try:
+            print(line, flush=True)
+            return stats_format
+        except OSError as exc:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # drop the rest
+            log.warning("stats: stdout is gone (%s); logging them from now on", exc)
+    for text in daemon.stats_lines():
+        log.info("stats: %s", text)
+    return "text"
 
 
 def _reload_notified(daemon: Daemon, config_path: str | None, notifier: Notifier | None) -> None:
@@ -217,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"usb2rc: {exc}", file=sys.stderr)
         return 1
     try:
-        return serve(daemon, config_path, args.stats_interval, notifier, signals)
+        return serve(daemon, config_path, args.stats_interval, notifier, signals, args.stats_format)
     finally:
         notifier.stopping()
         notifier.close()

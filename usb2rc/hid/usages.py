@@ -1,7 +1,8 @@
 """HID usages (HID Usage Tables 1.x): one int per usage, `(page << 16) | id`.
 
 Only the pages a joystick daemon needs are named: Generic Desktop, Simulation Controls and
-Button. Every other usage still has a name, its hex form `0xPPPPUUUU`.
+Button, and Battery Strength of the Generic Device Controls page (a wireless pad's battery,
+for `%` frames). Every other usage still has a name, its hex form `0xPPPPUUUU`.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import re
 
 GENERIC_DESKTOP_PAGE = 0x01
 SIMULATION_PAGE = 0x02
+GENERIC_DEVICE_PAGE = 0x06
 BUTTON_PAGE = 0x09
 CONSUMER_PAGE = 0x0C
 DIGITIZER_PAGE = 0x0D
@@ -27,6 +29,9 @@ def usage_page(usage: int) -> int:
 def usage_id(usage: int) -> int:
     return usage & 0xFFFF
 
+
+# Generic Device Controls page (0x06): what a wireless pad reports of its battery
+GDC_BATTERY_STRENGTH = 0x00060020
 
 # Generic Desktop page (0x01)
 GD_POINTER = 0x00010001
@@ -201,6 +206,7 @@ _NAMES: dict[int, str] = {
     SIM_HANDLE_BARS: "HandleBars",
     SIM_FRONT_BRAKE: "FrontBrake",
     SIM_REAR_BRAKE: "RearBrake",
+    GDC_BATTERY_STRENGTH: "BatteryStrength",
 }
 
 # Extra spellings accepted by usage_from_name (after normalising, see _normalise).
@@ -208,6 +214,7 @@ _ALIASES: dict[str, int] = {
     "hat": GD_HAT_SWITCH,
     "multiaxis": GD_MULTI_AXIS,
     "toebrake": SIM_TOE_BRAKE,
+    "battery": GDC_BATTERY_STRENGTH,
 }
 
 

@@ -1,14 +1,196 @@
-"""One module per output protocol: its channels, as the protocol names them, evaluated from
-the node table's frames once a tick.
+"""The output protocols, one registry entry each, and per protocol its channels.
 
-An output is three pieces, and every protocol (SUMD now; CRSF, SBUS, MAVLink next) has the
-same shape:
+An output is three pieces, and every protocol has the same shape:
 
-- the sans-IO wire codec, `usb2rc.protocol.<name>` (values → bytes → values, its scaling);
-- the sans-IO line session, `usb2rc.session` (`SumdSession`), driven by the shared scheduler
-  (`usb2rc.scheduler`: one thread per output, one tick per period);
-- `usb2rc.outputs.<name>`: the output's channels, from the typed channel references of the
-  config to wire values and the frame's failsafe flag (`SumdChannels.evaluate(frames)`).
+- the sans-IO wire codec, `usb2rc.protocol.<name>` (values → bytes → values);
+- the sans-IO line session (`usb2rc.session.SumdSession`, `usb2rc.rc_sessions`), driven by
+  the shared scheduler (`usb2rc.scheduler`: one thread per output, one frame per tick);
+- the output's channels, from the typed channel references of the config to wire values and
+  the frame's failsafe flag (`usb2rc.outputs.channels`, with each protocol's scale).
 
-`usb2rc.daemon` only wires them together.
+`PROTOCOLS` below is the one place that lists them: what the config accepts for each
+(`config.py` reads its keys, defaults and channel limits from here), how many bytes a frame
+takes and how many bit times a byte (the bandwidth check), which decoder `usb2rc decode` uses
+and which function builds the running output (`usb2rc.outputs.wiring`). Adding a protocol is
+one `OutputProtocol` entry here plus its modules. `usb2rc.daemon` only wires them together.
 """
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+# Aliased: a submodule of this package of the same name (outputs.sumd) would shadow them.
+from usb2rc.protocol import c2_16b as c2_16b_codec
+from usb2rc.protocol import crsf as crsf_codec
+from usb2rc.protocol import sbus as sbus_codec
+from usb2rc.protocol import sumd as sumd_codec
+
+if TYPE_CHECKING:
+    from yaml.nodes import Node
+
+    from usb2rc.yamlnodes import NodeReader
+
+OptionReader = Callable[["NodeReader", "Node", str], Any]
+
+
+@dataclass(frozen=True)
+class Option:
+    """A config key only some protocols take: how to read it, its default, its doc line."""
+
+    read: OptionReader
+    default: Any
+    doc: str
+
+
+def _boolean(reader: NodeReader, node: Node, path: str) -> Any:
+    return reader.boolean(node, path)
+
+
+def _service_status(reader: NodeReader, node: Node, path: str) -> Any:
+    return reader.choice(node, path, ("ascii", "binary"))
+
+
+@dataclass(frozen=True)
+class OutputProtocol:
+    """One output protocol as the rest of usb2rc sees it.
+
+    `channels` is (min, max) for a channel output, None for C2-16B (which sends nodes).
+    `frame_length(n)` is the bytes of one frame of n listed channels (the bandwidth check and
+    the transmit queue cap). `decoder` and `build` are "module:attribute" so that this registry
+    imports nothing heavy: `decoder()` makes the stream decoder `usb2rc decode` uses,
+    `build(ctx)` the running output (`usb2rc.outputs.wiring.OutputContext`)."""
+
+    name: str
+    summary: str
+    default_baudrate: int
+    default_rate_hz: float
+    frame_length: Callable[[int], int]
+    decoder_path: str
+    build_path: str
+    bits_per_byte: int = 10  # 8N1
+    channels: tuple[int, int] | None = None
+    channels_required: bool = False
+    options: Mapping[str, Option] = field(default_factory=dict)
+
+    def decoder(self) -> Any:
+        return _resolve(self.decoder_path)()
+
+    def build(self, context: Any) -> Any:
+        return _resolve(self.build_path)(context)
+
+    def bits_per_second(self, rate_hz: float, channel_count: int) -> float:
+        """What one frame a tick needs on the wire."""
+        return self.frame_length(channel_count) * self.bits_per_byte * rate_hz
+
+    def bandwidth_problem(self, baudrate: int, rate_hz: float, channel_count: int) -> str | None:
+        """Why one frame a tick does not fit the baud rate, or None."""
+        needed = self.bits_per_second(rate_hz, channel_count)
+        if needed <= baudrate:
+            return None
+        frame = self.frame_length(channel_count)
+        return (
+            f"{frame}-byte {self.name} frames at {rate_hz:g} Hz need {needed:.0f} bit/s "
+            f"({self.bits_per_byte} bit times a byte) but {baudrate} baud carries "
+            f"{baudrate / (frame * self.bits_per_byte):.0f} frames/s: raise baudrate or "
+            "lower rate_hz"
+        )
+
+
+def _resolve(path: str) -> Any:
+    module, _, attribute = path.partition(":")
+    return getattr(importlib.import_module(module), attribute)
+
+
+def _c2_frame_length(_channels: int) -> int:
+    return c2_16b_codec.FRAME_LEN + 1
+
+
+def _crsf_frame_length(_channels: int) -> int:
+    return crsf_codec.RC_FRAME_LEN
+
+
+def _sbus_frame_length(_channels: int) -> int:
+    return sbus_codec.FRAME_LEN
+
+
+def _sumd_frame_length(channels: int) -> int:
+    return sumd_codec.frame_length(max(sumd_codec.MIN_CHANNELS, channels))
+
+
+PROTOCOLS: dict[str, OutputProtocol] = {
+    p.name: p
+    for p in (
+        OutputProtocol(
+            "c2-16b",
+            "SERaero C2-16B: a data frame per node, service frames",
+            default_baudrate=115200,
+            default_rate_hz=50,
+            frame_length=_c2_frame_length,
+            decoder_path="usb2rc.protocol.c2_16b:Decoder",
+            build_path="usb2rc.outputs.wiring:build_c2_16b",
+            options={
+                "line_feed": Option(_boolean, True, "LF (0x0A) after each 35-byte frame"),
+                "service_status": Option(
+                    _service_status, "ascii", "service frame status `'1'..'8'` or 0x01..0x08"
+                ),
+            },
+        ),
+        OutputProtocol(
+            "sumd",
+            "Graupner HoTT SUMD: 2..32 channels",
+            default_baudrate=115200,
+            default_rate_hz=100,
+            frame_length=_sumd_frame_length,
+            decoder_path="usb2rc.protocol.sumd:SumdDecoder",
+            build_path="usb2rc.outputs.wiring:build_sumd",
+            channels=(sumd_codec.MIN_CHANNELS, sumd_codec.MAX_CHANNELS),
+            options={
+                "extended": Option(_boolean, False, "axes onto 900-2100 µs, not 1100-1900 µs"),
+            },
+        ),
+        OutputProtocol(
+            "crsf",
+            "CRSF RC_CHANNELS_PACKED to an ExpressLRS / Crossfire transmitter module",
+            default_baudrate=400000,
+            default_rate_hz=250,
+            frame_length=_crsf_frame_length,
+            decoder_path="usb2rc.protocol.crsf:CrsfDecoder",
+            build_path="usb2rc.outputs.wiring:build_crsf",
+            channels=(1, 16),
+            channels_required=True,
+            options={
+                "follow_module": Option(
+                    _boolean, True, "follow the module's timing-correction frames"
+                ),
+            },
+        ),
+        OutputProtocol(
+            "sbus",
+            "Futaba SBUS: 16 channels, ch17/ch18, frame-lost and failsafe flags (8E2)",
+            default_baudrate=sbus_codec.BAUDRATE,
+            default_rate_hz=100,
+            frame_length=_sbus_frame_length,
+            decoder_path="usb2rc.protocol.sbus:SbusDecoder",
+            build_path="usb2rc.outputs.wiring:build_sbus",
+            bits_per_byte=sbus_codec.BITS_PER_BYTE,
+            channels=(1, 18),
+            channels_required=True,
+        ),
+    )
+}
+
+
+def protocol(name: str) -> OutputProtocol:
+    """The registry entry of a protocol name (KeyError for an unknown one)."""
+    return PROTOCOLS[name]
+
+
+def option_keys() -> tuple[str, ...]:
+    """Every protocol-only key, in registry order."""
+    keys: dict[str, None] = {}
+    for entry in PROTOCOLS.values():
+        keys.update(dict.fromkeys(entry.options))
+    return tuple(keys)

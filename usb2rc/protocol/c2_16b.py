@@ -5,7 +5,8 @@ A frame is 35 bytes, followed by an LF (0x0A) unless `line_feed=False`:
     0-1    "H-"
     2      status: data '>' '!' '<' '&' '%', or service '1'..'8' (ASCII) / 0x01..0x08 (binary)
     3      Node-ID
-    4      message code (destination ID in '&' frames); 0x00 in service frames
+    4      message code (destination ID in '&' frames); service code in service frames
+           (usb2rc sends 0x00; the decoder accepts any value, docs/ICD.md "Service code")
     5-24   10 axes, 16 bit little-endian (X, Y, Z, Slider, Rx, Ry, Rz, Dial, Aux1, Aux2)
     25-28  button group 1, uint32 little-endian
     29-32  button group 2, uint32 little-endian
@@ -109,12 +110,16 @@ class DataFrame:
 
 @dataclass(frozen=True, slots=True)
 class ServiceFrame:
-    """A service frame. `payload` is always the 28 bytes 5-32 (shorter input is zero-filled)."""
+    """A service frame. `payload` is always the 28 bytes 5-32 (shorter input is zero-filled).
+
+    `code` is byte 4, the ICD's "Service Code": usb2rc sends 0, but its codes are left TBD
+    by the ICD, so a frame from another implementation may carry any value."""
 
     service: Service
     node_id: int
     payload: bytes = bytes(PAYLOAD_LEN)
     binary_status: bool = False
+    code: int = 0
 
     def __post_init__(self) -> None:
         if not isinstance(self.service, Service):
@@ -243,13 +248,16 @@ def encode_service(
     *,
     binary_status: bool = False,
     line_feed: bool = True,
+    code: int = 0,
 ) -> bytes:
-    """A service frame; status '1'..'8' (or 0x01..0x08 with binary_status), byte 4 = 0."""
+    """A service frame; status '1'..'8' (or 0x01..0x08 with binary_status); byte 4 is the
+    service code, 0 in everything usb2rc sends."""
     kind = _as_service(service)
     _check_int("node_id", node_id, 0, 255)
+    _check_int("service code", code, 0, 255)
     wire_payload = _padded_payload(payload)
     status = kind.value if binary_status else ASCII_SERVICE_OFFSET + kind.value
-    body = _SERVICE_BODY.pack(HEADER, status, node_id, 0, wire_payload)
+    body = _SERVICE_BODY.pack(HEADER, status, node_id, code, wire_payload)
     return _with_crc(body, line_feed)
 
 
@@ -328,6 +336,7 @@ def encode(frame: Frame, *, line_feed: bool = True) -> bytes:
             frame.payload,
             binary_status=frame.binary_status,
             line_feed=line_feed,
+            code=frame.code,
         )
     raise ValueError(f"not a C2-16B frame: {frame!r}")
 
@@ -344,7 +353,8 @@ class Decoder:
     """Streaming C2-16B decoder: `feed(chunk)` returns the frames completed by that chunk.
 
     Works for any chunking (one byte at a time included) and never raises. A candidate is an
-    `H-` followed by a known status (and, for a service status, a 0x00 message code). A
+    `H-` followed by a known status; byte 4 may hold anything (a service frame's service code
+    is left TBD by the ICD, so another implementation may set one: `ServiceFrame.code`). A
     candidate whose CRC fails counts in `crc_failures`; a failed or implausible candidate skips
     ONE byte and the search for the next `H-` goes on, so a frame starting inside a corrupted
     region is still found. An LF right after a frame is consumed silently; every other byte
@@ -422,8 +432,6 @@ class Decoder:
         service = _SERVICE_BY_STATUS.get(status)
         if service is None and status not in DATA_STATUSES:
             return None
-        if service is not None and buffer[start + 4] != 0:
-            return None
         crc_end = start + _CRC_OFFSET
         if crc16_arc(buffer[start:crc_end]) != _CRC.unpack_from(buffer, crc_end)[0]:
             self.crc_failures += 1
@@ -431,4 +439,5 @@ class Decoder:
         if service is None:
             return _decode_data(buffer, start)
         payload = bytes(buffer[start + 5 : crc_end])
-        return ServiceFrame(service, buffer[start + 3], payload, status < ASCII_SERVICE_OFFSET)
+        binary = status < ASCII_SERVICE_OFFSET
+        return ServiceFrame(service, buffer[start + 3], payload, binary, buffer[start + 4])

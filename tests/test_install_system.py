@@ -1,0 +1,227 @@
+"""`usb2rc install-system`: the wheel carries the service files, the command puts them in place.
+
+The wheel is built from the tree (`pip wheel --no-deps`), unpacked into a directory that goes
+first on PYTHONPATH, and its own `usb2rc install-system --root DIR` writes into a scratch root:
+what a `pip install usb2rc` on a Pi does, without a clone.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import stat
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from usb2rc.commands.install_system import (
+    BY_NAME,
+    FILES,
+    TEMPLATE_PROGRAM,
+    running_program,
+    systemd_quote,
+    unit_text,
+)
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGED = {f.name: ROOT / "usb2rc" / "data" / f.package_dir / f.name for f in BY_NAME.values()}
+HAVE_SYSUSERS = shutil.which("systemd-sysusers") is not None
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("wheel")
+    result = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(out), str(ROOT)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
+    assert result.returncode == 0, result.stderr[-3000:]
+    (built,) = out.glob("usb2rc-*.whl")
+    return built
+
+
+@pytest.fixture(scope="module")
+def unpacked(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    site = tmp_path_factory.mktemp("site")
+    with zipfile.ZipFile(wheel) as archive:
+        archive.extractall(site)
+    return site
+
+
+def from_wheel(site: Path | None, *args: str) -> subprocess.CompletedProcess[str]:
+    """`python -m usb2rc ARGS` with the wheel's usb2rc first on the path (not the tree's);
+    site None: the tree's, from the repository root."""
+    env = dict(os.environ, PYTHONPATH=str(site)) if site else None
+    return subprocess.run(
+        [sys.executable, "-m", "usb2rc", *args],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=site or ROOT,
+        timeout=60,
+        check=False,
+    )
+
+
+def test_wheel_holds_unit_rule_sysusers_and_configs(wheel: Path) -> None:
+    with zipfile.ZipFile(wheel) as archive:
+        names = set(archive.namelist())
+        for name, source in PACKAGED.items():
+            member = f"usb2rc/data/{source.parent.name}/{name}"
+            assert member in names, f"{member} missing from {wheel.name}"
+            assert archive.read(member) == source.read_bytes()
+
+
+def test_the_wheel_runs_not_the_tree(unpacked: Path) -> None:
+    result = from_wheel(unpacked, "install-system", "--print", "70-usb2rc.rules")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == PACKAGED["70-usb2rc.rules"].read_text()
+    probe = subprocess.run(
+        [sys.executable, "-c", "import usb2rc; print(usb2rc.__file__)"],
+        capture_output=True,
+        text=True,
+        env=dict(os.environ, PYTHONPATH=str(unpacked)),
+        cwd=unpacked.parent,
+        check=True,
+    )
+    assert Path(probe.stdout.strip()).is_relative_to(unpacked)
+
+
+def test_install_into_a_scratch_root_from_the_wheel(unpacked: Path, tmp_path: Path) -> None:
+    root = tmp_path / "pi"
+    result = from_wheel(unpacked, "install-system", "--root", str(root))
+    assert result.returncode == 0, result.stdout + result.stderr
+    program = running_program_of_subprocess()
+    for file in FILES:
+        installed = root / file.target.lstrip("/")
+        assert installed.is_file(), f"{file.target} not written"
+        assert stat.S_IMODE(installed.stat().st_mode) == file.mode, file.target
+        expected = PACKAGED[file.name].read_text()
+        if file.name == "usb2rc.service":
+            expected = unit_text(expected, program)
+        assert installed.read_text() == expected, file.target
+    assert {
+        "/etc/systemd/system/usb2rc.service",
+        "/etc/udev/rules.d/70-usb2rc.rules",
+        "/usr/lib/sysusers.d/usb2rc.conf",
+        "/etc/usb2rc/usb2rc.yaml",
+    } <= {f.target for f in FILES}
+    unit = (root / "etc/systemd/system/usb2rc.service").read_text()
+    assert f"ExecStart={program[0]} run --config /etc/usb2rc/usb2rc.yaml" in unit
+    assert stat.S_IMODE((root / "etc/usb2rc").stat().st_mode) == 0o755
+
+
+@pytest.mark.skipif(not HAVE_SYSUSERS, reason="systemd-sysusers missing")
+def test_install_creates_the_service_user_and_gives_it_the_config(
+    unpacked: Path, tmp_path: Path
+) -> None:
+    result = from_wheel(unpacked, "install-system", "--root", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    passwd = (tmp_path / "etc" / "passwd").read_text()
+    assert any(line.startswith("usb2rc:") for line in passwd.splitlines())
+    (group,) = [g for g in (tmp_path / "etc" / "group").read_text().splitlines() if "usb2rc" in g]
+    config = (tmp_path / "etc/usb2rc/usb2rc.yaml").stat()
+    if os.geteuid() == 0:
+        assert (config.st_uid, config.st_gid) == (0, int(group.split(":")[2]))
+    else:
+        assert "chown root:usb2rc" in result.stderr
+
+
+def test_an_existing_config_is_kept(tmp_path: Path) -> None:
+    config = tmp_path / "etc" / "usb2rc" / "usb2rc.yaml"
+    config.parent.mkdir(parents=True)
+    config.write_text("# mine\n")
+    result = run_here("install-system", "--root", str(tmp_path))
+    assert "kept" in result.stdout and str(config) in result.stdout
+    assert config.read_text() == "# mine\n"
+    again = run_here("install-system", "--root", str(tmp_path))
+    assert again.returncode == result.returncode
+    assert again.stdout.count("unchanged") == len(FILES) - 1  # every file but the kept config
+
+
+def test_install_a_given_config_only_if_it_passes_check(tmp_path: Path) -> None:
+    good = PACKAGED["hotas.yaml"]
+    result = run_here("install-system", "--root", str(tmp_path / "a"), "--config", str(good))
+    assert (tmp_path / "a/etc/usb2rc/usb2rc.yaml").read_text() == good.read_text(), result.stderr
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("outputs:\n  - protocl: sumd\n")
+    result = run_here("install-system", "--root", str(tmp_path / "b"), "--config", str(bad))
+    assert result.returncode == 2
+    assert f"{bad}:2:" in result.stderr and "not installing" in result.stderr
+    assert not (tmp_path / "b").exists()
+
+
+def test_print_shows_the_unit_as_installed() -> None:
+    result = run_here("install-system", "--print", "usb2rc.service", "--exec", "/opt/x/bin/usb2rc")
+    assert result.returncode == 0
+    assert "ExecStart=/opt/x/bin/usb2rc run --config /etc/usb2rc/usb2rc.yaml\n" in result.stdout
+    assert TEMPLATE_PROGRAM not in result.stdout
+
+
+def test_print_rejects_an_unknown_name() -> None:
+    result = run_here("install-system", "--print", "nope.service")
+    assert result.returncode == 2 and "usb2rc.service" in result.stderr
+
+
+def test_exec_start_names_the_running_usb2rc() -> None:
+    # Run as `python -m usb2rc`: the usb2rc script beside this Python (the venv's bin/).
+    beside = Path(os.path.abspath(sys.executable)).parent / "usb2rc"
+    if os.access(beside, os.X_OK):
+        assert running_program_of_subprocess() == [str(beside)]
+    assert running_program()[0].startswith("/")
+
+
+def test_a_relative_exec_is_a_usage_error(tmp_path: Path) -> None:
+    result = run_here("install-system", "--root", str(tmp_path), "--exec", "bin/usb2rc")
+    assert result.returncode == 2 and "--exec needs an absolute path" in result.stderr
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_program_under_home_is_warned_about(tmp_path: Path) -> None:
+    result = run_here("install-system", "--root", str(tmp_path), "--exec", "/home/pi/v/usb2rc")
+    assert "ProtectHome" in result.stderr
+
+
+def test_systemd_quote() -> None:
+    assert systemd_quote("/opt/usb2rc/venv/bin/usb2rc") == "/opt/usb2rc/venv/bin/usb2rc"
+    assert systemd_quote("/opt/my venv/usb2rc") == '"/opt/my venv/usb2rc"'
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze missing")
+def test_installed_unit_verifies_with_its_real_exec_start(tmp_path: Path) -> None:
+    # Here ExecStart= names this venv's usb2rc, which exists: verify needs no stand-in.
+    result = run_here("install-system", "--root", str(tmp_path))
+    unit = tmp_path / "etc/systemd/system/usb2rc.service"
+    assert unit.is_file(), result.stderr
+    check = subprocess.run(
+        ["systemd-analyze", "verify", str(unit)], capture_output=True, text=True, check=False
+    )
+    assert check.returncode == 0 and check.stdout + check.stderr == "", check.stderr
+
+
+def run_here(*args: str) -> subprocess.CompletedProcess[str]:
+    return from_wheel(None, *args)
+
+
+def running_program_of_subprocess() -> list[str]:
+    """What `python -m usb2rc` (argv[0] is __main__.py) picks: the script beside Python."""
+    code = "from usb2rc.commands.install_system import running_program as r; print(*r(), sep='\\n')"
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT
+    )
+    return out.stdout.splitlines()
+
+
+def test_next_steps_name_the_installed_program(capsys: pytest.CaptureFixture[str]) -> None:
+    from usb2rc.commands.install_system import _print_advice
+
+    _print_advice(Path("/"), ["/opt/usb2rc/venv/bin/usb2rc"], [])
+    out = capsys.readouterr().out
+    assert "sudo /opt/usb2rc/venv/bin/usb2rc check --config /etc/usb2rc/usb2rc.yaml" in out
+    assert "systemctl daemon-reload" in out and "udevadm trigger" in out

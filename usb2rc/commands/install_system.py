@@ -1,0 +1,304 @@
+"""`usb2rc install-system [--root DIR] [--config FILE] [--print NAME]`: the service files.
+
+The package carries the systemd unit, the udev rule, the sysusers file, the unit's notes and
+the starter configs (`usb2rc/data/system/`, `usb2rc/data/config/`), so `pip install usb2rc`
+needs no clone. This writes them where a Pi (or any systemd host) wants them, creates the
+service user with systemd-sysusers, and never overwrites an existing /etc/usb2rc/usb2rc.yaml.
+With `--root DIR` everything goes under DIR (a scratch root, an image being built); with
+`--print NAME` one file is printed as it would be installed instead.
+
+The unit's ExecStart= names the usb2rc that runs this command: the entry-point script it was
+started as, else the `usb2rc` beside the running Python (a venv's bin/), else that Python
+with `-m usb2rc`. So the service runs the venv the command came from.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+# The shipped unit's ExecStart= program: what an install into /opt/usb2rc/venv gives.
+TEMPLATE_PROGRAM = "/opt/usb2rc/venv/bin/usb2rc"
+CONFIG_TARGET = "/etc/usb2rc/usb2rc.yaml"
+SERVICE_GROUP = "usb2rc"
+# ProtectHome=yes hides these from the service: a usb2rc installed under them cannot start.
+HIDDEN_FROM_SERVICE = ("/home/", "/root/", "/run/user/")
+
+
+@dataclass(frozen=True)
+class SystemFile:
+    name: str  # --print NAME; the file's name in the package
+    package_dir: str  # under usb2rc/data/
+    target: str  # absolute path on the installed system
+    mode: int
+    keep_existing: bool = False  # the user's config: never overwritten
+
+
+FILES = (
+    SystemFile("usb2rc.sysusers", "system", "/usr/lib/sysusers.d/usb2rc.conf", 0o644),
+    SystemFile("70-usb2rc.rules", "system", "/etc/udev/rules.d/70-usb2rc.rules", 0o644),
+    SystemFile("usb2rc.service", "system", "/etc/systemd/system/usb2rc.service", 0o644),
+    SystemFile("SERVICE.md", "system", "/usr/share/doc/usb2rc/SERVICE.md", 0o644),
+    SystemFile("default.yaml", "config", CONFIG_TARGET, 0o640, keep_existing=True),
+)
+EXAMPLES = (SystemFile("hotas.yaml", "config", CONFIG_TARGET, 0o640, keep_existing=True),)
+BY_NAME = {f.name: f for f in (*FILES, *EXAMPLES)}
+
+NEXT_STEPS = (
+    "sudo udevadm control --reload && sudo udevadm trigger --subsystem-match=hidraw",
+    "sudo {program} check --config " + CONFIG_TARGET,
+    "sudo systemctl daemon-reload && sudo systemctl enable --now usb2rc",
+)
+
+
+def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    parser = subparsers.add_parser(
+        "install-system",
+        help="install the systemd unit, udev rule, service user and config (or print them)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "--root", metavar="DIR", default="/", help="install under DIR instead of / (default: /)"
+    )
+    parser.add_argument(
+        "--config",
+        metavar="FILE",
+        help=f"install FILE as {CONFIG_TARGET} (default: the starter default.yaml); "
+        "it must pass `usb2rc check`, and an existing one is still kept",
+    )
+    parser.add_argument(
+        "--exec",
+        dest="program",
+        metavar="PATH",
+        help="the usb2rc the unit's ExecStart= runs (default: the one running this command)",
+    )
+    parser.add_argument(
+        "--print",
+        dest="print_name",
+        metavar="NAME",
+        choices=sorted(BY_NAME),
+        help="print one file as it would be installed: " + ", ".join(sorted(BY_NAME)),
+    )
+    parser.set_defaults(func=run)
+
+
+# --------------------------------------------------------------------------- contents
+
+
+def packaged_text(file: SystemFile) -> str:
+    return (resources.files("usb2rc") / "data" / file.package_dir / file.name).read_text()
+
+
+def running_program() -> list[str]:
+    """The command that runs this usb2rc again, as absolute paths (see the module doc)."""
+    started_as = os.path.abspath(sys.argv[0]) if sys.argv and sys.argv[0] else ""
+    if os.path.basename(started_as) == "usb2rc" and os.access(started_as, os.X_OK):
+        return [started_as]
+    beside_python = Path(os.path.abspath(sys.executable)).parent / "usb2rc"
+    if os.access(beside_python, os.X_OK):
+        return [str(beside_python)]
+    return [os.path.abspath(sys.executable), "-m", "usb2rc"]
+
+
+def systemd_quote(word: str) -> str:
+    """A word for a systemd command line: quoted when it holds blanks, quotes or `\\`."""
+    if re.search(r"[\s\"'\\]", word):
+        return '"' + word.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    return word
+
+
+def unit_text(template: str, program: list[str]) -> str:
+    """The shipped unit with ExecStart= running `program` instead of /opt/usb2rc/venv's."""
+    head = " ".join(systemd_quote(word) for word in program)
+    text, count = re.subn(
+        rf"^ExecStart={re.escape(TEMPLATE_PROGRAM)} ",
+        lambda _match: f"ExecStart={head} ",
+        template,
+        flags=re.MULTILINE,
+    )
+    if count != 1:
+        raise RuntimeError(f"the packaged unit has no ExecStart={TEMPLATE_PROGRAM} line")
+    return text
+
+
+def rendered(file: SystemFile, program: list[str]) -> str:
+    text = packaged_text(file)
+    return unit_text(text, program) if file.name == "usb2rc.service" else text
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def under_root(root: Path, target: str) -> Path:
+    return root / target.lstrip("/")
+
+
+def make_dirs(directory: Path) -> None:
+    """Missing directories 0755 whatever the umask (sudo's may be 077): the service user
+    must get through /etc/usb2rc to its config."""
+    if directory.is_dir():
+        return
+    make_dirs(directory.parent)
+    directory.mkdir()
+    os.chmod(directory, 0o755)
+
+
+def write_file(path: Path, text: str, mode: int) -> str:
+    """Atomically (temp file + rename); 'wrote' or 'unchanged'."""
+    if path.is_file() and path.read_text() == text and (path.stat().st_mode & 0o777) == mode:
+        return "unchanged"
+    make_dirs(path.parent)
+    fd, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "w") as stream:
+            stream.write(text)
+        os.chmod(temp, mode)
+        os.replace(temp, path)
+    except BaseException:
+        os.unlink(temp)
+        raise
+    return "wrote"
+
+
+def group_id(root: Path, name: str) -> int | None:
+    """The group's id in ROOT/etc/group (what systemd-sysusers wrote), or None."""
+    try:
+        lines = under_root(root, "/etc/group").read_text().splitlines()
+    except OSError:
+        return None
+    for line in lines:
+        fields = line.split(":")
+        if len(fields) >= 3 and fields[0] == name and fields[2].isdigit():
+            return int(fields[2])
+    return None
+
+
+def create_service_user(root: Path, sysusers_text: str) -> str | None:
+    """systemd-sysusers for the usb2rc user and group; None, or what went wrong."""
+    program = shutil.which("systemd-sysusers")
+    if program is None:
+        return "systemd-sysusers not found: create the user with `sudo useradd --system usb2rc`"
+    make_dirs(under_root(root, "/etc"))  # where it writes passwd and group
+    result = subprocess.run(
+        [program, f"--root={root}", "-"],
+        input=sysusers_text,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if result.returncode != 0:
+        return f"systemd-sysusers failed: {result.stderr.strip() or result.returncode}"
+    return None
+
+
+def give_config_to_group(root: Path, path: Path) -> str:
+    """root:usb2rc 0640, so the service (group usb2rc) reads it and other users do not."""
+    gid = group_id(root, SERVICE_GROUP)
+    if gid is None:
+        return f"no group {SERVICE_GROUP} yet: `sudo chgrp {SERVICE_GROUP} {path}` once it exists"
+    if os.geteuid() != 0:
+        return f"not root: `sudo chown root:{SERVICE_GROUP} {path}`"
+    os.chown(path, 0, gid)
+    return ""
+
+
+def checked_config(path: str) -> str:
+    """The text of a config that passes `usb2rc check`; raises ConfigError / OSError."""
+    from usb2rc.config import load_config
+
+    load_config(path)
+    return Path(path).read_text()
+
+
+# --------------------------------------------------------------------------- command
+
+
+def run(args: argparse.Namespace) -> int:
+    program = [args.program] if args.program else running_program()
+    if args.print_name:
+        sys.stdout.write(rendered(BY_NAME[args.print_name], program))
+        return 0
+    usage = _usage_problem(args.root, program)
+    if usage is not None:
+        print(f"usb2rc install-system: {usage}", file=sys.stderr)
+        return 2
+    config_text = _config_text(args.config)
+    if config_text is None:
+        return 2
+    root = Path(args.root)
+    try:
+        problems = install(root, program, config_text)
+    except OSError as exc:
+        hint = " (run it with sudo)" if isinstance(exc, PermissionError) else ""
+        print(f"usb2rc install-system: {exc}{hint}", file=sys.stderr)
+        return 1
+    _print_advice(root, program, problems)
+    return 1 if problems else 0
+
+
+def _usage_problem(root: str, program: list[str]) -> str | None:
+    if sys.platform != "linux" and root == "/":
+        return "systemd and udev are Linux; --print shows the files, --root DIR writes them"
+    if not os.path.isabs(program[0]):
+        return f"--exec needs an absolute path (systemd runs it): {program[0]}"
+    return None
+
+
+def _config_text(path: str | None) -> str | None:
+    if path is None:
+        return packaged_text(BY_NAME["default.yaml"])
+    from usb2rc.config import ConfigError
+
+    try:
+        return checked_config(path)
+    except ConfigError as exc:
+        print("\n".join(exc.errors), file=sys.stderr)
+    except OSError as exc:
+        print(f"{path}: cannot read: {exc.strerror or exc}", file=sys.stderr)
+    print(f"usb2rc install-system: not installing {path}", file=sys.stderr)
+    return None
+
+
+def install(root: Path, program: list[str], config_text: str) -> list[str]:
+    """Write every file under root (printing one line each); the problems left to fix."""
+    problems: list[str] = []
+    for file in FILES:
+        path = under_root(root, file.target)
+        if file.keep_existing and path.exists():
+            print(f"kept       {path} (exists: not overwritten)")
+            continue
+        text = config_text if file.keep_existing else rendered(file, program)
+        print(f"{write_file(path, text, file.mode):<10} {path} (from {file.name})")
+        if file.name == "usb2rc.sysusers":
+            problem = create_service_user(root, text)
+            problems += [problem] if problem else []
+        elif file.keep_existing:
+            problem = give_config_to_group(root, path)
+            problems += [problem] if problem else []
+    return problems
+
+
+def _print_advice(root: Path, program: list[str], problems: list[str]) -> None:
+    if program[0].startswith(HIDDEN_FROM_SERVICE):
+        print(
+            f"warning: ExecStart={shlex.join(program)} is under a home directory, which the "
+            "unit hides (ProtectHome=yes): the service cannot start it. Install usb2rc in a "
+            "venv under /opt (docs/PI.md) and run its `usb2rc install-system`.",
+            file=sys.stderr,
+        )
+    for problem in problems:
+        print(f"usb2rc install-system: {problem}", file=sys.stderr)
+    if root == Path("/"):
+        print(f"next: edit {CONFIG_TARGET} (the serial port: `port:` under `outputs:`), then")
+        command = shlex.join(program)
+        print("\n".join(f"  {step.format(program=command)}" for step in NEXT_STEPS))

@@ -1,0 +1,137 @@
+"""How each output protocol's running pieces are built: link, output thread, RX thread.
+
+The registry (`usb2rc.outputs.PROTOCOLS`) names one `build_<protocol>(context)` here per
+protocol; `usb2rc.daemon` calls it for each configured output and only starts and stops
+what comes back.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import serial
+
+from usb2rc.config import OutputConfig
+from usb2rc.mapping import Mapping
+from usb2rc.outputs import protocol
+from usb2rc.outputs.channels import RC11_SCALE, OutputChannels
+from usb2rc.outputs.sumd import SumdChannels
+from usb2rc.protocol import c2_16b
+from usb2rc.rc_sessions import CrsfSession, SbusSession
+from usb2rc.scheduler import (
+    C2Output,
+    ChannelOutput,
+    CrsfOutput,
+    ReplyRx,
+    RxThread,
+    SumdOutput,
+    TickThread,
+    queue_cap,
+)
+from usb2rc.session import C2Settings, frames_per_tick
+from usb2rc.state import NodeTable
+from usb2rc.transport import SerialLink
+from usb2rc.worker import Worker
+
+
+@dataclass(frozen=True)
+class OutputContext:
+    """What a build function gets: the output's thread name and config, the compiled
+    mapping, the node table, the daemon's hooks and version."""
+
+    name: str
+    config: OutputConfig
+    mapping: Mapping
+    table: NodeTable
+    on_tick: Callable[[], None] | None = None
+    on_first_write: Callable[[], None] | None = None
+    version: str = ""
+
+
+@dataclass
+class BuiltOutput:
+    """A running output's pieces: its link, its thread and, when it reads, its RX thread.
+
+    The daemon uses of `link` what `SerialLink` offers: `open_now()`, `is_open`, `url`,
+    `last_error`, `stats` (`LinkStats`) and `close()`; of `thread` a `TickThread`'s `start`,
+    `stop`, `join`, `stats`, `period_s`, `next_deadline` and `last_tick_monotonic`."""
+
+    link: SerialLink
+    thread: TickThread
+    rx: Worker | None = None
+
+
+def build_c2_16b(ctx: OutputContext) -> BuiltOutput:
+    out = ctx.config
+    assert out.port
+    settings = C2Settings(
+        rate_hz=out.rate_hz,
+        baudrate=out.baudrate,
+        line_feed=out.line_feed,
+        binary_status=out.service_status == "binary",
+        version=ctx.version,
+    )
+    frame_len = c2_16b.FRAME_LEN + (1 if out.line_feed else 0)
+    tick_bytes = frames_per_tick(out.baudrate, out.rate_hz, frame_len) * frame_len
+    link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(tick_bytes))
+    c2 = C2Output(ctx.name, link, ctx.table, settings, ctx.on_tick, ctx.on_first_write)
+    return BuiltOutput(link, c2, RxThread(f"{ctx.name}-rx", link, c2.received.put))
+
+
+def build_sumd(ctx: OutputContext) -> BuiltOutput:
+    out = ctx.config
+    assert out.port
+    channels = SumdChannels.of(ctx.mapping.sumd_channels(out), out.extended)
+    link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(channels.frame_length))
+    thread = SumdOutput(
+        ctx.name, link, ctx.table, channels, out.rate_hz, ctx.on_tick, ctx.on_first_write
+    )
+    return BuiltOutput(link, thread)
+
+
+def _rc11_channels(ctx: OutputContext) -> OutputChannels:
+    sources = ctx.mapping.sumd_channels(ctx.config)
+    frame_length = protocol(ctx.config.protocol).frame_length(len(sources))
+    return OutputChannels.scaled(sources, RC11_SCALE, frame_length)
+
+
+def build_crsf(ctx: OutputContext) -> BuiltOutput:
+    out = ctx.config
+    assert out.port
+    channels = _rc11_channels(ctx)
+    entry = protocol("crsf")
+    session = CrsfSession(
+        1.0 / out.rate_hz,
+        follow_module=bool(out.option("follow_module")),
+        min_interval_s=entry.bits_per_second(1.0, len(channels)) / out.baudrate,
+    )
+    link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(channels.frame_length))
+    thread = CrsfOutput(
+        ctx.name, link, ctx.table, channels, session, ctx.on_tick, ctx.on_first_write
+    )
+    return BuiltOutput(link, thread, ReplyRx(f"{ctx.name}-rx", link, thread.received.put))
+
+
+def build_sbus(ctx: OutputContext) -> BuiltOutput:
+    out = ctx.config
+    assert out.port
+    channels = _rc11_channels(ctx)
+    link = SerialLink(
+        out.port,
+        out.baudrate,
+        max_queued_bytes=queue_cap(channels.frame_length),
+        parity=serial.PARITY_EVEN,
+        stopbits=serial.STOPBITS_TWO,
+    )
+    thread = ChannelOutput(
+        ctx.name,
+        link,
+        ctx.table,
+        channels,
+        SbusSession(),
+        out.rate_hz,
+        ctx.on_tick,
+        ctx.on_first_write,
+    )
+    return BuiltOutput(link, thread)

@@ -1,0 +1,155 @@
+"""The CRSF and SBUS line sessions, sans-IO (no thread, no port, no clock: time is passed in).
+
+Both are `session.FrameLineSession`s: one frame a tick while the line is open and not
+stalled, channel values in (11-bit wire values, `outputs.channels.RC11_SCALE`), bytes out.
+
+- `SbusSession`: a 25-byte frame every tick; while any listed channel's node is in failsafe
+  the frame carries the frame-lost and failsafe flags (docs/ICD.md, "SBUS output").
+- `CrsfSession`: an RC_CHANNELS_PACKED frame every tick while every listed channel is live;
+  while any is in failsafe it sends nothing, so the ExpressLRS transmitter module stops and
+  the receiver's own failsafe fires (docs/ICD.md, "CRSF failsafe"). It decodes what the module
+  sends back (`received(data, now)`): link statistics, and the timing-correction frames with
+  which an ELRS module asks the handset to follow its packet rate and phase; the scheduler
+  asks `next_send(due, now)` when the next frame is due.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from usb2rc.protocol import crsf, rc11, sbus
+from usb2rc.scaling import RC11_CENTRE, RC11_LOW
+from usb2rc.session import FrameLineSession
+
+# ELRS sends a timing correction every 200 ms while it hears the handset; after a second
+# without one the session goes back to the configured rate.
+SYNC_STALE_S = 1.0
+MIN_INTERVAL_S = 0.001  # the module's rate is followed up to 1000 Hz, never faster
+MAX_INTERVAL_S = 0.1  # ... and down to 10 Hz; anything else is implausible and ignored
+UNLISTED = RC11_LOW  # channels past the list: 988 µs ("off" for a switch channel)
+
+
+def padded(channels: Sequence[int], count: int = rc11.CHANNELS) -> list[int]:
+    """The listed channels, then UNLISTED up to `count`."""
+    return [*channels[:count], *([UNLISTED] * (count - len(channels)))]
+
+
+class SbusSession(FrameLineSession):
+    """SBUS: channels 1..16 analogue, 17 and 18 digital (on above the centre)."""
+
+    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        digital = channels[rc11.CHANNELS :]
+        return sbus.encode_sbus(
+            padded(channels),
+            ch17=len(digital) > 0 and digital[0] > RC11_CENTRE,
+            ch18=len(digital) > 1 and digital[1] > RC11_CENTRE,
+            frame_lost=failsafe,
+            failsafe=failsafe,
+        )
+
+
+@dataclass(frozen=True)
+class ModuleTiming:
+    """The module's last timing correction, as followed: when it came (clock of the
+    session's caller), its packet interval and the offset it asked for (seconds)."""
+
+    at: float
+    interval_s: float
+    offset_s: float
+
+
+class CrsfSession(FrameLineSession):
+    """CRSF to a transmitter module: RC frames, the module's telemetry, its timing."""
+
+    def __init__(
+        self, interval_s: float, *, follow_module: bool = True, min_interval_s: float = 0.0
+    ) -> None:
+        """`interval_s`: the configured period; `min_interval_s`: the shortest the line
+        carries (one frame a tick at the baud rate): a faster module rate is followed only
+        down to it."""
+        super().__init__()
+        self.configured_interval_s = interval_s
+        self.follow_module = follow_module
+        self.min_interval_s = max(MIN_INTERVAL_S, min_interval_s)
+        self.decoder = crsf.CrsfDecoder()
+        self.link: crsf.LinkStatistics | None = None
+        self.link_at: float | None = None
+        self.timing: ModuleTiming | None = None
+        self.withheld = 0  # ticks without an RC frame because a channel is in failsafe
+        self.timing_frames = 0
+        self.timing_ignored = 0  # implausible or not followed
+        self.other_frames = 0
+        self._shift_s = 0.0  # the phase correction still to apply to the next send
+
+    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        if failsafe:
+            self.withheld += 1
+            return b""
+        return crsf.encode_rc_channels(padded(channels))
+
+    # --- what the module sends back ------------------------------------------------------
+
+    def received(self, data: bytes, now: float) -> None:
+        """Bytes read from the module at clock `now`."""
+        for frame in self.decoder.feed(data):
+            if isinstance(frame, crsf.LinkStatistics):
+                self.link, self.link_at = frame, now
+            elif isinstance(frame, crsf.TimingSync):
+                self._follow(frame, now)
+            else:
+                self.other_frames += 1
+
+    def _follow(self, sync: crsf.TimingSync, now: float) -> None:
+        self.timing_frames += 1
+        interval = sync.interval_s
+        if not self.follow_module or not MIN_INTERVAL_S <= interval <= MAX_INTERVAL_S:
+            self.timing_ignored += 1
+            return
+        interval = max(interval, self.min_interval_s)
+        # The offset says how long before the module needs it a frame arrives (beyond the
+        # module's margin): send that much later (earlier when negative), at most half a
+        # period at a time so one odd measurement cannot skip or double a frame.
+        half = interval / 2
+        self._shift_s = max(-half, min(half, sync.offset_s))
+        self.timing = ModuleTiming(now, interval, sync.offset_s)
+
+    # --- when to send ----------------------------------------------------------------------
+
+    def following(self, now: float) -> bool:
+        """Whether the module's timing is followed now (a correction in the last second)."""
+        return self.timing is not None and now - self.timing.at <= SYNC_STALE_S
+
+    def interval_s(self, now: float) -> float:
+        if self.timing is not None and self.following(now):
+            return self.timing.interval_s
+        return self.configured_interval_s
+
+    def next_send(self, due: float, now: float) -> float:
+        """When the frame after the one due at `due` is due: one interval later (the
+        module's while it sends timing corrections), shifted once by its last offset."""
+        shift, self._shift_s = self._shift_s, 0.0
+        if not self.following(now):
+            shift = 0.0  # a correction gone stale no longer says where the module is
+        return due + self.interval_s(now) + shift
+
+    def link_text(self, now: float) -> str:
+        """Link quality and timing for `stats` and `monitor`."""
+        parts = []
+        if self.link is None or self.link_at is None:
+            parts.append("no link statistics from the module")
+        else:
+            link = self.link
+            parts.append(
+                f"link quality {link.uplink_link_quality}% up / "
+                f"{link.downlink_link_quality}% down, RSSI -{link.uplink_rssi_1} dBm, "
+                f"SNR {link.uplink_snr} dB ({now - self.link_at:.1f} s ago)"
+            )
+        if self.timing is not None and self.following(now):
+            parts.append(
+                f"following the module: {1 / self.timing.interval_s:.0f} Hz, "
+                f"offset {self.timing.offset_s * 1e6:+.1f} µs"
+            )
+        else:
+            parts.append(f"own rate {1 / self.configured_interval_s:.0f} Hz")
+        return ", ".join(parts)

@@ -1,0 +1,66 @@
+"""The daemon's statistics as text: one line per output and per device, from the record
+`Daemon.stats_record()` builds (the same record `run --stats-format json` prints whole).
+
+Each counter's label lives here once; a key missing from a record (an output without RX, a
+SUMD output without service frames) is left out of its line.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+# record key -> how the text line shows it, in line order
+OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
+    ("writes", "writes {}"),
+    ("ticks", "ticks {}"),
+    ("late_ticks", "late {}"),
+    ("missed_ticks", "missed {}"),
+    ("period_p99_error_ms", "p99 |period error| {:.3f} ms"),
+    ("bytes_written", "bytes {}"),
+    ("queue_full_skips", "queue-full skips {}"),
+    ("write_timeouts", "write timeouts {}"),
+    ("short_writes", "short writes {}"),
+    ("stalls", "stalls {}"),
+    ("stale_flushes", "stale flushes {}"),
+    ("line_losses", "line lost {}x"),
+    ("tick_errors", "tick errors {}"),
+    ("data_frames", "data frames {}"),
+    ("service_frames", "service frames {}"),
+    ("round_robin_deferrals", "round-robin deferrals {}"),
+    ("handover_frames", "handover frames {}"),
+    ("handovers_cut", "(cut by failsafe {})"),
+    ("low_battery_frames", "low battery frames {}"),
+    ("rx_bytes", "rx bytes {}"),
+    ("rx_skipped", "rx skipped {}"),
+    ("rx_crc_failures", "rx crc failures {}"),
+    ("rx_requests", "requests {}"),
+    ("module", "{}"),
+    ("frames_withheld", "frames withheld (failsafe) {}"),
+    ("module_rx_frames", "rx frames {}"),
+    ("module_rx_crc_failures", "rx crc failures {}"),
+    ("module_rx_skipped", "rx skipped {}"),
+    ("timing_corrections", "timing corrections {}"),
+    ("timing_corrections_ignored", "(ignored {})"),
+)
+
+
+def output_line(record: dict[str, Any]) -> str:
+    fields = [text.format(record[key]) for key, text in OUTPUT_FIELDS if key in record]
+    return f"{record['name']} {record['url']}: " + ", ".join(fields)
+
+
+def device_line(record: dict[str, Any]) -> str:
+    age = record["last_report_age_s"]
+    line = (
+        f"device {record['name']} ({record['port_path']}): "
+        f"{record['reports']} reports ({record['reports_per_s']:.1f}/s avg), "
+        f"bad {record['bad_reports']}, last report "
+        + ("never" if age is None else f"{age:.2f} s ago")
+    )
+    if "backend_busy_ms" in record:
+        line += f", backend busy {record['backend_busy_ms']:.1f} ms"
+    return line
+
+
+def stats_lines(record: dict[str, Any]) -> list[str]:
+    return [*map(output_line, record["outputs"]), *map(device_line, record["devices"])]
