@@ -97,6 +97,12 @@ class TrackingDecoder:
                     self._high[i] = max(self._high.get(i, v), v)
         return ok
 
+    def feed_batch(self, reports: Sequence[bytes]) -> tuple[int, int]:
+        """Each report, one by one (not the inner decoder's batch, which decodes only the
+        last of each report ID): a flick in the middle of a batch counts too."""
+        accepted = sum(self.feed(report) for report in reports)
+        return accepted, len(reports) - accepted
+
     def state(self) -> InputState:
         return self._inner.state()
 
