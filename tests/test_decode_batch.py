@@ -1,8 +1,10 @@
 """ReportDecoder.feed_batch: the state and counters of `feed` on every report, in order.
 
 It decodes only the last valid report of each report ID (what a paced reader's drain takes
-in one wake-up); these tests hold it to the one-by-one result on every real descriptor and
-on a device whose report IDs share buttons (where the order of the survivors matters).
+in one wake-up), and with `on_buttons` reports the button mask after every report (a tap
+inside a batch must not be lost); these tests hold it to the one-by-one result on every
+real descriptor and on a device whose report IDs share buttons (where the order of the
+survivors matters).
 """
 
 from __future__ import annotations
@@ -48,17 +50,30 @@ def reports_for(layout: DeviceLayout) -> st.SearchStrategy[bytes]:
 
 
 def one_by_one(layout: DeviceLayout, reports: list[bytes]) -> tuple[object, ...]:
+    """State, counters, accepted, and the button mask after each accepted report."""
     decoder = layout.make_decoder()
-    results = [decoder.feed(r) for r in reports]
-    return decoder.state(), decoder.reports, decoder.bad_reports, results.count(True)
+    masks = []
+    for report in reports:
+        if decoder.feed(report):
+            masks.append(decoder.state().buttons)
+    return decoder.state(), decoder.reports, decoder.bad_reports, len(masks), masks
 
 
 def batched(layout: DeviceLayout, batches: list[list[bytes]]) -> tuple[object, ...]:
     decoder = layout.make_decoder()
     accepted = 0
+    masks: list[int] = []
     for batch in batches:
-        accepted += decoder.feed_batch(batch)[0]
-    return decoder.state(), decoder.reports, decoder.bad_reports, accepted
+        accepted += decoder.feed_batch(batch, masks.append)[0]
+    without = layout.make_decoder()  # and without on_buttons: the same state and counts
+    for batch in batches:
+        without.feed_batch(batch)
+    assert (without.state(), without.reports, without.bad_reports) == (
+        decoder.state(),
+        decoder.reports,
+        decoder.bad_reports,
+    )
+    return decoder.state(), decoder.reports, decoder.bad_reports, accepted, masks
 
 
 @settings(max_examples=300, deadline=None)
@@ -87,15 +102,17 @@ def test_shared_buttons_example() -> None:
     assert batched(layout, [reports]) == one_by_one(layout, reports)
     state = one_by_one(layout, reports)[0]
     assert state.buttons == 1 and state.values == (0x20,)  # type: ignore[attr-defined]
-    # ... and when ID 1's release is the latest, the button is up.
+    # ... and when ID 1's release is the latest, the button is up; the press in between is
+    # still seen by on_buttons.
     reports = [b"\x02\x01\x10", b"\x01\x00"]
     assert batched(layout, [reports]) == one_by_one(layout, reports)
     assert one_by_one(layout, reports)[0].buttons == 0  # type: ignore[attr-defined]
+    assert batched(layout, [reports])[4] == [1, 0]
 
 
 def test_empty_batch_changes_nothing() -> None:
     layout = REAL[0]
     decoder = layout.make_decoder()
     before = decoder.state()
-    assert decoder.feed_batch([]) == (0, 0)
+    assert decoder.feed_batch([], lambda mask: None) == (0, 0)
     assert decoder.state() == before and (decoder.reports, decoder.bad_reports) == (0, 0)

@@ -703,6 +703,7 @@ class _ReportPlan:
     decode: _DecodeFn
     keep_buttons: int  # ~ the buttons this report owns
     source: str  # the generated code, for debugging
+    buttons: Callable[[bytes], int]  # the buttons it presses, without decoding its values
 
 
 def _compile_report(layout: DeviceLayout, rid: int) -> _ReportPlan:
@@ -718,9 +719,11 @@ def _compile_report(layout: DeviceLayout, rid: int) -> _ReportPlan:
         f"_array_buttons(v, arrays[{i}], {a.bit_offset + id_bits})" for i, a in enumerate(arrays)
     ]
     if len(terms) <= 8:
-        lines.append(f"    return {' | '.join(terms) or '0'}")
+        pressed = [f"    return {' | '.join(terms) or '0'}"]
     else:  # one statement per term: a long `a | b | ...` would nest too deep to compile
-        lines += ["    b = 0", *(f"    b |= {t}" for t in terms), "    return b"]
+        pressed = ["    b = 0", *(f"    b |= {t}" for t in terms), "    return b"]
+    lines += pressed
+    lines += ["def buttons(r):", "    v = int.from_bytes(r, 'little')", *pressed]
     source = "\n".join(lines) + "\n"
     namespace: dict[str, object] = {
         "_array_buttons": _array_buttons,
@@ -733,7 +736,8 @@ def _compile_report(layout: DeviceLayout, rid: int) -> _ReportPlan:
         owned |= mask
     length = layout.input_report_lengths[rid] + id_bits // 8
     decode: _DecodeFn = namespace["decode"]  # type: ignore[assignment]
-    return _ReportPlan(length, decode, ~owned, source)
+    pressed_fn: Callable[[bytes], int] = namespace["buttons"]  # type: ignore[assignment]
+    return _ReportPlan(length, decode, ~owned, source, pressed_fn)
 
 
 class ReportDecoder:
@@ -766,23 +770,33 @@ class ReportDecoder:
         self.reports += 1
         return True
 
-    def feed_batch(self, reports: Sequence[bytes]) -> tuple[int, int]:
+    def feed_batch(
+        self, reports: Sequence[bytes], on_buttons: Callable[[int], None] | None = None
+    ) -> tuple[int, int]:
         """Take `reports` in order: the same state and counters as `feed` on each, but only
         the last valid report of each report ID is decoded. A report sets every field and
         every button its ID owns, so an earlier one of the same ID cannot show in the state;
         the survivors are decoded in the order of their last occurrence, so a button two IDs
         share ends as the latest report says. A reader drains ~20 reports a tick from a
-        1 kHz device: this decodes one. Returns (accepted, refused)."""
+        1 kHz device: this decodes one. Returns (accepted, refused).
+
+        `on_buttons(mask)`: called after each accepted report, in order, with the button mask
+        `feed` would have left (its button bits only are computed, not its values), for a
+        caller that must see every press, even one released within the batch."""
         single = self._plan
         refused = 0
+        mask = self._buttons
         if single is not None:
             need = single.length
             last = None
             for report in reports:
                 if len(report) < need:
                     refused += 1
-                else:
-                    last = report
+                    continue
+                last = report
+                if on_buttons is not None:
+                    mask = (mask & single.keep_buttons) | single.buttons(report)
+                    on_buttons(mask)
             survivors = [last] if last is not None else []
         else:
             plans = self._plans
@@ -794,6 +808,9 @@ class ReportDecoder:
                     continue
                 latest.pop(report[0], None)  # re-inserted: dict order = last occurrence
                 latest[report[0]] = report
+                if on_buttons is not None:
+                    mask = (mask & plan.keep_buttons) | plan.buttons(report)
+                    on_buttons(mask)
             survivors = list(latest.values())
         for report in survivors:
             self.feed(report)
