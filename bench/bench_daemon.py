@@ -19,9 +19,10 @@ daemon's) and prints one JSON line per decoded frame. What is measured:
   T.16000M at 1000 reports/s each; utime+stime from /proc/PID/stat over --cpu-seconds after
   --warmup, VmRSS/VmHWM from /proc/PID/status; SIGUSR1 stats at the start and the end of the
   window give each device's report rate (it must be ~1000/s) and late/missed ticks.
-  With `--extra-outputs sumd crsf sbus` the daemon runs those outputs too, at their default
-  rates, each on a pty of its own (drained by a thread here; the C2-16B output stays on the
-  reader's pty): the CPU figure is then the daemon with every output.
+  With `--extra-outputs sumd crsf sbus mavlink` the daemon runs those outputs too, at their
+  default rates, each on a pty of its own (MAVLink: UDP to a local socket), drained by a
+  thread here; the C2-16B output stays on the reader's pty: the CPU figure is then the daemon
+  with every output.
 - start: spawning `python -m usb2rc run ...` (one replayed device) -> the startup frame
   (service 8) and the first data frame on the pty; median of --starts.
 - stop: SIGTERM -> the process has exited (every start trial and the cpu run).
@@ -41,6 +42,7 @@ import os
 import re
 import select
 import signal
+import socket
 import statistics
 import subprocess
 import sys
@@ -377,41 +379,57 @@ class DaemonProcess:
         return took
 
 
-EXTRA_OUTPUTS = ("sumd", "crsf", "sbus")
+EXTRA_OUTPUTS = ("sumd", "crsf", "sbus", "mavlink")
 EXTRA_CHANNELS = "[node0.x, node0.y, node0.rz, node0.slider, node0.button1]"
 
 
-class PtyDrain:
-    """Far ends for the extra outputs: one pty each, read and dropped by one thread."""
+class OutputDrain:
+    """Far ends for the extra outputs, read and dropped by one thread: a pty each for the
+    serial protocols, a local UDP socket for MAVLink (`udpout:` to it)."""
 
-    def __init__(self, count: int) -> None:
-        pairs = [os.openpty() for _ in range(count)]
+    def __init__(self, protocols: Sequence[str]) -> None:
+        pairs = [os.openpty() for p in protocols if p != "mavlink"]
         self.masters = [m for m, _ in pairs]
         self._slaves = [s for _, s in pairs]
-        self.paths = [os.ttyname(s) for s in self._slaves]
+        ttys = iter(os.ttyname(s) for s in self._slaves)
+        self.udp: socket.socket | None = None
+        if "mavlink" in protocols:
+            self.udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self.udp.bind(("127.0.0.1", 0))
+        self.ports = [self._udp_url() if p == "mavlink" else next(ttys) for p in protocols]
         self.bytes_read = 0
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="pty drain", daemon=True)
+        self._thread = threading.Thread(target=self._run, name="output drain", daemon=True)
         self._thread.start()
 
+    def _udp_url(self) -> str:
+        assert self.udp is not None
+        return f"udpout:127.0.0.1:{self.udp.getsockname()[1]}"
+
     def _run(self) -> None:
+        readable: list[Any] = [*self.masters, *([self.udp] if self.udp else [])]
         while not self._stop.is_set():
-            ready, _, _ = select.select(self.masters, [], [], 0.1)
-            for fd in ready:
-                self.bytes_read += len(os.read(fd, 65536))
+            ready, _, _ = select.select(readable, [], [], 0.1)
+            for source in ready:
+                if isinstance(source, socket.socket):
+                    self.bytes_read += len(source.recv(65536))
+                else:
+                    self.bytes_read += len(os.read(source, 65536))
 
     def close(self) -> None:
         self._stop.set()
         self._thread.join(2)
         for fd in self.masters + self._slaves:
             os.close(fd)
+        if self.udp is not None:
+            self.udp.close()
 
 
-def extra_outputs_config(workdir: Path, protocols: Sequence[str], paths: Sequence[str]) -> Path:
+def extra_outputs_config(workdir: Path, protocols: Sequence[str], ports: Sequence[str]) -> Path:
     """C2-16B (its port from --port) plus each extra output at its default rate."""
     lines = ["outputs:", "  - protocol: c2-16b"]
-    for protocol, path in zip(protocols, paths, strict=True):
-        lines.append(f"  - {{protocol: {protocol}, port: {path}, channels: {EXTRA_CHANNELS}}}")
+    for protocol, port in zip(protocols, ports, strict=True):
+        lines.append(f"  - {{protocol: {protocol}, port: '{port}', channels: {EXTRA_CHANNELS}}}")
     config = workdir / "outputs.yaml"
     config.write_text("\n".join(lines) + "\n")
     return config
@@ -425,10 +443,10 @@ def run_cpu(
     for i in range(4):
         (replay_dir / f"stick{i}.hid").write_text(khz_recording(4.0, f"Thrustmaster T.16000M {i}"))
     reader = PtyReader(workdir)
-    drain = PtyDrain(len(extra_outputs))
+    drain = OutputDrain(extra_outputs)
     extra: list[str] = []
     if extra_outputs:
-        extra = ["--config", str(extra_outputs_config(workdir, extra_outputs, drain.paths))]
+        extra = ["--config", str(extra_outputs_config(workdir, extra_outputs, drain.ports))]
     daemon = DaemonProcess(replay_dir, reader.path, workdir / "cpu.log", extra)
     try:
         reader.wait_for(lambda f: {x["n"] for x in f if x["k"] == "d"} >= {0, 1, 2, 3}, 20,
@@ -443,6 +461,7 @@ def run_cpu(
     finally:
         stop_s = daemon.terminate()
         drain.close()
+    extra_bytes = {"extra_outputs_bytes": drain.bytes_read} if extra_outputs else {}
     frames = reader.data(t0)
     reader.close()
     times = [f["t"] for f in frames if f["t"] <= t1]
@@ -466,6 +485,7 @@ def run_cpu(
         "load_late_ticks": s1["late"] - s0["late"],
         "load_missed_ticks": s1["missed"] - s0["missed"],
         "stop_s": stop_s,
+        **extra_bytes,  # what the extra outputs' far ends read: proof they ran
     }
 
 

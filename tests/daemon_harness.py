@@ -12,12 +12,14 @@ import contextlib
 import os
 import select
 import signal
+import socket
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
@@ -155,6 +157,27 @@ def install(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
+class MavlinkStream:
+    """The far end of a MAVLink line as a receiver parses it: pymavlink's own parser (not
+    usb2rc's code), `feed(bytes) -> [message]`; bad data is counted, never returned."""
+
+    def __init__(self) -> None:
+        from pymavlink.dialects.v20 import common
+
+        self.parser = common.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.bad = 0
+
+    def feed(self, data: bytes) -> list[Any]:
+        messages = []
+        for message in self.parser.parse_buffer(data) or []:
+            if message.get_type() == "BAD_DATA":
+                self.bad += 1
+            else:
+                messages.append(message)
+        return messages
+
+
 @dataclass(frozen=True)
 class Seen:
     time: float
@@ -167,6 +190,7 @@ DECODERS: dict[str, Callable[[], Any]] = {
     "sumd": sumd.SumdDecoder,
     "crsf": RefCrsfReader,
     "sbus": RefSbusReader,
+    "mavlink": MavlinkStream,
 }
 
 
@@ -323,3 +347,48 @@ def service_frames(frames: list[Any], node_id: int | None = None) -> list[c2_16b
 
 def services(frames: list[Any], node_id: int | None = None) -> list[str]:
     return [f.service.service_name for f in service_frames(frames, node_id)]
+
+
+# --- MAVLink far ends (docs/ICD.md, "MAVLink output") ----------------------------------------
+
+RELEASED = [0] * 8 + [65534] * 10  # channels 1-8: 0; 9-18: UINT16_MAX-1 (common.xml)
+
+
+class UdpLine(PtyLine):
+    """A UDP listener as the far end (a GCS / MAVLink router on udpin): what arrives is
+    parsed by pymavlink (daemon_harness.MavlinkStream)."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.url = f"udpout:127.0.0.1:{self.sock.getsockname()[1]}"
+        super().__init__("mavlink")
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            if not select.select([self.sock], [], [], 0.05)[0]:
+                continue
+            data = self.sock.recv(65535)
+            messages = self.decoder.feed(data)
+            with self._cond:
+                self._received(time.monotonic(), data, messages)
+                self._cond.notify_all()
+
+    def close(self) -> None:
+        super().close()
+        self.sock.close()
+
+
+def pwm_of_int16(value: int) -> int:
+    """An int16 axis onto RC_CHANNELS_OVERRIDE's 1000..2000 µs, linear through both ends (the
+    exact quotient is never a half: 65535 is odd)."""
+    return 1000 + round(Fraction(value + 32768, 65535) * 1000)
+
+
+def of_type(messages: list[Any], kind: str) -> list[Any]:
+    return [m for m in messages if m.get_type() == kind]
+
+
+def channels(message: Any) -> list[int]:
+    """An RC_CHANNELS_OVERRIDE's 18 channels."""
+    return [getattr(message, f"chan{i}_raw") for i in range(1, 19)]

@@ -109,6 +109,18 @@ def test_daemon(tmp_path: Path) -> None:
     assert "p99 |period - 20 ms|" in out
 
 
+def test_daemon_cpu_with_every_extra_output(tmp_path: Path) -> None:
+    """--extra-outputs takes every protocol, MAVLink on UDP to a local socket included."""
+    out = run(
+        sys.executable, "bench/bench_daemon.py", "--only", "cpu", "--cpu-seconds", "1",
+        "--warmup", "0.3", "--extra-outputs", "sumd", "crsf", "sbus", "mavlink",
+    )  # fmt: skip
+    result = last_json(out)
+    assert "outputs c2-16b + sumd + crsf + sbus + mavlink" in out
+    assert result["figures"]["extra_outputs_bytes"] > 0
+    assert isinstance(result["figures"]["cpu_pct"], float)
+
+
 def test_umockdev() -> None:
     """Figures on the real hidapi path, or (no umockdev here) why not; never a crash."""
     from umockdev_harness import require_umockdev

@@ -62,6 +62,8 @@ PARSE_ONLY = {
     "usb2rc decode /dev/ttyUSB1": HARDWARE,
     "usb2rc decode --json /dev/ttyUSB1": HARDWARE,
     "usb2rc decode --protocol sumd /dev/ttyUSB1": HARDWARE,
+    "usb2rc decode --protocol mavlink udpin:127.0.0.1:14550": "listens until Ctrl-C "
+    "(tests/test_mavlink_cli.py runs it)",
     "usb2rc list": HARDWARE,
     "usb2rc list --config hotas.yaml --json": PLACEHOLDER,
     "usb2rc describe rec.hid": PLACEHOLDER,

@@ -1,9 +1,11 @@
-"""End to end: C2-16B, SUMD, CRSF and SBUS outputs at once, each on a real pty, the daemon as
-a subprocess over two replayed devices; each far end decodes the mapped values, an unplug
-shows each protocol's failsafe (docs/ICD.md: C2-16B `!`, SUMD 0x81, SBUS frame-lost +
-failsafe flags, CRSF no frames), a replug brings each back. CRSF and SBUS are read with the
-tests' own decoder (rc_reference.py); the CRSF far end plays an ELRS module that answers
-with link statistics and timing corrections."""
+"""End to end (issue 15's "done when"): C2-16B, SUMD, CRSF and SBUS outputs on real ptys and
+a MAVLink output on UDP, all five at once, the daemon as a subprocess over two replayed
+devices; each far end decodes the mapped values, an unplug shows each protocol's failsafe
+(docs/ICD.md: C2-16B `!`, SUMD 0x81, SBUS frame-lost + failsafe flags, CRSF no frames,
+MAVLink every override channel released, then heartbeats only), a replug brings each back.
+CRSF and SBUS are read with the tests' own decoder (rc_reference.py), MAVLink with
+pymavlink's parser (daemon_harness.MavlinkStream); the CRSF far end plays an ELRS module that
+answers with link statistics and timing corrections."""
 
 from __future__ import annotations
 
@@ -15,11 +17,16 @@ from pathlib import Path
 from typing import Any
 
 from daemon_harness import (
+    RELEASED,
     PtyLine,
     StickState,
+    UdpLine,
+    channels,
     data_frames,
     expected_frame,
     install,
+    of_type,
+    pwm_of_int16,
     recording,
     run_daemon,
 )
@@ -51,6 +58,21 @@ def sumd_expected(a: StickState, b: StickState) -> list[int]:
     return [axis(axes_a[0]), axis(axes_a[1]), axis(axes_b[6]), axis(axes_a[3]), button]
 
 
+def override_expected(a: StickState, b: StickState) -> list[int]:
+    """The five listed channels as RC_CHANNELS_OVERRIDE µs (1000..2000, buttons 1000/2000),
+    the other 13 "ignore this field" (65535)."""
+    axes_a, group1_a, _ = expected_frame(a)
+    axes_b, _, _ = expected_frame(b)
+    button = 2000 if group1_a & 1 else 1000
+    axes = [axes_a[0], axes_a[1], axes_b[6], axes_a[3]]
+    return [*map(pwm_of_int16, axes), button] + [65535] * 13
+
+
+def last_override(messages: list[Any]) -> list[int] | None:
+    overrides = of_type(messages, "RC_CHANNELS_OVERRIDE")
+    return channels(overrides[-1]) if overrides else None
+
+
 class FakeModule(PtyLine):
     """An ELRS transmitter module's UART: after every 25th RC frame it answers with link
     statistics and a timing correction (250 Hz, offset 0), as frames built from the
@@ -70,15 +92,18 @@ class FakeModule(PtyLine):
                 self.send(crsf_frame(0xEA, 0x14, link) + crsf_frame(0xEA, 0x3A, timing))
 
 
-def config(tmp_path: Path, c2: PtyLine, sumd_line: PtyLine, crsf: PtyLine, sbus: PtyLine) -> Path:
-    channels = "[" + ", ".join(CHANNELS) + "]"
-    path = tmp_path / "four.yaml"
+def config(
+    tmp_path: Path, c2: PtyLine, sumd_line: PtyLine, crsf: PtyLine, sbus: PtyLine, udp: UdpLine
+) -> Path:
+    listed = "[" + ", ".join(CHANNELS) + "]"
+    path = tmp_path / "five.yaml"
     path.write_text(
         "outputs:\n"
         f"  - {{protocol: c2-16b, port: {c2.path}}}\n"
-        f"  - {{protocol: sumd, port: {sumd_line.path}, channels: {channels}}}\n"
-        f"  - {{protocol: crsf, port: {crsf.path}, channels: {channels}}}\n"
-        f"  - {{protocol: sbus, port: {sbus.path}, channels: {channels}}}\n"
+        f"  - {{protocol: sumd, port: {sumd_line.path}, channels: {listed}}}\n"
+        f"  - {{protocol: crsf, port: {crsf.path}, channels: {listed}}}\n"
+        f"  - {{protocol: sbus, port: {sbus.path}, channels: {listed}}}\n"
+        f"  - {{protocol: mavlink, port: '{udp.url}', channels: {listed}}}\n"
         "devices:\n"
         "  - {name: a, match: {port: replay-a}, node_id: 0}\n"
         "  - {name: b, match: {port: replay-b}, node_id: 1}\n"
@@ -101,14 +126,16 @@ def latest_state(line: PtyLine, wanted: Any, kind: type, key: Any) -> Any:
     )
 
 
-def test_four_outputs_map_fail_safe_and_come_back(tmp_path: Path, line: PtyLine, replay_dir):
+def test_five_outputs_map_fail_safe_and_come_back(tmp_path: Path, line: PtyLine, replay_dir):
     sumd_line, crsf_line, sbus_line = PtyLine("sumd"), FakeModule(), PtyLine("sbus")
-    lines = [sumd_line, crsf_line, sbus_line]
+    udp = UdpLine()
+    lines: list[PtyLine] = [sumd_line, crsf_line, sbus_line, udp]
     install(replay_dir / "a.hid", recording(STICK_A))
     install(replay_dir / "b.hid", recording(STICK_B))
-    path = config(tmp_path, line, sumd_line, crsf_line, sbus_line)
+    path = config(tmp_path, line, sumd_line, crsf_line, sbus_line, udp)
     daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(path))
     live = rc11_expected(STICK_A[-1], STICK_B[-1])
+    override = override_expected(STICK_A[-1], STICK_B[-1])
     try:
         # every far end decodes the mapped values of both devices
         line.wait_for(
@@ -132,6 +159,10 @@ def test_four_outputs_map_fail_safe_and_come_back(tmp_path: Path, line: PtyLine,
             RefSbusFrame,
             lambda f: (f.frame_lost, f.failsafe, f.channels[:5]),
         )
+        udp.wait_for(lambda ms: last_override(ms) == override, WAIT_S)
+        live_override = of_type(udp.frames(), "RC_CHANNELS_OVERRIDE")[-1]
+        assert (live_override.target_system, live_override.target_component) == (1, 1)
+        assert of_type(udp.frames(), "HEARTBEAT")  # a GCS heartbeat at 1 Hz
 
         # the module's replies: link quality and timing reach the stats
         crsf_line.wait_for(lambda fr: len(crsf_rc(fr)) >= 60, WAIT_S)
@@ -155,8 +186,13 @@ def test_four_outputs_map_fail_safe_and_come_back(tmp_path: Path, line: PtyLine,
         sbus_line.wait_for(lambda fr: len(fr) >= sbus_at + 30, WAIT_S)
         assert all(f.failsafe and f.frame_lost for f in sbus_line.frames()[sbus_at:])
         assert len(crsf_rc(crsf_line.frames())) <= crsf_at + 1
+        # MAVLink: every override channel released to the RC radio for 1 s, then heartbeats
+        udp.wait_for(lambda ms: last_override(ms) == RELEASED, WAIT_S)
+        udp.wait_for(lambda ms: len(of_type(ms[-2:], "HEARTBEAT")) == 2, WAIT_S)
+        mavlink_at = len(udp.frames())
         daemon.signal(signal.SIGUSR1)
         wait_log(daemon, re.compile(r"output3-crsf .*frames withheld \(failsafe\) [1-9]"))
+        wait_log(daemon, re.compile(r"output5-mavlink .*releases [1-9]"))
 
         # replug: every output live again with the mapped values
         install(replay_dir / "b.hid", recording(STICK_B))
@@ -171,6 +207,7 @@ def test_four_outputs_map_fail_safe_and_come_back(tmp_path: Path, line: PtyLine,
             lambda f: (f.frame_lost, f.failsafe, f.channels[:5]),
         )
         latest_state(sumd_line, False, sumd.SumdFrame, lambda f: f.failsafe)
+        udp.wait_for(lambda ms: last_override(ms[mavlink_at:]) == override, WAIT_S)
         line.wait_for(
             lambda fr: (f := data_frames(fr, 1)[-1:]) and f[0].status == c2_16b.LIVE, WAIT_S
         )

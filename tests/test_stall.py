@@ -299,7 +299,11 @@ def test_codes_are_consecutive_across_a_stall():
         rig.out.tick()
         if not stalled:
             rig.read_all()
-    codes = [f.code for f in c2_16b.Decoder().feed(bytes(rig.received)) if hasattr(f, "code")]
+    codes = [
+        f.code
+        for f in c2_16b.Decoder().feed(bytes(rig.received))
+        if isinstance(f, c2_16b.DataFrame)
+    ]
     assert codes == list(range(len(codes)))
     rig.link.close()
 

@@ -175,14 +175,18 @@ def _read_output(reader: NodeReader, node: Node, path: str) -> OutputConfig | No
                 options.append((key, value))
     values["options"] = tuple(options)
     if entry.channels and "channels" in items:
-        channels = _read_channels(reader, items["channels"][1], f"{path}.channels", entry)
+        counted = not entry.check_path  # else the protocol's own check counts them
+        channels = _read_channels(reader, items["channels"][1], f"{path}.channels", entry, counted)
         if channels is not None:
             values["channels"], values["channel_wheres"] = channels
     elif entry.channels_required:
         reader.error(node, f"{path}.channels", f"missing: {name} outputs list their channels")
     values = {key: value for key, value in values.items() if value is not None}
     output = OutputConfig(**values)
-    _check_bandwidth(reader, entry, output, items, path)
+    if entry.check_path:
+        entry.check(reader, node, items, path, output)
+    else:
+        _check_bandwidth(reader, entry, output, items, path)
     return output
 
 
@@ -214,7 +218,7 @@ def _read_port(reader: NodeReader, node: Node, path: str) -> str | None:
 
 
 def _read_channels(
-    reader: NodeReader, node: Node, path: str, output: OutputProtocol
+    reader: NodeReader, node: Node, path: str, output: OutputProtocol, counted: bool = True
 ) -> tuple[tuple[ChannelRef, ...], tuple[Where, ...]] | None:
     """The channel references (parsed here, once) and where each is; bad names reported."""
     entries = reader.sequence(node, path)
@@ -222,7 +226,7 @@ def _read_channels(
         return None
     assert output.channels is not None
     low, high = output.channels
-    if not low <= len(entries) <= high:
+    if counted and not low <= len(entries) <= high:
         reader.error(node, path, f"{len(entries)} channels", f"{low}..{high}")
     refs: list[ChannelRef] = []
     wheres: list[Where] = []

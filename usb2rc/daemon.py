@@ -29,9 +29,10 @@ from usb2rc.lifecycle import DeviceLifecycle
 from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.outputs import protocol
 from usb2rc.outputs.wiring import OutputContext
-from usb2rc.scheduler import C2Output, CrsfOutput, RxThread, TickThread
+from usb2rc.scheduler import C2Output, RxThread, TickThread
 from usb2rc.state import Expected, ExpectedEntry, NodeTable
 from usb2rc.transport import SerialLink
+from usb2rc.transport_udp import UdpLink
 from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc")
@@ -55,7 +56,7 @@ class NoPortError(ValueError):
 @dataclass
 class _Output:
     config: OutputConfig
-    link: SerialLink
+    link: SerialLink | UdpLink
     thread: TickThread
     rx: Worker | None = None
 
@@ -87,24 +88,6 @@ def expected_nodes(config: Config | Mapping) -> Expected:
         expected = ExpectedEntry(entry.failsafe, entry.unsigned_slots)
         nodes.setdefault(entry.node_id, {})[entry.name] = expected
     return nodes
-
-
-def crsf_stats(output: CrsfOutput) -> dict[str, Any]:
-    """A CRSF output's link quality, timing and what it withheld, for `stats`/`monitor`:
-    the figures for scripts, and `module`, the line a person reads."""
-    session, decoder = output.crsf, output.crsf.decoder
-    link = session.link
-    return {
-        "module": session.link_text(time.monotonic()),
-        "link_quality_up": None if link is None else link.uplink_link_quality,
-        "link_quality_down": None if link is None else link.downlink_link_quality,
-        "frames_withheld": session.withheld,
-        "module_rx_frames": decoder.frames,
-        "module_rx_crc_failures": decoder.crc_failures,
-        "module_rx_skipped": decoder.bytes_skipped,
-        "timing_corrections": session.timing_frames,
-        "timing_corrections_ignored": session.timing_ignored,
-    }
 
 
 class Daemon:
@@ -307,8 +290,7 @@ class Daemon:
             record["handover_frames"] = st.handover_frames
             record["handovers_cut"] = st.handovers_cut
             record["low_battery_frames"] = st.low_battery_frames
-        if isinstance(out.thread, CrsfOutput):
-            record.update(crsf_stats(out.thread))
+        record.update(out.thread.protocol_stats())
         if isinstance(out.rx, RxThread):
             record["rx_bytes"] = link.bytes_read
             record["rx_skipped"] = out.rx.decoder.bytes_skipped

@@ -128,3 +128,38 @@ def rc11_to_us(value: int) -> float:
     """The pulse an ExpressLRS receiver makes of an 11-bit value: 172..1811 onto 988..2012 µs
     on one line (992 → 1500.3 µs), for `icd` and messages."""
     return 988.0 + (value - RC11_LOW) * 1024 / (RC11_HIGH - RC11_LOW)
+
+
+# --- MAVLink (docs/ICD.md, "MAVLink output") ---------------------------------------------
+
+PWM_MIN, PWM_CENTRE, PWM_MAX = 1000, 1500, 2000  # RC_CHANNELS_OVERRIDE, µs
+MANUAL_MIN, MANUAL_MAX = -1000, 1000  # MANUAL_CONTROL x, y, r
+MANUAL_Z_MIN, MANUAL_Z_MAX = 0, 1000  # MANUAL_CONTROL z: the range PX4 and ArduPilot read
+
+
+def _int16(value: int) -> int:
+    return INT16_MIN if value < INT16_MIN else INT16_MAX if value > INT16_MAX else value
+
+
+def axis_to_pwm(value: int) -> int:
+    """An int16 axis onto 1000..2000 µs: -32768 → 1000, 0 → 1500, 32767 → 2000 (clamped)."""
+    return PWM_MIN + round_div((_int16(value) - INT16_MIN) * (PWM_MAX - PWM_MIN), 65535)
+
+
+def button_to_pwm(pressed: bool) -> int:
+    """A button as an RC channel: 2000 µs pressed, 1000 µs released."""
+    return PWM_MAX if pressed else PWM_MIN
+
+
+def axis_to_manual(value: int) -> int:
+    """An int16 axis onto MANUAL_CONTROL's -1000..1000: -32768 → -1000, 0 → 0, 32767 → 1000
+    (each half scaled on its own, so both ends are reached and 0 stays 0)."""
+    value = _int16(value)
+    if value < 0:
+        return round_div(value * MANUAL_MAX, -INT16_MIN)
+    return round_div(value * MANUAL_MAX, INT16_MAX)
+
+
+def axis_to_manual_z(value: int) -> int:
+    """An int16 axis onto MANUAL_CONTROL z, 0..1000: -32768 → 0, 0 → 500, 32767 → 1000."""
+    return round_div((_int16(value) - INT16_MIN) * MANUAL_Z_MAX, 65535)

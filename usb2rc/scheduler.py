@@ -5,7 +5,8 @@ follows the link (`line_event()`: a new port, a lost one; `drained()` after a st
 `discard_stale()`: the session is told `line_flushed()` or `line_drained()`), takes
 the node table's events and snapshot, asks the session for the tick's bytes, writes them in
 one `write()` and tells the session how many went out. A late tick is counted, never caught
-up with a burst. An RX thread per C2-16B output decodes what the far end sends and hands the
+up with a burst (MAVLink writes each message of a tick on its own: one datagram each on
+UDP). An RX thread per C2-16B output decodes what the far end sends and hands the
 frames to the output thread, whose session answers `<` and `4` requests.
 """
 
@@ -19,6 +20,7 @@ import traceback
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 from usb2rc.outputs.channels import OutputChannels
 from usb2rc.protocol import c2_16b
@@ -36,7 +38,11 @@ from usb2rc.session import (  # noqa: F401 - re-exported: their home used to be 
 )
 from usb2rc.state import NodeTable
 from usb2rc.transport import LineEvent, SerialLink, Written
+from usb2rc.transport_udp import UdpLink
 from usb2rc.worker import Worker
+
+if TYPE_CHECKING:  # pymavlink's dialect is loaded only with a MAVLink output
+    from usb2rc.outputs.mavlink import MavlinkChannels, MavlinkSession
 
 log = logging.getLogger("usb2rc.scheduler")
 
@@ -168,6 +174,11 @@ class TickThread(Worker):
     def finish(self) -> None:
         """Called once in the thread after the last tick."""
 
+    def protocol_stats(self) -> dict[str, Any]:
+        """What only this protocol counts, for the stats record (`Daemon.stats_record`; the
+        labels of its keys are in `usb2rc.stats_text`)."""
+        return {}
+
     def note_write(self) -> None:
         now = time.monotonic()
         if self._last_write:
@@ -185,8 +196,8 @@ class _LineThread(TickThread):
     def __init__(
         self,
         name: str,
-        link: SerialLink,
-        session: C2Session | FrameLineSession,
+        link: SerialLink | UdpLink,
+        session: C2Session | FrameLineSession | MavlinkSession,
         rate_hz: float,
         on_tick: Callable[[], None] | None,
         on_first_write: Callable[[], None] | None,
@@ -409,6 +420,83 @@ class CrsfOutput(ChannelOutput):
         now = time.monotonic()
         self.period_s = self.crsf.interval_s(now)
         return self.crsf.next_send(due, now)
+
+    def protocol_stats(self) -> dict[str, Any]:
+        """The module's link quality, timing and what was withheld: the figures for
+        scripts, and `module`, the line a person reads."""
+        session, decoder = self.crsf, self.crsf.decoder
+        link = session.link
+        return {
+            "module": session.link_text(time.monotonic()),
+            "link_quality_up": None if link is None else link.uplink_link_quality,
+            "link_quality_down": None if link is None else link.downlink_link_quality,
+            "frames_withheld": session.withheld,
+            "module_rx_frames": decoder.frames,
+            "module_rx_crc_failures": decoder.crc_failures,
+            "module_rx_skipped": decoder.bytes_skipped,
+            "timing_corrections": session.timing_frames,
+            "timing_corrections_ignored": session.timing_ignored,
+        }
+
+
+class MavlinkOutput(_LineThread):
+    """MAVLink: a heartbeat a second and the control message each tick, one write (one
+    datagram on UDP) per message; the session decides what a failsafe sends
+    (`usb2rc.outputs.mavlink`). What the far end sent reaches the session here, once a
+    tick: on UDP read from the socket (non-blocking; udpin learns from it whom to send to),
+    on a serial line from the RX thread (`received`, a queue, as CRSF's)."""
+
+    def __init__(
+        self,
+        name: str,
+        link: SerialLink | UdpLink,
+        table: NodeTable,
+        channels: MavlinkChannels,
+        session: MavlinkSession,
+        rate_hz: float = 50.0,
+        on_tick: Callable[[], None] | None = None,
+        on_first_write: Callable[[], None] | None = None,
+    ) -> None:
+        super().__init__(name, link, session, rate_hz, on_tick, on_first_write)
+        self.mav = session
+        self.table = table
+        self.channels = channels
+        self._first_in_tick = True
+        # bytes a serial far end sent, with when they were read (RX thread -> this thread)
+        self.received: queue.SimpleQueue[tuple[bytes, float]] = queue.SimpleQueue()
+
+    def tick(self) -> None:
+        self.follow_link()
+        if isinstance(self.link, UdpLink):
+            self.mav.received(self.link.take_received())
+        while True:
+            try:
+                data, _at = self.received.get_nowait()
+            except queue.Empty:
+                break
+            self.mav.received(data)
+        if not self.mav.line_open or self.mav.stalled:
+            return
+        values = self.channels.evaluate(self.table.frames())
+        self._first_in_tick = True
+        for message in self.mav.tick(time.monotonic(), values):
+            self.send(message)
+            if self.mav.stalled or not self.mav.line_open:
+                break
+
+    def note_write(self) -> None:
+        """Periods are from tick to tick: a heartbeat and the control message go out in
+        one tick, a few µs apart, which is not a period."""
+        if self._first_in_tick:
+            self._first_in_tick = False
+            super().note_write()
+        else:
+            self.stats.writes += 1
+
+    def protocol_stats(self) -> dict[str, Any]:
+        from usb2rc.outputs.mavlink import stats_record  # pymavlink: with a MAVLink output
+
+        return stats_record(self.mav)
 
 
 class ReplyRx(Worker):

@@ -41,6 +41,15 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("module_rx_skipped", "rx skipped {}"),
     ("timing_corrections", "timing corrections {}"),
     ("timing_corrections_ignored", "(ignored {})"),
+    ("mavlink_message", "{}"),
+    ("control_messages", "control messages {}"),
+    ("releases", "releases {}"),
+    ("silent_failsafe_ticks", "silent failsafe ticks {}"),
+    ("heartbeats_sent", "heartbeats {}"),
+    ("far_end_messages", "far end: messages {}"),
+    ("far_end_heartbeats", "heartbeats {}"),
+    ("far_end_heartbeat_from", "(last from {})"),
+    ("far_end_skipped", "bytes skipped {}"),
 )
 
 

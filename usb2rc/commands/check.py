@@ -27,6 +27,7 @@ from usb2rc.config import (
     Problem,
     load_config,
 )
+from usb2rc.config_mavlink import MavlinkOptions, baud_needed
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DescriptorError, parse_descriptor
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
@@ -34,6 +35,7 @@ from usb2rc.hid.replay import ReplayBackend
 from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.outputs import protocol
 from usb2rc.outputs.sumd_receivers import receiver_warnings
+from usb2rc.udp_url import is_udp_url
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -113,7 +115,8 @@ def _bind_one(
 
 def describe_output(output: OutputConfig) -> str:
     port = output.port or "(port from --port)"
-    text = f"{output.protocol:<7} {port}  {output.baudrate} baud  {output.rate_hz:g} Hz"
+    baud = "" if is_udp_url(port) else f"  {output.baudrate} baud"
+    text = f"{output.protocol:<7} {port}{baud}  {output.rate_hz:g} Hz"
     if output.protocol == "c2-16b":
         lf = "line feed" if output.line_feed else "no line feed"
         return f"{text}  {lf}, service status {output.service_status}"
@@ -125,7 +128,22 @@ def describe_output(output: OutputConfig) -> str:
         return f"{text}  axes 172..1811 (988-2012 us), {follow}, no frames while failsafe"
     if output.protocol == "sbus":
         return f"{text}  8E2, axes 172..1811, frame-lost + failsafe flags while failsafe"
+    if output.protocol == "mavlink":
+        return f"{text}  {mavlink_text(output)}"
     return text
+
+
+def mavlink_text(output: OutputConfig) -> str:
+    """The MAVLink output's message, IDs and, on a serial line, the bandwidth it uses."""
+    opts = MavlinkOptions.of(output)
+    text = (
+        f"{opts.message} to system {opts.target_system} component {opts.target_component}, "
+        f"as system {opts.system_id} component {opts.component_id}, heartbeat 1 Hz"
+    )
+    if output.port and is_udp_url(output.port):
+        return text + " (UDP: no baud rate)"
+    needed = baud_needed(opts.message, output.rate_hz)
+    return text + f", needs {needed} of {output.baudrate} baud"
 
 
 def describe_device(device: DeviceConfig) -> str:

@@ -1,8 +1,11 @@
-"""`usb2rc decode`: print the C2-16B, SUMD, CRSF or SBUS frames in a capture, stdin or a port.
+"""`usb2rc decode`: print the C2-16B, SUMD, CRSF, SBUS or MAVLink frames in a capture, stdin,
+a port or (MAVLink) a UDP port. The decoder is the output registry's (`usb2rc.outputs`).
 
 SOURCE is a file (read to its end), `-` for stdin, or a serial port: a character device
-path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C. One line
+path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C; for
+MAVLink also `udpin:HOST:PORT` (listen there, e.g. where usb2rc's `udpout:` sends). One line
 per valid frame on stdout (`--json`: one JSON object per line); a summary on stderr at the end.
+MAVLink is parsed by pymavlink: one line per message, its fields as pymavlink names them.
 Exit 0 when it found a frame, 1 when none (it says so, and names the other protocol when
 its frames are there), 2 for a port URL pyserial cannot parse.
 
@@ -18,12 +21,13 @@ import dataclasses
 import json
 import os
 import shlex
+import socket
 import stat
 import sys
 from collections import Counter
 from collections.abc import Callable, Generator, Iterable
 from contextlib import closing
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, TypeGuard
 
 from usb2rc.outputs import PROTOCOLS, protocol
 from usb2rc.protocol import crsf
@@ -36,8 +40,10 @@ from usb2rc.protocol.c2_16b import (
 )
 from usb2rc.protocol.sbus import SbusFrame
 from usb2rc.protocol.sumd import SumdDecoder, SumdFrame
+from usb2rc.udp_url import is_udp_url, parse_udp_url
 
-AnyFrame = DataFrame | ServiceFrame | SumdFrame | SbusFrame | crsf.CrsfFrame
+# Any: a pymavlink message (pymavlink is imported only for --protocol mavlink)
+AnyFrame = DataFrame | ServiceFrame | SumdFrame | SbusFrame | crsf.CrsfFrame | Any
 Formatter = Callable[[AnyFrame], str]
 READ_SIZE = 65536
 PORT_TIMEOUT_S = 0.5
@@ -46,7 +52,8 @@ PORT_TIMEOUT_S = 0.5
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "decode",
-        help="print the frames in a C2-16B / SUMD / CRSF / SBUS capture, stdin or serial port",
+        help="print the frames in a C2-16B / SUMD / CRSF / SBUS / MAVLink capture, stdin, "
+        "port or UDP",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -138,6 +145,8 @@ def open_source(
     with `even_parity` is opened 8E2 (SBUS)."""
     if name == "-":
         return _read_stream(sys.stdin.buffer, close=False)
+    if is_udp_url(name):
+        return _read_udp(name)
     if "://" in name or _is_character_device(name):
         return _read_port(_open_port(name, baudrate, even_parity))
     return _read_stream(open(name, "rb"), close=True)
@@ -180,6 +189,28 @@ def _read_port(port: Any) -> Generator[bytes, None, None]:
         port.close()
 
 
+def _read_udp(name: str) -> Generator[bytes, None, None]:
+    """`udpin:HOST:PORT`: bind there now and yield each datagram (until Ctrl-C)."""
+    address = parse_udp_url(name)
+    if address.scheme != "udpin":
+        raise ValueError(f"decode listens: give udpin:{address.host}:{address.port}")
+    family = socket.AF_INET6 if ":" in address.host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    try:
+        sock.bind((address.host, address.port))
+    except OSError:
+        sock.close()
+        raise
+    print(f"usb2rc decode: listening on {name}, Ctrl-C to stop", file=sys.stderr)
+
+    def datagrams() -> Generator[bytes, None, None]:
+        with sock:
+            while True:
+                yield sock.recv(65535)
+
+    return datagrams()
+
+
 def _reason(exc: BaseException) -> str:
     if isinstance(exc, FileNotFoundError):
         return "no such file or port"
@@ -214,7 +245,14 @@ def frame_kind(frame: AnyFrame) -> str:
         return "failsafe" if frame.failsafe else "frame-lost" if frame.frame_lost else "live"
     if isinstance(frame, DataFrame):
         return DATA_STATUS_NAMES[frame.status]
+    if _is_mavlink(frame):
+        return str(frame.get_type()).lower()
     return _CRSF_KINDS.get(type(frame), "other")
+
+
+def _is_mavlink(frame: AnyFrame) -> TypeGuard[Any]:
+    """A pymavlink message (told by its module: pymavlink is imported for mavlink only)."""
+    return type(frame).__module__.startswith("pymavlink.")
 
 
 _CRSF_KINDS: dict[type, str] = {
@@ -231,6 +269,27 @@ def json_record(frame: AnyFrame) -> dict[str, Any]:
         return _service_record(frame)
     if isinstance(frame, SumdFrame):
         return {"protocol": "sumd", "failsafe": frame.failsafe, "channels": list(frame.channels)}
+    if _is_mavlink(frame):
+        return {"protocol": "mavlink", **_mavlink_header(frame), **_mavlink_fields(frame)}
+    return _rc11_record(frame)
+
+
+def _mavlink_header(message: Any) -> dict[str, Any]:
+    return {
+        "message": message.get_type(),  # not "type": HEARTBEAT has a field of that name
+        "system": message.get_srcSystem(),
+        "component": message.get_srcComponent(),
+        "seq": message.get_seq(),
+    }
+
+
+def _mavlink_fields(message: Any) -> dict[str, Any]:
+    from usb2rc.protocol.mavlink import message_fields
+
+    return message_fields(message)
+
+
+def _rc11_record(frame: SbusFrame | crsf.CrsfFrame) -> dict[str, Any]:
     if isinstance(frame, SbusFrame):
         return {"protocol": "sbus", **dataclasses.asdict(frame), "channels": list(frame.channels)}
     record: dict[str, Any] = {"protocol": "crsf", "frame": frame_kind(frame)}
@@ -295,6 +354,13 @@ def text_line(frame: AnyFrame) -> str:
     if isinstance(frame, SumdFrame):
         state = "failsafe" if frame.failsafe else "live"
         return f"sumd {state} {len(frame.channels)}ch {list(frame.channels)}"
+    if _is_mavlink(frame):
+        head = _mavlink_header(frame)
+        fields = " ".join(f"{k}={v}" for k, v in _mavlink_fields(frame).items())
+        return (
+            f"mavlink {head['message']} from {head['system']}/{head['component']} "
+            f"seq {head['seq']}: {fields}"
+        )
     if isinstance(frame, SbusFrame):
         flags = [n for n in ("ch17", "ch18", "frame_lost", "failsafe") if getattr(frame, n)]
         return f"sbus {frame_kind(frame)} {list(frame.channels)} flags {' '.join(flags) or '-'}"

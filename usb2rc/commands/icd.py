@@ -26,6 +26,7 @@ from usb2rc.config import (
     DeviceConfig,
     OutputConfig,
 )
+from usb2rc.config_mavlink import MANUAL_AXES, RC_CHANNELS_OVERRIDE, MavlinkOptions
 from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT
 from usb2rc.scaling import node_button_bit
@@ -175,6 +176,44 @@ def sumd_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
     return rows
 
 
+def mavlink_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
+    """RC_CHANNELS_OVERRIDE: channel n in µs; MANUAL_CONTROL: x, y, z, r, then button bits."""
+    message = MavlinkOptions.of(output).message
+    rows: list[list[object]] = []
+    for i, source in enumerate(mapping.sumd_channels(output)):
+        kind = "button" if source.kind == "button" else "axis"
+        if message == RC_CHANNELS_OVERRIDE:
+            span = "1000 / 2000" if kind == "button" else "1000..2000 (centre 1500)"
+            rows.append([f"chan{i + 1}_raw", source.name, kind, span])
+        elif i < len(MANUAL_AXES):
+            name = MANUAL_AXES[i]
+            lo = 0 if name == "z" else -1000
+            span = f"{lo} / 1000" if kind == "button" else f"{lo}..1000"
+            rows.append([name, source.name, kind, span])
+        else:
+            bit = i - len(MANUAL_AXES)
+            field = f"buttons bit {bit}" if bit < 16 else f"buttons2 bit {bit - 16}"
+            rows.append([field, source.name, kind, "1 pressed"])
+    return rows
+
+
+def mavlink_section(mapping: Mapping, output: OutputConfig, index: int, fmt: str) -> list[str]:
+    opts = MavlinkOptions.of(output)
+    lines = heading(f"MAVLink output {index} ({output.port or '--port'})", 2, fmt)
+    lines += [
+        f"{opts.message} at {output.rate_hz:g} Hz to system {opts.target_system} component "
+        f"{opts.target_component}, and a HEARTBEAT (MAV_TYPE_GCS) at 1 Hz, from system "
+        f"{opts.system_id} component {opts.component_id}. Failsafe (a channel's node is): "
+        + (
+            "every channel released (0 on 1-8, 65534 on 9-18) for 1 s, then heartbeats only."
+            if opts.message == RC_CHANNELS_OVERRIDE
+            else "no MANUAL_CONTROL, heartbeats only (the autopilot's manual-control loss)."
+        ),
+        "",
+    ]
+    return lines + table(["field", "source", "kind", "range"], mavlink_rows(mapping, output), fmt)
+
+
 # --------------------------------------------------------------------------- document
 
 
@@ -257,6 +296,8 @@ def document(config: Config, fmt: str) -> list[str]:
         if output.protocol == "sumd":
             lines += heading(f"SUMD output {i + 1} ({output.port or '--port'})", 2, fmt)
             lines += table(["channel", "source", "kind", "µs"], sumd_rows(mapping, output), fmt)
+        elif output.protocol == "mavlink":
+            lines += mavlink_section(mapping, output, i + 1, fmt)
         elif output.protocol in RC11_NOTES:
             name = output.protocol.upper()
             lines += heading(f"{name} output {i + 1} ({output.port or '--port'})", 2, fmt)

@@ -20,6 +20,7 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -36,6 +37,7 @@ REFRESH_S = 0.1  # the live view: ~10 Hz
 PLAIN_EVERY_S = 1.0  # --plain: one snapshot a second
 BAR_WIDTH = 24
 KEPT_LINES = 8  # events and log lines the live view keeps
+Preview = Callable[[list[NodeFrame]], str]  # a node snapshot -> what an output would send
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -62,6 +64,25 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
 # --------------------------------------------------------------------------- input side
 
 
+def output_previews(config: Config, daemon: Daemon) -> list[tuple[str, Preview]]:
+    """For each MAVLink output: what it would send from a node snapshot (no port opened)."""
+    previews: list[tuple[str, Preview]] = []
+    for i, out in enumerate(config.outputs):
+        if out.protocol != "mavlink":
+            continue
+        from usb2rc.config_mavlink import MavlinkOptions
+        from usb2rc.outputs.mavlink import MavlinkChannels, preview_text
+
+        message = MavlinkOptions.of(out).message
+        channels = MavlinkChannels(daemon.mapping.sumd_channels(out), message)
+
+        def preview(frames: list[NodeFrame], channels: MavlinkChannels = channels) -> str:
+            return preview_text(channels, channels.evaluate(frames))
+
+        previews.append((f"output {i + 1} mavlink {out.port or '(--port)'}", preview))
+    return previews
+
+
 class InputSide:
     """The daemon with its outputs left out: hot-plug, readers, mapping and the node table."""
 
@@ -70,6 +91,7 @@ class InputSide:
         urls = ", ".join(out.link.url for out in self.daemon.outputs)
         self.ports = f"outputs on {urls}" if urls else "no serial port is opened"
         self.table = self.daemon.table
+        self.previews = output_previews(config, self.daemon)
         self.subscriber = self.table.subscribe()  # the service events an output would send
         self.events: deque[str] = deque(maxlen=200)
         self.event_total = 0
@@ -96,7 +118,8 @@ class InputSide:
             for f in frames
         ]
         stats = self.daemon.stats_lines()
-        return Snapshot(nodes, list(self.events), self.event_total, stats, self.ports)
+        outputs = [f"{name}: {preview(frames)}" for name, preview in self.previews]
+        return Snapshot(nodes, list(self.events), self.event_total, stats, self.ports, outputs)
 
     def _raw_values(self) -> dict[str, tuple[int, ...]]:
         """Each reporting device's raw input values (its reader's last record), by key."""
@@ -178,6 +201,7 @@ class Snapshot:
     event_total: int
     device_stats: list[str] = field(default_factory=list)  # and the outputs', with --outputs
     ports: str = "no serial port is opened"
+    outputs: list[str] = field(default_factory=list)  # what each MAVLink output would send
 
 
 def device_label(info: DeviceInfo) -> str:
@@ -251,6 +275,7 @@ def snapshot_text(snap: Snapshot, log_lines: list[str]) -> str:
         lines += node_text(node)
     if not snap.nodes:
         lines.append("no devices (usb2rc list shows what is plugged and why a device is not used)")
+    lines += [f"output: {line}" for line in snap.outputs]
     lines += [f"stats: {line}" for line in snap.device_stats]
     lines += [f"event: {e}" for e in snap.events]
     lines += [f"log: {line}" for line in log_lines]
@@ -295,6 +320,8 @@ def render_live(snap: Snapshot, log_lines: list[str]) -> Any:
         parts.append(
             Text("no devices (usb2rc list shows what is plugged and why a device is not used)")
         )
+    for line in snap.outputs:
+        parts.append(Text(f"output: {line}", style="red" if "FAILSAFE" in line else ""))
     for line in snap.device_stats:
         parts.append(Text(f"stats: {line}", style="dim"))
     for line in snap.events[-KEPT_LINES:]:

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 # Aliased: a submodule of this package of the same name (outputs.sumd) would shadow them.
+from usb2rc import config_mavlink
 from usb2rc.protocol import c2_16b as c2_16b_codec
 from usb2rc.protocol import crsf as crsf_codec
 from usb2rc.protocol import sbus as sbus_codec
@@ -74,9 +75,18 @@ class OutputProtocol:
     channels: tuple[int, int] | None = None
     channels_required: bool = False
     options: Mapping[str, Option] = field(default_factory=dict)
+    # "module:function(reader, node, items, path, output)": the checks only this protocol
+    # has. A protocol with one owns its channel count and bandwidth checks (MAVLink: both
+    # depend on its `message`, and UDP has no baud rate); config.py skips the generic ones.
+    check_path: str = ""
 
     def decoder(self) -> Any:
         return _resolve(self.decoder_path)()
+
+    def check(self, *args: Any) -> None:
+        """The protocol's own config checks (`check_path`), if it has any."""
+        if self.check_path:
+            _resolve(self.check_path)(*args)
 
     def build(self, context: Any) -> Any:
         return _resolve(self.build_path)(context)
@@ -114,6 +124,10 @@ def _crsf_frame_length(_channels: int) -> int:
 
 def _sbus_frame_length(_channels: int) -> int:
     return sbus_codec.FRAME_LEN
+
+
+def _mavlink_frame_length(_channels: int) -> int:
+    return max(config_mavlink.MESSAGE_BYTES.values())  # the check hook counts per message
 
 
 def _sumd_frame_length(channels: int) -> int:
@@ -178,6 +192,18 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             bits_per_byte=sbus_codec.BITS_PER_BYTE,
             channels=(1, 18),
             channels_required=True,
+        ),
+        OutputProtocol(
+            "mavlink",
+            "MAVLink 2 RC_CHANNELS_OVERRIDE or MANUAL_CONTROL and a GCS heartbeat, serial or UDP",
+            default_baudrate=115200,
+            default_rate_hz=50,
+            frame_length=_mavlink_frame_length,
+            decoder_path="usb2rc.protocol.mavlink:MavlinkDecoder",
+            build_path="usb2rc.outputs.wiring:build_mavlink",
+            channels=(1, config_mavlink.MOST_CHANNELS),
+            options={k: Option(*spec) for k, spec in config_mavlink.OPTION_SPECS.items()},
+            check_path="usb2rc.config_mavlink_check:check_mavlink_output",
         ),
     )
 }

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import serial
 
 from usb2rc.config import OutputConfig
+from usb2rc.config_mavlink import MavlinkOptions
 from usb2rc.mapping import Mapping
 from usb2rc.outputs import protocol
 from usb2rc.outputs.channels import RC11_SCALE, OutputChannels
@@ -23,6 +24,7 @@ from usb2rc.scheduler import (
     C2Output,
     ChannelOutput,
     CrsfOutput,
+    MavlinkOutput,
     ReplyRx,
     RxThread,
     SumdOutput,
@@ -32,6 +34,7 @@ from usb2rc.scheduler import (
 from usb2rc.session import C2Settings, frames_per_tick
 from usb2rc.state import NodeTable
 from usb2rc.transport import SerialLink
+from usb2rc.transport_udp import UdpLink, is_udp_url
 from usb2rc.worker import Worker
 
 
@@ -53,11 +56,12 @@ class OutputContext:
 class BuiltOutput:
     """A running output's pieces: its link, its thread and, when it reads, its RX thread.
 
-    The daemon uses of `link` what `SerialLink` offers: `open_now()`, `is_open`, `url`,
-    `last_error`, `stats` (`LinkStats`) and `close()`; of `thread` a `TickThread`'s `start`,
-    `stop`, `join`, `stats`, `period_s`, `next_deadline` and `last_tick_monotonic`."""
+    The daemon uses of `link` what `SerialLink` (and MAVLink's `UdpLink`) offers:
+    `open_now()`, `is_open`, `url`, `last_error`, `stats` (`LinkStats`) and `close()`; of
+    `thread` a `TickThread`'s `start`, `stop`, `join`, `stats`, `period_s`, `next_deadline`,
+    `last_tick_monotonic` and `protocol_stats()`."""
 
-    link: SerialLink
+    link: SerialLink | UdpLink
     thread: TickThread
     rx: Worker | None = None
 
@@ -135,3 +139,33 @@ def build_sbus(ctx: OutputContext) -> BuiltOutput:
         ctx.on_first_write,
     )
     return BuiltOutput(link, thread)
+
+
+def build_mavlink(ctx: OutputContext) -> BuiltOutput:
+    """The registry's build function: a MAVLink output on UDP (`udpout:` / `udpin:`, read
+    by the output thread) or on a serial port / URL (read by an RX thread)."""
+    from usb2rc.outputs import mavlink  # pymavlink's dialect: only with a MAVLink output
+
+    out = ctx.config
+    assert out.port
+    options = MavlinkOptions.of(out)
+    channels = mavlink.MavlinkChannels(ctx.mapping.sumd_channels(out), options.message)
+    link: SerialLink | UdpLink
+    if is_udp_url(out.port):
+        link = UdpLink(out.port)
+    else:
+        tick_bytes = mavlink.heartbeat_bytes() + mavlink.max_message_bytes(options.message)
+        link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(tick_bytes))
+    thread = MavlinkOutput(
+        ctx.name,
+        link,
+        ctx.table,
+        channels,
+        mavlink.MavlinkSession(options),
+        out.rate_hz,
+        ctx.on_tick,
+        ctx.on_first_write,
+    )
+    if isinstance(link, UdpLink):
+        return BuiltOutput(link, thread)
+    return BuiltOutput(link, thread, ReplyRx(f"{ctx.name}-rx", link, thread.received.put))
