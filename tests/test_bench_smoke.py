@@ -59,6 +59,19 @@ def test_hotplug() -> None:
     assert re.search(r"^unplug -> \S+\s+median\s+[0-9.]+ ms\s+max", out, re.MULTILINE)
 
 
+def test_hot_paths() -> None:
+    out = run(
+        sys.executable, "bench/bench_hot_paths.py", "--ticks", "20", "--paced", "4",
+        "--runs", "1",
+    )  # fmt: skip
+    result = last_json(out)
+    assert result["bench"] == "hot_paths" and result["nodes"] == 4
+    for key in ("tick_hot_us", "tick_paced_us", "collect_paced_us", "session_paced_us",
+                "write_paced_us", "reader_wake_hot_us", "reader_wake_paced_us"):  # fmt: skip
+        assert result["figures"][key] > 0, key
+    assert re.search(r"^tick_hot_us\s+[0-9.]+ µs$", out, re.MULTILINE)
+
+
 def test_plug_cost() -> None:
     out = run(
         sys.executable, "bench/bench_plug_cost.py", "--devices", "2", "--seconds", "0.2",
