@@ -108,8 +108,15 @@ class DeviceReader(Worker):
         shows in the state (`ReportDecoder.feed_batch` decodes just those). At most
         MAX_BATCH at a time, so a device that never runs dry still gets published."""
         read = self.device.read
+        # The replay backend hands over what is due in one call (`ReplayDevice.read_due`);
+        # `read(0.0)` then does its checks and says when nothing is left.
+        read_due = getattr(self.device, "read_due", None)
         batch = [first]
-        while len(batch) < MAX_BATCH and (report := read(0.0)) is not None:
+        while len(batch) < MAX_BATCH:
+            if read_due is not None:
+                batch += read_due(MAX_BATCH - len(batch))
+            if len(batch) >= MAX_BATCH or (report := read(0.0)) is None:
+                break
             batch.append(report)
         accepted, refused = self.decoder.feed_batch(batch)
         self._reports += accepted
