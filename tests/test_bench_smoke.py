@@ -59,6 +59,35 @@ def test_hotplug() -> None:
     assert re.search(r"^unplug -> \S+\s+median\s+[0-9.]+ ms\s+max", out, re.MULTILINE)
 
 
+def test_hot_paths() -> None:
+    out = run(
+        sys.executable, "bench/bench_hot_paths.py", "--ticks", "20", "--paced", "4",
+        "--runs", "1",
+    )  # fmt: skip
+    result = last_json(out)
+    assert result["bench"] == "hot_paths" and result["nodes"] == 4
+    for key in ("tick_hot_us", "tick_paced_us", "collect_paced_us", "session_paced_us",
+                "write_paced_us", "reader_wake_hot_us", "reader_wake_paced_us"):  # fmt: skip
+        assert result["figures"][key] > 0, key
+    assert re.search(r"^tick_hot_us\s+[0-9.]+ µs$", out, re.MULTILINE)
+
+
+def test_plug_cost() -> None:
+    out = run(
+        sys.executable, "bench/bench_plug_cost.py", "--devices", "2", "--seconds", "0.2",
+    )  # fmt: skip
+    result = last_json(out)
+    assert result["bench"] == "plug_cost"
+    figures = result["figures"]
+    for kind in ("first", "replug"):
+        for step in ("scan", "lifecycle"):
+            assert figures[f"plug_{kind}_{step}_cpu_ms_median"] > 0
+        assert figures[f"plug_{kind}_gc_collections"] >= 0
+    assert figures["plug_lifecycle_longest_c_call"]
+    assert figures["replay_first_lap_us_per_report"] > 0
+    assert re.search(r"^plug_first_scan_cpu_ms_median\s+[0-9.]+$", out, re.MULTILINE)
+
+
 def test_daemon(tmp_path: Path) -> None:
     json_path = tmp_path / "daemon.json"
     out = run(

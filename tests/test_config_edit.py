@@ -52,10 +52,10 @@ def test_hotas_flow_axes_change_on_their_own_line_only():
             "      rz: {usage: Rz, calibration: {min: 10, center: 500, max: 1000}, deadband: 0.05}",
         ),
         (
-            "      z:      {usage: Z, failsafe: -32768}        # throttle to idle when the TWCS "
-            "is lost",
-            "      z:      {usage: Z, failsafe: -32768, calibration: {min: 10, center: 500, "
-            "max: 1000}, deadband: 0.1} # throttle to idle when the TWCS is lost",
+            "      z:      {usage: Z, failsafe: -32768, arm: low}  # idle when lost; live once "
+            "pulled back",
+            "      z:      {usage: Z, failsafe: -32768, arm: low, calibration: {min: 10, "
+            "center: 500, max: 1000}, deadband: 0.1} # idle when lost; live once pulled back",
         ),
     ]
     assert axis(edited, 0, "x").calibration == CAL and axis(edited, 0, "x").deadband == 0.05

@@ -12,6 +12,7 @@ replay backend that lists them), and the YAML config loader.
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import random
@@ -179,14 +180,26 @@ def test_replay_directory_of_mutants(tmp_path):
             mutate(text.encode(), rng, 2) if i % 5 else text.encode()
         )
     (tmp_path / "binary.hid").write_bytes(bytes(range(256)) * 4)
-    backend = ReplayBackend(tmp_path)
+    backend = ReplayBackend(tmp_path, speed=1000.0)
     infos = backend.enumerate(all=True)
     assert len(infos) + len(backend.problems) == 61
     assert all("not a hid-recorder file" in p for p in backend.problems)
+    # Events are parsed as they are played: a device plays to its end, or its read fails
+    # (EIO, naming the line) at a bad one, and its file is a problem from then on.
+    failed = []
     for info in infos:
         device = backend.open(info)
-        device.read(0.0)
+        try:
+            while device.read(0.05) is not None:
+                pass
+        except OSError as exc:
+            assert exc.errno == errno.EIO and info.path in str(exc), exc
+            failed.append(info.path)
         device.close()
+    assert failed, "no mutant with a bad event line: the test checks nothing there"
+    left = {i.path for i in backend.enumerate(all=True)}
+    assert left == {i.path for i in infos} - set(failed)
+    assert len(backend.problems) == 61 - len(left)
 
 
 # --- YAML configs ---------------------------------------------------------------------------

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import threading
+import time
 from pathlib import Path
 
+from daemon_harness import StickState, recording
 from test_replay import numbered, recording_text
 
 from usb2rc.hid.backend import DeviceInfo, ErrorCode
-from usb2rc.hid.descriptor import InputState
+from usb2rc.hid.descriptor import InputState, parse_descriptor
 from usb2rc.hid.reader import DeviceReader
 from usb2rc.hid.replay import ReplayBackend, install_file
 
@@ -28,6 +30,10 @@ class RecordingDecoder:
             return False
         self.reports.append(report)
         return True
+
+    def feed_batch(self, reports: list[bytes], on_buttons: object = None) -> tuple[int, int]:
+        accepted = sum(self.feed(r) for r in reports)
+        return accepted, len(reports) - accepted
 
     def state(self) -> InputState:
         return InputState((len(self.reports),), 0)
@@ -199,3 +205,27 @@ def test_the_count_and_the_state_are_published_together() -> None:
         reader.stop()
         reader.join(WAIT_S)
     assert (reader.record.reports, reader.record.state) == (1, InputState((1,), 0))
+
+
+def test_a_paced_reader_counts_every_report_and_shows_the_last(tmp_path: Path) -> None:
+    """With `pause` the reader drains what is queued as one batch (decoding only what shows
+    in the state): every report is counted, and the state is the last report's."""
+    states = [StickState(x=i * 50, y=16383 - i * 50, buttons=i) for i in range(200)]
+    install_file(tmp_path / "s.hid", recording(states, hold_s=0.0002))  # 200 in 40 ms
+    backend = ReplayBackend(tmp_path)
+    device = backend.open(backend.enumerate()[0])
+    layout = parse_descriptor(device.report_descriptor())
+    reader = DeviceReader(device, layout.make_decoder(), Exits(), pause=lambda: 0.01)
+    reader.start()
+    try:
+        deadline = time.monotonic() + WAIT_S
+        while reader.record.reports < len(states) and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        reader.stop()
+        reader.join(WAIT_S)
+    expected = layout.make_decoder()
+    for state in states:
+        expected.feed(state.report())
+    assert (reader.record.reports, reader.record.bad_reports) == (len(states), 0)
+    assert reader.record.state == expected.state()

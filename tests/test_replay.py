@@ -5,6 +5,7 @@ from __future__ import annotations
 import errno
 import os
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -155,6 +156,72 @@ def test_fault_line_raises_eio_after_earlier_events(tmp_path: Path) -> None:
         device.read(5.0)
     assert caught.value.errno == errno.EIO
     assert not isinstance(caught.value, DeviceGone)
+
+
+def test_bad_event_line_is_found_when_played_then_the_file_is_a_problem(
+    tmp_path: Path,
+) -> None:
+    # The scan reads the header only; the events are parsed as they are played.
+    text = recording_text(numbered(3, step=0.001)) + "E: soon 2 00 01\n"
+    install_file(tmp_path / "b.hid", text)
+    backend = ReplayBackend(tmp_path, loop=True)
+    [info] = backend.enumerate()
+    device = backend.open(info)
+    assert read_all(device, 3) == [i.to_bytes(2, "little") for i in range(3)]
+    with pytest.raises(OSError) as caught:
+        device.read(5.0)
+    assert caught.value.errno == errno.EIO
+    assert "b.hid:9: bad timestamp 'soon'" in str(caught.value)
+    assert backend.enumerate() == []
+    [problem] = backend.problems
+    assert "b.hid: not a hid-recorder file" in problem and "b.hid:9" in problem
+    with pytest.raises(DeviceOpenError):
+        backend.open(info)
+
+
+def test_a_file_changed_after_its_bad_line_is_a_device_again(tmp_path: Path) -> None:
+    install_file(tmp_path / "b.hid", recording_text(numbered(1)) + "E: 0.0 3 00\n")
+    backend = ReplayBackend(tmp_path)
+    device = backend.open(backend.enumerate()[0])
+    assert read_all(device, 1) == [b"\x00\x00"]
+    with pytest.raises(OSError):
+        device.read(1.0)
+    assert backend.enumerate() == []
+    install_file(tmp_path / "b.hid", recording_text(numbered(2)))
+    [info] = backend.enumerate()
+    assert read_all(backend.open(info), 2) == [b"\x00\x00", b"\x01\x00"]
+
+
+def test_read_due_hands_over_what_is_due_in_order_and_read_goes_on_from_there(
+    tmp_path: Path,
+) -> None:
+    install_file(tmp_path / "l.hid", recording_text(numbered(5, step=0.001)))
+    backend = ReplayBackend(tmp_path, loop=True, speed=1000.0)  # every report due at once
+    device = backend.open(backend.enumerate()[0])
+    assert device.read_due(10) == []  # no gone check yet: read() does it first
+    first = device.read(5.0)
+    due = device.read_due(7)  # the rest of the lap and the next lap's first two
+    assert [first, *due] == [i.to_bytes(2, "little") for i in (0, 1, 2, 3, 4, 0, 1, 2)]
+    assert device.read(5.0) == (3).to_bytes(2, "little")
+    device.close()
+    assert device.read_due(10) == []
+
+
+def test_read_due_stops_before_a_fault_and_read_raises_it(tmp_path: Path) -> None:
+    text = recording_text(numbered(5, step=0.001), fault_at=0.0025)
+    install_file(tmp_path / "f.hid", text)
+    backend = ReplayBackend(tmp_path, speed=0.5)  # the fault at 5 ms, reports every 2 ms
+    device = backend.open(backend.enumerate()[0])
+    got = [device.read(5.0)]
+    while len(got) < 3:
+        got += device.read_due(10) or [device.read(5.0)]
+    assert got == [i.to_bytes(2, "little") for i in range(3)]
+    time.sleep(0.012)  # past the fault and the reports after it: none of them comes out
+    assert device.read_due(10) == []
+    with pytest.raises(OSError) as caught:
+        device.read(5.0)
+    assert caught.value.errno == errno.EIO
+    device.close()
 
 
 def test_closed_device_read_fails(tmp_path: Path) -> None:

@@ -349,6 +349,8 @@ class C2Output(_LineThread):
             self.stats.data_frames += delivered.data_frames
 
     def _take_received(self) -> None:
+        if self.received.empty():  # the usual tick: no exception raised and caught
+            return
         while True:
             try:
                 frame = self.received.get_nowait()

@@ -44,7 +44,8 @@ from __future__ import annotations
 import logging
 from collections import deque
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
+from typing import Any
 
 from usb2rc.data_status import DataStatuses
 from usb2rc.protocol import c2_16b, sumd
@@ -311,32 +312,41 @@ class C2Session:
         out: list[bytes] = []
         slots: list[_Slot] = []
         if self._startup_due:
-            self._add(out, slots, self._startup_frame, _Slot(0, startup=True))
-        taken = list(self._owed)[: max(0, self._service_room(len(frames), room) - len(out))]
+            self._add(out, slots, self._startup_frame, startup=True)
+        announced, held = self._service_frames(out, slots, len(frames), room)
+        ready = [f for f in frames if f.node_id not in held] if held else list(frames)
+        for frame in self._choose_nodes(ready, frames, room - len(out)):
+            live = not frame.failsafe and frame.node_id in announced and not self._stopping
+            code = self._codes.get(frame.node_id, 0)
+            status, byte4 = self.statuses.choose(frame, live, code)
+            data = self._data_frame(frame, status, byte4)
+            self._add(out, slots, data, data_node=frame.node_id, status=status)
+        self._last = slots
+        self._last_len = sum(map(len, out))
+        return b"".join(out)
+
+    def _add(self, out: list[bytes], slots: list[_Slot], frame: bytes, **slot: Any) -> None:
+        start = sum(map(len, out))
+        out.append(frame)
+        slots.append(_Slot(start + c2_16b.FRAME_LEN, **slot))  # (not `replace`: per frame)
+
+    def _service_frames(
+        self, out: list[bytes], slots: list[_Slot], nodes: int, room: int
+    ) -> tuple[set[int], set[int]]:
+        """Add the owed service frames that fit; (the nodes announced once they are out, the
+        nodes whose data frames wait)."""
+        if not self._owed:  # the usual tick: nothing owed, nothing held
+            return self._announced, set()
+        taken = list(self._owed)[: max(0, self._service_room(nodes, room) - len(out))]
         for item in taken:
-            self._add(out, slots, item.frame, _Slot(0, owed=item))
+            self._add(out, slots, item.frame, owed=item)
         owed_after = list(self._owed)[len(taken) :]
         announcing = {o.node_id for o in owed_after if o.event.kind is EventKind.CONNECTED}
         leaving = {o.node_id for o in owed_after if o.is_disconnect}
         announced = _announced_after(self._announced, taken) - announcing
         # a node new on this line waits for its connect sequence; a node whose `2` is still
         # owed waits for it (its next frame of any kind comes after the `2`)
-        held = (announcing - self._on_line) | leaving
-        ready = [f for f in frames if f.node_id not in held]
-        for frame in self._choose_nodes(ready, frames, room - len(out)):
-            live = not frame.failsafe and frame.node_id in announced and not self._stopping
-            code = self._codes.get(frame.node_id, 0)
-            status, byte4 = self.statuses.choose(frame, live, code)
-            data = self._data_frame(frame, status, byte4)
-            self._add(out, slots, data, _Slot(0, data_node=frame.node_id, status=status))
-        self._last = slots
-        self._last_len = sum(map(len, out))
-        return b"".join(out)
-
-    def _add(self, out: list[bytes], slots: list[_Slot], frame: bytes, slot: _Slot) -> None:
-        start = sum(map(len, out))
-        out.append(frame)
-        slots.append(replace(slot, end=start + c2_16b.FRAME_LEN))
+        return announced, (announcing - self._on_line) | leaving
 
     def _service_room(self, nodes: int, room: int) -> int:
         """Service frames first, but never all the room while nodes wait for data frames:

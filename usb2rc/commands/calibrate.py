@@ -21,7 +21,7 @@ import sys
 import termios
 import threading
 import tty
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -96,6 +96,15 @@ class TrackingDecoder:
                     self._low[i] = min(self._low.get(i, v), v)
                     self._high[i] = max(self._high.get(i, v), v)
         return ok
+
+    def feed_batch(
+        self, reports: Sequence[bytes], on_buttons: Callable[[int], None] | None = None
+    ) -> tuple[int, int]:
+        """Each report, one by one (not the inner decoder's batch, which decodes only the
+        last of each report ID): a flick in the middle of a batch counts too. `on_buttons`
+        is never called: the reader asks for presses only from a decoder with `buttons`."""
+        accepted = sum(self.feed(report) for report in reports)
+        return accepted, len(reports) - accepted
 
     def state(self) -> InputState:
         return self._inner.state()

@@ -88,40 +88,91 @@ def _parse_ids(rest: str, lineno: int, source: str) -> tuple[int, int, int]:
     return bus, vid, pid
 
 
-def parse_recording(lines: Iterable[str], source: str = "<recording>") -> Recording:
-    """Parse hid-recorder text. Raises RecordingError naming the line on bad input."""
-    descriptor: bytes | None = None
-    name = phys = ""
-    bus, vid, pid = 3, 0, 0
-    events: list[RecordedEvent] = []
-    device_index = 0
-    for lineno, raw in enumerate(lines, start=1):
+class _LineParser:
+    """The state of one file's parse, a line at a time: the header fields seen so far and
+    which device's lines are being read."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+        self.descriptor: bytes | None = None
+        self.name = self.phys = ""
+        self.bus, self.vid, self.pid = 3, 0, 0
+        self.device_index = 0
+
+    def line(self, lineno: int, raw: str) -> RecordedEvent | None:
+        """Take one line; the event it holds, if it is an `E:` line of the first device."""
         line = raw.strip()
         if not line or line.startswith("#"):
-            continue
+            return None
         tag, sep, rest = line.partition(":")
         if not sep:
-            raise RecordingError(f"{source}:{lineno}: expected 'X: ...', got {line[:40]!r}")
+            raise RecordingError(f"{self.source}:{lineno}: expected 'X: ...', got {line[:40]!r}")
         tag, rest = tag.strip(), rest.strip()
         if tag == "D":
-            device_index = int(rest) if rest.isdigit() else 0
-            continue
-        if device_index != 0:
-            continue
+            self.device_index = int(rest) if rest.isdigit() else 0
+            return None
+        if self.device_index != 0:
+            return None
+        if tag == "E":
+            return _parse_event(rest, lineno, self.source)
         if tag == "R":
-            descriptor = _hex_payload(rest, lineno, source)
+            self.descriptor = _hex_payload(rest, lineno, self.source)
         elif tag == "N":
-            name = rest
+            self.name = rest
         elif tag == "P":
-            phys = rest
+            self.phys = rest
         elif tag == "I":
-            bus, vid, pid = _parse_ids(rest, lineno, source)
-        elif tag == "E":
-            events.append(_parse_event(rest, lineno, source))
+            self.bus, self.vid, self.pid = _parse_ids(rest, lineno, self.source)
         # other tags (H:, S: ...) are informational and ignored
-    if descriptor is None:
-        raise RecordingError(f"{source}: no 'R:' report descriptor line")
-    return Recording(descriptor, name, phys, bus, vid, pid, tuple(events))
+        return None
+
+    def recording(self, events: tuple[RecordedEvent, ...]) -> Recording:
+        if self.descriptor is None:
+            raise RecordingError(f"{self.source}: no 'R:' report descriptor line")
+        return Recording(
+            self.descriptor, self.name, self.phys, self.bus, self.vid, self.pid, events
+        )
+
+
+def parse_recording(lines: Iterable[str], source: str = "<recording>") -> Recording:
+    """Parse hid-recorder text. Raises RecordingError naming the line on bad input."""
+    parser = _LineParser(source)
+    events = [
+        event
+        for lineno, raw in enumerate(lines, start=1)
+        if (event := parser.line(lineno, raw)) is not None
+    ]
+    return parser.recording(tuple(events))
+
+
+def open_recording(
+    lines: Iterable[str], source: str = "<recording>"
+) -> tuple[Recording, Iterator[RecordedEvent]]:
+    """The header (a Recording without events) now, the events as they are taken.
+
+    Reads the lines up to the first event only (hid-recorder writes the header first), so
+    the cost of a long recording is paid as it is played, not all at once: the replay
+    backend opens devices on threads that share the GIL with the scheduler. The iterator
+    raises RecordingError at the first bad line it reaches. Header lines after the first
+    event are not in the header; a file whose `R:` comes after its first event is parsed
+    whole here (and raises here if it has none)."""
+    parser = _LineParser(source)
+    numbered = enumerate(lines, start=1)
+    first = next((e for n, raw in numbered if (e := parser.line(n, raw)) is not None), None)
+    if parser.descriptor is None:
+        rest = [e for n, raw in numbered if (e := parser.line(n, raw)) is not None]
+        events = ([first] if first is not None else []) + rest
+        return parser.recording(()), iter(events)
+
+    def later() -> Iterator[RecordedEvent]:
+        if first is not None:
+            yield first
+        for lineno, raw in numbered:
+            event = parser.line(lineno, raw)
+            if event is not None:
+                yield event
+
+    return parser.recording(()), later()
 
 
 def read_recording(path: str) -> Recording:

@@ -231,12 +231,28 @@ def encode_data(
     line_feed: bool = True,
 ) -> bytes:
     """A data frame. Axes take int16 or uint16 values (-32768..65535), packed little-endian."""
-    _check_data_status(status)
-    _check_int("node_id", node_id, 0, 255)
-    _check_int("code", code, 0, 255)
+    # Every tick encodes one of these per node: the checks of the usual, valid case in one
+    # expression (`type(x) is int` excludes bool as the named checks do); when it fails the
+    # named checks run in their order to say what is wrong.
+    if not (
+        type(status) is int
+        and status in DATA_STATUSES
+        and type(node_id) is int
+        and 0 <= node_id <= 255
+        and type(code) is int
+        and 0 <= code <= 255
+        and type(group1) is int
+        and 0 <= group1 <= 0xFFFFFFFF
+        and type(group2) is int
+        and 0 <= group2 <= 0xFFFFFFFF
+    ):
+        _check_data_status(status)
+        _check_int("node_id", node_id, 0, 255)
+        _check_int("code", code, 0, 255)
+        _wire_axes(axes)  # its error comes before the groups', as it always did
+        _check_int("group1", group1, 0, 0xFFFFFFFF)
+        _check_int("group2", group2, 0, 0xFFFFFFFF)
     wire_axes = _wire_axes(axes)
-    _check_int("group1", group1, 0, 0xFFFFFFFF)
-    _check_int("group2", group2, 0, 0xFFFFFFFF)
     body = _DATA_BODY.pack(HEADER, status, node_id, code, *wire_axes, group1, group2)
     return _with_crc(body, line_feed)
 
