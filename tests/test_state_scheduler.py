@@ -95,6 +95,33 @@ def test_a_device_is_not_live_before_its_first_report():
     assert not live.failsafe and live.axes[0] == 32767
 
 
+class PublishesOnSecondRead:
+    """A reader that publishes its first report right after the table read its record once:
+    the interleaving where a frame could be marked live yet carry the held values."""
+
+    def __init__(self, before: ReaderRecord, after: ReaderRecord) -> None:
+        self._records = [before, after]
+
+    @property
+    def record(self) -> ReaderRecord:
+        return self._records.pop(0) if len(self._records) > 1 else self._records[0]
+
+
+def test_a_record_published_mid_frame_never_gives_live_held_values():
+    table = NodeTable()
+    table.add_device(0, info("hidraw0", "1-1"), BINDING, Source.of(LEFT), "JOYSTICK")
+    table.remove_device("hidraw0")  # held at full left
+    racing = PublishesOnSecondRead(
+        ReaderRecord(LAYOUT.initial_state(), reports=0), Source.of(RIGHT).record
+    )
+    table.add_device(0, info("hidraw1", "1-1"), BINDING, racing, "JOYSTICK")
+    first = frame_of(table, 0)
+    # the values and the live flag come from the same record: held and `!`, not held and live
+    assert first.failsafe and first.axes[0] == -32768
+    second = frame_of(table, 0)
+    assert not second.failsafe and second.axes[0] == 32767
+
+
 def test_a_node_that_a_reload_left_empty_is_failsafe_not_live():
     table = NodeTable({3: {}})
     assert frame_of(table, 3).failsafe

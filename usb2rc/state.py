@@ -104,15 +104,21 @@ class _Attached:
     def _known(self, record: ReaderRecord) -> bool:
         return self.present and record.reports > 0
 
-    def inputs(
+    def inputs(self) -> NodeInputs:
+        """What the device sends now (under the table lock)."""
+        return self.read()[0]
+
+    def read(
         self, subscriber: int | None = None, trims: dict[int, float] | None = None
-    ) -> NodeInputs:
-        """What the device sends now (under the table lock). `subscriber`: the output asking,
-        whose frame also shows the buttons tapped since its last frame; `trims`: the node's
+    ) -> tuple[NodeInputs, bool]:
+        """What the device sends now and whether that is live (under the table lock), both
+        from one reader record: a record published between two reads must not give a frame
+        marked live that carries the held values. `subscriber`: the output asking, whose
+        frame also shows the buttons tapped since its last frame; `trims`: the node's
         stepped trims of the slots this device has trim switches for."""
         record = self.source.record  # read once: liveness and values from the same record
         if not self._known(record):
-            return self.binding.failsafe(self.last_inputs)
+            return self.binding.failsafe(self.last_inputs), False
         state = record.state
         if subscriber is not None:
             seen = self.seen_presses.get(subscriber, 0)
@@ -127,9 +133,9 @@ class _Attached:
         if not self.armed:
             self.waiting = tuple(self.binding.guard.waiting_for(inputs.axes, trims))
             if self.waiting:
-                return self.binding.failsafe(self.last_inputs)
+                return self.binding.failsafe(self.last_inputs), False
             self.armed = True
-        return inputs
+        return inputs, True
 
     def step_trims(self, node_id: int, store: TrimStore) -> None:
         """Step the node's trims from this device's trim switches: a button press steps once
@@ -185,6 +191,7 @@ class _Node:
         group1 = group2 = unsigned = 0
         handover: HandoverConfig | None = None
         low_battery = False
+        all_live = True
         for entry in self.expected.values():
             _merge_axes(axes, entry.inputs)
             unsigned |= entry.unsigned_slots
@@ -193,7 +200,8 @@ class _Node:
             if attached.binding.trim_switches and trims is not None:
                 attached.step_trims(self.node_id, trims)
                 own_trims = trims.of_switches(self.node_id, attached.binding.trim_switches)
-            inputs = attached.inputs(subscriber, own_trims)
+            inputs, live = attached.read(subscriber, own_trims)
+            all_live = all_live and live
             _merge_axes(axes, inputs)
             group1 |= inputs.group1
             group2 |= inputs.group2
@@ -203,7 +211,7 @@ class _Node:
             low_battery = low_battery or inputs.low_battery
         return NodeFrame(
             self.node_id,
-            self.failsafe,
+            not self.attached or bool(self.expected) or not all_live,  # as `failsafe` says
             tuple(axes),
             group1,
             group2,
@@ -226,10 +234,10 @@ class _Node:
         why += [("expected", f"{name} (not plugged)") for name in self.expected]
         return why
 
-    def failsafe_change(self) -> str | None:
-        """A log line when the node entered or left failsafe, or waits for something else
-        now (the neutral guard: what must rest), since the last call."""
-        now = self.failsafe
+    def failsafe_change(self, now: bool) -> str | None:
+        """A log line when the node entered or left failsafe (`now`: the state its frame
+        just gave), or waits for something else now (the neutral guard: what must rest),
+        since the last call."""
         reasons = self.reasons() if now else []
         key = (now, tuple(kind for kind, _ in reasons))
         before, self.logged = self.logged, key
@@ -325,8 +333,9 @@ class NodeTable:
             subscriber = None
         for node_id in sorted(self._nodes):
             node = self._nodes[node_id]
-            frames.append(node.frame(subscriber, self._trims))
-            change = None if self._stopping else node.failsafe_change()
+            frame = node.frame(subscriber, self._trims)
+            frames.append(frame)
+            change = None if self._stopping else node.failsafe_change(frame.failsafe)
             if change:
                 changes.append(change)
         return frames, changes
