@@ -132,7 +132,6 @@ def test_udpin_answers_the_vehicle_that_called_and_counts_its_heartbeats(tmp_pat
     url = f"udpin:127.0.0.1:{port}"
     config = tmp_path / "udpin.yaml"
     config.write_text(f"outputs:\n  - protocol: mavlink\n    port: {url}\n")
-    install(replay_dir / "stick.hid", recording([CENTRED, STICK]))
     vehicle = UdpLine()  # the autopilot: it calls first, then listens on the same socket
     daemon = run_daemon(tmp_path, url, replay_dir, "--config", str(config))
     try:
@@ -143,10 +142,14 @@ def test_udpin_answers_the_vehicle_that_called_and_counts_its_heartbeats(tmp_pat
             common.MAV_TYPE_QUADROTOR, common.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4
         ).pack(mav)
         deadline = time.monotonic() + 10
-        while not of_type(vehicle.frames(), "RC_CHANNELS_OVERRIDE"):  # the daemon binds first
+        while not of_type(vehicle.frames(), "HEARTBEAT"):  # the daemon binds first
             assert time.monotonic() < deadline, "no answer to the vehicle's heartbeats"
             vehicle.sock.sendto(beat, ("127.0.0.1", port))
             time.sleep(0.1)
+        # Plugged once the link is up: the neutral guard arms on an output tick that sees the
+        # stick at rest (docs/ICD.md, "Neutral guard"), and a udpin output nobody has called
+        # does not tick yet.
+        install(replay_dir / "stick.hid", recording([CENTRED, STICK]))
         x = pwm(STICK.x, 0, 16383)  # the default list: node 0's x, y, z, rz, ...
         vehicle.wait_for(lambda ms: channels(of_type(ms, "RC_CHANNELS_OVERRIDE")[-1])[0] == x)
         daemon.signal(signal.SIGUSR1)

@@ -258,7 +258,8 @@ class Daemon:
         now = time.monotonic()
         uptime = max(1e-9, now - self.started_at)
         return {
-            "uptime_s": round(uptime, 3),
+            # µs: two dumps asked for back to back can be under a millisecond apart
+            "uptime_s": round(uptime, 6),
             "outputs": [self._output_stats(out) for out in self.outputs],
             "devices": [
                 self._device_stats(reader, now, uptime) for reader in self.lifecycle.readers
