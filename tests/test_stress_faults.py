@@ -9,6 +9,7 @@ measured with time.monotonic and reported (asserted only against generous bounds
 
 from __future__ import annotations
 
+import math
 import os
 import random
 import signal
@@ -59,12 +60,17 @@ def live(node: int):
     return lambda ln: ln.node(node).status == LIVE
 
 
-def fast_states(n: int, seed: int) -> list[StickState]:
-    """n states, the first at rest (the neutral guard lets the stick go live), then random."""
+REST_S = 0.06  # three ticks: the neutral guard arms on a tick that sees the stick at rest
+
+
+def fast_states(n: int, seed: int, hold_s: float) -> list[StickState]:
+    """n states, REST_S of them at rest first (the neutral guard lets the stick go live on
+    an output tick that sees it resting, docs/ICD.md "Neutral guard"), then random."""
     rng = random.Random(seed)
-    return [StickState()] + [
+    resting = min(n - 1, math.ceil(REST_S / hold_s))
+    return [StickState()] * resting + [
         StickState(x=rng.randrange(16384), y=rng.randrange(16384), buttons=rng.randrange(65536))
-        for _ in range(n - 1)
+        for _ in range(n - resting)
     ]
 
 
@@ -122,7 +128,7 @@ def test_serial_line_vanishes_and_returns(request, tmp_path, replay):
 
 def test_unplug_mid_report_at_high_rate(request, tmp_path, replay):
     """A 2 kHz recording removed while it plays: `2`, `!` with held axes, replug live."""
-    states = fast_states(400, 1)
+    states = fast_states(400, 1, 0.0005)
     text = recording(states, hold_s=0.0005)  # 2 kHz, 0.2 s, then held
     install(replay / "fast.hid", text)
     line = CheckedLine()
@@ -146,7 +152,7 @@ def test_unplug_mid_report_at_high_rate(request, tmp_path, replay):
             # axes held at one of the recorded states (scaled 0..16383 -> int16)
             assert (x, y) in wire, (x, y, line.summary())
             t1 = time.monotonic()
-            states = fast_states(400, k + 2)
+            states = fast_states(400, k + 2, 0.0005)
             wire = {(scale(s.x, 0, 16383), scale(s.y, 0, 16383)) for s in states}
             install(replay / "fast.hid", recording(states, hold_s=0.0005))
             line.wait_for(lambda ln, t1=t1: ln.node(0).first_status_after(t1, LIVE), timeout=10)
@@ -218,7 +224,7 @@ def test_device_whose_reads_fail(request, tmp_path, replay):
 
 def test_device_flooding_8khz(request, tmp_path, replay):
     """8 kHz reports (looped): the reader keeps up, ticks keep their rate, codes consecutive."""
-    states = fast_states(800, 3)  # 0.1 s at 8 kHz, looped
+    states = fast_states(800, 3, 0.000125)  # 0.1 s at 8 kHz, looped
     install(replay / "flood.hid", recording(states, hold_s=0.000125))
     seconds = env_int("USB2RC_FLOOD_SECONDS", 10)
     line = CheckedLine()
@@ -390,7 +396,7 @@ def test_sigterm_at_random_moments(request, tmp_path, replay):
         for f in replay.iterdir():
             f.unlink()
         if moment != "plug":
-            install(replay / "stick.hid", recording(fast_states(50, i), hold_s=0.002))
+            install(replay / "stick.hid", recording(fast_states(50, i, 0.002), hold_s=0.002))
         line = CheckedLine(configured=[4])
         daemon = DaemonProcess(
             ["--port", line.path, "--replay", str(replay), "--config", str(config)],
@@ -405,7 +411,9 @@ def test_sigterm_at_random_moments(request, tmp_path, replay):
             else:
                 line.wait_for(lambda ln: ln.startups, timeout=20)
                 if moment == "plug":
-                    install(replay / "stick.hid", recording(fast_states(50, i), hold_s=0.002))
+                    install(
+                        replay / "stick.hid", recording(fast_states(50, i, 0.002), hold_s=0.002)
+                    )
                 elif moment == "unplug":
                     line.wait_for(live(4), timeout=20)
                     os.unlink(replay / "stick.hid")
