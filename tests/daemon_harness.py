@@ -407,3 +407,20 @@ def of_type(messages: list[Any], kind: str) -> list[Any]:
 def channels(message: Any) -> list[int]:
     """An RC_CHANNELS_OVERRIDE's 18 channels."""
     return [getattr(message, f"chan{i}_raw") for i in range(1, 19)]
+
+
+@dataclass
+class RecordSource:
+    """Stands in for a DeviceReader in NodeTable tests: its published record."""
+
+    record: Any  # usb2rc.hid.reader.ReaderRecord
+
+
+def stick_record(state: StickState, reports: int = 1) -> Any:
+    """The record a T.16000M reader publishes after decoding `state`'s report."""
+    from usb2rc.hid.descriptor import parse_descriptor
+    from usb2rc.hid.reader import ReaderRecord
+
+    decoder = parse_descriptor(T16000M_DESCRIPTOR).make_decoder()
+    decoder.feed(state.report())
+    return ReaderRecord(decoder.state(), reports)

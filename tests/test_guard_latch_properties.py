@@ -9,9 +9,14 @@ harness's own scaling (daemon_harness.expected_frame), not from the code under t
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
-from daemon_harness import T16000M_DESCRIPTOR, StickState, expected_frame
+from daemon_harness import (
+    T16000M_DESCRIPTOR,
+    RecordSource,
+    StickState,
+    expected_frame,
+    stick_record,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -32,17 +37,6 @@ def info(key: str) -> DeviceInfo:
     return DeviceInfo(
         key=key, path=key, vid=0x044F, pid=0xB10A, product="T.16000M", port_path="1-1"
     )
-
-
-@dataclass
-class Source:
-    record: ReaderRecord
-
-
-def record_of(state: StickState) -> ReaderRecord:
-    decoder = LAYOUT.make_decoder()
-    decoder.feed(state.report())
-    return ReaderRecord(decoder.state(), 1)
 
 
 def at_rest(state: StickState) -> bool:
@@ -74,14 +68,14 @@ OPS = st.lists(
 def test_the_guard_lets_a_device_live_only_after_a_frame_at_rest(ops: list) -> None:
     table = NodeTable()
     plugs = 0
-    source = Source(ReaderRecord(LAYOUT.initial_state(), 0))
+    source = RecordSource(ReaderRecord(LAYOUT.initial_state(), 0))
     table.add_device(0, info("k0"), BINDING, source, "JOYSTICK")
     plugged, state, armed = True, None, False
     held = (0,) * 10  # nothing to hold yet: 0 (docs/ICD.md, "Failsafe")
     for op in ops:
         if op[0] == "report" and plugged:
             state = op[1]
-            source.record = record_of(state)
+            source.record = stick_record(state)
         elif op[0] == "unplug" and plugged:
             # the unplug takes the device's last values: held if the guard lets them be
             # (armed, or at rest right now), else what was held before stays
@@ -91,7 +85,7 @@ def test_the_guard_lets_a_device_live_only_after_a_frame_at_rest(ops: list) -> N
             plugged, armed = False, False
         elif op[0] == "replug" and not plugged:
             plugs += 1
-            source = Source(ReaderRecord(LAYOUT.initial_state(), 0))
+            source = RecordSource(ReaderRecord(LAYOUT.initial_state(), 0))
             table.add_device(0, info(f"k{plugs}"), BINDING, source, "JOYSTICK")
             plugged, state = True, None
         elif op[0] == "frame":
@@ -198,8 +192,8 @@ def test_a_trim_steps_once_per_press_and_never_leaves_its_limit(
     binding = default_binding(LAYOUT, "T.16000M")
     binding.trim_switches = (switch,)
     table = NodeTable()
-    centred = record_of(StickState())
-    source = Source(centred)
+    centred = stick_record(StickState())
+    source = RecordSource(centred)
     table.add_device(0, info("k"), binding, source, "JOYSTICK")
     table.frames()  # live: trims step from now on
     presses: tuple[tuple[int, int], ...] = ()

@@ -3,10 +3,8 @@ errors, trims (stepping, limits, reload, replug), the guard's defaults per devic
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import pytest
-from daemon_harness import T16000M_DESCRIPTOR, StickState, scale
+from daemon_harness import T16000M_DESCRIPTOR, RecordSource, StickState, scale, stick_record
 
 from usb2rc.binding import DeviceBinding, default_binding
 from usb2rc.config import ConfigError, load_config_text
@@ -108,17 +106,6 @@ def test_sumd_stopping_sets_the_failsafe_bit() -> None:
 # --- stopping: the table ------------------------------------------------------------------
 
 
-@dataclass
-class Source:
-    record: ReaderRecord
-
-
-def record_of(state: StickState) -> ReaderRecord:
-    decoder = LAYOUT.make_decoder()
-    decoder.feed(state.report())
-    return ReaderRecord(decoder.state(), 1)
-
-
 def test_table_stop_makes_every_node_failsafe_with_its_values_held_and_no_event() -> None:
     table = NodeTable()
     box = table.subscribe()
@@ -126,7 +113,7 @@ def test_table_stop_makes_every_node_failsafe_with_its_values_held_and_no_event(
         0,
         STICK,
         default_binding(LAYOUT, "T.16000M"),
-        Source(record_of(StickState(x=9000, buttons=1))),
+        RecordSource(stick_record(StickState(x=9000, buttons=1))),
         "JOYSTICK",
     )
     table.collect(box)
@@ -220,12 +207,12 @@ class Presses:
     def __init__(self) -> None:
         self.serial = 0
         self.presses: tuple[tuple[int, int], ...] = ()
-        self.record = record_of(StickState())
+        self.record = stick_record(StickState())
 
     def press(self, hid_button: int) -> None:
         self.serial += 1
         self.presses = (*self.presses, (self.serial, 1 << (hid_button - 1)))
-        base = record_of(StickState())
+        base = stick_record(StickState())
         self.record = ReaderRecord(base.state, self.serial + 1, 0, None, self.presses, self.serial)
 
 
@@ -276,7 +263,7 @@ def test_a_trim_moves_the_rest_point_of_the_guard() -> None:
         source.press(4)
     assert x_of(table) == scale(8192, 0, 16383) + 6554
     table.remove_device(STICK.key)
-    table.add_device(1, STICK, binding, Source(record_of(StickState())), "JOYSTICK")
+    table.add_device(1, STICK, binding, RecordSource(stick_record(StickState())), "JOYSTICK")
     frame = next(f for f in table.frames() if f.node_id == 1)
     assert not frame.failsafe  # centred plus its trim: at rest
 
@@ -303,13 +290,13 @@ def test_each_device_of_a_merged_node_guards_its_own_axes() -> None:
     assert stick is not None and throttle is not None
     table = NodeTable()
     # the stick rests, its slider (not guarded: not in its entry) is up; the throttle's is up
-    stick_source = Source(record_of(StickState(slider=255)))
-    throttle_source = Source(record_of(StickState(x=0, slider=255)))
+    stick_source = RecordSource(stick_record(StickState(slider=255)))
+    throttle_source = RecordSource(stick_record(StickState(x=0, slider=255)))
     table.add_device(1, STICK, stick, stick_source, "JOYSTICK")
     table.add_device(1, THROTTLE, throttle, throttle_source, "JOYSTICK")
     assert table.frames()[0].failsafe
     assert table.describe()["1"]["waiting_for"] == ["Slider low (TWCS)"]
-    throttle_source.record = record_of(StickState(x=0, slider=0))  # its X is not its guard
+    throttle_source.record = stick_record(StickState(x=0, slider=0))  # its X is not its guard
     assert not table.frames()[0].failsafe
 
 
@@ -321,15 +308,15 @@ def test_a_reload_never_makes_an_armed_device_wait_and_a_waiting_one_takes_the_n
     guarded = compile_mapping(load_config_text(armed_x, "a.yaml")).bind(STICK, LAYOUT)
     free = compile_mapping(load_config_text(any_x, "b.yaml")).bind(STICK, LAYOUT)
     table = NodeTable()
-    source = Source(record_of(StickState()))
+    source = RecordSource(stick_record(StickState()))
     table.add_device(1, STICK, guarded, source, "JOYSTICK")
     assert not table.frames()[0].failsafe
-    source.record = record_of(StickState(x=16383))  # in flight, full right
+    source.record = stick_record(StickState(x=16383))  # in flight, full right
     table.rebind(lambda _i: guarded, {})
     assert not table.frames()[0].failsafe  # armed stays armed
     # replugged at full right: waits; a reload to `arm: any` lets it go
     table.remove_device(STICK.key)
-    table.add_device(1, STICK, guarded, Source(record_of(StickState(x=16383))), "JOYSTICK")
+    table.add_device(1, STICK, guarded, RecordSource(stick_record(StickState(x=16383))), "JOYSTICK")
     assert table.frames()[0].failsafe
     table.rebind(lambda _i: free, {})
     assert not table.frames()[0].failsafe and table.frames()[0].axes[0] == 32767
@@ -347,12 +334,12 @@ devices:
 def test_a_hat_trim_steps_once_per_push() -> None:
     binding = compile_mapping(load_config_text(HAT_TRIM, "h.yaml")).bind(STICK, LAYOUT)
     table = NodeTable()
-    source = Source(record_of(StickState()))
+    source = RecordSource(stick_record(StickState()))
     table.add_device(1, STICK, binding, source, "JOYSTICK")
     centre = scale(8192, 0, 16383)
     assert not table.frames()[0].failsafe  # live: trims step only now
     for hat in (0, 0, 0, 8, 1, 8, 4):  # UP held 3 frames, released, UP-RIGHT, released, DOWN
-        source.record = record_of(StickState(hat=hat))
+        source.record = stick_record(StickState(hat=hat))
         table.frames()
     assert table.describe()["1"]["trims"] == {"y": 0.02}  # +1 +1 -1 steps
     assert table.frames()[0].axes[1] == centre + 655  # 0.02 of 32767.5
