@@ -35,6 +35,7 @@ from usb2rc.hid.replay import ReplayBackend
 from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.outputs import protocol
 from usb2rc.outputs.sumd_receivers import receiver_warnings
+from usb2rc.service_sandbox import sandbox_warnings
 from usb2rc.udp_url import is_udp_url
 
 
@@ -217,7 +218,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     mapping = compile_mapping(config)
     print("\n".join(summary(config, mapping)))
-    for warning in warnings(config, mapping):
+    for warning in warnings(config, mapping) + sandbox_warnings(config):
         print(warning, file=sys.stderr)
     if not args.replay:
         return 0

@@ -4,15 +4,20 @@ Writes a config with one entry per joystick-like device plugged in now (or each 
 DIR): matched by vid/pid (and its serial, or USB port, when two devices are alike), its
 Node-ID pinned as the automatic numbering gives it now, and its axes, buttons and first hat
 written out as the default layout maps them, each line commented with the HID usage and
-logical range it comes from. One SERaero C2-16B output on PORT. The text passes `usb2rc
-check` as written. Without -o it goes to stdout; an existing FILE is only replaced with
---force. Next: `usb2rc calibrate --config FILE`.
+logical range it comes from. One SERaero C2-16B output on PORT; without --port the line is
+a comment (`# port: /dev/serial0`) and `usb2rc run --port PORT` gives the port. A PORT that
+exists but cannot be a serial line (/dev/null, a regular file, a directory) is refused
+(exit 2): the daemon would retry it forever. The text passes `usb2rc check` as written.
+Without -o it goes to stdout; an existing FILE is only replaced with --force, keeping its
+owner, group and mode (a symlink: the file it points to). Next: `usb2rc calibrate --config
+FILE`.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import stat
 import sys
 
 from usb2rc.commands.arguments import replay_dir
@@ -40,10 +45,45 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     )
     parser.add_argument("-o", "--output", metavar="FILE", help="write here (default: stdout)")
     parser.add_argument(
-        "--port", type=port_argument, help="serial port or pyserial URL of the C2-16B output"
+        "--port",
+        type=serial_port_argument,
+        help="serial port or pyserial URL of the C2-16B output (default: none, a comment)",
     )
     parser.add_argument("--force", action="store_true", help="replace FILE if it exists")
     parser.set_defaults(func=run)
+
+
+def not_a_serial_line(port: str) -> str | None:
+    """Why an existing path cannot be a serial line, or None (a URL, a tty, or a path not
+    there now: an unplugged adapter, which the daemon waits for). Opens nothing: opening a
+    serial port raises DTR, which resets some boards."""
+    if "://" in port:
+        return None
+    try:
+        st = os.stat(port)
+    except OSError:
+        return None
+    if not stat.S_ISCHR(st.st_mode):
+        return "not a character device"
+    major, minor = os.major(st.st_rdev), os.minor(st.st_rdev)
+    subsystem = f"/sys/dev/char/{major}:{minor}/subsystem"
+    if os.path.islink(subsystem):  # ptys have no sysfs entry: accepted
+        driver = os.path.basename(os.readlink(subsystem))
+        if driver != "tty":
+            return f"a {driver} device, not a tty"
+    return None
+
+
+def serial_port_argument(value: str) -> str:
+    """argparse `type=` for init's --port: pyserial can parse it and it can be a serial line."""
+    port = port_argument(value)
+    problem = not_a_serial_line(port)
+    if problem is not None:
+        raise argparse.ArgumentTypeError(
+            f"{value!r} cannot be a serial line ({problem}); leave --port out to write the "
+            "port as a comment and give it later (`usb2rc run --port PORT`)"
+        )
+    return port
 
 
 def read_devices(replay: str | None) -> tuple[list[PluggedDevice], list[SkippedDevice]]:

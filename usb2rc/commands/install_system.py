@@ -1,11 +1,19 @@
-"""`usb2rc install-system [--root DIR] [--config FILE] [--print NAME]`: the service files.
+"""`usb2rc install-system [--root DIR] [--config FILE] [--force] [--print NAME]`: the service.
 
 The package carries the systemd unit, the udev rule, the sysusers file, the unit's notes and
 the starter configs (`usb2rc/data/system/`, `usb2rc/data/config/`), so `pip install usb2rc`
 needs no clone. This writes them where a Pi (or any systemd host) wants them, creates the
-service user with systemd-sysusers, and never overwrites an existing /etc/usb2rc/usb2rc.yaml.
-With `--root DIR` everything goes under DIR (a scratch root, an image being built); with
-`--print NAME` one file is printed as it would be installed instead.
+service user with systemd-sysusers, and never overwrites an existing /etc/usb2rc/usb2rc.yaml
+(a symlink to nothing there is refused, naming the link and its target). An installed file
+that differs from what this usb2rc would write (edited by hand, or by an older usb2rc) is
+kept, with a unified diff of what would change; `--force` replaces it.
+
+The config that ends up at /etc/usb2rc/usb2rc.yaml (the kept one, or the one installed) is
+read: when its outputs open IP sockets (`udpout:`, `udpin:`, `socket://`, `rfc2217://`),
+which the unit forbids, the drop-in usb2rc.service.d/network.conf allows IP to the hosts they
+name (`usb2rc/service_sandbox.py` says how). With `--root DIR` everything goes under DIR (a
+scratch root, an image being built); with `--print NAME` one file is printed as it would be
+installed instead (network.conf: for --config FILE, default the starter default.yaml).
 
 The unit's ExecStart= names the usb2rc that runs this command: the entry-point script it was
 started as, else the `usb2rc` beside the running Python (a venv's bin/), else that Python
@@ -15,6 +23,7 @@ with `-m usb2rc`. So the service runs the venv the command came from.
 from __future__ import annotations
 
 import argparse
+import difflib
 import os
 import re
 import shlex
@@ -25,6 +34,9 @@ import tempfile
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+
+from usb2rc import service_sandbox
+from usb2rc.textfile import DanglingLink, resolved_target
 
 # The shipped unit's ExecStart= program: what an install into /opt/usb2rc/venv gives.
 TEMPLATE_PROGRAM = "/opt/usb2rc/venv/bin/usb2rc"
@@ -41,6 +53,7 @@ class SystemFile:
     target: str  # absolute path on the installed system
     mode: int
     keep_existing: bool = False  # the user's config: never overwritten
+    generated: bool = False  # written from the config, not a packaged file
 
 
 FILES = (
@@ -50,8 +63,13 @@ FILES = (
     SystemFile("SERVICE.md", "system", "/usr/share/doc/usb2rc/SERVICE.md", 0o644),
     SystemFile("default.yaml", "config", CONFIG_TARGET, 0o640, keep_existing=True),
 )
-EXAMPLES = (SystemFile("hotas.yaml", "config", CONFIG_TARGET, 0o640, keep_existing=True),)
-BY_NAME = {f.name: f for f in (*FILES, *EXAMPLES)}
+EXAMPLES = tuple(
+    SystemFile(name, "config", CONFIG_TARGET, 0o640, keep_existing=True)
+    for name in ("hotas.yaml", "mavlink.yaml")
+)
+# Written after the config, from it (service_sandbox): only when it opens IP sockets.
+DROP_IN = SystemFile("network.conf", "", service_sandbox.DROP_IN, 0o644, generated=True)
+BY_NAME = {f.name: f for f in (*FILES, *EXAMPLES, DROP_IN)}
 
 NEXT_STEPS = (
     "sudo udevadm control --reload && sudo udevadm trigger --subsystem-match=hidraw",
@@ -75,6 +93,11 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         metavar="FILE",
         help=f"install FILE as {CONFIG_TARGET} (default: the starter default.yaml); "
         "it must pass `usb2rc check`, and an existing one is still kept",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace installed files that differ from this usb2rc's (the config is still kept)",
     )
     parser.add_argument(
         "--exec",
@@ -136,6 +159,17 @@ def rendered(file: SystemFile, program: list[str]) -> str:
     return unit_text(text, program) if file.name == "usb2rc.service" else text
 
 
+def drop_in_for(config_text: str, source: str, root: Path) -> tuple[str | None, list[str]]:
+    """network.conf for the config (None: it opens no IP socket) and the warnings to show."""
+    from usb2rc.config import load_config_text
+
+    peers = service_sandbox.network_peers(load_config_text(config_text, source), root)
+    warnings = [p.warning for p in peers if p.warning]
+    if not peers:
+        return None, warnings
+    return service_sandbox.drop_in_text(peers, CONFIG_TARGET), warnings
+
+
 # --------------------------------------------------------------------------- writing
 
 
@@ -155,7 +189,7 @@ def make_dirs(directory: Path) -> None:
 
 def write_file(path: Path, text: str, mode: int) -> str:
     """Atomically (temp file + rename); 'wrote' or 'unchanged'."""
-    if path.is_file() and path.read_text() == text and (path.stat().st_mode & 0o777) == mode:
+    if same_file(path, text, mode):
         return "unchanged"
     make_dirs(path.parent)
     fd, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
@@ -168,6 +202,49 @@ def write_file(path: Path, text: str, mode: int) -> str:
         os.unlink(temp)
         raise
     return "wrote"
+
+
+def same_file(path: Path, text: str, mode: int) -> bool:
+    if path.is_symlink() or not path.is_file():
+        return False
+    return path.read_text() == text and (path.stat().st_mode & 0o777) == mode
+
+
+def edited_by_hand(path: Path, text: str) -> str | None:
+    """What differs between the installed file and text (a unified diff, or what the link
+    points to), or None when there is nothing to keep (absent, or the same text)."""
+    if path.is_symlink():
+        return f"{path} is a symlink to {os.readlink(path)}\n"
+    if not path.exists():
+        return None
+    try:
+        installed = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        return f"{path}: cannot read ({exc}): not the file usb2rc installs\n"
+    if installed == text:
+        return None
+    lines = difflib.unified_diff(
+        installed.splitlines(keepends=True),
+        text.splitlines(keepends=True),
+        fromfile=f"{path} (installed)",
+        tofile=f"{path} (this usb2rc's)",
+    )
+    return "".join(line if line.endswith("\n") else line + "\n" for line in lines)
+
+
+def place(path: Path, text: str, file: SystemFile, force: bool) -> str | None:
+    """Write one service file (printing what happened); a problem, or None. A file that
+    differs from text is kept, its diff shown, unless force."""
+    difference = None if force else edited_by_hand(path, text)
+    if difference is not None:
+        print(f"{'kept':<10} {path} (differs from {file.name}: diff on stderr)")
+        sys.stderr.write(difference)
+        return (
+            f"{path} differs from this usb2rc's {file.name} and was kept: `--force` replaces "
+            "it (settings of your own belong in a drop-in: `systemctl edit usb2rc`)"
+        )
+    print(f"{write_file(path, text, file.mode):<10} {path} (from {file.name})")
+    return None
 
 
 def group_id(root: Path, name: str) -> int | None:
@@ -226,8 +303,7 @@ def checked_config(path: str) -> str:
 def run(args: argparse.Namespace) -> int:
     program = [args.program] if args.program else running_program()
     if args.print_name:
-        sys.stdout.write(rendered(BY_NAME[args.print_name], program))
-        return 0
+        return print_file(BY_NAME[args.print_name], program, args.config)
     usage = _usage_problem(args.root, program)
     if usage is not None:
         print(f"usb2rc install-system: {usage}", file=sys.stderr)
@@ -236,14 +312,29 @@ def run(args: argparse.Namespace) -> int:
     if config_text is None:
         return 2
     root = Path(args.root)
+    config_name = args.config or BY_NAME["default.yaml"].name
+    request = Request(root, program, config_text, config_name, args.force)
     try:
-        problems = install(root, program, config_text)
+        problems = install(request)
     except OSError as exc:
         hint = " (run it with sudo)" if isinstance(exc, PermissionError) else ""
         print(f"usb2rc install-system: {exc}{hint}", file=sys.stderr)
         return 1
     _print_advice(root, program, problems)
     return 1 if problems else 0
+
+
+def print_file(file: SystemFile, program: list[str], config: str | None) -> int:
+    """--print NAME: the file as installed; network.conf for --config (or default.yaml)."""
+    if not file.generated:
+        sys.stdout.write(rendered(file, program))
+        return 0
+    config_text = _config_text(config)
+    if config_text is None:
+        return 2
+    text, _warnings = drop_in_for(config_text, config or "default.yaml", Path("/"))
+    sys.stdout.write(text or service_sandbox.drop_in_text([], config or "default.yaml"))
+    return 0
 
 
 def _usage_problem(root: str, program: list[str]) -> str | None:
@@ -269,23 +360,83 @@ def _config_text(path: str | None) -> str | None:
     return None
 
 
-def install(root: Path, program: list[str], config_text: str) -> list[str]:
+@dataclass(frozen=True)
+class Request:
+    """What to install: the command line, resolved."""
+
+    root: Path
+    program: list[str]
+    config_text: str
+    config_name: str  # --config FILE as given, or the starter's name
+    force: bool = False
+
+
+def install(request: Request) -> list[str]:
     """Write every file under root (printing one line each); the problems left to fix."""
     problems: list[str] = []
     for file in FILES:
-        path = under_root(root, file.target)
-        if file.keep_existing and path.exists():
-            print(f"kept       {path} (exists: not overwritten)")
+        if file.keep_existing:
+            problems += install_config(request, file)
             continue
-        text = config_text if file.keep_existing else rendered(file, program)
-        print(f"{write_file(path, text, file.mode):<10} {path} (from {file.name})")
-        if file.name == "usb2rc.sysusers":
-            problem = create_service_user(root, text)
+        text = rendered(file, request.program)
+        path = under_root(request.root, file.target)
+        problem = place(path, text, file, request.force)
+        problems += [problem] if problem else []
+        if file.name == "usb2rc.sysusers" and problem is None:
+            problem = create_service_user(request.root, text)
             problems += [problem] if problem else []
-        elif file.keep_existing:
-            problem = give_config_to_group(root, path)
-            problems += [problem] if problem else []
-    return problems
+    return problems + install_drop_in(request)
+
+
+def install_config(request: Request, file: SystemFile) -> list[str]:
+    """The config, only where there is none; a dangling symlink is refused (see textfile)."""
+    path = under_root(request.root, file.target)
+    try:
+        resolved_target(path)
+    except DanglingLink as exc:
+        print(f"{'refused':<10} {path} (a symlink to nothing)")
+        return [str(exc)]
+    if path.exists():
+        print(f"kept       {path} (exists: not overwritten)")
+        return []
+    verb = write_file(path, request.config_text, file.mode)
+    print(f"{verb:<10} {path} (from {request.config_name})")
+    problem = give_config_to_group(request.root, path)
+    return [problem] if problem else []
+
+
+def installed_config(request: Request) -> tuple[str, str] | None:
+    """The text and name of the config at /etc/usb2rc/usb2rc.yaml now, None if none."""
+    path = under_root(request.root, CONFIG_TARGET)
+    try:
+        return path.read_text(), str(path)
+    except OSError:
+        return None
+
+
+def install_drop_in(request: Request) -> list[str]:
+    """network.conf for the installed config's IP outputs (service_sandbox)."""
+    from usb2rc.config import ConfigError
+
+    config = installed_config(request)
+    if config is None:
+        return []
+    path = under_root(request.root, DROP_IN.target)
+    try:
+        text, warnings = drop_in_for(*config, request.root)
+    except ConfigError as exc:
+        return [
+            f"{config[1]} does not pass `usb2rc check` ({len(exc.errors)} error(s)): "
+            f"no {DROP_IN.name} written for its network outputs"
+        ]
+    for warning in warnings:
+        print(f"usb2rc install-system: warning: {warning}", file=sys.stderr)
+    if text is None:
+        if path.exists():
+            print(f"kept       {path} (the config opens no IP socket: remove it if unused)")
+        return []
+    problem = place(path, text, DROP_IN, request.force)
+    return [problem] if problem else []
 
 
 def _print_advice(root: Path, program: list[str], problems: list[str]) -> None:
