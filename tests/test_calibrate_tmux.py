@@ -103,7 +103,7 @@ def stick_folder(tmp_path: Path) -> Path:
 def starter(tmp_path: Path, folder: Path) -> Path:
     config = tmp_path / "x.yaml"
     made = subprocess.run(
-        usb2rc("init", "--replay", str(folder), "--port", "/dev/null", "-o", str(config)),
+        usb2rc("init", "--replay", str(folder), "-o", str(config)),
         capture_output=True,
         text=True,
         cwd=ROOT,
@@ -238,7 +238,7 @@ def test_quit_leaves_the_file_as_it_was(tmp_path, pane):
 def test_init_then_check_in_a_terminal(tmp_path, pane):
     """The issue's commands as typed in a shell, from the source tree."""
     config = tmp_path / "x.yaml"
-    init = " ".join(usb2rc("init", "--replay", "usb2rc/data/demo", "--port", "/dev/null"))
+    init = " ".join(usb2rc("init", "--replay", "usb2rc/data/demo"))
     check = " ".join(usb2rc("check", "--config", str(config)))
     pane.start(f"{init} -o {config} && {check}; echo EXIT=$?; sleep 60", ROOT)
     screen = pane.wait_for("EXIT=")

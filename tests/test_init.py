@@ -119,7 +119,7 @@ def init(*args: str) -> int:
 
 def test_writes_a_file_check_accepts(tmp_path, capsys):
     out = tmp_path / "x.yaml"
-    assert init("--port", "/dev/null", "-o", str(out)) == 0
+    assert init("-o", str(out)) == 0
     assert "wrote" in capsys.readouterr().err
     assert main(["check", "--config", str(out), "--replay", str(DEMO)]) == 0
     assert "node 0 as 'thrustmaster-t-16000m'" in capsys.readouterr().out
@@ -156,7 +156,7 @@ def test_from_a_fresh_process_init_then_check(tmp_path):
     demo = "usb2rc/data/demo"
     out = tmp_path / "x.yaml"
     made = subprocess.run(
-        [*usb2rc, "init", "--replay", demo, "--port", "/dev/null", "-o", str(out)],
+        [*usb2rc, "init", "--replay", demo, "-o", str(out)],
         cwd=ROOT,
         capture_output=True,
         text=True,
@@ -193,3 +193,42 @@ def test_a_replaced_file_keeps_its_mode_and_leaves_no_temporary(tmp_path):
     assert target.read_text() == "new\n"
     assert target.stat().st_mode & 0o777 == 0o640
     assert [p.name for p in tmp_path.iterdir()] == ["usb2rc.yaml"]
+
+
+# --------------------------------------------------------------------------- --port
+
+
+@pytest.mark.parametrize("port", ["/dev/null", "/dev/zero", "DIR", "FILE"])
+def test_a_port_that_cannot_be_a_serial_line_is_refused(tmp_path, capsys, port):
+    """The daemon would retry such a port forever (issue 20): init refuses it, exit 2, and
+    says how to leave the port out instead."""
+    (tmp_path / "FILE").write_text("")
+    port = {"DIR": str(tmp_path), "FILE": str(tmp_path / "FILE")}.get(port, port)
+    out = tmp_path / "x.yaml"
+    with pytest.raises(SystemExit) as exited:
+        init("--port", port, "-o", str(out))
+    assert exited.value.code == 2
+    err = capsys.readouterr().err
+    assert f"{port!r} cannot be a serial line" in err and "leave --port out" in err
+    assert not out.exists()
+
+
+def test_a_pty_an_absent_adapter_and_a_url_are_ports(tmp_path, capsys):
+    import os
+
+    leader, follower = os.openpty()
+    try:
+        for port in (os.ttyname(follower), "/dev/ttyUSB97", "socket://127.0.0.1:5760"):
+            out = tmp_path / "x.yaml"
+            assert init("--port", port, "-o", str(out), "--force") == 0, capsys.readouterr()
+            assert load_config_text(out.read_text(), "x.yaml").outputs[0].port == port
+    finally:
+        os.close(leader)
+        os.close(follower)
+
+
+def test_without_a_port_the_config_says_how_to_give_it(tmp_path, capsys):
+    out = tmp_path / "x.yaml"
+    assert init("-o", str(out)) == 0
+    assert "# port: /dev/serial0" in out.read_text() and "usb2rc run --port PORT" in out.read_text()
+    assert load_config_text(out.read_text(), "x.yaml").outputs[0].port is None

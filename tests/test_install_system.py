@@ -27,7 +27,11 @@ from usb2rc.commands.install_system import (
 )
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGED = {f.name: ROOT / "usb2rc" / "data" / f.package_dir / f.name for f in BY_NAME.values()}
+PACKAGED = {
+    f.name: ROOT / "usb2rc" / "data" / f.package_dir / f.name
+    for f in BY_NAME.values()
+    if not f.generated  # network.conf is written from the config
+}
 HAVE_SYSUSERS = shutil.which("systemd-sysusers") is not None
 
 
@@ -225,3 +229,157 @@ def test_next_steps_name_the_installed_program(capsys: pytest.CaptureFixture[str
     out = capsys.readouterr().out
     assert "sudo /opt/usb2rc/venv/bin/usb2rc check --config /etc/usb2rc/usb2rc.yaml" in out
     assert "systemctl daemon-reload" in out and "udevadm trigger" in out
+
+
+# --------------------------------------------------------------------------- issue 19 point 7
+
+
+def installed(root: Path, target: str) -> Path:
+    return root / target.lstrip("/")
+
+
+UNIT = "/etc/systemd/system/usb2rc.service"
+
+
+def test_an_edited_unit_is_kept_with_its_diff_until_force(tmp_path: Path) -> None:
+    assert run_here("install-system", "--root", str(tmp_path)).returncode == 0
+    unit = installed(tmp_path, UNIT)
+    edited = unit.read_text().replace("RestartSec=1", "RestartSec=5")
+    unit.write_text(edited)
+    again = run_here("install-system", "--root", str(tmp_path))
+    assert again.returncode == 1
+    assert unit.read_text() == edited  # before: silently reverted
+    assert "-RestartSec=5\n+RestartSec=1\n" in again.stderr
+    assert f"{unit} differs from this usb2rc's usb2rc.service and was kept" in again.stderr
+    assert "--force" in again.stderr
+    forced = run_here("install-system", "--root", str(tmp_path), "--force")
+    assert forced.returncode == 0, forced.stderr
+    assert "RestartSec=1\n" in unit.read_text()
+
+
+def test_a_masked_unit_stays_masked(tmp_path: Path) -> None:
+    unit = installed(tmp_path, UNIT)
+    unit.parent.mkdir(parents=True)
+    unit.symlink_to("/dev/null")
+    result = run_here("install-system", "--root", str(tmp_path))
+    assert result.returncode == 1 and f"{unit} is a symlink to /dev/null" in result.stderr
+    assert unit.is_symlink()
+
+
+def test_a_dangling_config_link_is_refused_naming_its_target(tmp_path: Path) -> None:
+    config = installed(tmp_path, "/etc/usb2rc/usb2rc.yaml")
+    config.parent.mkdir(parents=True)
+    config.symlink_to("/mnt/usb/usb2rc.yaml")
+    result = run_here("install-system", "--root", str(tmp_path))
+    assert result.returncode == 1
+    assert f"{config} is a symlink to /mnt/usb/usb2rc.yaml, which does not exist" in result.stderr
+    assert config.is_symlink() and os.readlink(config) == "/mnt/usb/usb2rc.yaml"  # before: a file
+    assert not Path("/mnt/usb/usb2rc.yaml").exists()
+
+
+def test_a_given_config_is_named_as_the_source(tmp_path: Path) -> None:
+    mine = tmp_path / "my.yaml"
+    mine.write_text(PACKAGED["hotas.yaml"].read_text())
+    result = run_here("install-system", "--root", str(tmp_path / "r"), "--config", str(mine))
+    assert f"usb2rc.yaml (from {mine})" in result.stdout  # before: (from default.yaml)
+    assert "(from default.yaml)" not in result.stdout
+
+
+SHIPPED = [
+    "default.yaml",
+    "hotas.yaml",
+    "mavlink.yaml",
+    "usb2rc.service",
+    "70-usb2rc.rules",
+    "usb2rc.sysusers",
+    "SERVICE.md",
+    "network.conf",
+]
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_print_offers_every_shipped_file(name: str) -> None:
+    result = run_here("install-system", "--print", name)
+    assert result.returncode == 0, result.stderr
+    if name in PACKAGED and name != "usb2rc.service":
+        assert result.stdout == PACKAGED[name].read_text()
+    assert name in run_here("install-system", "--help").stdout
+
+
+def test_print_network_conf_for_a_config(tmp_path: Path) -> None:
+    result = run_here("install-system", "--print", "network.conf", "--config", MAVLINK)
+    assert "RestrictAddressFamilies=AF_INET AF_INET6\n" in result.stdout
+    assert "IPAddressAllow=127.0.0.1\n" in result.stdout
+    plain = run_here("install-system", "--print", "network.conf")
+    assert "[Service]" not in plain.stdout and "nothing to allow" in plain.stdout
+
+
+# --------------------------------------------------------------------------- issue 20 point 1
+
+MAVLINK = str(PACKAGED["mavlink.yaml"])
+DROP_IN = "/etc/systemd/system/usb2rc.service.d/network.conf"
+HAVE_ANALYZE = shutil.which("systemd-analyze") is not None
+MAX_EXPOSURE = 2.0
+
+
+def analyze(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        ["systemd-analyze", *args], capture_output=True, text=True, check=False, timeout=60
+    )
+
+
+@pytest.mark.skipif(not HAVE_ANALYZE, reason="systemd-analyze missing")
+def test_a_mavlink_udp_config_gets_a_drop_in_that_verifies(tmp_path: Path) -> None:
+    result = run_here("install-system", "--root", str(tmp_path), "--config", MAVLINK)
+    assert result.returncode == 0, result.stdout + result.stderr
+    drop_in = installed(tmp_path, DROP_IN)
+    text = drop_in.read_text()  # before: no drop-in, udpout:127.0.0.1:14550 blocked
+    assert "RestrictAddressFamilies=AF_INET AF_INET6\nIPAddressAllow=127.0.0.1\n" in (
+        text.replace("# outputs[0] udpout:127.0.0.1:14550\n", "")
+    )
+    assert stat.S_IMODE(drop_in.stat().st_mode) == 0o644
+    unit = installed(tmp_path, UNIT)
+    # verify loads the drop-ins beside a unit file's directory; clean means no output at all.
+    check = analyze("verify", str(unit))
+    assert check.returncode == 0 and check.stdout + check.stderr == "", check.stderr
+    report = analyze("security", "--offline=true", "--no-pager", str(unit))
+    assert "RestrictAddressFamilies=~AF_(INET|INET6)" in report.stdout  # the drop-in was read
+    assert "allow list with only localhost entries" in report.stdout
+    exposure = float(
+        report.stdout.rsplit("Overall exposure level for usb2rc.service:", 1)[1].split()[0]
+    )
+    assert exposure <= MAX_EXPOSURE, report.stdout
+
+
+def test_a_serial_config_gets_no_drop_in(tmp_path: Path) -> None:
+    result = run_here("install-system", "--root", str(tmp_path))
+    assert result.returncode == 0, result.stderr
+    assert not installed(tmp_path, DROP_IN).exists()
+
+
+def test_the_drop_in_follows_the_kept_config_not_the_given_one(tmp_path: Path) -> None:
+    """The service runs what is at /etc/usb2rc/usb2rc.yaml: a kept MAVLink config still
+    gets its drop-in when install-system runs again without --config."""
+    first = run_here("install-system", "--root", str(tmp_path), "--config", MAVLINK)
+    assert first.returncode == 0, first.stderr
+    installed(tmp_path, DROP_IN).unlink()
+    again = run_here("install-system", "--root", str(tmp_path))
+    assert again.returncode == 0, again.stderr
+    assert "IPAddressAllow=127.0.0.1" in installed(tmp_path, DROP_IN).read_text()
+
+
+def test_an_edited_drop_in_is_kept(tmp_path: Path) -> None:
+    mine = tmp_path / "in.yaml"
+    mine.write_text(
+        PACKAGED["mavlink.yaml"].read_text().replace("udpout:127.0.0.1", "udpin:0.0.0.0")
+    )
+    first = run_here("install-system", "--root", str(tmp_path / "r"), "--config", str(mine))
+    assert first.returncode == 0, first.stderr
+    assert "takes datagrams from any host" in first.stderr  # the udpin:0.0.0.0 warning
+    drop_in = installed(tmp_path / "r", DROP_IN)
+    assert "IPAddressAllow=any\n" in drop_in.read_text()
+    narrowed = drop_in.read_text().replace("IPAddressAllow=any", "IPAddressAllow=192.168.4.2")
+    drop_in.write_text(narrowed)
+    again = run_here("install-system", "--root", str(tmp_path / "r"))
+    assert again.returncode == 1 and drop_in.read_text() == narrowed
+    assert "-IPAddressAllow=192.168.4.2\n+IPAddressAllow=any\n" in again.stderr

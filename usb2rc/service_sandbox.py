@@ -38,6 +38,7 @@ DROP_IN = DROP_IN_DIR + "/network.conf"
 NETWORK_FAMILIES = ("AF_INET", "AF_INET6")
 TCP_SCHEMES = ("socket", "rfc2217")  # pyserial URLs that open a TCP connection
 FIX_COMMAND = "sudo usb2rc install-system"
+SYSTEM_ROOT = Path("/")  # where `check` looks for the installed unit (tests point it elsewhere)
 # systemd's IPAddressAllow= keywords, as networks.
 KEYWORDS = {
     "any": ("0.0.0.0/0", "::/0"),
@@ -274,9 +275,10 @@ def blocked_reason(sandbox: Sandbox, peer: Peers) -> str | None:
     return None
 
 
-def sandbox_warnings(config: Config, root: Path = Path("/")) -> list[Problem]:
+def sandbox_warnings(config: Config, root: Path | None = None) -> list[Problem]:
     """A warning for each output the installed usb2rc.service could not open (none when the
-    unit is not installed)."""
+    unit is not installed); root None: SYSTEM_ROOT."""
+    root = SYSTEM_ROOT if root is None else root
     sandbox = installed_sandbox(root)
     if sandbox is None:
         return []
