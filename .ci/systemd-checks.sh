@@ -4,6 +4,9 @@
 #                              binary exists, and /opt/usb2rc is not installed in CI; the copy
 #                              differs from the shipped unit in that one path, checked below)
 #   systemd-analyze security  (offline; fails above MAX_EXPOSURE)
+#   the network drop-in      (what `install-system` writes for config/mavlink.yaml's UDP
+#                              output: verify clean and exposure at most MAX_NETWORK_EXPOSURE
+#                              with it beside the unit)
 #   systemd-sysusers --root   (creates the user in a scratch root)
 #   udevadm verify            (systemd >= 254; skipped with a note on older udev)
 #   grep                      (RestartPreventExitStatus=2: a config error must not restart in a
@@ -11,7 +14,10 @@
 set -eu
 
 MAX_EXPOSURE=${MAX_EXPOSURE:-1.0}
+MAX_NETWORK_EXPOSURE=${MAX_NETWORK_EXPOSURE:-2.0}
 here=$(cd "$(dirname "$0")/.." && pwd)
+python=${PYTHON:-$here/.venv/bin/python}
+[ -x "$python" ] || python=python3
 system="$here/usb2rc/data/system"  # package data: the wheel ships these (usb2rc install-system)
 unit="$system/usb2rc.service"
 rules="$system/70-usb2rc.rules"
@@ -39,15 +45,31 @@ out=$(systemd-analyze verify "$tmp/usb2rc.service" 2>&1) || { echo "$out" >&2; e
 [ -z "$out" ] || { echo "$out" >&2; echo "verify printed warnings" >&2; exit 1; }
 echo "clean"
 
-echo "== systemd-analyze security"
-report=$(systemd-analyze security --offline=true --no-pager "$unit" 2>&1) || true
-exposure=$(printf '%s\n' "$report" | sed -n 's/.*Overall exposure level for [^:]*: \([0-9.]*\).*/\1/p')
-[ -n "$exposure" ] || { echo "$report" >&2; echo "no exposure level found" >&2; exit 1; }
-echo "exposure $exposure (max $MAX_EXPOSURE)"
-awk -v e="$exposure" -v m="$MAX_EXPOSURE" 'BEGIN { exit !(e <= m) }' || {
-    printf '%s\n' "$report" | grep '✗' >&2
-    exit 1
+# exposure UNIT MAX: the unit's offline exposure (drop-ins beside it included), failing above MAX.
+exposure() {
+    report=$(systemd-analyze security --offline=true --no-pager "$1" 2>&1) || true
+    level=$(printf '%s\n' "$report" | sed -n 's/.*Overall exposure level for [^:]*: \([0-9.]*\).*/\1/p')
+    [ -n "$level" ] || { echo "$report" >&2; echo "no exposure level found" >&2; exit 1; }
+    echo "exposure $level (max $2)"
+    awk -v e="$level" -v m="$2" 'BEGIN { exit !(e <= m) }' || {
+        printf '%s\n' "$report" | grep '✗' >&2
+        exit 1
+    }
 }
+
+echo "== systemd-analyze security"
+exposure "$unit" "$MAX_EXPOSURE"
+
+echo "== the network drop-in (config/mavlink.yaml: udpout:127.0.0.1)"
+mkdir -p "$tmp/usb2rc.service.d"
+(cd "$here" && "$python" -m usb2rc install-system --print network.conf \
+    --config usb2rc/data/config/mavlink.yaml) >"$tmp/usb2rc.service.d/network.conf"
+grep -qx 'IPAddressAllow=127.0.0.1' "$tmp/usb2rc.service.d/network.conf" || {
+    cat "$tmp/usb2rc.service.d/network.conf" >&2; echo "no IPAddressAllow=127.0.0.1" >&2; exit 1; }
+out=$(systemd-analyze verify "$tmp/usb2rc.service" 2>&1) || { echo "$out" >&2; exit 1; }
+[ -z "$out" ] || { echo "$out" >&2; echo "verify printed warnings" >&2; exit 1; }
+echo "verify clean"
+exposure "$tmp/usb2rc.service" "$MAX_NETWORK_EXPOSURE"
 
 echo "== systemd-sysusers"
 mkdir -p "$tmp/root/etc"
