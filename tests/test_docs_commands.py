@@ -38,7 +38,7 @@ RUN = {
     "usb2rc list --replay usb2rc/data/demo",
     "usb2rc demo --seconds 2",
     "usb2rc monitor --replay usb2rc/data/demo --seconds 2 --plain",
-    "usb2rc init --replay usb2rc/data/demo --port /dev/null",
+    "usb2rc init --replay usb2rc/data/demo",
     "usb2rc install-system --print 70-usb2rc.rules",
     "usb2rc check --config usb2rc/data/config/hotas.yaml --json",
     "usb2rc icd --config usb2rc/data/config/hotas.yaml --json",
