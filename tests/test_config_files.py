@@ -16,6 +16,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
+from cli_harness import usb2rc
 from daemon_harness import ROOT
 
 from usb2rc.calibration import AxisResult, AxisTarget
@@ -121,24 +122,7 @@ def test_init_force_over_a_symlinked_service_config(tmp_path: Path) -> None:
     target = service_config(tmp_path / "data")
     link = tmp_path / "usb2rc.yaml"
     link.symlink_to(target)
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "usb2rc",
-            "init",
-            "--replay",
-            "usb2rc/data/demo",
-            "--force",
-            "-o",
-            str(link),
-        ],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=60,
-        check=False,
-    )
+    result = usb2rc("init", "--replay", "usb2rc/data/demo", "--force", "-o", str(link))
     assert result.returncode == 0, result.stderr
     assert link.is_symlink() and "thrustmaster" in target.read_text()
     assert owner_group_mode(target) == (0, SERVICE_GID, 0o640)
@@ -147,14 +131,7 @@ def test_init_force_over_a_symlinked_service_config(tmp_path: Path) -> None:
 def test_init_refuses_a_dangling_output_link(tmp_path: Path) -> None:
     link = tmp_path / "usb2rc.yaml"
     link.symlink_to("/nonexistent/usb2rc.yaml")
-    result = subprocess.run(
-        [sys.executable, "-m", "usb2rc", "init", "--replay", "usb2rc/data/demo", "-o", str(link)],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=60,
-        check=False,
-    )
+    result = usb2rc("init", "--replay", "usb2rc/data/demo", "-o", str(link))
     assert result.returncode == 1
     assert f"{link} is a symlink to /nonexistent/usb2rc.yaml, which does not exist" in (
         result.stderr

@@ -332,7 +332,9 @@ def print_file(file: SystemFile, program: list[str], config: str | None) -> int:
     config_text = _config_text(config)
     if config_text is None:
         return 2
-    text, _warnings = drop_in_for(config_text, config or "default.yaml", Path("/"))
+    text, warnings = drop_in_for(config_text, config or "default.yaml", Path("/"))
+    for warning in warnings:
+        print(f"usb2rc install-system: warning: {warning}", file=sys.stderr)
     sys.stdout.write(text or service_sandbox.drop_in_text([], config or "default.yaml"))
     return 0
 
