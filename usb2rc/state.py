@@ -265,7 +265,9 @@ class _Node:
                 why.append(("lost", name))
             elif a.source.record.in_error:
                 bad = a.source.record.refused_in_a_row
-                why.append(("bad reports", f"{name} (its last {bad} reports were refused)"))
+                why.append(
+                    ("bad reports", f"good reports from {name} (its last {bad} were refused)")
+                )
             elif a.waiting:
                 why.append((f"guard {name}", f"{', '.join(a.waiting)} ({name})"))
             elif not a.live:
