@@ -6,7 +6,6 @@ T.16000M, a pty as the far end."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 from daemon_harness import (
@@ -28,14 +27,11 @@ BAD_REPORTS = 0x06
 REFUSED_LOG = "reports in a row were refused"
 
 
-@dataclass(frozen=True)
 class Truncated:
-    """The first bytes of a T.16000M report: shorter than its descriptor declares."""
-
-    state: StickState = StickState()
+    """The first bytes of a T.16000M report at rest: shorter than its descriptor declares."""
 
     def report(self) -> bytes:
-        return self.state.report()[:5]
+        return StickState().report()[:5]
 
 
 def errors(frames: list[Any], node_id: int = 0) -> list[c2_16b.ServiceFrame]:

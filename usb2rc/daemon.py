@@ -85,8 +85,7 @@ def expected_nodes(config: Config | Mapping) -> Expected:
     nodes: Expected = {}
     for entry in mapping.pinned_entries():
         assert entry.node_id is not None
-        where = f"{entry.config.where.source}:{entry.config.where.line}"
-        match = match_text(entry.config.match)
+        match, where = match_text(entry.config.match), str(entry.config.where)
         expected = ExpectedEntry(entry.failsafe, entry.unsigned_slots, match, where)
         nodes.setdefault(entry.node_id, {})[entry.name] = expected
     return nodes

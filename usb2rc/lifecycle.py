@@ -211,6 +211,7 @@ class DeviceLifecycle(Worker):
             self._handle_safely(event)
 
     def run(self) -> None:
+        self._timers_due()  # the entries missing at start: their warnings' clock starts now
         while True:
             try:
                 event = self._events.get(timeout=self._wait_s())

@@ -64,7 +64,7 @@ class ExpectedEntry:
     inputs: NodeInputs  # what it sends meanwhile: its failsafe values
     unsigned_slots: int = 0  # the entry's (mapping.CompiledEntry.unsigned_slots)
     match: str = ""  # what its `match:` asks for, as the log and `monitor` say it
-    where: str = ""  # the entry's place in the config file ("usb2rc.yaml:55: devices[2]")
+    where: str = ""  # the entry in its config file ("usb2rc.yaml:55: devices[2]")
 
 
 @dataclass(frozen=True)
