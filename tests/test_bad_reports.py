@@ -18,8 +18,10 @@ from daemon_harness import (
     services,
     timed_recording,
 )
+from test_reader import RecordingDecoder
 
-from usb2rc.hid.reader import BAD_REPORTS_LIMIT
+from usb2rc.hid.backend import DeviceGone, DeviceInfo
+from usb2rc.hid.reader import BAD_REPORTS_LIMIT, DeviceReader
 from usb2rc.protocol import c2_16b
 
 LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
@@ -95,3 +97,45 @@ def test_good_reports_after_a_bad_run_bring_the_device_back_through_the_guard(
     log = daemon.log()
     assert log.count(REFUSED_LOG) == 1
     assert "understood again" in log and "node 0 waits for X centre" in log
+
+
+# --- the reader's count, without a daemon ---------------------------------------------------
+
+
+class ScriptedDevice:
+    """Hands out its reports one per read, then is unplugged."""
+
+    info = DeviceInfo(key="k", path="p", vid=0x044F, pid=0xB10A, product="S", port_path="1")
+
+    def __init__(self, reports: list[bytes]) -> None:
+        self.reports = list(reports)
+
+    def read(self, timeout_s: float) -> bytes | None:
+        if not self.reports:
+            raise DeviceGone("done")
+        return self.reports.pop(0)
+
+    def close(self) -> None:
+        pass
+
+
+def test_the_reader_tells_each_edge_of_each_run_once():
+    bad, good = [b"BAD"], [b"ok"]
+    script = bad * BAD_REPORTS_LIMIT + good + bad * (BAD_REPORTS_LIMIT - 1) + good
+    script += bad * (BAD_REPORTS_LIMIT + 5) + good
+    edges: list[tuple[bool, int, int]] = []
+    reader = DeviceReader(ScriptedDevice(script), RecordingDecoder(), lambda _r, _c: None)
+    reader.on_bad_reports = lambda _r, rec: edges.append(
+        (rec.in_error, rec.bad_spells, rec.refused_in_a_row)
+    )
+    reader.start()
+    reader.join(10)
+    assert not reader.is_alive()
+    # a run of LIMIT - 1 is not one; a run in error is told when it begins and when it ends
+    assert edges == [
+        (True, 1, BAD_REPORTS_LIMIT),
+        (False, 1, 0),
+        (True, 2, BAD_REPORTS_LIMIT),
+        (False, 2, 0),
+    ]
+    assert reader.record.bad_reports == 3 * BAD_REPORTS_LIMIT + 4

@@ -28,8 +28,14 @@ from daemon_harness import (
     services,
     timed_recording,
 )
+from test_lifecycle import ScriptedBackend, make_reader, plug_stick
 
+from usb2rc.config import Config, load_config_text
+from usb2rc.daemon import expected_nodes
+from usb2rc.lifecycle import DeviceLifecycle
+from usb2rc.mapping import compile_mapping
 from usb2rc.protocol import c2_16b
+from usb2rc.state import EventKind, NodeTable
 
 LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
 CONNECT = ["connected", "vid-pid", "device-string", "device-type"]
@@ -189,3 +195,39 @@ def test_a_reload_that_leaves_the_axes_as_they_were_keeps_a_deflected_stick_live
     finally:
         log = finish(daemon)
     assert "reloaded" in log
+
+
+# --- a move that cannot be made, on the lifecycle alone --------------------------------------
+
+
+def test_a_second_stick_of_a_repinned_entry_stays_on_its_node(tmp_path, caplog):
+    """Two identical sticks on automatic IDs; a reload pins their entry to node 4: the first
+    (in key order) moves, the second would be a second device of that entry on node 4, so
+    it stays where it is with its previous mapping, and the log says why."""
+    table = NodeTable()
+    subscriber = table.subscribe()
+    lifecycle = DeviceLifecycle(
+        ScriptedBackend(tmp_path), table, compile_mapping(Config.default()), make_reader
+    )
+    lifecycle.plugged(plug_stick(tmp_path, "a.hid"))
+    lifecycle.plugged(plug_stick(tmp_path, "b.hid"))
+    lifecycle.handle_queued()
+    try:
+        assert [(n, i.port_path) for n, i, _b, _p, _t in table.attachments()] == [
+            (0, "replay-a"),
+            (1, "replay-b"),
+        ]
+        table.collect(subscriber)  # the connect sequences
+        pinned = load_config_text(PINNED.format(node=4), "pinned.yaml")
+        assert lifecycle.reload(compile_mapping(pinned), expected_nodes(pinned))
+        where = [(n, i.port_path, b.name) for n, i, b, _p, _t in table.attachments()]
+        assert where == [(1, "replay-b", "Thrustmaster T.16000M"), (4, "replay-a", "stick")]
+        events, _frames = table.collect(subscriber)
+        assert [(e.kind, e.node_id) for e in events] == [
+            (EventKind.DISCONNECTED, 0),
+            (EventKind.CONNECTED, 4),
+        ]
+        assert "stays on Node-ID 1 with its previous mapping" in caplog.text
+    finally:
+        for reader in lifecycle.shutdown(5.0):
+            reader.join(5.0)
