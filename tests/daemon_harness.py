@@ -49,6 +49,12 @@ devices:
     axes:
       x: {{usage: X, invert: {invert}}}
 """
+# The same with X not guarded (`arm: any`): a reload that inverts X shows at once, even
+# deflected (with X guarded, the node waits for X to centre: docs/ICD.md "A reload and the
+# live devices").
+INVERT_UNGUARDED_X_CONFIG = INVERT_X_CONFIG.replace(
+    "invert: {invert}}}", "invert: {invert}, arm: any}}"
+)
 
 
 @dataclass(frozen=True)

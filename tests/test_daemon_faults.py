@@ -9,7 +9,7 @@ import random
 import signal
 
 from daemon_harness import (
-    INVERT_X_CONFIG,
+    INVERT_UNGUARDED_X_CONFIG,
     PtyLine,
     StickState,
     data_frames,
@@ -122,20 +122,20 @@ def test_rx_garbage_and_requests(tmp_path, line, replay_dir):
 
 def test_sighup_good_and_bad_config(tmp_path, line, replay_dir):
     config = tmp_path / "usb2rc.yaml"
-    config.write_text(INVERT_X_CONFIG.format(invert="false"))
+    config.write_text(INVERT_UNGUARDED_X_CONFIG.format(invert="false"))
     install(replay_dir / "stick.hid", recording([StickState(), StickState(x=0)]))
     daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(config))
     try:
         line.wait_for(lambda fr: live_node(fr, 4) and data_frames(fr, 4)[-1].axes[0] == -32768)
         count = len(line.frames())
-        config.write_text(INVERT_X_CONFIG.format(invert="true"))
+        config.write_text(INVERT_UNGUARDED_X_CONFIG.format(invert="true"))
         daemon.signal(signal.SIGHUP)
         line.wait_for(
             lambda fr: (
                 data_frames(fr[count:], 4)[-1:] and data_frames(fr[count:], 4)[-1].axes[0] == 32767
             )
         )
-        config.write_text(INVERT_X_CONFIG.format(invert="maybe"))
+        config.write_text(INVERT_UNGUARDED_X_CONFIG.format(invert="maybe"))
         daemon.signal(signal.SIGHUP)
         count = len(line.frames())
         line.wait_for(lambda fr: len(data_frames(fr[count:], 4)) >= 25)

@@ -17,7 +17,15 @@ import time
 from pathlib import Path
 
 import pytest
-from daemon_harness import INVERT_X_CONFIG, DaemonProcess, StickState, install, recording, scale
+from daemon_harness import (
+    INVERT_UNGUARDED_X_CONFIG,
+    INVERT_X_CONFIG,
+    DaemonProcess,
+    StickState,
+    install,
+    recording,
+    scale,
+)
 from stress_harness import (
     CheckedLine,
     elapsed,
@@ -345,7 +353,7 @@ def test_rx_garbage_and_requests_interleaved(request, tmp_path, replay):
 
 def test_sighup_storm(request, tmp_path, replay):
     config = tmp_path / "usb2rc.yaml"
-    config.write_text(INVERT_X_CONFIG.format(invert="false"))
+    config.write_text(INVERT_UNGUARDED_X_CONFIG.format(invert="false"))
     install(replay / "stick.hid", recording([StickState(), StickState(x=0)]))
     line = CheckedLine(configured=[4])
     daemon = start(tmp_path, line.path, replay, "--config", str(config))
@@ -356,11 +364,15 @@ def test_sighup_storm(request, tmp_path, replay):
         line.wait_for(lambda ln: live(4)(ln) and ln.node(4).last_axes[0] == -32768)
         for k in range(storms):
             for j in range(20):  # a burst: bad and good configs, no pause
-                config.write_text(INVERT_X_CONFIG.format(invert="maybe" if j % 3 == 0 else "false"))
+                config.write_text(
+                    INVERT_UNGUARDED_X_CONFIG.format(invert="maybe" if j % 3 == 0 else "false")
+                )
                 daemon.signal(signal.SIGHUP)
                 sighups += 1
             invert = k % 2 == 0
-            config.write_text(INVERT_X_CONFIG.format(invert="true" if invert else "false"))
+            config.write_text(
+                INVERT_UNGUARDED_X_CONFIG.format(invert="true" if invert else "false")
+            )
             t0 = time.monotonic()
             daemon.signal(signal.SIGHUP)
             sighups += 1

@@ -11,7 +11,7 @@ compiles the entries and picks one). Whether an axis slot is unsigned is answere
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol
 
 from usb2rc.config_model import (
@@ -310,6 +310,12 @@ class DeviceBinding:
         self.unsigned_slots = unsigned_slots(self.axis_info)  # bit k: slot k is a uint16
         self.group1_mask, self.group2_mask = self._masks()
 
+    def same_axes(self, other: DeviceBinding) -> bool:
+        """Whether both send the same axis values for the same reports: the same sources,
+        ranges and shaping per slot (`AxisInfo`; the failsafe value aside, it is not sent
+        while the device is live). A reload that changes this re-arms the neutral guard."""
+        return _sent_axes(self) == _sent_axes(other)
+
     def _masks(self) -> tuple[int, int]:
         masks = [0, 0]
         for _shift, mask, group, dest in self._runs:
@@ -501,6 +507,12 @@ def default_binding(
     guard = NeutralGuard(tuple(guarded))
     return DeviceBinding(
         name, node_id, axes, DEFAULT_BUTTON_RUNS, hats, notes, where, handover, battery, guard
+    )
+
+
+def _sent_axes(binding: DeviceBinding) -> tuple[AxisInfo | None, ...]:
+    return tuple(
+        None if info is None else replace(info, failsafe=None) for info in binding.axis_info
     )
 
 

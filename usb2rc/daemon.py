@@ -26,7 +26,7 @@ from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.lifecycle import DeviceLifecycle
-from usb2rc.mapping import Mapping, compile_mapping
+from usb2rc.mapping import Mapping, compile_mapping, match_text
 from usb2rc.outputs import protocol
 from usb2rc.outputs.wiring import OutputContext
 from usb2rc.scheduler import C2Output, RxThread, TickThread
@@ -85,7 +85,8 @@ def expected_nodes(config: Config | Mapping) -> Expected:
     nodes: Expected = {}
     for entry in mapping.pinned_entries():
         assert entry.node_id is not None
-        expected = ExpectedEntry(entry.failsafe, entry.unsigned_slots)
+        match, where = match_text(entry.config.match), str(entry.config.where)
+        expected = ExpectedEntry(entry.failsafe, entry.unsigned_slots, match, where)
         nodes.setdefault(entry.node_id, {})[entry.name] = expected
     return nodes
 
@@ -264,6 +265,8 @@ class Daemon:
             "devices": [
                 self._device_stats(reader, now, uptime) for reader in self.lifecycle.readers
             ],
+            # pinned entries without a device: their nodes send `!` (docs/ICD.md "Node-IDs")
+            "missing_devices": [m.record() for m in self.table.missing_entries()],
         }
 
     def _output_stats(self, out: _Output) -> dict[str, Any]:

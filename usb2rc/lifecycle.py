@@ -10,7 +10,15 @@ that needs a lock of its own and no ordering between threads can change the outc
 - a reader is identified by itself, not by its hidraw path (the kernel reuses paths): a late
   exit of an old reader finds another reader under that path and is ignored;
 - a device whose open failed (permission, busy) is tried again every `retry_s` while it is
-  plugged: `3` with its error code once, the connect sequence when it opens.
+  plugged: `3` with its error code once, the connect sequence when it opens;
+- a device whose reports are all refused (its reader says so) gets `3` (BAD_REPORTS) and
+  one log line per run of bad reports;
+- a reload that pins a live device to another node moves it there (`2` on the old node, the
+  connect sequence on the new one), and a pinned entry without a device is logged a few
+  seconds after start and then once a minute (usb2rc.missing_devices keeps the times).
+
+This thread's wait for the next event ends when a retry or a warning is due: it is the one
+clock for both.
 
 The hot-plug monitor (its own thread, blocked in udev or a poll) only posts events here.
 """
@@ -25,6 +33,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from usb2rc import stats_text
 from usb2rc.binding import DeviceBinding, MappingError
 from usb2rc.hid.backend import (
     Backend,
@@ -36,9 +45,10 @@ from usb2rc.hid.backend import (
 )
 from usb2rc.hid.descriptor import DescriptorError, DeviceLayout, parse_descriptor
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
-from usb2rc.hid.reader import DeviceReader, OnExit
+from usb2rc.hid.reader import BAD_REPORTS_LIMIT, DeviceReader, OnExit, ReaderRecord
 from usb2rc.hid.usages import device_type_name
 from usb2rc.mapping import Mapping
+from usb2rc.missing_devices import MissingWarnings
 from usb2rc.state import Expected, NodeTable
 from usb2rc.worker import Worker
 
@@ -66,6 +76,14 @@ class ReaderExited:
 
 
 @dataclass(frozen=True)
+class BadReports:
+    """The reader's device entered or left error (all reports refused), in `record`."""
+
+    reader: DeviceReader
+    record: ReaderRecord
+
+
+@dataclass(frozen=True)
 class Reload:
     mapping: Mapping
     expected: Expected
@@ -77,13 +95,14 @@ class _Stop:
     pass
 
 
-Event = Plugged | Unplugged | ReaderExited | Reload | _Stop
+Event = Plugged | Unplugged | ReaderExited | BadReports | Reload | _Stop
 
 
 @dataclass
 class _Present:
     reader: DeviceReader
     layout: DeviceLayout
+    bad_spells_told: int = 0  # the reader's runs of bad reports already logged and sent
 
 
 @dataclass
@@ -132,6 +151,7 @@ class DeviceLifecycle(Worker):
         self._events: queue.SimpleQueue[Event] = queue.SimpleQueue()
         self._present: dict[str, _Present] = {}
         self._failed: dict[str, _Failed] = {}
+        self._missing = MissingWarnings()
         # Published for other threads (statistics) by one assignment; never mutated.
         self.readers: tuple[DeviceReader, ...] = ()
         super().__init__("device-lifecycle")
@@ -149,6 +169,9 @@ class DeviceLifecycle(Worker):
 
     def reader_exited(self, reader: DeviceReader, code: ErrorCode | None) -> None:
         self.post(ReaderExited(reader, code))
+
+    def bad_reports(self, reader: DeviceReader, record: ReaderRecord) -> None:
+        self.post(BadReports(reader, record))
 
     def reload(self, mapping: Mapping, expected: Expected, timeout_s: float = 5.0) -> bool:
         """Queue a reload and wait until this thread has applied it (True), or timeout."""
@@ -188,22 +211,39 @@ class DeviceLifecycle(Worker):
             self._handle_safely(event)
 
     def run(self) -> None:
+        self._timers_due()  # the entries missing at start: their warnings' clock starts now
         while True:
             try:
                 event = self._events.get(timeout=self._wait_s())
             except queue.Empty:
-                self._retry_due()
+                self._timers_due()
                 continue
             if isinstance(event, _Stop):
                 return
             self._handle_safely(event)
-            self._retry_due()
+            self._timers_due()
 
     def _wait_s(self) -> float | None:
-        if not self._failed:
+        dues = [f.next_try for f in self._failed.values()]
+        warning = self._missing.next_due()
+        if warning is not None:
+            dues.append(warning)
+        if not dues:
             return None
-        due = min(f.next_try for f in self._failed.values())
-        return max(0.0, due - time.monotonic())
+        return max(0.0, min(dues) - time.monotonic())
+
+    def _timers_due(self) -> None:
+        self._retry_due()
+        self._warn_missing()
+
+    def _warn_missing(self) -> None:
+        """A pinned entry without a device: its node is `!` for it, and the log says so
+        (first after FIRST_WARNING_S, then once a minute; usb2rc.missing_devices)."""
+        for entry in self._missing.due(self.table.missing_entries(), time.monotonic()):
+            log.warning(
+                "%s: plug it in, or fix the entry's `match:` (`usb2rc list` shows what is plugged)",
+                stats_text.missing_line(entry.record()),
+            )
 
     def _handle_safely(self, event: Event) -> None:
         try:
@@ -221,6 +261,8 @@ class DeviceLifecycle(Worker):
             self._unplug(event.info.key)
         elif isinstance(event, ReaderExited):
             self._reader_ended(event.reader, event.code)
+        elif isinstance(event, BadReports):
+            self._bad_reports(event.reader, event.record)
         elif isinstance(event, Reload):
             self._reload(event)
 
@@ -263,6 +305,35 @@ class DeviceLifecycle(Worker):
         # Still plugged (a transient read error, or a replug on the same path before the
         # monitor saw the unplug)? Then the next scan reports it again and it is reopened.
         self._forget(key)
+
+    def _bad_reports(self, reader: DeviceReader, record: ReaderRecord) -> None:
+        """`3` (BAD_REPORTS) and an error line once per run of refused reports; a line
+        when its reports are good again (it goes live through the neutral guard)."""
+        present = self._present.get(reader.info.key)
+        if present is None or present.reader is not reader:
+            return  # an old reader
+        info = reader.info
+        label = f"{info.product or info.path} ({info.vid:04x}:{info.pid:04x})"
+        if record.bad_spells > present.bad_spells_told:
+            present.bad_spells_told = record.bad_spells
+            node_id = self.table.device_error(info.key, int(ErrorCode.BAD_REPORTS), reader)
+            log.error(
+                "%s: %d reports in a row were refused (a report ID its descriptor does not "
+                "declare, or shorter than declared): node %s sends `!` and `3` (error 0x%02x, "
+                "BAD_REPORTS). Check its descriptor with `usb2rc describe`; some devices "
+                "need another mode (a switch or a driver) to send what they declare",
+                label,
+                max(record.refused_in_a_row, BAD_REPORTS_LIMIT),
+                "?" if node_id is None else node_id,
+                int(ErrorCode.BAD_REPORTS),
+            )
+        if not record.in_error:
+            log.warning(
+                "%s: its reports are understood again (%d refused in all): live once its "
+                "guarded axes rest",
+                label,
+                record.bad_reports,
+            )
 
     def _publish_readers(self) -> None:
         self.readers = tuple(p.reader for p in self._present.values())
@@ -313,25 +384,30 @@ class DeviceLifecycle(Worker):
         return _Opened(device, layout, binding)
 
     def _clashes(self, info: DeviceInfo, binding: DeviceBinding) -> bool:
+        message = self._clash(binding)
+        if message is None:
+            return False
+        self._report_unusable(info, ErrorCode.CONFIG_CLASH, message, on_pinned=False)
+        return True
+
+    def _clash(self, binding: DeviceBinding) -> str | None:
+        """Why the binding's pinned node cannot take the device, or None."""
         pinned = binding.node_id
         if pinned is None:
-            return False
+            return None
         if other := self.table.entry_in_use(pinned, binding.name):
-            message = (
+            return (
                 f"matches config entry {binding.name!r} like {other.product} "
                 f"(port {other.port_path}), which already feeds node {pinned}: add `serial:` "
                 "or `port:` to that entry's match so each device has its own entry"
             )
-        elif auto := self.table.automatic_device_on(pinned):
-            message = (
+        if auto := self.table.automatic_device_on(pinned):
+            return (
                 f"config entry {binding.name!r} pins node {pinned}, which {auto.product} "
                 f"(port {auto.port_path}) already has as its automatic ID since before the "
                 "config was reloaded: restart usb2rc, or pin another node"
             )
-        else:
-            return False
-        self._report_unusable(info, ErrorCode.CONFIG_CLASH, message, on_pinned=False)
-        return True
+        return None
 
     def _attach(self, info: DeviceInfo, opened: _Opened) -> None:
         binding = opened.binding
@@ -345,6 +421,7 @@ class DeviceLifecycle(Worker):
             log.error("%s: %s", info.product, exc)
             return
         reader = self._make_reader(opened.device, opened.layout, self.reader_exited)
+        reader.on_bad_reports = self.bad_reports  # before it starts: then only it reads it
         self._present[info.key] = _Present(reader, opened.layout)
         self._publish_readers()
         device_type = device_type_name(opened.layout.application)
@@ -378,22 +455,55 @@ class DeviceLifecycle(Worker):
     # --- reload --------------------------------------------------------------------------
 
     def _reload(self, event: Reload) -> None:
-        mapping = event.mapping
-        layouts = {key: p.layout for key, p in self._present.items()}
-
-        def rebind(info: DeviceInfo) -> DeviceBinding | None:
-            layout = layouts.get(info.key)
-            if layout is None:
-                return None
-            try:
-                return mapping.bind(info, layout)
-            except MappingError as exc:
-                log.error("%s: %s (keeps its previous mapping)", info.product, exc)
-                return None
-
+        """The new mapping for every present device (docs/ICD.md "A reload and the live
+        devices"): on its node in place, or, pinned to another node now, moved there."""
         try:
-            self.allocator.reserve(mapping.pinned_node_ids())
-            self.table.rebind(rebind, event.expected)
-            self.mapping = mapping
+            self.allocator.reserve(event.mapping.pinned_node_ids())
+            bindings = self._new_bindings(event.mapping)
+            moving = {key: b for key, b in bindings.items() if self._moves(key, b)}
+            staying = {key: b for key, b in bindings.items() if key not in moving}
+            self.table.rebind(lambda info: staying.get(info.key), event.expected)
+            self.mapping = event.mapping
+            for key, binding in moving.items():
+                self._move(key, binding)
         finally:
             event.done.set()
+
+    def _new_bindings(self, mapping: Mapping) -> dict[str, DeviceBinding]:
+        """Each present device's binding under `mapping`; one that does not fit (or has no
+        entry now, with `defaults: false`) keeps its previous one."""
+        bindings = {}
+        for key, present in sorted(self._present.items()):
+            info = present.reader.info
+            try:
+                binding = mapping.bind(info, present.layout)
+            except MappingError as exc:
+                log.error("%s: %s (keeps its previous mapping)", info.product, exc)
+                continue
+            if binding is not None:
+                bindings[key] = binding
+        return bindings
+
+    def _moves(self, key: str, binding: DeviceBinding) -> bool:
+        """Pinned to another node than the one it feeds. (An entry that drops its pin
+        leaves the device where it is: that node is now its automatic ID.)"""
+        return binding.node_id is not None and binding.node_id != self.table.node_of(key)
+
+    def _move(self, key: str, binding: DeviceBinding) -> None:
+        """Re-pinned: the device leaves its node for the pinned one, unless that node has
+        its own device of this entry, or an automatic device: then it stays, with its
+        previous mapping, and the log says why."""
+        reader = self._present[key].reader
+        assert binding.node_id is not None
+        clash = self._clash(binding)
+        if clash is not None:
+            log.error(
+                "config reload: %s stays on Node-ID %s with its previous mapping: %s",
+                reader.info.product or reader.info.path,
+                self.table.node_of(key),
+                clash,
+            )
+            return
+        self.allocator.release(reader.info)
+        self.allocator.assign(reader.info, binding.node_id)
+        self.table.move_device(key, binding.node_id, binding, reader)

@@ -74,6 +74,16 @@ def compile_match(match: MatchConfig) -> Matcher:
     return matches
 
 
+def match_text(match: MatchConfig) -> str:
+    """The match as configured, for a user looking for the device: "vid 0x044f, pid 0xb679,
+    serial ABC, port 1-1.2, product '*Pedals*'" (the keys given, in that order)."""
+    parts = [f"{k} 0x{v:04x}" for k, v in (("vid", match.vid), ("pid", match.pid)) if v is not None]
+    parts += [f"{k} {v}" for k, v in (("serial", match.serial), ("port", match.port)) if v]
+    if match.product:
+        parts.append(f"product {match.product!r}")
+    return ", ".join(parts) or "any device"
+
+
 @dataclass(frozen=True)
 class CompiledEntry:
     """One device entry of the config, compiled once: all of its binding that does not

@@ -63,6 +63,27 @@ class ExpectedEntry:
 
     inputs: NodeInputs  # what it sends meanwhile: its failsafe values
     unsigned_slots: int = 0  # the entry's (mapping.CompiledEntry.unsigned_slots)
+    match: str = ""  # what its `match:` asks for, as the log and `monitor` say it
+    where: str = ""  # the entry in its config file ("usb2rc.yaml:55: devices[2]")
+
+
+@dataclass(frozen=True)
+class MissingEntry:
+    """A pinned config entry whose device has not come: its node sends `!` for it."""
+
+    node_id: int
+    name: str
+    match: str
+    where: str
+
+    def record(self) -> dict[str, Any]:
+        """For `stats` and the log (usb2rc.stats_text.missing_line), and JSON stats."""
+        return {
+            "node_id": self.node_id,
+            "entry": self.name,
+            "match": self.match,
+            "where": self.where,
+        }
 
 
 class SnapshotSource(Protocol):
@@ -89,6 +110,7 @@ class _Attached:
     # No lost taps: per output (subscriber), the reader's press serial it has shown.
     seen_presses: dict[int, int] = field(default_factory=dict)
     trim_serial: int = 0  # the press serial the trims have stepped on
+    bad_spells_seen: int = 0  # the reader's runs of bad reports this device has answered
     trim_positions: dict[int, int] = field(default_factory=dict)  # hat switches: slot -> -1/0/1
 
     @property
@@ -102,7 +124,8 @@ class _Attached:
         return self._known(self.source.record) and self.armed
 
     def _known(self, record: ReaderRecord) -> bool:
-        return self.present and record.reports > 0
+        """Present, with a state from a report, and not refusing its reports now."""
+        return self.present and record.reports > 0 and not record.in_error
 
     def inputs(self) -> NodeInputs:
         """What the device sends now (under the table lock)."""
@@ -117,6 +140,8 @@ class _Attached:
         frame also shows the buttons tapped since its last frame; `trims`: the node's
         stepped trims of the slots this device has trim switches for."""
         record = self.source.record  # read once: liveness and values from the same record
+        if record.bad_spells != self.bad_spells_seen:
+            self._bad_reports_began(record)
         if not self._known(record):
             return self.binding.failsafe(self.last_inputs), False
         state = record.state
@@ -136,6 +161,17 @@ class _Attached:
                 return self.binding.failsafe(self.last_inputs), False
             self.armed = True
         return inputs, True
+
+    def _bad_reports_began(self, record: ReaderRecord) -> None:
+        """The device refused BAD_REPORTS_LIMIT reports in a row (docs/ICD.md "Device error
+        codes", 0x06): it holds its last good values, `!`, and when its reports are good
+        again it goes live through the neutral guard, as a re-plugged device. Decided on
+        the reader's count of such runs, not on what a frame happened to see: a run that
+        began and ended between two frames still re-arms the guard."""
+        self.bad_spells_seen = record.bad_spells
+        self.armed = False
+        if record.reports:
+            self.last_inputs = self.binding.apply(record.state)  # held; buttons cleared
 
     def step_trims(self, node_id: int, store: TrimStore) -> None:
         """Step the node's trims from this device's trim switches: a button press steps once
@@ -227,11 +263,18 @@ class _Node:
             name = a.info.product or "device"
             if not a.present:
                 why.append(("lost", name))
+            elif a.source.record.in_error:
+                bad = a.source.record.refused_in_a_row
+                why.append(
+                    ("bad reports", f"good reports from {name} (its last {bad} were refused)")
+                )
             elif a.waiting:
                 why.append((f"guard {name}", f"{', '.join(a.waiting)} ({name})"))
             elif not a.live:
                 why.append(("unknown", f"{name} (no report yet)"))
-        why += [("expected", f"{name} (not plugged)") for name in self.expected]
+        why += [("expected", _not_plugged(name, entry)) for name, entry in self.expected.items()]
+        if not self.attached and not self.expected:
+            why.append(("unfed", "a device or config entry (a reload moved or removed them)"))
         return why
 
     def failsafe_change(self, now: bool) -> str | None:
@@ -250,6 +293,10 @@ class _Node:
         if before is None or before[0]:  # still `!`, for another reason: it must rest
             return f"node {self.node_id} waits for {texts}"
         return f"node {self.node_id} enters failsafe: waiting for {texts}"
+
+
+def _not_plugged(name: str, entry: ExpectedEntry) -> str:
+    return f"{name} (not plugged: {entry.match})" if entry.match else f"{name} (not plugged)"
 
 
 def _trimmed(inputs: NodeInputs, trims: dict[int, float], binding: DeviceBinding) -> NodeInputs:
@@ -377,17 +424,7 @@ class NodeTable:
         with self._lock:
             if self._stopping:
                 return  # its reader is stopped with the others
-            node = self._nodes.setdefault(node_id, _Node(node_id))
-            kept = []
-            for old in node.attached:
-                if not old.present and old.same_device(info, binding):
-                    attached.last_inputs = old.last_inputs  # held until it reports
-                else:
-                    kept.append(old)
-            node.attached = [*kept, attached]
-            node.expected.pop(binding.name, None)
-            self._by_key[info.key] = (node_id, attached)
-            self._broadcast(_connected(node_id, attached))
+            self._attach_locked(node_id, attached)
         log.info(
             "device plugged: %s (%04x:%04x, port %s) -> Node-ID %d",
             info.product or "?",
@@ -396,6 +433,55 @@ class NodeTable:
             info.port_path or "?",
             node_id,
         )
+
+    def _attach_locked(self, node_id: int, attached: _Attached) -> None:
+        """The device feeds node_id from now on; the node announces it (`1`,`6`,`5`,`7`)."""
+        info, binding = attached.info, attached.binding
+        node = self._nodes.setdefault(node_id, _Node(node_id))
+        kept = []
+        for old in node.attached:
+            if not old.present and old.same_device(info, binding):
+                attached.last_inputs = old.last_inputs  # held until it reports
+            else:
+                kept.append(old)
+        node.attached = [*kept, attached]
+        node.expected.pop(binding.name, None)
+        self._by_key[info.key] = (node_id, attached)
+        self._broadcast(_connected(node_id, attached))
+
+    def move_device(
+        self, key: str, node_id: int, binding: DeviceBinding, source: SnapshotSource
+    ) -> int | None:
+        """A reload pinned the live device to another node (docs/ICD.md "A reload and the
+        live devices"): it leaves its node (`2`; the node sends `!`, nothing feeds it) and
+        is announced on node_id as a new device there: connect sequence, its entry's
+        failsafe values until it is known, and the neutral guard from the start. Returns
+        the node it left (None: not the device `source` feeds)."""
+        with self._lock:
+            entry = self._by_key.get(key)
+            if self._stopping or entry is None or entry[1].source is not source:
+                return None
+            old_id, old = entry
+            self._nodes[old_id].attached.remove(old)
+            self._broadcast(ServiceEvent(EventKind.DISCONNECTED, old_id, old.info))
+            moved = _Attached(old.info, binding, source, old.device_type)
+            moved.bad_spells_seen = source.record.bad_spells  # a run before the move is old
+            self._attach_locked(node_id, moved)
+        log.warning(
+            "config reload: %s (%04x:%04x, port %s) moves from Node-ID %d to Node-ID %d "
+            "(config entry %r): node %d sends `!`, node %d announces it and goes live once its "
+            "guarded axes rest",
+            old.info.product or "?",
+            old.info.vid,
+            old.info.pid,
+            old.info.port_path or "?",
+            old_id,
+            node_id,
+            binding.name,
+            old_id,
+            node_id,
+        )
+        return old_id
 
     def remove_device(
         self, key: str, error_code: int | None = None, source: SnapshotSource | None = None
@@ -427,6 +513,31 @@ class NodeTable:
             node_id,
         )
         return node_id
+
+    def device_error(self, key: str, error_code: int, source: SnapshotSource) -> int | None:
+        """`3` with error_code on the node of the live device `source` feeds; its node."""
+        with self._lock:
+            entry = self._by_key.get(key)
+            if self._stopping or entry is None or entry[1].source is not source:
+                return None
+            node_id, attached = entry
+            self._broadcast(ServiceEvent(EventKind.ERROR, node_id, attached.info, "", error_code))
+            return node_id
+
+    def node_of(self, key: str) -> int | None:
+        """The node the present device under `key` feeds."""
+        with self._lock:
+            entry = self._by_key.get(key)
+            return entry[0] if entry else None
+
+    def missing_entries(self) -> list[MissingEntry]:
+        """Pinned config entries whose device has not come (their nodes send `!`)."""
+        with self._lock:
+            return [
+                MissingEntry(node_id, name, entry.match, entry.where)
+                for node_id, node in sorted(self._nodes.items())
+                for name, entry in node.expected.items()
+            ]
 
     def report_error(self, node_id: int, info: DeviceInfo | None, error_code: int) -> None:
         """A device that could not be used at all (open failed, descriptor unusable)."""
@@ -499,7 +610,7 @@ class NodeTable:
                 for attached in node.attached:
                     new_binding = rebind_one(attached.info)
                     if new_binding is not None:
-                        attached.binding = new_binding  # an armed device stays armed
+                        _rebind_attached(node.node_id, attached, new_binding)
                 switches = [t for a in node.attached for t in a.binding.trim_switches]
                 for change in self._trims.keep(node.node_id, switches):
                     log.warning("config reload: node %d: %s", node.node_id, change)
@@ -516,6 +627,25 @@ class NodeTable:
         for box in self._outbox:
             if box is not None:
                 box.append(event)
+
+
+def _rebind_attached(node_id: int, attached: _Attached, binding: DeviceBinding) -> None:
+    """A reload's new binding for a device that stays on its node (docs/ICD.md "A reload
+    and the live devices"): an armed device stays armed while its axes map as before; one
+    whose axis mapping changed is a new stick to the receiver (inverted, another usage, a
+    new calibration: a deflected stick would step), so it holds what it sent and waits for
+    its guarded axes to rest, as a re-plugged device. At rest, that is the next frame."""
+    if attached.present and not binding.same_axes(attached.binding):
+        attached.last_inputs = attached.inputs()  # what it sent under the old mapping
+        attached.armed = False
+        log.warning(
+            "config reload: node %d: %s's axes map differently now: the neutral guard "
+            "checks it again (%s) before it goes live",
+            node_id,
+            attached.info.product or "device",
+            binding.guard.describe(),
+        )
+    attached.binding = binding
 
 
 def _log_changes(changes: list[str]) -> None:

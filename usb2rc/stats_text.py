@@ -71,5 +71,17 @@ def device_line(record: dict[str, Any]) -> str:
     return line
 
 
+def missing_line(record: dict[str, Any]) -> str:
+    where = f"; {record['where']}" if record.get("where") else ""
+    return (
+        f"missing: node {record['node_id']} config entry {record['entry']!r} "
+        f"({record['match']}{where}): no device plugged, the node sends failsafe"
+    )
+
+
 def stats_lines(record: dict[str, Any]) -> list[str]:
-    return [*map(output_line, record["outputs"]), *map(device_line, record["devices"])]
+    return [
+        *map(output_line, record["outputs"]),
+        *map(device_line, record["devices"]),
+        *map(missing_line, record.get("missing_devices", [])),
+    ]

@@ -26,6 +26,7 @@ class ErrorCode(IntEnum):
     OPEN_FAILED = 0x03
     PERMISSION_DENIED = 0x04
     CONFIG_CLASH = 0x05  # a second device matches a config entry already feeding its node
+    BAD_REPORTS = 0x06  # every report of a run was refused (usb2rc.hid.reader)
 
 
 class _Plain:

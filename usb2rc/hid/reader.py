@@ -8,6 +8,12 @@ On unplug it calls `on_exit(reader, None)`, on a read failure
 `on_exit(reader, ErrorCode.READ_FAILED)` — exactly once, from the reader thread — and ends.
 `stop()` ends it without calling `on_exit`. The device is closed when the thread ends.
 
+Bad reports (unknown report ID, too short): counted, and counted in a row. After
+BAD_REPORTS_LIMIT refused in a row, with no accepted report between them, the device is in
+error (`ReaderRecord.in_error`: its node sends `!`, docs/ICD.md "Device error codes", 0x06)
+until it sends a good report again; the reader calls `on_bad_reports(reader, record)` after
+it published a record that entered or left error (or began a new run of bad reports).
+
 Pacing (optional): the outputs only sample the snapshot once per tick, so with a `pause`
 callable the reader, after a report, drains what is queued without blocking and then sleeps
 until just before the next tick (`pause()` says how long). A 1 kHz device then wakes its
@@ -34,6 +40,10 @@ log = logging.getLogger(__name__)
 READ_TIMEOUT_S = 0.1
 PRESSES_KEPT = 32  # rising edges a record remembers: a consumer one tick behind sees them all
 MAX_BATCH = 1000  # reports decoded as one batch (a paced reader's drain)
+# Refused reports in a row that put a device in error (`3`, BAD_REPORTS). A glitch on the
+# bus truncates one report, not twenty; a device that refuses twenty in a row and none
+# good between them is not understood (wrong descriptor, unknown report IDs).
+BAD_REPORTS_LIMIT = 20
 
 
 class Decoder(Protocol):
@@ -56,6 +66,7 @@ class ButtonsDecoder(Decoder, Protocol):
 
 
 OnExit = Callable[["DeviceReader", ErrorCode | None], None]
+OnBadReports = Callable[["DeviceReader", "ReaderRecord"], None]
 
 
 @dataclass(frozen=True, slots=True)
@@ -71,6 +82,13 @@ class ReaderRecord:
     # as (serial, HID buttons that went down), oldest first; press_serial is the newest's.
     presses: tuple[tuple[int, int], ...] = ()
     press_serial: int = 0
+    refused_in_a_row: int = 0  # refused since the last accepted report
+    bad_spells: int = 0  # times `refused_in_a_row` reached BAD_REPORTS_LIMIT
+
+    @property
+    def in_error(self) -> bool:
+        """The device's last BAD_REPORTS_LIMIT reports or more were all refused."""
+        return self.refused_in_a_row >= BAD_REPORTS_LIMIT
 
     def pressed_since(self, serial: int) -> int:
         """The HID buttons pressed in any report after press `serial` (a consumer's last
@@ -98,6 +116,10 @@ class DeviceReader(Worker):
         self.record = ReaderRecord(decoder.state())
         self._reports = 0  # counted by the reader thread; published with the state
         self._bad_reports = 0
+        self._refused_in_a_row = 0
+        self._bad_spells = 0
+        # Told when the device enters or leaves error (bad reports); set before start().
+        self.on_bad_reports: OnBadReports | None = None
         # the decoder, where its button mask can be read per report (fakes in tests: None)
         self._press_decoder = decoder if isinstance(decoder, ButtonsDecoder) else None
         self._buttons = 0  # the mask after the last report, for rising edges
@@ -132,8 +154,21 @@ class DeviceReader(Worker):
             self._reports += 1
             if self._press_decoder is not None:
                 self._note_buttons(self._press_decoder.buttons)
+            self._count_refused(accepted=1, refused=0)
         else:
             self._bad_reports += 1
+            self._count_refused(accepted=0, refused=1)
+
+    def _count_refused(self, accepted: int, refused: int) -> None:
+        """Refused reports in a row. A batch is decoded as a whole: one accepted report in
+        it ends the run (a device with good reports in every batch is not in error)."""
+        if accepted:
+            self._refused_in_a_row = 0
+            return
+        before = self._refused_in_a_row
+        self._refused_in_a_row += refused
+        if before < BAD_REPORTS_LIMIT <= self._refused_in_a_row:
+            self._bad_spells += 1
 
     def _note_buttons(self, buttons: int) -> None:
         """Every press, even one released before the record is published (a tap)."""
@@ -164,6 +199,7 @@ class DeviceReader(Worker):
         accepted, refused = self.decoder.feed_batch(batch, on_buttons)
         self._reports += accepted
         self._bad_reports += refused
+        self._count_refused(accepted, refused)
 
     def _publish(self) -> None:
         """One assignment: the state, its counts and its time are seen together or not at all.
@@ -172,14 +208,20 @@ class DeviceReader(Worker):
         if (last.reports, last.bad_reports) == (self._reports, self._bad_reports):
             return
         at = time.monotonic() if self._reports != last.reports else last.at
-        self.record = ReaderRecord(
+        record = ReaderRecord(
             self.decoder.state(),
             self._reports,
             self._bad_reports,
             at,
             self._presses,
             self._press_serial,
+            self._refused_in_a_row,
+            self._bad_spells,
         )
+        self.record = record
+        edge = (record.in_error, record.bad_spells) != (last.in_error, last.bad_spells)
+        if edge and self.on_bad_reports is not None:
+            self.on_bad_reports(self, record)
 
     def _loop(self) -> None:
         while not self.stopping:
