@@ -32,8 +32,11 @@ class Example:
 
 
 EXAMPLES: tuple[Example, ...] = (
-    Example("hotas.yaml", "config", "a T.16000M stick + TWCS throttle (node 1), TFRP pedals "
-            "(node 2); C2-16B and SUMD outputs"),
+    Example(
+        "hotas.yaml",
+        "config",
+        "a T.16000M stick + TWCS throttle (node 1), TFRP pedals (node 2); C2-16B and SUMD outputs",
+    ),
     Example("default.yaml", "config", "zero config spelled out: every stick, default layout"),
     Example("mavlink.yaml", "config", "a stick and throttle to MAVLink autopilots (UDP, serial)"),
     Example("stick.hid", "demo", "hid-recorder file: the demo's Thrustmaster T.16000M"),
