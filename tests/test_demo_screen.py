@@ -51,8 +51,20 @@ def test_demo_in_80x24_leaves_one_screen_behind(tmp_path: Path) -> None:
     env.pop("COLUMNS", None)
     env.pop("LINES", None)
     subprocess.run(
-        [*tmux, "new-session", "-d", "-s", "d", "-x", "80", "-y", "24", "-c", str(tmp_path)]
-        + [command],
+        [
+            *tmux,
+            "new-session",
+            "-d",
+            "-s",
+            "d",
+            "-x",
+            "80",
+            "-y",
+            "24",
+            "-c",
+            str(tmp_path),
+            command,
+        ],
         check=True,
         env=env,
     )

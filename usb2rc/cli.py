@@ -38,8 +38,8 @@ COMMANDS: dict[str, str] = {
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="usb2rc",
-        description="USB joysticks, HOTAS and pedals to RC command streams: SERaero C2-16B, HoTT SUMD, "
-        "CRSF, SBUS and MAVLink (serial lines; MAVLink also over UDP).",
+        description="USB joysticks, HOTAS and pedals to RC command streams: SERaero C2-16B, "
+        "HoTT SUMD, CRSF, SBUS and MAVLink (serial lines; MAVLink also over UDP).",
         epilog="Without a subcommand, usb2rc runs the daemon (same options as `usb2rc run`).",
     )
     parser.add_argument("--version", action="version", version=f"usb2rc {__version__}")
