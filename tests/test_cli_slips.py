@@ -246,15 +246,7 @@ def test_a_file_that_is_one_list_names_the_top_level(tmp_path: Path) -> None:
 
 
 def usb2rc_in(folder: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "usb2rc", *args],
-        capture_output=True,
-        text=True,
-        cwd=folder,
-        stdin=subprocess.DEVNULL,
-        timeout=60,
-        check=False,
-    )
+    return usb2rc(*args, cwd=folder)
 
 
 def test_replay_demo_is_the_built_in_recordings_from_any_folder(tmp_path: Path) -> None:
