@@ -34,6 +34,8 @@ DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), SERVICE_NOTES
 # run first, one by one (the others read those files).
 RUN = {
     "usb2rc example hotas",
+    "usb2rc example hotas-demo",
+    "usb2rc check --config hotas-demo.yaml --replay demo",
     "usb2rc example throttle",
     "usb2rc example c2-16b-sample",
     "usb2rc example sumd-sample",

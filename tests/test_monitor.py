@@ -259,6 +259,24 @@ def test_config_nodes_merged_devices_and_waiting_entry():
         side.stop()
 
 
+def test_the_hotas_demo_config_goes_live_on_the_demo_recordings():
+    # hotas.yaml's pedals are not in the recordings (node 2 stays `!`); hotas-demo has none
+    config = load_config(ROOT / "usb2rc" / "data" / "config" / "hotas-demo.yaml")
+    side = monitor.InputSide(config, ReplayBackend(ROOT / "usb2rc" / "data" / "demo"))
+    side.start()
+    try:
+        snap = wait_for(
+            side,
+            lambda s: (
+                len(s.nodes) == 1 and len(s.nodes[0].devices) == 2 and not s.nodes[0].failsafe
+            ),
+        )
+        assert snap.nodes[0].node_id == 1 and snap.nodes[0].waiting == []
+        assert {a.slot for a in snap.nodes[0].axes} >= {"x", "y", "z", "rz", "aux1", "slider"}
+    finally:
+        side.stop()
+
+
 def test_bar_and_event_text():
     assert monitor.bar(-32768, -32768, 32767) == LOW
     assert monitor.bar(32767, -32768, 32767) == HIGH

@@ -37,6 +37,9 @@ EXAMPLES: tuple[Example, ...] = (
         "config",
         "a T.16000M stick + TWCS throttle (node 1), TFRP pedals (node 2); C2-16B and SUMD outputs",
     ),
+    Example(
+        "hotas-demo.yaml", "config", "hotas.yaml without the pedals: all live on `--replay demo`"
+    ),
     Example("default.yaml", "config", "zero config spelled out: every stick, default layout"),
     Example("mavlink.yaml", "config", "a stick and throttle to MAVLink autopilots (UDP, serial)"),
     Example("stick.hid", "demo", "hid-recorder file: the demo's Thrustmaster T.16000M"),
