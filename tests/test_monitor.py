@@ -233,48 +233,44 @@ def test_unplug_shows_failsafe_lost_device_and_events(tmp_path):
         side.stop()
 
 
-def test_config_nodes_merged_devices_and_waiting_entry():
-    config = load_config(ROOT / "usb2rc" / "data" / "config" / "hotas.yaml")
+def demo_snapshot(config_name: str, node_count: int) -> monitor.Snapshot:
+    """A shipped config on the demo recordings, once its first node has both devices and is
+    live (a device is not live before its first report)."""
+    config = load_config(ROOT / "usb2rc" / "data" / "config" / config_name)
     side = monitor.InputSide(config, ReplayBackend(ROOT / "usb2rc" / "data" / "demo"))
     side.start()
     try:
-        # live once both devices have reported (a device is not live before its first report)
-        snap = wait_for(
+        return wait_for(
             side,
             lambda s: (
-                len(s.nodes) == 2 and len(s.nodes[0].devices) == 2 and not s.nodes[0].failsafe
+                len(s.nodes) == node_count
+                and len(s.nodes[0].devices) == 2
+                and not s.nodes[0].failsafe
             ),
         )
-        text = monitor.snapshot_text(snap, [])
-        stick, pedals = snap.nodes
-        assert stick.node_id == 1 and not stick.failsafe
-        assert "as stick" in text and "as throttle" in text
-        slots = {a.slot: a.source for a in stick.axes}
-        assert slots["x"].startswith("Thrustmaster T.16000M: X (raw 0..16383, deadband 0.02")
-        assert slots["z"].startswith("Thrustmaster TWCS Throttle: Z")
-        assert "aux1" in slots and "aux2" not in slots
-        assert pedals.node_id == 2 and pedals.failsafe and pedals.waiting == ["pedals"]
-        assert "waiting for config entry pedals: not plugged" in text
     finally:
         side.stop()
+
+
+def test_config_nodes_merged_devices_and_waiting_entry():
+    snap = demo_snapshot("hotas.yaml", 2)
+    text = monitor.snapshot_text(snap, [])
+    stick, pedals = snap.nodes
+    assert stick.node_id == 1 and not stick.failsafe
+    assert "as stick" in text and "as throttle" in text
+    slots = {a.slot: a.source for a in stick.axes}
+    assert slots["x"].startswith("Thrustmaster T.16000M: X (raw 0..16383, deadband 0.02")
+    assert slots["z"].startswith("Thrustmaster TWCS Throttle: Z")
+    assert "aux1" in slots and "aux2" not in slots
+    assert pedals.node_id == 2 and pedals.failsafe and pedals.waiting == ["pedals"]
+    assert "waiting for config entry pedals: not plugged" in text
 
 
 def test_the_hotas_demo_config_goes_live_on_the_demo_recordings():
     # hotas.yaml's pedals are not in the recordings (node 2 stays `!`); hotas-demo has none
-    config = load_config(ROOT / "usb2rc" / "data" / "config" / "hotas-demo.yaml")
-    side = monitor.InputSide(config, ReplayBackend(ROOT / "usb2rc" / "data" / "demo"))
-    side.start()
-    try:
-        snap = wait_for(
-            side,
-            lambda s: (
-                len(s.nodes) == 1 and len(s.nodes[0].devices) == 2 and not s.nodes[0].failsafe
-            ),
-        )
-        assert snap.nodes[0].node_id == 1 and snap.nodes[0].waiting == []
-        assert {a.slot for a in snap.nodes[0].axes} >= {"x", "y", "z", "rz", "aux1", "slider"}
-    finally:
-        side.stop()
+    snap = demo_snapshot("hotas-demo.yaml", 1)
+    assert snap.nodes[0].node_id == 1 and snap.nodes[0].waiting == []
+    assert {a.slot for a in snap.nodes[0].axes} >= {"x", "y", "z", "rz", "aux1", "slider"}
 
 
 def test_bar_and_event_text():
