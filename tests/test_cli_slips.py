@@ -3,6 +3,9 @@ found nothing. Each through the real command line (`python -m usb2rc`)."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -163,3 +166,127 @@ def test_run_help_has_a_description() -> None:
     assert result.returncode == 0
     body = result.stdout.split("\n\n")[1]  # after the usage block
     assert "Run the daemon" in body and "Exit 0" in body
+
+
+def test_help_texts_name_the_five_protocols() -> None:
+    texts = {
+        "usb2rc --help": usb2rc("--help").stdout,
+        "usb2rc run --help": usb2rc("run", "--help").stdout,
+        "usb2rc icd --help": usb2rc("icd", "--help").stdout,
+        "pyproject description": next(
+            line
+            for line in (ROOT / "pyproject.toml").read_text().splitlines()
+            if line.startswith("description")
+        ),
+        "daemon.py docstring": (ROOT / "usb2rc" / "daemon.py").read_text().split('"""')[1],
+        "unit header": (ROOT / "usb2rc" / "data" / "system" / "usb2rc.service")
+        .read_text()
+        .splitlines()[0],
+    }
+    for where, text in texts.items():
+        flat = " ".join(text.split())  # argparse wraps help text
+        for protocol in ("C2-16B", "SUMD", "CRSF", "SBUS", "MAVLink"):
+            assert protocol in flat, (where, protocol)
+
+
+# --- misspelt options ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("argv", "hint"),
+    [
+        (["--prot", "/dev/ttyUSB0"], "unrecognized arguments: --prot (did you mean --port?)"),
+        (["run", "--confg", "x.yaml"], "--confg (did you mean --config?)"),
+        (["check", "--jsn"], "--jsn (did you mean --json?)"),
+        (["list", "--replay=demo", "--alll"], "--alll (did you mean --all?)"),
+    ],
+)
+def test_a_misspelt_option_gets_a_suggestion(argv: list[str], hint: str) -> None:
+    result = usb2rc(*argv)
+    assert result.returncode == 2
+    assert hint in result.stderr
+
+
+# --- config problems that are really another kind of file or many of one ------------------
+
+
+def test_a_recording_given_as_config_is_named_as_such() -> None:
+    recording = str(DEMO / "stick.hid")
+    for command in ("check", "run"):
+        result = usb2rc(command, "--config", recording)
+        assert result.returncode == 2, (command, result.stderr)
+        assert "this is a hid-recorder file" in result.stderr
+        assert "--replay DIR" in result.stderr
+        assert "unknown key" not in result.stderr
+
+
+def test_the_same_problem_on_17_lines_is_shown_once_with_its_count(tmp_path: Path) -> None:
+    config = tmp_path / "many.yaml"
+    entries = "".join("  - {match: {vid: 1}, node_id: 300}\n" for _ in range(17))
+    config.write_text("devices:\n" + entries)
+    result = usb2rc("check", "--config", str(config))
+    assert result.returncode == 2
+    lines = result.stderr.splitlines()
+    assert lines[0] == (
+        f"{config}:2: devices[*].node_id: 300 is out of range (allowed: 0..254) "
+        "(17 times: lines 2, 3, 4, 5, 6 and 12 more)"
+    )
+    assert lines[1:] == ["17 error(s)"]
+
+
+def test_a_file_that_is_one_list_names_the_top_level(tmp_path: Path) -> None:
+    config = tmp_path / "list.yaml"
+    config.write_text("- outputs\n- devices\n")
+    result = usb2rc("check", "--config", str(config))
+    assert result.returncode == 2
+    assert f"{config}:1: (top level): expected a mapping, got a list" in result.stderr
+
+
+# --- shipped files by name, from any folder ------------------------------------------------
+
+
+def usb2rc_in(folder: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    return usb2rc(*args, cwd=folder)
+
+
+def test_replay_demo_is_the_built_in_recordings_from_any_folder(tmp_path: Path) -> None:
+    result = usb2rc_in(tmp_path, "list", "--replay", "demo", "--json")
+    assert result.returncode == 0, result.stderr
+    products = {device["product"] for device in json.loads(result.stdout)["devices"]}
+    assert products == {"Thrustmaster T.16000M", "Thrustmaster TWCS Throttle"}
+    assert result.stderr == ""
+
+
+def test_a_demo_folder_here_wins_and_says_so(tmp_path: Path) -> None:
+    (tmp_path / "demo").mkdir()  # empty: no devices
+    result = usb2rc_in(tmp_path, "list", "--replay", "demo", "--json")
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["devices"] == []
+    assert "--replay demo: the folder ./demo here, not the built-in recordings" in result.stderr
+
+
+def test_example_copies_a_shipped_file_and_lists_them(tmp_path: Path) -> None:
+    shipped = ROOT / "usb2rc" / "data" / "config" / "hotas.yaml"
+    for name in ("hotas", "hotas.yaml"):
+        assert usb2rc_in(tmp_path, "example", name).stdout == shipped.read_text()
+    sample = subprocess.run(
+        [sys.executable, "-m", "usb2rc", "example", "c2-16b-sample"],
+        capture_output=True,
+        cwd=tmp_path,
+        timeout=60,
+        check=True,
+    )
+    assert (
+        sample.stdout == (ROOT / "usb2rc" / "data" / "samples" / "c2-16b-sample.bin").read_bytes()
+    )
+    listing = usb2rc_in(tmp_path, "example").stdout
+    assert "hotas.yaml" in listing and "stick.hid" in listing and "--replay demo" in listing
+    missing = usb2rc_in(tmp_path, "example", "hotass")
+    assert missing.returncode == 2 and "no example 'hotass'; there are: hotas" in missing.stderr
+
+
+def test_list_without_devices_hints_at_the_built_in_recordings() -> None:
+    from usb2rc.commands.list_devices import no_devices_hint
+
+    hint = no_devices_hint(None)
+    assert "usb2rc list --replay demo" in hint and "usb2rc/data" not in hint

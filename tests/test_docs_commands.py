@@ -1,11 +1,14 @@
 """Every `usb2rc ...` command shown in README.md and docs/*.md code blocks is exercised.
 
 Each command line found in a fenced code block must parse with usb2rc's own parser (with the
-default-command rule of `usb2rc.cli.main`). The ones that can run here, offline, run and
-must exit 0; the ones that need root run against a scratch root (ROOTED); the rest
-(hardware, placeholders, endless) are listed as parse-only with the reason. A command in
-the docs that is in no list fails the test, and so does a listed command the docs no longer
-show: the lists and the docs move together.
+default-command rule of `usb2rc.cli.main`). The ones that can run here, offline, run from an
+empty folder (as a user with the package installed from a wheel would: no clone, so no
+`usb2rc/data/...` paths) and must exit 0; a command the docs redirect to a file
+(`usb2rc example hotas > hotas.yaml`) writes that file there first. The ones that need root
+run against a scratch root (ROOTED); the rest (hardware, placeholders, endless) are listed as
+parse-only with the reason. A command in the docs that is in no list fails the test, and so
+does a listed command the docs no longer show: the lists and the docs move together.
+tests/test_wheel_journey.py runs the same lists with a built wheel in a fresh venv.
 """
 
 from __future__ import annotations
@@ -27,21 +30,28 @@ ROOT = Path(__file__).resolve().parent.parent
 SERVICE_NOTES = ROOT / "usb2rc" / "data" / "system" / "SERVICE.md"
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), SERVICE_NOTES]
 
-# Run offline from the repository root; each must exit 0.
+# Run offline from an empty folder; each must exit 0. The ones the docs redirect to a file
+# run first, one by one (the others read those files).
 RUN = {
-    "usb2rc decode usb2rc/data/samples/c2-16b-sample.bin",
-    "usb2rc decode --protocol sumd usb2rc/data/samples/sumd-sample.bin",
-    "usb2rc icd --config usb2rc/data/config/hotas.yaml",
-    "usb2rc check --config usb2rc/data/config/hotas.yaml",
-    "usb2rc check --config usb2rc/data/config/hotas.yaml --replay usb2rc/data/demo",
-    "usb2rc describe usb2rc/data/demo/throttle.hid",
-    "usb2rc list --replay usb2rc/data/demo",
+    "usb2rc example hotas",
+    "usb2rc example hotas-demo",
+    "usb2rc check --config hotas-demo.yaml --replay demo",
+    "usb2rc example throttle",
+    "usb2rc example c2-16b-sample",
+    "usb2rc example sumd-sample",
+    "usb2rc init --replay demo",
+    "usb2rc decode c2-16b-sample.bin",
+    "usb2rc decode --protocol sumd sumd-sample.bin",
+    "usb2rc icd --config hotas.yaml",
+    "usb2rc check --config hotas.yaml",
+    "usb2rc check --config hotas.yaml --replay demo",
+    "usb2rc describe throttle.hid",
+    "usb2rc list --replay demo",
     "usb2rc demo --seconds 2",
-    "usb2rc monitor --replay usb2rc/data/demo --seconds 2 --plain",
-    "usb2rc init --replay usb2rc/data/demo",
+    "usb2rc monitor --replay demo --seconds 2 --plain",
     "usb2rc install-system --print 70-usb2rc.rules",
-    "usb2rc check --config usb2rc/data/config/hotas.yaml --json",
-    "usb2rc icd --config usb2rc/data/config/hotas.yaml --json",
+    "usb2rc check --config hotas.yaml --json",
+    "usb2rc icd --config hotas.yaml --json",
 }
 
 # Shown with sudo, they write or read the system's files: here they run in this order
@@ -57,7 +67,7 @@ PLACEHOLDER = "names the reader's own file"
 PARSE_ONLY = {
     "usb2rc demo --seconds 30": "30 s is too slow here; `demo --seconds 2` runs",
     "usb2rc --port /dev/ttyUSB0": HARDWARE,
-    "usb2rc --config usb2rc/data/config/hotas.yaml": HARDWARE + " (/dev/serial0, /dev/ttyUSB0)",
+    "usb2rc --config hotas.yaml": HARDWARE + " (/dev/serial0, /dev/ttyUSB0)",
     "usb2rc run --replay DIR --port PORT": PLACEHOLDER,
     "usb2rc decode /dev/ttyUSB1": HARDWARE,
     "usb2rc decode --json /dev/ttyUSB1": HARDWARE,
@@ -78,7 +88,7 @@ PARSE_ONLY = {
     "usb2rc --config hotas.yaml --port /dev/ttyUSB0": HARDWARE,
     "usb2rc init --port /dev/serial0 -o my.yaml": HARDWARE,
     "usb2rc calibrate --config my.yaml": HARDWARE + "; interactive (tests/test_calibrate_tmux.py)",
-    "usb2rc calibrate --config demo.yaml --replay usb2rc/data/demo --replay-loop": (
+    "usb2rc calibrate --config demo.yaml --replay demo --replay-loop": (
         "interactive; tests/test_calibrate_tmux.py drives it in tmux"
     ),
     "usb2rc --config my.yaml": PLACEHOLDER,
@@ -112,6 +122,12 @@ def is_usb2rc(word: str) -> bool:
 def commands_in(line: str) -> list[list[str]]:
     """The argument lists of the usb2rc commands on one shell line (comments, pipes,
     redirections, `sudo` and VAR=value prefixes taken off)."""
+    return [args for args, _ in shell_commands(line)]
+
+
+def shell_commands(line: str) -> list[tuple[list[str], str | None]]:
+    """Each usb2rc command on one shell line: its arguments, and the file its stdout is
+    redirected to (`> FILE`), if any."""
     lexer = shlex.shlex(line, posix=True, punctuation_chars=True)
     lexer.whitespace_split = True
     tokens = list(lexer)
@@ -128,12 +144,12 @@ def commands_in(line: str) -> list[list[str]]:
                 words = words[2:] if words[0] in ("-u", "-g") else words[1:]
         if not words or not is_usb2rc(words[0]):
             continue
-        args = []
-        for word in words[1:]:
-            if REDIRECTS.match(word):
-                break
-            args.append(word)
-        found.append(args)
+        args: list[str] = []
+        rest = words[1:]
+        while rest and not REDIRECTS.match(rest[0]):
+            args.append(rest.pop(0))
+        target = rest[1] if rest[:1] == [">"] and len(rest) > 1 else None
+        found.append((args, target))
     return found
 
 
@@ -146,6 +162,17 @@ def documented() -> dict[str, list[str]]:
                 key = shlex.join(["usb2rc", *args])
                 seen.setdefault(key, []).append(f"{path.relative_to(ROOT)}:{number}")
     return seen
+
+
+def stdout_files() -> dict[str, str]:
+    """'usb2rc ARGS' -> the file the docs write its output to (`> FILE`)."""
+    targets: dict[str, str] = {}
+    for path in DOCS:
+        for _, line in code_lines(path):
+            for args, target in shell_commands(line):
+                if target is not None:
+                    targets[shlex.join(["usb2rc", *args])] = target
+    return targets
 
 
 # Folders the docs name as placeholders: --replay wants a directory that exists.
@@ -173,6 +200,9 @@ def test_extraction_rules():
         ["record", "044f:b10a", "--seconds", "10"]
     ]
     assert commands_in("sudo -u usb2rc /opt/usb2rc/venv/bin/usb2rc list") == [["list"]]
+    assert shell_commands("usb2rc example hotas > hotas.yaml  # a config") == [
+        (["example", "hotas"], "hotas.yaml")
+    ]
     assert commands_in("journalctl -u usb2rc -f") == []
     assert commands_in("sudo systemctl kill -s USR1 usb2rc") == []
     assert commands_in("sudo install -m 0644 systemd/usb2rc.service /etc/systemd/system/") == []
@@ -195,31 +225,64 @@ def test_documented_command_parses(command, tmp_path):
     assert getattr(args, "func", None), command
 
 
-def test_offline_commands_run_and_exit_0():
+def run_offline_commands(usb2rc: list[str], folder: Path) -> list[str]:
+    """Run RUN in `folder` with `usb2rc` (the program as an argv prefix): first the commands
+    whose output the docs keep in a file, writing that file, then the others side by side.
+    Returns what failed."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
+    targets = stdout_files()
+    writers = sorted(command for command in RUN if command in targets)
+    readers = sorted(command for command in RUN if command not in targets)
+    failures = []
+    for command in writers:
+        with open(folder / targets[command], "wb") as out:
+            proc = subprocess.Popen(
+                [*usb2rc, *shlex.split(command)[1:]],
+                cwd=folder,
+                env=env,
+                stdin=subprocess.DEVNULL,
+                stdout=out,
+                stderr=subprocess.PIPE,
+            )
+            failures += _outcome(command, proc, folder / targets[command])
     procs = {
         command: subprocess.Popen(
-            [sys.executable, "-m", "usb2rc", *shlex.split(command)[1:]],
-            cwd=ROOT,
+            [*usb2rc, *shlex.split(command)[1:]],
+            cwd=folder,
             env=env,
             stdin=subprocess.DEVNULL,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
         )
-        for command in sorted(RUN)
+        for command in readers
     }
-    failures = []
     for command, proc in procs.items():
-        try:
-            out, err = proc.communicate(timeout=120)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, err = proc.communicate()
-        if proc.returncode != 0:
-            failures.append(f"{command}: exit {proc.returncode}\n{err.decode()[-2000:]}")
-        elif not out.strip():
-            failures.append(f"{command}: printed nothing")
+        failures += _outcome(command, proc, None)
+    return failures
+
+
+def _outcome(command: str, proc: subprocess.Popen[bytes], written: Path | None) -> list[str]:
+    try:
+        out, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+    if proc.returncode != 0:
+        return [f"{command}: exit {proc.returncode}\n{err.decode()[-2000:]}"]
+    printed = written.read_bytes() if written is not None else out
+    return [] if printed.strip() else [f"{command}: printed nothing"]
+
+
+def test_offline_commands_run_from_an_empty_folder_and_exit_0(tmp_path: Path) -> None:
+    failures = run_offline_commands([sys.executable, "-m", "usb2rc"], tmp_path)
     assert not failures, "\n\n".join(failures)
+
+
+def test_the_docs_name_no_file_of_a_clone() -> None:
+    # usb2rc/data/... exists only in a clone: the docs name shipped files by
+    # `usb2rc example NAME` and `--replay demo` (they work from a wheel, from any folder)
+    clone_paths = [cmd for cmd in documented() if "usb2rc/data" in cmd]
+    assert not clone_paths
 
 
 def rooted(command: str, root: Path) -> list[str]:
@@ -231,18 +294,28 @@ def rooted(command: str, root: Path) -> list[str]:
     return [*args, "--root", str(root)] if args[:1] == ["install-system"] else args
 
 
-def test_root_commands_run_against_a_scratch_root(tmp_path: Path) -> None:
+def run_root_commands(usb2rc: list[str], root: Path, folder: Path) -> list[str]:
+    """Run ROOTED in order from `folder` against the scratch `root`; returns what failed."""
+    failures = []
     for command in ROOTED:
         result = subprocess.run(
-            [sys.executable, "-m", "usb2rc", *rooted(command, tmp_path)],
-            cwd=ROOT,
+            [*usb2rc, *rooted(command, root)],
+            cwd=folder,
             stdin=subprocess.DEVNULL,
             capture_output=True,
             text=True,
             timeout=120,
             check=False,
         )
-        assert result.returncode == 0, f"{command}: exit {result.returncode}\n{result.stderr}"
+        if result.returncode != 0:
+            failures.append(f"{command}: exit {result.returncode}\n{result.stderr}")
+    return failures
+
+
+def test_root_commands_run_against_a_scratch_root(tmp_path: Path) -> None:
+    (tmp_path / "cwd").mkdir()
+    failures = run_root_commands([sys.executable, "-m", "usb2rc"], tmp_path, tmp_path / "cwd")
+    assert not failures, "\n\n".join(failures)
     assert (tmp_path / "etc" / "usb2rc" / "usb2rc.yaml").is_file()
 
 

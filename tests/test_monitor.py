@@ -9,6 +9,7 @@ never on the clock.
 from __future__ import annotations
 
 import fcntl
+import io
 import os
 import re
 import select
@@ -232,30 +233,44 @@ def test_unplug_shows_failsafe_lost_device_and_events(tmp_path):
         side.stop()
 
 
-def test_config_nodes_merged_devices_and_waiting_entry():
-    config = load_config(ROOT / "usb2rc" / "data" / "config" / "hotas.yaml")
+def demo_snapshot(config_name: str, node_count: int) -> monitor.Snapshot:
+    """A shipped config on the demo recordings, once its first node has both devices and is
+    live (a device is not live before its first report)."""
+    config = load_config(ROOT / "usb2rc" / "data" / "config" / config_name)
     side = monitor.InputSide(config, ReplayBackend(ROOT / "usb2rc" / "data" / "demo"))
     side.start()
     try:
-        # live once both devices have reported (a device is not live before its first report)
-        snap = wait_for(
+        return wait_for(
             side,
             lambda s: (
-                len(s.nodes) == 2 and len(s.nodes[0].devices) == 2 and not s.nodes[0].failsafe
+                len(s.nodes) == node_count
+                and len(s.nodes[0].devices) == 2
+                and not s.nodes[0].failsafe
             ),
         )
-        text = monitor.snapshot_text(snap, [])
-        stick, pedals = snap.nodes
-        assert stick.node_id == 1 and not stick.failsafe
-        assert "as stick" in text and "as throttle" in text
-        slots = {a.slot: a.source for a in stick.axes}
-        assert slots["x"].startswith("Thrustmaster T.16000M: X (raw 0..16383, deadband 0.02")
-        assert slots["z"].startswith("Thrustmaster TWCS Throttle: Z")
-        assert "aux1" in slots and "aux2" not in slots
-        assert pedals.node_id == 2 and pedals.failsafe and pedals.waiting == ["pedals"]
-        assert "waiting for config entry pedals: not plugged" in text
     finally:
         side.stop()
+
+
+def test_config_nodes_merged_devices_and_waiting_entry():
+    snap = demo_snapshot("hotas.yaml", 2)
+    text = monitor.snapshot_text(snap, [])
+    stick, pedals = snap.nodes
+    assert stick.node_id == 1 and not stick.failsafe
+    assert "as stick" in text and "as throttle" in text
+    slots = {a.slot: a.source for a in stick.axes}
+    assert slots["x"].startswith("Thrustmaster T.16000M: X (raw 0..16383, deadband 0.02")
+    assert slots["z"].startswith("Thrustmaster TWCS Throttle: Z")
+    assert "aux1" in slots and "aux2" not in slots
+    assert pedals.node_id == 2 and pedals.failsafe and pedals.waiting == ["pedals"]
+    assert "waiting for config entry pedals: not plugged" in text
+
+
+def test_the_hotas_demo_config_goes_live_on_the_demo_recordings():
+    # hotas.yaml's pedals are not in the recordings (node 2 stays `!`); hotas-demo has none
+    snap = demo_snapshot("hotas-demo.yaml", 1)
+    assert snap.nodes[0].node_id == 1 and snap.nodes[0].waiting == []
+    assert {a.slot for a in snap.nodes[0].axes} >= {"x", "y", "z", "rz", "aux1", "slider"}
 
 
 def test_bar_and_event_text():
@@ -305,3 +320,52 @@ def test_monitor_shows_what_a_node_waits_for_and_its_trims(tmp_path):
         assert x.value == scale(8192, 0, 16383) + 3277  # centred X, plus 0.1 of 32767.5
     finally:
         side.stop()
+
+
+# --------------------------------------------------------------------------- 80 x 24
+
+
+def fake_axis(slot: str, value: int) -> monitor.AxisRow:
+    source = "Thrustmaster T.16000M FCS Hotas Stick Left Hand: X (raw 0..16383, expo 0.3)"
+    return monitor.AxisRow(slot, value, -32768, 32767, source, raw=8192)
+
+
+def fake_node(node_id: int, slots: int) -> monitor.NodeRow:
+    axes = [fake_axis(slot, 1000 * i) for i, slot in enumerate(AXIS_SLOTS[:slots])]
+    return monitor.NodeRow(node_id, node_id % 2 == 1, [], ["pedals"], axes, [1, 2], "UP")
+
+
+AXIS_SLOTS = ("x", "y", "z", "rx", "ry", "rz", "slider", "dial", "aux1", "aux2")
+
+
+def render_at(snap: monitor.Snapshot, logs: list[str], now: float, size=(80, 24)) -> list[str]:
+    from rich.console import Console
+
+    console = Console(width=size[0], height=size[1], record=True, file=io.StringIO())
+    console.print(monitor.render_live(snap, logs, size, now))
+    return console.export_text().rstrip("\n").split("\n")
+
+
+def test_live_view_fits_80x24_and_pages_every_node():
+    nodes = [fake_node(node_id, 8) for node_id in range(4)]  # 4 x 10 lines: two pages
+    events = [f"node {i % 4}: connected" for i in range(30)]
+    snap = monitor.Snapshot(nodes, events, len(events), ["stats line"] * 3)
+    seen_titles: set[str] = set()
+    for page in range(4):
+        lines = render_at(snap, ["WARNING something"] * 5, now=page * monitor.PAGE_S)
+        assert len(lines) <= 23 and all(len(line) <= 80 for line in lines), lines
+        assert lines[0].startswith(f"page {page % 2 + 1}/2 (nodes ")
+        seen_titles |= {line.split()[1] for line in lines if line.startswith("node ")}
+        for line in lines:  # an axis line keeps its slot, whole bar, value and raw value
+            if line.lstrip().startswith("x "):
+                assert re.match(r"^\s*x\s+\[[#-]{16}\]\s+\+?\d+\s+raw\s+8192\s+<- ", line)
+                assert line.endswith("<- X (raw 0..16383, expo 0.3)")  # the name gave way
+        assert any("hidden" in line for line in lines)  # what is left out is counted
+    assert seen_titles == {"0", "1", "2", "3"}
+
+
+def test_live_view_at_80x24_shows_one_page_when_it_fits():
+    snap = monitor.Snapshot([fake_node(0, 8)], ["node 0: connected"], 1)
+    lines = render_at(snap, [], now=0.0)
+    assert "page" not in lines[0] and len(lines) <= 23
+    assert lines[-1] == "event: node 0: connected"

@@ -31,13 +31,15 @@ COMMANDS: dict[str, str] = {
     "init": "init",
     "calibrate": "calibrate",
     "install-system": "install_system",
+    "example": "example",
 }
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="usb2rc",
-        description="USB joysticks, HOTAS and pedals to a C2-16B / SUMD serial RC stream.",
+        description="USB joysticks, HOTAS and pedals to RC command streams: SERaero C2-16B, "
+        "HoTT SUMD, CRSF, SBUS and MAVLink (serial lines; MAVLink also over UDP).",
         epilog="Without a subcommand, usb2rc runs the daemon (same options as `usb2rc run`).",
     )
     parser.add_argument("--version", action="version", version=f"usb2rc {__version__}")
@@ -76,6 +78,18 @@ def _unknown_command(argv: list[str], known: set[str]) -> str | None:
     return f"unknown command {argv[0]!r}{hint}; commands: {', '.join(known_in_order(known))}"
 
 
+def _unrecognized(extras: list[str], parsers: list[argparse.ArgumentParser]) -> str:
+    """argparse's "unrecognized arguments" with a did-you-mean for each misspelt option
+    (`--prot` -> `--port`), from the options of the command and of `usb2rc` itself."""
+    options = sorted({opt for p in parsers for opt in p._option_string_actions})
+    words = []
+    for word in extras:
+        close = difflib.get_close_matches(word.split("=", 1)[0], options, n=1)
+        hint = f" (did you mean {close[0]}?)" if word.startswith("-") and close else ""
+        words.append(word + hint)
+    return "unrecognized arguments: " + " ".join(words)
+
+
 def known_in_order(known: set[str]) -> list[str]:
     return [name for name in COMMANDS if name in known]
 
@@ -107,7 +121,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(unknown)  # exit 2
     if "run" in known:
         args_list = _with_default_command(args_list, known)
-    args = parser.parse_args(args_list)
+    args, extras = parser.parse_known_args(args_list)
+    if extras:
+        command_parser = subparsers.choices.get(args.command or "", parser)
+        command_parser.error(_unrecognized(extras, [parser, command_parser]))  # exit 2
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -1,8 +1,11 @@
 """The daemon: wires HID sources, the compiled mapping, node state and the outputs together.
 
     hotplug ──events──> DeviceLifecycle ──> readers ──records──> NodeTable
-                                                     C2Output / SumdOutput <── NodeTable
-                                                     C2Output / SumdOutput ──> SerialLink
+                                                     outputs <── NodeTable
+                                                     outputs ──> serial line / UDP
+
+The outputs are one per config `outputs:` entry, in any of five protocols: C2-16B, SUMD,
+CRSF, SBUS and MAVLink (usb2rc.outputs has the registry).
 
 Devices come and go only on the lifecycle thread (usb2rc.lifecycle); readers publish records
 that the table reads without waiting; the scheduler threads never wait on a device.

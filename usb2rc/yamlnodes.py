@@ -14,7 +14,9 @@ This module knows nothing about usb2rc's schema (config.py and its siblings do).
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
+import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -23,6 +25,13 @@ import yaml
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
 T = TypeVar("T")
+
+_LIST_INDEX = re.compile(r"\[\d+\]")
+TOP_LEVEL = "(top level)"  # the key path of the document itself, in messages
+
+# A line of a hid-recorder file's descriptor (`R: <length> <hex bytes>`): such a file given
+# as a config is a mix-up worth naming, not 17 "unknown key" errors.
+_RECORDING_DESCRIPTOR = re.compile(r"^R: \d+( [0-9a-fA-F]{2})+\s*$", re.MULTILINE)
 
 
 @dataclass(frozen=True)
@@ -39,8 +48,8 @@ class Problem:
     def format(self) -> str:
         """`file:line: key.path: message; did you mean 'k'? (allowed: ...)`."""
         text = self.source if self.line is None else f"{self.source}:{self.line}"
-        if self.key is not None:
-            text += f": {self.key}"
+        if self.key is not None:  # "" is the document itself (a file that is one list)
+            text += f": {self.key or TOP_LEVEL}"
         text += f": {self.message}"
         if self.suggestion is not None:
             text += f"; did you mean {self.suggestion!r}?"
@@ -53,12 +62,49 @@ class Problem:
 
 
 class ConfigError(ValueError):
-    """One or more problems in a config; `errors` are their formatted lines, in order."""
+    """One or more problems in a config; `errors` are their formatted lines, in order.
+
+    `problems` keeps every record; `errors` shows the same problem (same key and message)
+    found on many lines once, with its count and lines (`format_grouped`)."""
 
     def __init__(self, problems: Iterable[Problem]) -> None:
         self.problems: list[Problem] = list(problems)
-        self.errors: list[str] = [problem.format() for problem in self.problems]
+        self.errors: list[str] = format_grouped(self.problems)
         super().__init__("\n".join(self.errors))
+
+
+SHOWN_LINES = 5  # of a repeated problem, the first lines named; the rest are counted
+
+
+def format_grouped(problems: list[Problem]) -> list[str]:
+    """One line per distinct problem, in first-seen order. A repeat (same file, message,
+    allowed and suggestion, at a key that differs at most in its list indexes) is counted:
+    `devices[*].node_id: ... (17 times: lines a, b, ... and M more)`."""
+    groups: dict[tuple[object, ...], list[Problem]] = {}
+    for problem in problems:
+        key = _any_index(problem.key)
+        same = (problem.source, key, problem.message, problem.allowed, problem.suggestion)
+        groups.setdefault(same, []).append(problem)
+    return [_format_group(group) for group in groups.values()]
+
+
+def _any_index(key: str | None) -> str | None:
+    """`devices[3].node_id` -> `devices[*].node_id`: the same key in every list entry."""
+    return None if key is None else _LIST_INDEX.sub("[*]", key)
+
+
+def _format_group(group: list[Problem]) -> str:
+    if len(group) == 1:
+        return group[0].format()
+    first = group[0]
+    if any(p.key != first.key for p in group):
+        first = dataclasses.replace(first, key=_any_index(first.key))
+    text = first.format()
+    lines = [str(p.line) for p in group if p.line is not None]
+    where = ", ".join(lines[:SHOWN_LINES])
+    if len(lines) > SHOWN_LINES:
+        where += f" and {len(lines) - SHOWN_LINES} more"
+    return f"{text} ({len(group)} times" + (f": lines {where})" if lines else ")")
 
 
 @dataclass(frozen=True)
@@ -91,7 +137,9 @@ def decode(data: bytes, source: str) -> str:
 
 
 def compose(text: str, source: str) -> Node | None:
-    """One YAML document as a node tree (None when empty); raises ConfigError on bad YAML."""
+    """One YAML document as a node tree (None when empty); raises ConfigError on bad YAML
+    and on a hid-recorder file (`reject_recording`)."""
+    reject_recording(text, source)
     try:
         node: Node | None = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.MarkedYAMLError as exc:
@@ -103,6 +151,20 @@ def compose(text: str, source: str) -> Node | None:
     except RecursionError:
         raise ConfigError([Problem(source, 1, None, "not valid YAML: nested too deeply")]) from None
     return node
+
+
+def reject_recording(text: str, source: str) -> None:
+    """A hid-recorder file is YAML-ish (`R: ...`, `E: ...`): say what it is and what to do."""
+    found = _RECORDING_DESCRIPTOR.search(text)
+    if found is None:
+        return
+    line = text[: found.start()].count("\n") + 1
+    message = (
+        "this is a hid-recorder file (a device's recording), not a config: give its folder "
+        "to --replay DIR (`usb2rc run --replay DIR`), or see its layout with "
+        f"`usb2rc describe {source}`"
+    )
+    raise ConfigError([Problem(source, line, None, message)])
 
 
 def _yaml_problem(exc: yaml.MarkedYAMLError, source: str) -> Problem:

@@ -214,7 +214,7 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         for error in exc.errors:
             print(error, file=sys.stderr)
-        print(f"{len(exc.errors)} error(s)", file=sys.stderr)
+        print(f"{len(exc.problems)} error(s)", file=sys.stderr)
         return 2
     mapping = compile_mapping(config)
     print("\n".join(summary(config, mapping)))

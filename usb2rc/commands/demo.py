@@ -16,11 +16,12 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from importlib import resources
 from pathlib import Path
 
+from usb2rc.commands.monitor import LogLines, captured_log
 from usb2rc.config import Config
 from usb2rc.daemon import Daemon
 from usb2rc.hid.replay import ReplayBackend, install_file
@@ -41,6 +42,7 @@ SCRIPT: tuple[tuple[float, str, str], ...] = (
 )
 CYCLE_S = 24.0
 JOIN_S = 1.0  # how long stop waits for each demo thread
+KEPT_LOG_LINES = 4  # the live screen's newest daemon log lines (unplug warnings and such)
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -130,18 +132,53 @@ def node_lines(node: NodeView) -> list[str]:
     return lines
 
 
-def screen_text(model: ReceiverModel, port: str) -> str:
-    lines = [f"usb2rc demo: daemon -> {port} -> receiver (Ctrl-C stops)", ""]
+def screen_text(
+    model: ReceiverModel,
+    port: str,
+    log_lines: Sequence[str] = (),
+    size: tuple[int, int] | None = None,
+) -> str:
+    """The receiver's view; with `size` (columns, rows) it fits that window: each line cut to
+    the width, and the oldest events, then log lines, left out first (their count shown).
+    A screen taller or wider than the window leaves stale lines behind on a terminal."""
+    head = [f"usb2rc demo: daemon -> {port} -> receiver (Ctrl-C stops)", ""]
     for node_id in sorted(model.nodes):
-        lines.extend(node_lines(model.nodes[node_id]))
+        head.extend(node_lines(model.nodes[node_id]))
     d = model.decoder
-    lines += [
+    head += [
         "",
         f"frames {d.frames}, bytes skipped {d.bytes_skipped}, CRC failures {d.crc_failures}",
-        "service events:",
     ]
-    lines += [f"  {event}" for event in model.events]
+    events = [f"  {event}" for event in model.events]
+    logs = [f"log: {line}" for line in log_lines]
+    if size is not None:
+        if len(head) + len(events) + len(logs) + 2 > size[1]:  # +2: the title, a spare row
+            head = [line for line in head if line]  # the blank lines go first
+        events, logs = _fit_tails(events, logs, size[1] - len(head) - 2)
+    lines = [*head, events_title(model.event_total, len(events)), *events, *logs]
+    if size is not None:
+        lines = [_cut(line, size[0]) for line in lines[: max(1, size[1] - 1)]]
     return "\n".join(lines)
+
+
+def events_title(total: int, shown: int) -> str:
+    if shown == total:
+        return "service events:"
+    if shown == 0:
+        return f"service events: {total} (a taller window shows the last ones)"
+    return f"service events: {total}, the last {shown}:"
+
+
+def _fit_tails(events: list[str], logs: list[str], rows: int) -> tuple[list[str], list[str]]:
+    """The newest events and log lines that fit in `rows` (log lines, the warnings, first)."""
+    rows = max(0, rows)
+    logs = logs[len(logs) - min(len(logs), rows) :]
+    room = rows - len(logs)
+    return events[len(events) - min(len(events), room) :], logs
+
+
+def _cut(line: str, width: int) -> str:
+    return line if len(line) < width else line[: max(0, width - 2)] + "…"
 
 
 @contextmanager
@@ -154,14 +191,23 @@ def staged_folder() -> Iterator[Path]:
 
 
 def _show_live(model: ReceiverModel, receiver: PtyReceiver, port: str, until: float) -> None:
+    """Redraws in place; the daemon's log lines go into the screen, not to stderr (a write to
+    the terminal under the live screen would leave its old lines behind)."""
+    from rich.console import Console
     from rich.live import Live
     from rich.text import Text
 
-    with Live(refresh_per_second=10, screen=False) as live:
-        while time.monotonic() < until:
+    console = Console()
+    logs = LogLines(logging.WARNING)
+    with captured_log(logs), Live(console=console, auto_refresh=False) as live:
+        while True:
+            size = (console.size.width, console.size.height)  # the window may be resized
             with receiver.lock:
-                live.update(Text(screen_text(model, port)))
-            time.sleep(0.1)
+                text = screen_text(model, port, logs.since(0)[-KEPT_LOG_LINES:], size)
+            live.update(Text(text, no_wrap=True, overflow="ellipsis"), refresh=True)
+            if time.monotonic() >= until:
+                break
+            time.sleep(max(0.0, min(0.1, until - time.monotonic())))
 
 
 def _show_plain(model: ReceiverModel, receiver: PtyReceiver, port: str, until: float) -> None:

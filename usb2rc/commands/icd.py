@@ -39,8 +39,9 @@ FORMATS = ("markdown", "text")
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = subparsers.add_parser(
         "icd",
-        help="write the application ICD (axes, buttons, hats, SUMD channels) for a config",
-        description="Write the application ICD the C2-16B ICD asks for, from a config.",
+        help="write the application ICD (axes, buttons, hats, each output's channels) for a config",
+        description="Write the application ICD the C2-16B ICD asks for, from a config: nodes, "
+        "axes, buttons, hats, and the channels of each SUMD, CRSF, SBUS and MAVLink output.",
     )
     parser.add_argument("--config", metavar="FILE", help="YAML config (default: zero config)")
     parser.add_argument("--format", choices=FORMATS, default="markdown")

@@ -159,8 +159,8 @@ def no_devices_hint(replay: str | None) -> str:
     if replay:
         return f"No devices: no usable hid-recorder files in {replay}."
     return (
-        "No HID joysticks found. Plug one in, or try `usb2rc list --replay DIR` with "
-        "hid-recorder files (the package ships some in usb2rc/data/demo). If a device is "
+        "No HID joysticks found. Plug one in, or try `usb2rc list --replay demo` (the "
+        "built-in recordings; --replay DIR takes a folder of hid-recorder files). If a device is "
         f"plugged in but missing, check its permissions: install the udev rule with {INSTALL_RULE} "
         "(see `usb2rc list --all`)."
     )

@@ -20,7 +20,8 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -37,6 +38,7 @@ REFRESH_S = 0.1  # the live view: ~10 Hz
 PLAIN_EVERY_S = 1.0  # --plain: one snapshot a second
 BAR_WIDTH = 24
 KEPT_LINES = 8  # events and log lines the live view keeps
+PAGE_S = 4.0  # the live view shows each page of nodes this long when they do not all fit
 Preview = Callable[[list[NodeFrame]], str]  # a node snapshot -> what an output would send
 
 
@@ -296,57 +298,143 @@ def snapshot_text(snap: Snapshot, log_lines: list[str]) -> str:
 # --------------------------------------------------------------------------- rendering
 
 
-def render_live(snap: Snapshot, log_lines: list[str]) -> Any:
-    from rich.console import Group
+@dataclass(frozen=True)
+class NodeBlock:
+    """A node's part of the live screen: the rows it must show (title, axes, buttons) and
+    its device rows, shown when the window has room for them."""
+
+    title: Any
+    details: list[Any]
+    table: Any
+    buttons: Any
+    axis_rows: int
+
+    @property
+    def essential_rows(self) -> int:
+        return 2 + self.axis_rows
+
+
+def _line(text: str, style: str = "") -> Any:
+    """One screen row: cut with an ellipsis at the window's edge, never wrapped (a wrapped
+    row would make the screen taller than the rows counted for it)."""
+    from rich.text import Text
+
+    return Text(text, style=style, no_wrap=True, overflow="ellipsis")
+
+
+def node_block(node: NodeRow, width: int) -> NodeBlock:
     from rich.table import Table
     from rich.text import Text
 
-    parts: list[Any] = [
-        Text(f"usb2rc monitor: {len(snap.nodes)} node(s); {snap.ports}; Ctrl-C stops")
+    style = "bold red" if node.failsafe else "bold green"
+    title = Text.assemble((f"node {node.node_id} ", "bold"), (state_name(node), style))
+    title.no_wrap, title.overflow = True, "ellipsis"
+    details = [_line(line, "red" if "LOST" in line else "dim") for line in device_lines(node)]
+    # in a narrow window the bar gives up a third; then the device names shrink
+    bar_width = max(8, min(BAR_WIDTH, width - 64))
+    table = Table(box=None, show_header=False, pad_edge=False, padding=(0, 1))
+    for column in ("slot", "bar", "value", "raw"):
+        table.add_column(column, no_wrap=True)
+    fixed = 6 + bar_width + 2 + 6 + 10 + 8  # slot, [bar], value, raw, the gaps between
+    source_width = max(4, width - fixed)
+    table.add_column("source", no_wrap=True, overflow="ellipsis", max_width=source_width)
+    for axis in node.axes:
+        table.add_row(
+            f"{axis.slot:<6}",
+            Text(f"[{bar(axis.value, axis.lo, axis.hi, bar_width)}]", style="cyan"),
+            f"{axis.value:+6d}",
+            axis.raw_text(),
+            Text(f"<- {shorter_name(axis.source, source_width - 3)}", style="dim"),
+        )
+    buttons = _line(f"  buttons {' '.join(map(str, node.buttons)) or '-'}  hat {node.hat}")
+    return NodeBlock(title, details, table, buttons, len(node.axes))
+
+
+def shorter_name(source: str, width: int) -> str:
+    """`Thrustmaster T.16000M: X (raw 0..16383)` in `width`: the device name shrinks first,
+    so the usage and its range stay readable."""
+    name, sep, rest = source.partition(": ")
+    if len(source) <= width or not sep:
+        return source
+    keep = width - len(rest) - len(sep) - 1
+    return name[:keep] + "…" + sep + rest if keep > 0 else rest
+
+
+def paginate(rows: list[int], budget: int) -> list[list[int]]:
+    """Node indexes in pages of at most `budget` rows (a node taller than that: a page alone)."""
+    pages: list[list[int]] = [[]]
+    used = 0
+    for index, count in enumerate(rows):
+        if pages[-1] and used + count > budget:
+            pages.append([])
+            used = 0
+        pages[-1].append(index)
+        used += count
+    return pages
+
+
+def render_live(
+    snap: Snapshot,
+    log_lines: list[str],
+    size: tuple[int, int] | None = None,
+    now: float = 0.0,
+) -> Any:
+    """The live screen; with `size` (columns, rows) it fits that window: the node rows first
+    (in pages shown in turn, PAGE_S each, when they do not fit together), then outputs,
+    device rows, log lines, events and stats as room allows; what is left out is counted."""
+    from rich.console import Group
+
+    width, height = size or (10_000, 10_000)
+    blocks = [node_block(node, width) for node in snap.nodes]
+    budget = height - 3  # the header, the "hidden" row, and a spare (a full window scrolls)
+    pages = paginate([b.essential_rows for b in blocks], budget)
+    page = int(now / PAGE_S) % len(pages)
+    shown = [blocks[i] for i in pages[page]]
+    room = budget - sum(b.essential_rows for b in shown)
+    if not snap.nodes:
+        room -= 1
+
+    outputs = [
+        _line(f"output: {line}", "red" if "FAILSAFE" in line else "") for line in snap.outputs
     ]
-    for node in snap.nodes:
-        style = "bold red" if node.failsafe else "bold green"
-        title = Text.assemble((f"node {node.node_id} ", "bold"), (state_name(node), style))
-        parts.append(title)
-        for line in device_lines(node):
-            parts.append(Text(line, style="red" if "LOST" in line else "dim"))
-        table = Table(box=None, show_header=False, pad_edge=False, padding=(0, 1))
-        for column in ("slot", "bar", "value", "raw", "source"):
-            if column == "source":
-                table.add_column(column, no_wrap=True, overflow="ellipsis")
-            else:
-                table.add_column(column, no_wrap=True)
-        for axis in node.axes:
-            table.add_row(
-                axis.slot,
-                Text(f"[{bar(axis.value, axis.lo, axis.hi)}]", style="cyan"),
-                f"{axis.value:+6d}",
-                axis.raw_text(),
-                Text(f"<- {axis.source}", style="dim"),
-            )
-        parts.append(table)
-        buttons = " ".join(map(str, node.buttons)) or "-"
-        parts.append(Text(f"  buttons {buttons}  hat {node.hat}"))
+    stats = [_line(f"stats: {line}", "dim") for line in snap.device_stats]
+    events = [_line(f"event: {line}") for line in snap.events[-KEPT_LINES:]]
+    logs = [_line(f"log: {line}", "yellow") for line in log_lines[-KEPT_LINES:]]
+    hidden = 0
+
+    def take(parts: list[Any], newest: bool = False) -> list[Any]:
+        nonlocal room, hidden
+        count = max(0, min(room, len(parts)))
+        room -= count
+        hidden += len(parts) - count
+        return parts[len(parts) - count :] if newest else parts[:count]
+
+    outputs = take(outputs)
+    details = [take(b.details) for b in shown]
+    logs, events, stats = take(logs, True), take(events, True), take(stats)
+
+    header = f"usb2rc monitor: {len(snap.nodes)} node(s); {snap.ports}; Ctrl-C stops"
+    if len(pages) > 1:  # first: the row is cut at the window's edge
+        ids = [snap.nodes[i].node_id for i in pages[page]]
+        header = f"page {page + 1}/{len(pages)} (nodes {ids[0]}-{ids[-1]}): " + header
+    parts: list[Any] = [_line(header)]
+    for block, rows in zip(shown, details, strict=True):
+        parts += [block.title, *rows, block.table, block.buttons]
     if not snap.nodes:
         parts.append(
-            Text("no devices (usb2rc list shows what is plugged and why a device is not used)")
+            _line("no devices (usb2rc list shows what is plugged and why a device is not used)")
         )
-    for line in snap.outputs:
-        parts.append(Text(f"output: {line}", style="red" if "FAILSAFE" in line else ""))
-    for line in snap.device_stats:
-        parts.append(Text(f"stats: {line}", style="dim"))
-    for line in snap.events[-KEPT_LINES:]:
-        parts.append(Text(f"event: {line}"))
-    for line in log_lines[-KEPT_LINES:]:
-        parts.append(Text(f"log: {line}", style="yellow"))
+    parts += [*outputs, *stats, *events, *logs]
+    if hidden:
+        parts.append(_line(f"... {hidden} lines hidden: a taller window or --plain shows them"))
     return Group(*parts)
 
 
-class _LogLines(logging.Handler):
+class LogLines(logging.Handler):
     """Collects the daemon's log lines for the view (stderr would tear the live screen)."""
 
-    def __init__(self) -> None:
-        super().__init__(logging.INFO)
+    def __init__(self, level: int = logging.INFO) -> None:
+        super().__init__(level)
         self.lines: deque[str] = deque(maxlen=200)
         self.total = 0
         self._lock_lines = threading.Lock()
@@ -362,7 +450,23 @@ class _LogLines(logging.Handler):
             return list(self.lines)[-new:] if new > 0 else []
 
 
-def _show_live(side: InputSide, logs: _LogLines, until: float) -> None:
+@contextmanager
+def captured_log(handler: logging.Handler) -> Iterator[None]:
+    """The `usb2rc` loggers write to `handler` only (not stderr) while inside."""
+    logger = logging.getLogger("usb2rc")
+    old_level, old_propagate = logger.level, logger.propagate
+    logger.addHandler(handler)
+    logger.setLevel(min(handler.level, logging.INFO))
+    logger.propagate = False
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(old_level)
+        logger.propagate = old_propagate
+
+
+def _show_live(side: InputSide, logs: LogLines, until: float) -> None:
     from rich.console import Console
     from rich.live import Live
 
@@ -370,13 +474,14 @@ def _show_live(side: InputSide, logs: _LogLines, until: float) -> None:
     with Live(console=console, auto_refresh=False, redirect_stderr=False) as live:
         while True:
             snap = side.snapshot()
-            live.update(render_live(snap, logs.since(0)), refresh=True)
+            size = (console.size.width, console.size.height)  # the window may be resized
+            live.update(render_live(snap, logs.since(0), size, time.monotonic()), refresh=True)
             if time.monotonic() >= until:
                 break
             time.sleep(max(0.0, min(REFRESH_S, until - time.monotonic())))
 
 
-def _show_plain(side: InputSide, logs: _LogLines, until: float) -> None:
+def _show_plain(side: InputSide, logs: LogLines, until: float) -> None:
     events_seen = logs_seen = 0
     start = next_print = time.monotonic()
     while True:
@@ -407,22 +512,15 @@ def run(args: argparse.Namespace) -> int:
     except NoPortError as exc:
         print(f"usb2rc monitor --outputs: {exc}", file=sys.stderr)
         return 2
-    logs = _LogLines()
-    logger = logging.getLogger("usb2rc")
-    old_level, old_propagate = logger.level, logger.propagate
-    logger.addHandler(logs)
-    logger.setLevel(logging.INFO)
-    logger.propagate = False
+    logs = LogLines()
     until = time.monotonic() + args.seconds if args.seconds > 0 else float("inf")
-    try:
-        side.start()
-        show = _show_plain if args.plain or not sys.stdout.isatty() else _show_live
-        show(side, logs, until)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        side.stop()
-        logger.removeHandler(logs)
-        logger.setLevel(old_level)
-        logger.propagate = old_propagate
+    with captured_log(logs):
+        try:
+            side.start()
+            show = _show_plain if args.plain or not sys.stdout.isatty() else _show_live
+            show(side, logs, until)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            side.stop()
     return 0

@@ -43,9 +43,10 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         "run",
         help="run the daemon (the default command)",
         description="Run the daemon: read the joysticks (or --replay recordings), map them as "
-        "the config says (zero config without one) and send the C2-16B / SUMD stream on each "
-        "output's serial port until SIGTERM or Ctrl-C. SIGHUP re-reads the config, SIGUSR1 "
-        "logs statistics. Exit 0 when stopped, 2 on a usage or config error, 1 otherwise.",
+        "the config says (zero config without one) and send each output's stream (C2-16B, "
+        "SUMD, CRSF, SBUS or MAVLink) on its serial port or UDP address until SIGTERM or "
+        "Ctrl-C. SIGHUP re-reads the config, SIGUSR1 logs statistics. Exit 0 when stopped, "
+        "2 on a usage or config error, 1 otherwise.",
     )
     add_common_input_args(parser)
     parser.add_argument(
