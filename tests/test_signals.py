@@ -16,6 +16,7 @@ from collections.abc import Callable
 import pytest
 
 from usb2rc.commands import run
+from usb2rc.daemon import ReloadResult
 from usb2rc.signals import DaemonSignals, Phase
 
 
@@ -68,9 +69,15 @@ class FakeDaemon:
         self.calls.append("stop")
         self.on_stop()
 
-    def reload(self, _config: object) -> None:
+    port_override = "loop://"  # the configs here leave the port to --port
+
+    def prepare_reload(self, config: object) -> object:
+        return config
+
+    def apply_reload(self, _prepared: object) -> ReloadResult:
         self.calls.append("reload")
         self.on_reload()
+        return ReloadResult(taken=True, outputs_changed=False)
 
     def stats_lines(self) -> list[str]:
         return []

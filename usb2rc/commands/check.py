@@ -37,6 +37,7 @@ from usb2rc.config import (
     MatchConfig,
     OutputConfig,
     Problem,
+    load_config,
     load_runnable,
 )
 from usb2rc.config_mavlink import MavlinkOptions, baud_needed
@@ -77,11 +78,23 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     parser.set_defaults(func=run)
 
 
-def load_or_default(path: str | None, port_override: str | None = None) -> Config:
-    """The config at path, or zero config, as `run --port port_override` would run it.
-    Raises ConfigError (file errors included)."""
+def load_or_default(path: str | None) -> Config:
+    """The config at path, or zero config, without its outputs' ports checked (`icd`
+    describes the wire, opens nothing). Raises ConfigError (file errors included)."""
+    return _file_errors_as_problems(
+        path, lambda: Config.default() if not path else load_config(path)
+    )
+
+
+def load_checked(path: str | None, port_override: str | None) -> Config:
+    """The config at path, or zero config, as `run --port port_override` would run it
+    (`load_runnable`). Raises ConfigError (file errors included)."""
+    return _file_errors_as_problems(path, lambda: load_runnable(path, port_override))
+
+
+def _file_errors_as_problems(path: str | None, load: Callable[[], Config]) -> Config:
     try:
-        return load_runnable(path, port_override)
+        return load()
     except OSError as exc:
         assert path is not None  # zero config reads no file
         problem = Problem(path, None, None, f"cannot read: {exc.strerror or exc}")
@@ -262,7 +275,7 @@ def run(args: argparse.Namespace) -> int:
         document = json_document(args)
         return _printed(lambda: print(json.dumps(document, indent=2)), 0 if document["ok"] else 2)
     try:
-        config = load_or_default(args.config, args.port)
+        config = load_checked(args.config, args.port)
     except ConfigError as exc:
         errors = exc.errors
         return _printed(lambda: print_errors(errors), 2)
@@ -379,7 +392,7 @@ def json_document(args: argparse.Namespace) -> dict[str, Any]:
     """The verdict as one document; `ok` decides the exit status."""
     document: dict[str, Any] = {"config": args.config, "ok": True, "problems": []}
     try:
-        config = load_or_default(args.config, args.port)
+        config = load_checked(args.config, args.port)
     except ConfigError as exc:
         document["ok"] = False
         document["problems"] = [problem_record(p) for p in exc.problems]
