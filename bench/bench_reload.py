@@ -12,9 +12,10 @@ gets SIGHUP. What is measured, per config:
 - stop: the same config, SIGHUP then SIGTERM 50 ms later: SIGTERM -> the first `!` (a
   failsafe data frame) on the pty, and how many data frames came between.
 
-Configs: a valid one with --entries device entries (pinned, each with one axis), and a
---megabytes one (a long YAML comment block after a valid config). Nothing is asserted:
-the figures go to the report (docs/DESIGN.md, "Reload").
+Configs: one with --entries device entries (automatic nodes, one axis each), a --megabytes
+one (a long YAML comment block after a valid config), and the largest of each kind that the
+limits take (config.MAX_DEVICE_ENTRIES entries; 1 KiB under config.MAX_CONFIG_BYTES).
+Nothing is asserted: the figures go to docs/CONFIG.md ("Reload and `check`").
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from daemon_harness import (  # noqa: E402
     run_daemon,
 )
 
+from usb2rc.config import MAX_CONFIG_BYTES, MAX_DEVICE_ENTRIES  # noqa: E402
 from usb2rc.protocol.c2_16b import FAILSAFE  # noqa: E402
 
 SMALL = "devices:\n  - name: stick\n    match: {vid: 0x044f, pid: 0xb10a}\n    node_id: 4\n"
@@ -123,9 +125,12 @@ def main() -> None:
     parser.add_argument("--megabytes", type=float, default=10.0)
     parser.add_argument("--reloads", type=int, default=3)
     args = parser.parse_args()
+    at_limit_kib = MAX_CONFIG_BYTES / 1024 - 1
     configs = {
         f"{args.entries} entries": entries_config(args.entries),
         f"{args.megabytes:g} MB": megabytes_config(args.megabytes),
+        f"{MAX_DEVICE_ENTRIES} entries": entries_config(MAX_DEVICE_ENTRIES),
+        f"{at_limit_kib:g} KiB": megabytes_config(at_limit_kib / 1024),
     }
     results: dict[str, dict[str, float]] = {}
     with tempfile.TemporaryDirectory() as name:

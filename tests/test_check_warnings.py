@@ -70,7 +70,8 @@ def test_a_frame_longer_than_5_ms_ardupilot(count, baudrate, warns):
 
 def test_channels_on_a_node_no_entry_pins():
     text = sumd_config(None, devices="").replace(
-        "port: /dev/ttyUSB9", "port: /dev/ttyUSB9\n    channels: [node1.x, node3.y, node1.z, node1.rx]"
+        "port: /dev/ttyUSB9",
+        "port: /dev/ttyUSB9\n    channels: [node1.x, node3.y, node1.z, node1.rx]",
     )
     found = [w for w in warned(text + STICK) if "pins node" in w]
     assert found == [

@@ -1,4 +1,4 @@
-"""`usb2rc check [--config FILE] [--replay DIR]`: validate a config before anything is sent.
+"""`usb2rc check [--config FILE] [--port PORT] [--replay DIR]`: validate a config.
 
 Exit 0 with a one-screen summary of outputs, nodes and channels; exit 2 with every error
 found, one `file:line: key: message` per line. The verdict is the last line (`FILE: OK` on
