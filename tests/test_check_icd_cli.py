@@ -98,7 +98,9 @@ def test_check_replay_binds_devices_and_reports_missing_usage(tmp_path: Path) ->
         "    node_id: 2\n"
         "    axes: {z: Z}\n"
     )
-    result = usb2rc("check", "--config", str(config), "--replay", str(tmp_path), "--port", "loop://")
+    result = usb2rc(
+        "check", "--config", str(config), "--replay", str(tmp_path), "--port", "loop://"
+    )
     assert result.returncode == 2
     out = result.stdout
     assert f"ERROR {config}:5: devices[0].axes.z: usage Z is not in this device" in out
