@@ -80,7 +80,9 @@ class ReloadResult:
 
 def log_reload(result: ReloadResult) -> None:
     if not result.taken:
-        log.error("config reload: the device thread did not take it within 5 s; it will")
+        log.error(
+            "config reload: the device thread has not taken it within 5 s; it takes it when free"
+        )
     if result.outputs_changed:
         log.warning("config reloaded; changed outputs take effect after a restart")
 
