@@ -8,7 +8,8 @@ gets SIGHUP. What is measured, per config:
 
 - reload: SIGHUP -> the daemon's log line that ends the reload (`reloaded` or `rejected`);
 - gap: the longest time between two frames arriving on the pty from the SIGHUP to that line
-  (a tick is 20 ms: a gap well above it is ticks the reload held up).
+  (a tick is 20 ms: a gap well above it is ticks the reload held up); idle gap: the same
+  in the second before the SIGHUP, the noise floor of the machine.
 - stop: the same config, SIGHUP then SIGTERM 50 ms later: SIGTERM -> the first `!` (a
   failsafe data frame) on the pty, and how many data frames came between.
 
@@ -84,6 +85,9 @@ def max_gap(line: PtyLine, start: float, end: float) -> float:
     return max((b - a for a, b in itertools.pairwise(times)), default=0.0)
 
 
+IDLE_WINDOW_S = 1.0  # the noise floor: the longest gap in the second before the SIGHUP
+
+
 def one_reload(daemon, line: PtyLine, config: Path, text: str) -> dict[str, float]:
     config.write_text(text)
     offset = len(daemon.log())
@@ -91,7 +95,12 @@ def one_reload(daemon, line: PtyLine, config: Path, text: str) -> dict[str, floa
     daemon.signal(signal.SIGHUP)
     done = wait_log(daemon.log_path, offset, ("reloaded", "rejected"), 60)
     time.sleep(0.1)  # frames after the end, so the gap that ends the reload is seen
-    return {"reload_s": done - sent, "gap_ms": max_gap(line, sent, done) * 1000}
+    idle = max_gap(line, sent - IDLE_WINDOW_S, sent)
+    return {
+        "reload_s": done - sent,
+        "gap_ms": max_gap(line, sent, done) * 1000,
+        "idle_gap_ms": idle * 1000,
+    }
 
 
 def stop_during_reload(tmp: Path, text: str) -> dict[str, float]:
@@ -148,6 +157,7 @@ def main() -> None:
                 runs = [one_reload(daemon, line, config, text) for _ in range(args.reloads)]
                 results[label] = {k: max(r[k] for r in runs) for k in runs[0]}
                 config.write_text(SMALL)
+                time.sleep(IDLE_WINDOW_S)  # an idle second before the next SIGHUP
             print(daemon.log().count("Traceback"), "tracebacks", file=sys.stderr)
         finally:
             daemon.stop()
