@@ -34,6 +34,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
 from daemon_harness import (  # noqa: E402
+    DaemonProcess,
     PtyLine,
     StickState,
     data_frames,
@@ -88,7 +89,7 @@ def max_gap(line: PtyLine, start: float, end: float) -> float:
 IDLE_WINDOW_S = 1.0  # the noise floor: the longest gap in the second before the SIGHUP
 
 
-def one_reload(daemon, line: PtyLine, config: Path, text: str) -> dict[str, float]:
+def one_reload(daemon: DaemonProcess, line: PtyLine, config: Path, text: str) -> dict[str, float]:
     config.write_text(text)
     offset = len(daemon.log())
     sent = time.monotonic()
@@ -103,16 +104,22 @@ def one_reload(daemon, line: PtyLine, config: Path, text: str) -> dict[str, floa
     }
 
 
-def stop_during_reload(tmp: Path, text: str) -> dict[str, float]:
+def started(tmp: Path, name: str) -> tuple[PtyLine, Path, DaemonProcess]:
+    """A daemon on a fresh pty with one stick and config tmp/name.yaml (SMALL), running."""
     line = PtyLine()
-    replay = tmp / "replay-stop"
-    replay.mkdir(exist_ok=True)
+    replay = tmp / f"replay-{name}"
+    replay.mkdir()
     install(replay / "stick.hid", recording([StickState()]))
-    config = tmp / "stop.yaml"
+    config = tmp / f"{name}.yaml"
     config.write_text(SMALL)
     daemon = run_daemon(tmp, line.path, replay, "--config", str(config))
+    line.wait_for(lambda frames: len(frames) > 20, 30)
+    return line, config, daemon
+
+
+def stop_during_reload(tmp: Path, text: str, name: str) -> dict[str, float]:
+    line, config, daemon = started(tmp, name)
     try:
-        line.wait_for(lambda frames: len(frames) > 20, 30)
         config.write_text(text)
         daemon.signal(signal.SIGHUP)
         time.sleep(0.05)
@@ -144,15 +151,8 @@ def main() -> None:
     results: dict[str, dict[str, float]] = {}
     with tempfile.TemporaryDirectory() as name:
         tmp = Path(name)
-        line = PtyLine()
-        replay = tmp / "replay"
-        replay.mkdir()
-        install(replay / "stick.hid", recording([StickState()]))
-        config = tmp / "usb2rc.yaml"
-        config.write_text(SMALL)
-        daemon = run_daemon(tmp, line.path, replay, "--config", str(config))
+        line, config, daemon = started(tmp, "usb2rc")
         try:
-            line.wait_for(lambda frames: len(frames) > 20, 30)
             for label, text in configs.items():
                 runs = [one_reload(daemon, line, config, text) for _ in range(args.reloads)]
                 results[label] = {k: max(r[k] for r in runs) for k in runs[0]}
@@ -162,8 +162,8 @@ def main() -> None:
         finally:
             daemon.stop()
             line.close()
-        for label, text in configs.items():
-            results[label].update(stop_during_reload(tmp, text))
+        for i, (label, text) in enumerate(configs.items()):
+            results[label].update(stop_during_reload(tmp, text, f"stop{i}"))
     for label, figures in results.items():
         print(f"{label:>14}: " + "  ".join(f"{k} {v:.3f}" for k, v in figures.items()))
     print(json.dumps({"bench": "reload", "figures": results}))
