@@ -16,7 +16,7 @@ gets SIGHUP. What is measured, per config:
 Configs: one with --entries device entries (automatic nodes, one axis each), a --megabytes
 one (a long YAML comment block after a valid config), and the largest of each kind that the
 limits take (config.MAX_DEVICE_ENTRIES entries; 1 KiB under config.MAX_CONFIG_BYTES).
-Nothing is asserted: the figures go to docs/CONFIG.md ("Reload and `check`").
+Nothing is asserted: the figures go to docs/CONFIG.md ("Reload").
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Config reloads (SIGHUP) and `usb2rc check` as users meet them (issue 19 points 1, 5, 9;
-issue 20's `check` slips). docs/ICD.md and docs/CONFIG.md, "Reload", are the judge.
+issue 20's `check` slips). docs/CONFIG.md, "Reload", and docs/ICD.md, "Stop", are the judge.
 
 The daemon runs as a subprocess on a pty with a replayed T.16000M pinned to node 4; its X is
 at 0, so the node's X is -32768, or 32767 with `invert: true`: which config runs is read off

@@ -262,7 +262,7 @@ class Daemon:
             self._switch_interval = None
 
     def prepare_reload(self, config: Config) -> PreparedReload:
-        """Everything a reload changes, computed before anything is changed (docs/ICD.md,
+        """Everything a reload changes, computed before anything is changed (docs/CONFIG.md,
         "Reload"). Raises NoPortError for outputs without a port; `config.load_runnable`
         refuses those first, so this only guards a config that did not come through it."""
         mapping = compile_mapping(config)

@@ -238,7 +238,7 @@ def _log_ignored(signals: DaemonSignals) -> None:
 
 
 def reload(daemon: Daemon, config_path: str | None, signals: DaemonSignals | None = None) -> None:
-    """SIGHUP: the config file again, applied whole or not at all (docs/ICD.md, "Reload").
+    """SIGHUP: the config file again, applied whole or not at all (docs/CONFIG.md, "Reload").
 
     It is checked as `run` and `check` check it (`load_runnable`, with the daemon's --port)
     before anything changes; a refused one leaves the running config, with one log line.
