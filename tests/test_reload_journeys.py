@@ -150,6 +150,19 @@ def test_a_reload_without_a_port_takes_the_port_given_with_dash_dash_port(
     assert usb2rc("check", "--config", str(config)).returncode == 2
 
 
+def test_run_refuses_at_start_what_a_reload_refuses(tmp_path):
+    """One verdict: `run` exits 2 on the config a reload refuses, with `check`'s error.
+    Before: it started on /dev/null and retried it every second, sending nothing."""
+    config = tmp_path / "c.yaml"
+    config.write_text(with_port(INVERT_X_CONFIG.format(invert="true"), "/dev/null"))
+    run = usb2rc("run", "--config", str(config), "--replay", str(tmp_path))
+    check = usb2rc("check", "--config", str(config))
+    assert run.returncode == check.returncode == 2
+    error = f"{config}:2: outputs[0].port: /dev/null: is a mem device, not a serial line (tty)"
+    assert run.stderr.splitlines() == [error]
+    assert check.stderr.splitlines() == [error, "1 error(s)"]
+
+
 # --- point 5: a stop preempts a reload ------------------------------------------------------
 
 
