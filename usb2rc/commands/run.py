@@ -247,7 +247,7 @@ def reload(daemon: Daemon, config_path: str | None, signals: DaemonSignals | Non
     if config_path is None:
         log.warning("SIGHUP: no config file to re-read (zero config)")
         return
-    log.info("config %s: reloading (SIGHUP)", config_path)
+    log.debug("config %s: reloading (SIGHUP)", config_path)  # debug: refused is one line
     abandonable = signals.abandoned_on_stop() if signals else contextlib.nullcontext()
     try:
         with abandonable:
