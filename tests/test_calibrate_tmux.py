@@ -238,7 +238,8 @@ def test_quit_leaves_the_file_as_it_was(tmp_path, pane):
 def test_init_then_check_in_a_terminal(tmp_path, pane):
     """The issue's commands as typed in a shell, from the source tree."""
     config = tmp_path / "x.yaml"
-    init = " ".join(usb2rc("init", "--replay", "usb2rc/data/demo"))
+    # a port that can be a serial line: `check` refuses /dev/null (docs/CONFIG.md, "Reload")
+    init = " ".join(usb2rc("init", "--replay", "usb2rc/data/demo", "--port", "/dev/ttyUSB0"))
     check = " ".join(usb2rc("check", "--config", str(config)))
     pane.start(f"{init} -o {config} && {check}; echo EXIT=$?; sleep 60", ROOT)
     screen = pane.wait_for("EXIT=")

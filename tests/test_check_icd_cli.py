@@ -47,9 +47,12 @@ def test_broken_config_exits_2_with_every_error_and_line(path: Path) -> None:
 
 @pytest.mark.parametrize("path", GOOD, ids=lambda p: p.stem)
 def test_good_config_exits_0_with_summary(path: Path) -> None:
-    result = usb2rc("check", "--config", str(path))
+    # default.yaml leaves the port to `run --port`: check is told the same
+    port = ["--port", "/dev/ttyUSB0"] if path.name == "default.yaml" else []
+    result = usb2rc("check", "--config", str(path), *port)
     assert result.returncode == 0, result.stderr
-    assert result.stdout.startswith(f"{path}: OK\noutputs:\n")
+    assert result.stdout.startswith("outputs:\n")
+    assert result.stdout.endswith(f"\n{path}: OK\n")  # the verdict comes last
 
 
 def test_missing_file_exits_2() -> None:
@@ -95,7 +98,9 @@ def test_check_replay_binds_devices_and_reports_missing_usage(tmp_path: Path) ->
         "    node_id: 2\n"
         "    axes: {z: Z}\n"
     )
-    result = usb2rc("check", "--config", str(config), "--replay", str(tmp_path))
+    result = usb2rc(
+        "check", "--config", str(config), "--replay", str(tmp_path), "--port", "loop://"
+    )
     assert result.returncode == 2
     out = result.stdout
     assert f"ERROR {config}:5: devices[0].axes.z: usage Z is not in this device" in out

@@ -27,7 +27,7 @@ CHANNELS += [f"node1.button{n}" for n in range(1, 25)]
 def sumd_config(count: int | None, baudrate: int = 115200, devices: str = STICK) -> str:
     channels = "" if count is None else f"\n    channels: [{', '.join(CHANNELS[:count])}]"
     return (
-        f"outputs:\n  - protocol: sumd\n    port: /dev/null\n    baudrate: {baudrate}"
+        f"outputs:\n  - protocol: sumd\n    port: /dev/ttyUSB9\n    baudrate: {baudrate}"
         f"{channels}\n{devices}"
     )
 
@@ -70,7 +70,8 @@ def test_a_frame_longer_than_5_ms_ardupilot(count, baudrate, warns):
 
 def test_channels_on_a_node_no_entry_pins():
     text = sumd_config(None, devices="").replace(
-        "port: /dev/null", "port: /dev/null\n    channels: [node1.x, node3.y, node1.z, node1.rx]"
+        "port: /dev/ttyUSB9",
+        "port: /dev/ttyUSB9\n    channels: [node1.x, node3.y, node1.z, node1.rx]",
     )
     found = [w for w in warned(text + STICK) if "pins node" in w]
     assert found == [
@@ -99,11 +100,11 @@ def test_check_exits_0_and_prints_the_warnings_on_stderr(tmp_path: Path):
         timeout=60,
     )
     assert result.returncode == 0, result.stderr
-    assert result.stdout.startswith(f"{path}: OK\n")
+    assert result.stdout.endswith(f"\n{path}: OK\n")  # the verdict comes last
     lines = result.stderr.splitlines()
     assert len(lines) == 3 and all(": warning: " in line for line in lines)
     assert ["Betaflight" in lines[0], "ArduPilot" in lines[1], "node2.x" in lines[2]] == [True] * 3
 
 
 def test_c2_16b_outputs_get_no_sumd_warnings():
-    assert warned("outputs:\n  - protocol: c2-16b\n    port: /dev/null\n") == []
+    assert warned("outputs:\n  - protocol: c2-16b\n    port: /dev/ttyUSB9\n") == []

@@ -20,7 +20,11 @@ def test_zero_config_and_empty_file() -> None:
     out = default.outputs[0]
     assert (out.protocol, out.port, out.baudrate, out.rate_hz) == ("c2-16b", None, 115200, 50)
     assert (out.line_feed, out.service_status) == (True, "ascii")
-    assert load_config_text("", "c.yaml").outputs == default.outputs
+    # An empty file is not zero config: an editor's save (truncate, then write) must not
+    # switch a running daemon to it on a reload (docs/CONFIG.md, "Reload").
+    for text in ("", "# only a comment\n", "\n\n"):
+        (error,) = errors(text)
+        assert error.startswith("c.yaml: empty (no YAML document)")
 
 
 def test_sumd_defaults_and_options() -> None:

@@ -16,7 +16,8 @@ from collections.abc import Callable
 import pytest
 
 from usb2rc.commands import run
-from usb2rc.signals import DaemonSignals, Phase
+from usb2rc.daemon import ReloadResult
+from usb2rc.signals import DaemonSignals, Phase, ReloadAbandoned
 
 
 def test_a_stop_while_starting_exits_0_at_once_and_ignores_the_rest():
@@ -68,9 +69,15 @@ class FakeDaemon:
         self.calls.append("stop")
         self.on_stop()
 
-    def reload(self, _config: object) -> None:
+    port_override = "loop://"  # the configs here leave the port to --port
+
+    def prepare_reload(self, config: object) -> object:
+        return config
+
+    def apply_reload(self, _prepared: object) -> ReloadResult:
         self.calls.append("reload")
         self.on_reload()
+        return ReloadResult(taken=True, outputs_changed=False)
 
     def stats_lines(self) -> list[str]:
         return []
@@ -161,3 +168,39 @@ def test_a_start_up_stop_swallowed_by_a_callback_still_stops_before_the_start(mo
     daemon = FakeDaemon()
     assert serve(daemon, signals) == 0
     assert daemon.calls == []  # never started
+
+
+# --- a stop preempts a reload (issue 19, point 5; docs/ICD.md, "Stop") -----------------------
+
+
+def running_signals() -> DaemonSignals:
+    signals = DaemonSignals()
+    assert signals.running()
+    return signals
+
+
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT])
+def test_a_stop_inside_a_reload_abandons_it_where_it_is(stop):
+    signals = running_signals()
+    reached = []
+    with pytest.raises(ReloadAbandoned), signals.abandoned_on_stop():
+        signals.handle(stop)
+        reached.append("after the stop")
+    assert reached == []
+    assert signals.stop_requested and signals.requests.get_nowait() == "stop"
+
+
+def test_a_stop_before_a_reload_abandons_it_before_it_starts():
+    signals = running_signals()
+    signals.handle(signal.SIGTERM)
+    with pytest.raises(ReloadAbandoned), signals.abandoned_on_stop():
+        pytest.fail("the reload ran after the stop")
+
+
+def test_outside_a_reload_a_stop_is_a_request_and_other_signals_never_abandon():
+    signals = running_signals()
+    with signals.abandoned_on_stop():
+        signals.handle(signal.SIGHUP)
+        signals.handle(signal.SIGUSR1)
+    signals.handle(signal.SIGTERM)  # after the reload: no exception, the loop reads it
+    assert [signals.requests.get_nowait() for _ in range(3)] == ["reload", "stats", "stop"]

@@ -7,7 +7,14 @@ dataclasses, or raise `ConfigError` listing *every* problem found, each a `Probl
 (`yamlnodes.compose`), so each problem points at the key the user has to change.
 
 `Config.default()` is zero config: one C2-16B output, every device on the default layout.
-docs/CONFIG.md describes every key.
+docs/CONFIG.md describes every key. An empty file is an error, not zero config: an editor
+saving it (truncate, then write) must not switch a running daemon's mapping on a reload.
+
+`load_runnable(path, port_override)` is the one verdict `usb2rc run` starts with, a reload
+(SIGHUP) takes and `usb2rc check` prints: the file's own problems, then what would fail when
+the outputs open (a port per output, a port that can be a serial line). A file above
+MAX_CONFIG_BYTES or with more than MAX_DEVICE_ENTRIES entries is refused before it is read
+further: parsing holds the interpreter, and a reload parses while the outputs tick.
 
 The schema is in four modules; this one is the entry point and re-exports the others'
 public names (import them from here):
@@ -24,9 +31,15 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from yaml.nodes import Node
+from yaml.nodes import Node, SequenceNode
 
-from usb2rc.config_checks import channel_problem, check_channels, check_clashes, device_claims
+from usb2rc.config_checks import (
+    channel_problem,
+    check_channels,
+    check_clashes,
+    device_claims,
+    port_problems,
+)
 from usb2rc.config_devices import read_devices
 from usb2rc.config_model import (
     CHANNEL_ALLOWED,
@@ -83,6 +96,7 @@ __all__ = [
     "device_claims",
     "load_config",
     "load_config_text",
+    "load_runnable",
 ]
 
 TOP_KEYS = ("outputs", "devices", "defaults")
@@ -90,18 +104,48 @@ COMMON_OUTPUT_KEYS = ("protocol", "port", "baudrate", "rate_hz")
 OUTPUT_KEYS = (*COMMON_OUTPUT_KEYS, "channels", *option_keys())
 _CONFIG_FIELDS = {f.name for f in dataclasses.fields(OutputConfig)}
 
+# Bounds on what a reload parses while the outputs tick (docs/CONFIG.md, "Reload"). Parsing
+# runs Python on the main thread; the scheduler threads get the interpreter back every 0.5 ms,
+# but parts of the parse (PyYAML's scan of the whole text, collections of a large node tree)
+# hold it longer: a 10 MB file held the ticks up 60-240 ms, 2000 entries 100 ms. The shipped
+# configs are 1-3 KiB with three entries; these leave room for 40 times that.
+MAX_CONFIG_BYTES = 128 * 1024
+MAX_DEVICE_ENTRIES = 128
+
+
+def load_runnable(path: str | None, port_override: str | None) -> Config:
+    """The config at `path` (zero config for None) as the daemon would run it with
+    `--port port_override`: raises ConfigError with every problem of the file, or else with
+    every output that could not open (no port, a port that is no serial line). The one check
+    shared by `run`, a reload and `check`. OSError when the file cannot be read."""
+    config = Config.default() if path is None else load_config(path)
+    problems = port_problems(config, port_override)
+    if problems:
+        raise ConfigError(problems)
+    return config
+
 
 def load_config(path: str) -> Config:
     """Read and validate a config file; raises ConfigError (or OSError if unreadable)."""
     with open(path, "rb") as fh:
-        data = fh.read()
+        data = fh.read(MAX_CONFIG_BYTES + 1)
+    if len(data) > MAX_CONFIG_BYTES:
+        message = (
+            f"larger than {MAX_CONFIG_BYTES // 1024} KiB: a config is a few KiB, and a larger "
+            "one would hold up the outputs while a reload parses it"
+        )
+        raise ConfigError([Problem(str(path), None, None, message)])
     return load_config_text(decode(data, str(path)), str(path))
 
 
 def load_config_text(text: str, source: str = "<config>") -> Config:
     root = compose(text, source)
     if root is None:
-        return Config(outputs=(OutputConfig(),), source=source)
+        message = (
+            "empty (no YAML document): a config needs `outputs:` or `devices:`; "
+            "run without --config for zero config"
+        )
+        raise ConfigError([Problem(source, None, None, message)])
     reader = NodeReader(source)
     try:
         config = _read_config(reader, root)
@@ -125,12 +169,24 @@ def _read_config(reader: NodeReader, root: Node) -> Config | None:
     if "outputs" in items:
         outputs = reader.list_of(items["outputs"][1], "outputs", _read_output, allow_empty=False)
     devices: tuple[DeviceConfig, ...] = ()
-    if "devices" in items:
+    if "devices" in items and _entries_within_limit(reader, items["devices"][1]):
         devices = read_devices(reader, items["devices"][1])
     defaults = True
     if "defaults" in items:
         defaults = reader.boolean(items["defaults"][1], "defaults") is not False
     return Config(outputs=outputs, devices=devices, defaults=defaults, source=reader.source)
+
+
+def _entries_within_limit(reader: NodeReader, node: Node) -> bool:
+    """False (with the problem) past MAX_DEVICE_ENTRIES: the entries are not read further."""
+    if not isinstance(node, SequenceNode) or len(node.value) <= MAX_DEVICE_ENTRIES:
+        return True
+    message = (
+        f"{len(node.value)} entries, more than {MAX_DEVICE_ENTRIES}: a reload would hold up "
+        "the outputs while it reads them"
+    )
+    reader.error(node, "devices", message, f"1..{MAX_DEVICE_ENTRIES} entries")
+    return False
 
 
 # --------------------------------------------------------------------------- outputs

@@ -64,6 +64,32 @@ class _Output:
     rx: Worker | None = None
 
 
+@dataclass(frozen=True)
+class PreparedReload:
+    """A reload worked out whole before it is applied: the config, its compiled mapping,
+    the nodes it pins and its outputs (with --port applied)."""
+
+    config: Config
+    mapping: Mapping
+    expected: Expected
+    outputs: tuple[OutputConfig, ...]
+
+
+@dataclass(frozen=True)
+class ReloadResult:
+    taken: bool  # the lifecycle thread applied it within its timeout
+    outputs_changed: bool  # they take effect after a restart only
+
+
+def log_reload(result: ReloadResult) -> None:
+    if not result.taken:
+        log.error(
+            "config reload: the device thread has not taken it within 5 s; it takes it when free"
+        )
+    if result.outputs_changed:
+        log.warning("config reloaded; changed outputs take effect after a restart")
+
+
 def outputs_with_port(config: Config, port_override: str | None) -> tuple[OutputConfig, ...]:
     """The config's outputs, the first one's port replaced by --port; every one needs a port."""
     outputs = list(config.outputs) or [OutputConfig()]
@@ -239,17 +265,28 @@ class Daemon:
             sys.setswitchinterval(self._switch_interval)
             self._switch_interval = None
 
-    def reload(self, config: Config) -> None:
-        """Take a new, already validated config: the mapping changes without a tick lost.
-        The lifecycle thread applies it between two device events, so a device plugged
-        meanwhile is bound with the new mapping either way."""
+    def prepare_reload(self, config: Config) -> PreparedReload:
+        """Everything a reload changes, computed before anything is changed (docs/CONFIG.md,
+        "Reload"). Raises NoPortError for outputs without a port; `config.load_runnable`
+        refuses those first, so this only guards a config that did not come through it."""
         mapping = compile_mapping(config)
-        if not self.lifecycle.reload(mapping, expected_nodes(mapping)):
-            log.error("config reload: the device thread did not take it within 5 s")
-        self.mapping = mapping
-        if self.outputs and outputs_with_port(config, self.port_override) != self.output_configs:
-            log.warning("config reloaded; changed outputs take effect after a restart")
-        self.config = config
+        outputs = outputs_with_port(config, self.port_override) if self.outputs else ()
+        return PreparedReload(config, mapping, expected_nodes(mapping), outputs)
+
+    def apply_reload(self, prepared: PreparedReload) -> ReloadResult:
+        """Hand the lifecycle thread the whole new mapping: it applies it between two device
+        events, so a device plugged meanwhile is bound with the new mapping either way. Logs
+        nothing: the main loop runs this where a stop may abandon it (usb2rc.signals)."""
+        taken = self.lifecycle.reload(prepared.mapping, prepared.expected)
+        # Not taken within the timeout: it is queued and the thread applies it when free.
+        self.mapping = prepared.mapping
+        self.config = prepared.config
+        outputs_changed = bool(self.outputs) and prepared.outputs != self.output_configs
+        return ReloadResult(taken, outputs_changed)
+
+    def reload(self, config: Config) -> None:
+        """Take a new config (validated by `config.load_runnable`), and log what it did."""
+        log_reload(self.apply_reload(self.prepare_reload(config)))
 
     # --- stats -----------------------------------------------------------------------------
 

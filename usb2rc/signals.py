@@ -10,7 +10,9 @@ theirs back from `install_command_signals()` as soon as `cli.main` knows the com
   (SystemExit: nothing that needs stopping has been started yet); SIGHUP and SIGUSR1 are
   kept for the main loop (a reload then re-reads the config, which may have changed after
   start-up read it).
-- running: each signal becomes a request in `requests`, read by the main loop.
+- running: each signal becomes a request in `requests`, read by the main loop. While the
+  main loop reloads the config (`abandoned_on_stop()`), a stop also raises ReloadAbandoned
+  in it, wherever the reload is: a stop never waits for a parse (docs/ICD.md, "Stop").
 - stopping (from the first SIGTERM / SIGINT on): all four are ignored; each one is noted and
   logged by the main loop (`take_ignored`), never from the handler itself, since writing to a
   stream from a handler can fail with a reentrant-call error on the stream.
@@ -41,6 +43,7 @@ from types import FrameType
 __all__ = [
     "DaemonSignals",
     "Phase",
+    "ReloadAbandoned",
     "install_command_signals",
     "install_daemon_signals",
     "stop_at_once",
@@ -62,6 +65,13 @@ REQUESTS: dict[int, str] = {
 }
 
 
+class ReloadAbandoned(BaseException):
+    """A stop came while the main loop reloaded the config: the reload is dropped.
+
+    A BaseException, like KeyboardInterrupt: no `except Exception` in the parse may keep it.
+    """
+
+
 class DaemonSignals:
     """The phase the daemon is in and what its signals asked for.
 
@@ -74,6 +84,7 @@ class DaemonSignals:
         self.requests: queue.SimpleQueue[str] = queue.SimpleQueue()  # put() is reentrant
         self.ignored: queue.SimpleQueue[int] = queue.SimpleQueue()
         self._previous_unraisablehook = sys.unraisablehook
+        self._reloading = False  # the main loop is in abandoned_on_stop()
 
     def handle(self, signum: int, _frame: FrameType | None = None) -> None:
         if self.phase is Phase.STOPPING:
@@ -86,6 +97,26 @@ class DaemonSignals:
             if starting:
                 raise SystemExit(0)
         self.requests.put(what)
+        if what == "stop" and self._reloading:
+            self._reloading = False  # once: the handler may run again in the except clause
+            raise ReloadAbandoned
+
+    @contextlib.contextmanager
+    def abandoned_on_stop(self) -> Iterator[None]:
+        """A reload: a stop, now or while it runs, raises ReloadAbandoned out of it.
+
+        The handler runs on the main thread between two bytecodes, so the reload stops at
+        once wherever it is (a C call, such as one regular expression, finishes first).
+        What runs inside must be safe to leave half-way: reading and checking a config,
+        waiting for the lifecycle thread.
+        """
+        self._reloading = True  # before the check: a stop in between raises in the handler
+        try:
+            if self.stop_requested:
+                raise ReloadAbandoned
+            yield
+        finally:
+            self._reloading = False
 
     @property
     def stop_requested(self) -> bool:

@@ -1,9 +1,18 @@
-"""`usb2rc check [--config FILE] [--replay DIR]`: validate a config before anything is sent.
+"""`usb2rc check [--config FILE] [--port PORT] [--replay DIR]`: validate a config.
 
 Exit 0 with a one-screen summary of outputs, nodes and channels; exit 2 with every error
-found, one `file:line: key: message` per line. Warnings (on stderr, `file:line: key: warning:
-...`) do not change the exit code: what the SUMD decoders of PX4, ArduPilot and Betaflight
-would not take of a SUMD output, and SUMD channels on a node no entry pins. With
+found, one `file:line: key: message` per line. The verdict is the last line (`FILE: OK` on
+stdout, `N error(s)` on stderr), printed once everything was checked, and the exit status
+stays the verdict when whoever reads stdout has gone (`usb2rc check | head -1`).
+
+The config is judged by `config.load_runnable`, the function `usb2rc run` starts with and a
+reload (SIGHUP) takes: what `check --port PORT` passes, a daemon started with `--port PORT`
+takes on a reload. So an output without a port, or with one that exists but cannot be a
+serial line (`/dev/null`, a file, a directory), is an error here too.
+
+Warnings (on stderr, `file:line: key: warning: ...`) do not change the exit code: what the
+SUMD decoders of PX4, ArduPilot and Betaflight would not take of a SUMD output, SUMD channels
+on a node no entry pins and, with `--replay DIR`, entries no device in DIR matches. With
 `--replay DIR`, each hid-recorder file in DIR is bound as the daemon would bind that device:
 its node and any usage it lacks.
 """
@@ -12,8 +21,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,9 +34,11 @@ from usb2rc.config import (
     Config,
     ConfigError,
     DeviceConfig,
+    MatchConfig,
     OutputConfig,
     Problem,
     load_config,
+    load_runnable,
 )
 from usb2rc.config_mavlink import MavlinkOptions, baud_needed
 from usb2rc.hid.backend import DeviceInfo
@@ -35,6 +48,7 @@ from usb2rc.hid.replay import ReplayBackend
 from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.outputs import protocol
 from usb2rc.outputs.sumd_receivers import receiver_warnings
+from usb2rc.port_url import port_argument
 from usb2rc.service_sandbox import sandbox_warnings
 from usb2rc.udp_url import is_udp_url
 
@@ -46,6 +60,11 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         description="Validate a config: exit 0 with a summary, or 2 with every error found.",
     )
     parser.add_argument("--config", metavar="FILE", help="YAML config (default: zero config)")
+    parser.add_argument(
+        "--port",
+        type=port_argument,
+        help="the first output's port, as `usb2rc run --port` would give it",
+    )
     parser.add_argument(
         "--replay",
         metavar="DIR",
@@ -61,12 +80,24 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
 
 
 def load_or_default(path: str | None) -> Config:
-    """The config at path, or zero config. Raises ConfigError (file errors included)."""
-    if path is None:
-        return Config.default()
+    """The config at path, or zero config, without its outputs' ports checked (`icd`
+    describes the wire, opens nothing). Raises ConfigError (file errors included)."""
+    return _file_errors_as_problems(
+        path, lambda: Config.default() if not path else load_config(path)
+    )
+
+
+def load_checked(path: str | None, port_override: str | None) -> Config:
+    """The config at path, or zero config, as `run --port port_override` would run it
+    (`load_runnable`). Raises ConfigError (file errors included)."""
+    return _file_errors_as_problems(path, lambda: load_runnable(path, port_override))
+
+
+def _file_errors_as_problems(path: str | None, load: Callable[[], Config]) -> Config:
     try:
-        return load_config(path)
+        return load()
     except OSError as exc:
+        assert path is not None  # zero config reads no file
         problem = Problem(path, None, None, f"cannot read: {exc.strerror or exc}")
         raise ConfigError([problem]) from None
 
@@ -163,7 +194,8 @@ def describe_device(device: DeviceConfig) -> str:
 
 
 def summary(config: Config, mapping: Mapping) -> list[str]:
-    lines = [f"{config.source}: OK", "outputs:"]
+    """What the config does; the verdict line (`verdict_line`) comes after everything."""
+    lines = ["outputs:"]
     for output in config.outputs:
         lines.append(f"  {describe_output(output)}")
         if protocol(output.protocol).channels:
@@ -206,25 +238,90 @@ def replay_lines(devices: list[BoundDevice], problems: list[str]) -> list[str]:
     return lines
 
 
+def unmatched_entries(
+    mapping: Mapping, devices: list[BoundDevice], directory: str
+) -> list[Problem]:
+    """A warning at each entry that no replayed device matches (a device that matches but
+    cannot be bound is an error of its own)."""
+    matched = {id(mapping.entry_for(d.info)) for d in devices}
+    return [
+        device.where.problem(
+            f"warning: no device in {directory} matches entry {device.name!r} "
+            f"(match: {match_text(device.match)}); its node waits for it"
+        )
+        for device in mapping.devices
+        if id(device) not in matched
+    ]
+
+
+def match_text(match: MatchConfig) -> str:
+    parts = [f"vid 0x{match.vid:04x}"] if match.vid is not None else []
+    parts += [f"pid 0x{match.pid:04x}"] if match.pid is not None else []
+    parts += [f"{key} {getattr(match, key)!r}" for key in ("serial", "port", "product")]
+    return ", ".join(p for p in parts if not p.endswith(" None"))
+
+
+@dataclass
+class Verdict:
+    """Everything `check` found, worked out before a line is printed."""
+
+    config: Config
+    out: list[str]  # stdout, without the verdict line
+    warnings: list[Problem]
+    errors: int  # replayed devices that cannot be bound
+
+
 def run(args: argparse.Namespace) -> int:
     if args.json:
-        return run_json(args)
+        document = json_document(args)
+        return _printed(lambda: print(json.dumps(document, indent=2)), 0 if document["ok"] else 2)
     try:
-        config = load_or_default(args.config)
+        config = load_checked(args.config, args.port)
     except ConfigError as exc:
-        for error in exc.errors:
-            print(error, file=sys.stderr)
-        print(f"{len(exc.problems)} error(s)", file=sys.stderr)
-        return 2
+        errors, count = exc.errors, len(exc.problems)  # errors: the same problem once
+        return _printed(lambda: print_errors(errors, count), 2)
+    verdict = judge(config, args.replay)
+    return _printed(lambda: print_verdict(verdict), 2 if verdict.errors else 0)
+
+
+def judge(config: Config, directory: str | None) -> Verdict:
     mapping = compile_mapping(config)
-    print("\n".join(summary(config, mapping)))
-    for warning in warnings(config, mapping) + sandbox_warnings(config):
+    found = warnings(config, mapping) + sandbox_warnings(config)
+    verdict = Verdict(config, summary(config, mapping), found, 0)
+    if directory:
+        devices, problems = bind_replay(mapping, directory)
+        verdict.out += replay_lines(devices, problems)
+        verdict.warnings += unmatched_entries(mapping, devices, directory)
+        verdict.errors = sum(1 for d in devices if d.error)
+    return verdict
+
+
+def print_errors(errors: list[str], count: int) -> None:
+    for error in errors:
+        print(error, file=sys.stderr)
+    print(f"{count} error(s)", file=sys.stderr)
+
+
+def print_verdict(verdict: Verdict) -> None:
+    """The summary, the warnings, then the verdict: the last line says how it ended."""
+    print("\n".join(verdict.out), flush=True)
+    for warning in verdict.warnings:
         print(warning, file=sys.stderr)
-    if not args.replay:
-        return 0
-    devices, problems = bind_replay(mapping, args.replay)
-    print("\n".join(replay_lines(devices, problems)))
-    return 2 if any(d.error for d in devices) else 0
+    if verdict.errors:
+        print(f"{verdict.config.source}: {verdict.errors} error(s)", file=sys.stderr)
+    else:
+        print(f"{verdict.config.source}: OK")
+
+
+def _printed(write: Callable[[], None], code: int) -> int:
+    """`code`, once write() printed it out, or when stdout's reader has gone before
+    (`check | head -1`): the verdict was reached first, a closed pipe does not change it."""
+    try:
+        write()
+        sys.stdout.flush()
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit
+    return code
 
 
 # --------------------------------------------------------------------------- --json
@@ -293,22 +390,25 @@ def bind_problem(device: BoundDevice) -> dict[str, Any]:
     return {**problem_record(problem), "recording": device.info.path}
 
 
-def run_json(args: argparse.Namespace) -> int:
+def json_document(args: argparse.Namespace) -> dict[str, Any]:
+    """The verdict as one document; `ok` decides the exit status."""
     document: dict[str, Any] = {"config": args.config, "ok": True, "problems": []}
     try:
-        config = load_or_default(args.config)
+        config = load_checked(args.config, args.port)
     except ConfigError as exc:
         document["ok"] = False
         document["problems"] = [problem_record(p) for p in exc.problems]
-        print(json.dumps(document, indent=2))
-        return 2
+        return document
     document["outputs"] = output_records(config)
     if args.replay:
-        devices, problems = bind_replay(compile_mapping(config), args.replay)
+        mapping = compile_mapping(config)
+        devices, problems = bind_replay(mapping, args.replay)
+        unmatched = unmatched_entries(mapping, devices, args.replay)
         document["replay"] = [device_record(d) for d in devices]
-        document["problems"] = [bind_problem(d) for d in devices if d.error] + [
-            problem_record(Problem(args.replay, None, None, p), "warning") for p in problems
-        ]
+        document["problems"] = (
+            [bind_problem(d) for d in devices if d.error]
+            + [problem_record(Problem(args.replay, None, None, p), "warning") for p in problems]
+            + [problem_record(p, "warning") for p in unmatched]
+        )
         document["ok"] = not any(d.error for d in devices)
-    print(json.dumps(document, indent=2))
-    return 0 if document["ok"] else 2
+    return document

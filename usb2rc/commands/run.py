@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import atexit
+import contextlib
 import json
 import logging
 import os
@@ -11,15 +12,16 @@ import queue
 import sys
 import time
 from collections import Counter
+from collections.abc import Callable
 
 from usb2rc.commands.arguments import replay_dir
-from usb2rc.config import Config, ConfigError, load_config
-from usb2rc.daemon import Daemon, NoPortError
+from usb2rc.config import Config, ConfigError, load_config, load_runnable
+from usb2rc.daemon import Daemon, NoPortError, ReloadResult, log_reload
 from usb2rc.hid.backend import Backend
 from usb2rc.hid.choose import choose_backend
 from usb2rc.port_url import port_argument
 from usb2rc.sdnotify import Notifier
-from usb2rc.signals import DaemonSignals, install_daemon_signals
+from usb2rc.signals import DaemonSignals, ReloadAbandoned, install_daemon_signals
 
 log = logging.getLogger("usb2rc")
 
@@ -94,10 +96,19 @@ def config_path_for(args: argparse.Namespace) -> str | None:
 
 
 def load_or_report(path: str | None) -> Config | None:
-    if path is None:
-        return Config.default()
+    """The config for the input side only (`monitor`): no output, so no port is needed."""
+    return _or_report(path, lambda: Config.default() if path is None else load_config(path))
+
+
+def runnable_or_report(path: str | None, port_override: str | None) -> Config | None:
+    """The config `run` starts with: `load_runnable`, as a reload and `check` judge it."""
+    return _or_report(path, lambda: load_runnable(path, port_override))
+
+
+def _or_report(path: str | None, load: Callable[[], Config]) -> Config | None:
+    """load(), or None with every problem on stderr."""
     try:
-        return load_config(path)
+        return load()
     except ConfigError as exc:
         for error in exc.errors:
             print(error, file=sys.stderr)
@@ -183,7 +194,11 @@ def _main_loop(
         if what == "stop" or signals.stop_requested:
             return
         if what == "reload":
-            _reload_notified(daemon, config_path, notifier)
+            try:
+                _reload_notified(daemon, config_path, notifier, signals)
+            except ReloadAbandoned:
+                log.info("stop during the config reload: the reload is abandoned")
+                return
         elif what == "stats":
             stats_format = write_stats(daemon, stats_format)
 
@@ -206,10 +221,12 @@ def write_stats(daemon: Daemon, stats_format: str) -> str:
     return "text"
 
 
-def _reload_notified(daemon: Daemon, config_path: str | None, notifier: Notifier | None) -> None:
+def _reload_notified(
+    daemon: Daemon, config_path: str | None, notifier: Notifier | None, signals: DaemonSignals
+) -> None:
     if notifier is not None:
         notifier.reloading()
-    reload(daemon, config_path)
+    reload(daemon, config_path, signals)
     if notifier is not None:
         notifier.ready()
 
@@ -221,27 +238,43 @@ def _log_ignored(signals: DaemonSignals) -> None:
         log.info("%s while stopping: ignored%s", name, times)
 
 
-def reload(daemon: Daemon, config_path: str | None) -> None:
+def reload(daemon: Daemon, config_path: str | None, signals: DaemonSignals | None = None) -> None:
+    """SIGHUP: the config file again, applied whole or not at all (docs/CONFIG.md, "Reload").
+
+    It is checked as `run` and `check` check it (`load_runnable`, with the daemon's --port)
+    before anything changes; a refused one leaves the running config, with one log line.
+    With `signals`, a stop abandons it wherever it is (ReloadAbandoned, raised out of here).
+    """
     if config_path is None:
         log.warning("SIGHUP: no config file to re-read (zero config)")
         return
+    log.debug("config %s: reloading (SIGHUP)", config_path)  # debug: refused is one line
+    abandonable = signals.abandoned_on_stop() if signals else contextlib.nullcontext()
     try:
-        config = load_config(config_path)
-    except (ConfigError, OSError) as exc:
+        with abandonable:
+            result = _load_and_apply(daemon, config_path)
+    except (ConfigError, NoPortError, OSError) as exc:
         errors = exc.errors if isinstance(exc, ConfigError) else [str(exc)]
-        log.error("config %s rejected, the running config stays:", config_path)
-        for error in errors:
-            log.error("  %s", error)
+        log.error(
+            "config %s rejected, the running config stays: %s", config_path, " | ".join(errors)
+        )
         return
-    daemon.reload(config)
+    log_reload(result)
     log.info("config %s reloaded", config_path)
+
+
+def _load_and_apply(daemon: Daemon, config_path: str) -> ReloadResult:
+    """Read, check and compile the whole config, then hand it over: nothing logged here (a
+    stop may abandon it at any point, usb2rc.signals)."""
+    config = load_runnable(config_path, daemon.port_override)
+    return daemon.apply_reload(daemon.prepare_reload(config))
 
 
 def run(args: argparse.Namespace) -> int:
     signals = install_daemon_signals()  # already done by cli.main, unless called directly
     setup_logging(args.log_level)
     config_path = config_path_for(args)
-    config = load_or_report(config_path)
+    config = runnable_or_report(config_path, args.port)
     if config is None:
         return 2
     notifier = Notifier.from_env()
