@@ -117,8 +117,8 @@ class Receiver:
         if service is Service.DISCONNECTED:
             line.disconnects[node] = line.disconnects.get(node, 0) + 1
             line.last_status.pop(node, None)  # not live any more until its next `>`
-        if service in (Service.DISCONNECTED, Service.CONNECTED):
-            line.announced.discard(node)  # never `>` while (re-)announced: ICD Decision
+        if service is Service.DISCONNECTED:
+            line.announced.discard(node)  # a `2` ends it; a request's `1` does not (ICD)
         step, previous = line.progress.get(node, (0, None))
         if service is previous and step:
             return  # a frame sent again (its first copy may or may not have gone whole)
