@@ -193,7 +193,8 @@ def test_a_telemetry_flood_never_stops_the_rc_frames_nor_grows_the_daemon(
         daemon.stop()
         module.close()
     (crsf,) = records[-1]["outputs"]
-    assert crsf["rx_dropped_bytes"] > 0  # the flood's excess, counted
+    assert crsf["rx_dropped_bytes"] > 0  # the flood's excess, counted, and said once
+    assert daemon.log().count("sends faster than 400000 baud carries") == 1
     assert crsf["module_rx_frames"] > 0  # what the budget took was decoded
     print(
         f"flood {flood.sent} B in {ended - flood.started:.2f} s: {RC_FRAMES_MEANWHILE} RC frames, "

@@ -603,13 +603,26 @@ class ReplyRx(Worker):
             if not data:
                 continue
             now = time.monotonic()
-            data = self.budget.admit(data, now)
-            if data:
-                self.on_bytes((data, now))
+            dropped_before = self.budget.dropped_bytes
+            admitted = self.budget.admit(data, now)
+            if self.budget.dropped_bytes and not dropped_before:
+                self._say_dropping()
+            if admitted:
+                self.on_bytes((admitted, now))
+
+    def _say_dropping(self) -> None:
+        """The first drop is logged; every dropped byte is counted (stats: rx bytes dropped)."""
+        log.warning(
+            "%s: %s sends faster than %d baud carries; the excess is dropped unread "
+            "(counted in stats: rx bytes dropped)",
+            self.name,
+            self.link.url,
+            self.link.baudrate,
+        )
 
 
 class RxThread(ReplyRx):
-    """Reads what the far end sends on a C2-16B line and hands each request to `on_frame`
+    """Reads what the far end sends on a C2-16B line and puts each request in `received`
     (the output thread's queue: its session answers `<` and `4` requests). A request past
     RX_FRAMES_QUEUED waiting is dropped and counted (`requests_dropped`): the session answers
     a node at most once a tick anyway."""
