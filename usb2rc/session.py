@@ -1,6 +1,6 @@
 """The line sessions: what goes on one output line, as sans-IO state machines.
 
-(A little over 500 lines on purpose: C2Session's invariants — announce state, codes, owed
+(About 600 lines on purpose: C2Session's invariants — announce state, codes, owed
 service frames, stalls and flushes — hold only together, and are tested together.)
 
 A `C2Session` is one C2-16B output's line protocol (h11's `Connection` is the model): it owns
