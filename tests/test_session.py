@@ -17,7 +17,9 @@ invariant of docs/ICD.md, "A stalled line":
 - a node's message code advances by one per data frame that went out whole (an unsure
   write may skip codes, a flush skips the codes of the frames it dropped; never a repeat);
 - a service frame cut short is sent again: once the line is well, every owed `2` arrives
-  and every live node is announced and `>`.
+  and every live node is announced and `>`;
+- a request flood (`<` and `4`, many a tick) never costs a live announced node a `>` (no `!`
+  while it is announced again), and what it leaves owed is one answer per node at most.
 """
 
 from __future__ import annotations
@@ -117,8 +119,8 @@ class Receiver:
         if service is Service.DISCONNECTED:
             line.disconnects[node] = line.disconnects.get(node, 0) + 1
             line.last_status.pop(node, None)  # not live any more until its next `>`
-        if service in (Service.DISCONNECTED, Service.CONNECTED):
-            line.announced.discard(node)  # never `>` while (re-)announced: ICD Decision
+        if service is Service.DISCONNECTED:
+            line.announced.discard(node)  # a `2` ends it; a request's `1` does not (ICD)
         step, previous = line.progress.get(node, (0, None))
         if service is previous and step:
             return  # a frame sent again (its first copy may or may not have gone whole)
@@ -177,6 +179,12 @@ class Unsure:
 Unread = Written | Left | Unsure
 
 
+def data_statuses(data: bytes) -> dict[int, int]:
+    """Each node's data frame status in a write that starts at a frame boundary."""
+    frames = c2_16b.Decoder().feed(data)
+    return {f.node_id: f.status for f in frames if isinstance(f, c2_16b.DataFrame)}
+
+
 def data_frames_in(data: bytes) -> dict[int, int]:
     """Data frames per node in a piece that starts at a frame boundary."""
     decoder = c2_16b.Decoder()
@@ -206,6 +214,7 @@ class World:
     unread: list[Unread] = field(default_factory=list)  # in the OS, in order
     plugs: int = 0
     ticks: int = 0
+    last_out: bytes = b""  # what the last tick's write held
 
     def plug(self, node: int) -> None:
         if node in self.present:
@@ -291,7 +300,7 @@ class World:
     def tick(self, outcome: tuple[str, int, object]) -> None:
         self.ticks += 1
         events, self.events = self.events, []
-        out = self.session.tick(events, self.frames())
+        out = self.last_out = self.session.tick(events, self.frames())
         if not out:
             return
         kind, first, second = outcome
@@ -322,6 +331,32 @@ class World:
         else:
             assert self.session.received(c2_16b.ServiceFrame(Service.POLL, node))
 
+    def flood(self, asked: list[int | None], repeats: int, ticks: int) -> None:
+        """The far end asks `asked` `repeats` times before each of `ticks` whole ticks. A
+        node live and `>` before it stays `>` in every data frame meanwhile; the requests
+        wait coalesced and leave at most one answer per node owed."""
+        self.whole_tick()
+        steady = {node for node, status in data_statuses(self.last_out).items() if status == LIVE}
+        owed_before = self.session.owed_frames
+        absent = {node for node in asked if node is not None and node not in self.present}
+        most_owed = owed_before + len(CONNECT) * len(self.present) + len(absent)
+        for _ in range(ticks):
+            for _ in range(repeats):
+                for node in asked:
+                    self.request(node)
+            assert self.session.pending_requests <= len(set(asked))
+            self.whole_tick()
+            for node, status in data_statuses(self.last_out).items():
+                assert node not in steady or status == LIVE, f"node {node} `{chr(status)}`"
+            assert self.session.owed_frames <= most_owed
+
+    def whole_tick(self) -> None:
+        """A tick on a line that is well: drained, written whole, read."""
+        if self.session.stalled:
+            self.session.line_drained()
+        self.tick(("all", 0, 0))
+        self.read()
+
     def heal(self) -> None:
         """The line is well again: open, drained, every write goes out whole."""
         self.open()
@@ -341,6 +376,8 @@ outcomes = st.one_of(
     st.tuples(st.just("fail"), positions, st.just(0)),
 )
 nodes = st.integers(min_value=0, max_value=NODES - 1)
+asked = st.one_of(st.none(), st.integers(min_value=0, max_value=NODES))  # NODES: never present
+floods = st.tuples(st.integers(1, 50), st.integers(1, 4))  # requests per tick, ticks
 whole = st.tuples(st.just("tick"), st.just(("all", 0, 0)))
 # A stall as a pty sees it: the far end read until now and stops, ticks go out unread while
 # devices come and go, then the link drops what the OS holds (all of it, or all but a prefix).
@@ -365,6 +402,7 @@ actions = st.one_of(
     st.tuples(st.just("read"), st.none()),
     st.tuples(st.just("flush"), positions),  # ... or the link drops a suffix of it
     st.tuples(st.just("request"), st.one_of(st.none(), nodes)),
+    st.tuples(st.just("flood"), st.tuples(st.lists(asked, min_size=1, max_size=5), floods)),
     stall,
 )
 
@@ -409,6 +447,9 @@ def run(world: World, action: tuple[str, object]) -> None:
         world.flush(position)
     elif name == "request" and world.session.line_open:
         world.request(arg)  # type: ignore[arg-type]
+    elif name == "flood" and world.session.line_open:
+        requests, (repeats, ticks) = arg  # type: ignore[misc]
+        world.flood(requests, repeats, ticks)
 
 
 @settings(max_examples=1000, deadline=None)
@@ -537,6 +578,29 @@ def test_requests_are_answered_from_the_devices_present(binary):
     session.wrote(len(out))
     world.request(2)  # asked again once the answer went: answered again
     assert names(session.tick([], world.frames())) == [*sequence, "!"]
+
+
+def test_a_live_node_stays_live_while_the_far_end_asks_every_tick():
+    """Issue 19 point 8: a `<` every tick cost each live node its `>` (74 % `!`); now its
+    frames stay `>` while it is announced again, and the requests wait coalesced."""
+    world = fresh_world()
+    for node in (0, 1):
+        world.plug(node)
+        world.report(node)
+    world.heal()
+    statuses: list[int] = []
+    for _ in range(50):
+        for _ in range(100):  # a flood: 100 `<` and a `4` for each node, present or not
+            world.request(None)
+            for node in range(NODES + 1):
+                world.request(node)
+        assert world.session.pending_requests == 1 + NODES + 1
+        world.whole_tick()
+        statuses += data_statuses(world.last_out).values()
+        assert world.session.owed_frames <= 2 * len(CONNECT) + 2  # one answer per node
+    assert statuses and set(statuses) == {LIVE}
+    line = world.receiver.line
+    assert line is not None and line.sequences[0] > 10  # and every answer went out whole
 
 
 def test_round_robin_serves_every_node_and_warns_once_per_node_count(caplog):

@@ -32,7 +32,7 @@ from usb2rc.lifecycle import DeviceLifecycle
 from usb2rc.mapping import Mapping, compile_mapping, match_text
 from usb2rc.outputs import protocol
 from usb2rc.outputs.wiring import OutputContext
-from usb2rc.scheduler import C2Output, RxThread, TickThread
+from usb2rc.scheduler import C2Output, ReplyRx, RxThread, TickThread
 from usb2rc.state import Expected, ExpectedEntry, NodeTable
 from usb2rc.transport import SerialLink
 from usb2rc.transport_udp import UdpLink
@@ -336,11 +336,14 @@ class Daemon:
             record["handovers_cut"] = st.handovers_cut
             record["low_battery_frames"] = st.low_battery_frames
         record.update(out.thread.protocol_stats())
+        if isinstance(out.rx, ReplyRx):  # a far end faster than its line loses the excess
+            record["rx_dropped_bytes"] = out.rx.budget.dropped_bytes
         if isinstance(out.rx, RxThread):
             record["rx_bytes"] = link.bytes_read
             record["rx_skipped"] = out.rx.decoder.bytes_skipped
             record["rx_crc_failures"] = out.rx.decoder.crc_failures
             record["rx_requests"] = out.rx.requests
+            record["rx_requests_dropped"] = out.rx.requests_dropped
         return record
 
     @staticmethod

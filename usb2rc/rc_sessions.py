@@ -5,7 +5,8 @@ stalled, channel values in (11-bit wire values, `outputs.channels.RC11_SCALE`), 
 
 - `SbusSession`: a 25-byte frame every tick; while any listed channel's node is in failsafe
   the frame carries the frame-lost and failsafe flags (docs/ICD.md, "SBUS output").
-- `CrsfSession`: an RC_CHANNELS_PACKED frame every tick while every listed channel is live;
+- `CrsfSession`: an RC_CHANNELS_PACKED frame every tick while every listed channel is live
+  (to the module's address 0xEE, or to a flight controller's 0xC8: `address`);
   while any is in failsafe it sends nothing, so the ExpressLRS transmitter module stops and
   the receiver's own failsafe fires (docs/ICD.md, "CRSF failsafe"). It decodes what the module
   sends back (`received(data, now)`): link statistics, and the timing-correction frames with
@@ -60,16 +61,24 @@ class ModuleTiming:
 
 
 class CrsfSession(FrameLineSession):
-    """CRSF to a transmitter module: RC frames, the module's telemetry, its timing."""
+    """CRSF to a transmitter module (or a flight controller's receiver UART): RC frames, the
+    module's telemetry, its timing."""
 
     def __init__(
-        self, interval_s: float, *, follow_module: bool = True, min_interval_s: float = 0.0
+        self,
+        interval_s: float,
+        *,
+        follow_module: bool = True,
+        min_interval_s: float = 0.0,
+        address: int = crsf.ADDRESS_MODULE,
     ) -> None:
         """`interval_s`: the configured period; `min_interval_s`: the shortest the line
         carries (one frame a tick at the baud rate): a faster module rate is followed only
-        down to it."""
+        down to it; `address`: the RC frames' first byte (0xEE a module, 0xC8 a flight
+        controller, which drops RC frames to any other address)."""
         super().__init__()
         self.configured_interval_s = interval_s
+        self.address = address
         self.follow_module = follow_module
         self.min_interval_s = max(MIN_INTERVAL_S, min_interval_s)
         self.decoder = crsf.CrsfDecoder()
@@ -86,7 +95,7 @@ class CrsfSession(FrameLineSession):
         if failsafe:
             self.withheld += 1
             return b""
-        return crsf.encode_rc_channels(padded(channels))
+        return crsf.encode_rc_channels(padded(channels), self.address)
 
     # --- what the module sends back ------------------------------------------------------
 
@@ -127,11 +136,17 @@ class CrsfSession(FrameLineSession):
 
     def next_send(self, due: float, now: float) -> float:
         """When the frame after the one due at `due` is due: one interval later (the
-        module's while it sends timing corrections), shifted once by its last offset."""
+        module's while it sends timing corrections), shifted once by its last offset.
+
+        The shifted period stays within what following allows (MIN_INTERVAL_S, and a
+        frame's time on the line, up to MAX_INTERVAL_S): a module that sends a correction
+        before every frame could otherwise shift every period, and a -0.5 ms offset on a
+        1 ms interval sent twice as many frames as the line carries."""
         shift, self._shift_s = self._shift_s, 0.0
         if not self.following(now):
-            shift = 0.0  # a correction gone stale no longer says where the module is
-        return due + self.interval_s(now) + shift
+            return due + self.configured_interval_s  # a stale correction says nothing
+        period = self.interval_s(now) + shift
+        return due + max(self.min_interval_s, min(MAX_INTERVAL_S, period))
 
     def link_text(self, now: float) -> str:
         """Link quality and timing for `stats` and `monitor`."""

@@ -20,7 +20,7 @@ import traceback
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from usb2rc.outputs.channels import OutputChannels
 from usb2rc.protocol import c2_16b
@@ -46,6 +46,7 @@ if TYPE_CHECKING:  # pymavlink's dialect is loaded only with a MAVLink output
 
 log = logging.getLogger("usb2rc.scheduler")
 
+T = TypeVar("T")
 PERIODS_KEPT = 3000
 FINAL_TICKS_S = 0.25  # at most this long for the failsafe frames when usb2rc stops
 
@@ -423,15 +424,13 @@ class CrsfOutput(ChannelOutput):
         rate_hz = 1.0 / session.configured_interval_s
         super().__init__(name, link, table, channels, session, rate_hz, on_tick, on_first_write)
         self.crsf = session
-        # bytes the module sent, with when they were read (RX thread -> this thread)
-        self.received: queue.SimpleQueue[tuple[bytes, float]] = queue.SimpleQueue()
+        # bytes the module sent, with when they were read (RX thread -> this thread): at
+        # most RX_CHUNKS_QUEUED reads, each within the RX thread's `RxBudget`, so what a
+        # tick decodes is bounded however fast the far end sends
+        self.received: Handoff[tuple[bytes, float]] = Handoff(RX_CHUNKS_QUEUED)
 
     def tick(self) -> None:
-        while True:
-            try:
-                data, at = self.received.get_nowait()
-            except queue.Empty:
-                break
+        for data, at in self.received.take_all():
             self.crsf.received(data, at)
         super().tick()
 
@@ -455,6 +454,7 @@ class CrsfOutput(ChannelOutput):
             "module_rx_frames": decoder.frames,
             "module_rx_crc_failures": decoder.crc_failures,
             "module_rx_skipped": decoder.bytes_skipped,
+            "module_rx_reads_dropped": self.received.dropped,
             "timing_corrections": session.timing_frames,
             "timing_corrections_ignored": session.timing_ignored,
         }
@@ -521,9 +521,70 @@ class MavlinkOutput(_LineThread):
         return stats_record(self.mav)
 
 
+RX_LINE_SHARE = 2.0  # a far end is read at up to twice what its baud rate carries
+RX_BURST_S = 0.1  # ... after a burst of up to 0.1 s of the line (at least RX_BURST_MIN)
+RX_BURST_MIN = 4096
+RX_CHUNKS_QUEUED = 64  # reads waiting for the output thread (at most RX_BURST_MIN each)
+RX_FRAMES_QUEUED = 512  # C2-16B requests waiting for the output thread (2 per Node-ID)
+
+
+class RxBudget:
+    """What an RX thread takes of a far end that sends faster than its line can: a token
+    bucket of bytes at RX_LINE_SHARE × the baud rate's bytes per second. A real UART never
+    exceeds it; a pty or `socket://` can send without limit, and decoding all of it would
+    take the CPU from the output thread. The excess is dropped, unread, and counted."""
+
+    def __init__(self, baudrate: int) -> None:
+        self.bytes_per_s = RX_LINE_SHARE * baudrate / BITS_PER_BYTE_ON_WIRE
+        self.burst = max(float(RX_BURST_MIN), self.bytes_per_s * RX_BURST_S)
+        self.dropped_bytes = 0  # the RX thread writes it, `stats` reads it
+        self._tokens = self.burst
+        self._at = time.monotonic()
+
+    def admit(self, data: bytes, now: float) -> bytes:
+        """The part of `data`, read at `now`, within the budget (its start: the decoder
+        resynchronises on the next frame)."""
+        self._tokens = min(self.burst, self._tokens + (now - self._at) * self.bytes_per_s)
+        self._at = now
+        taken = min(len(data), int(self._tokens))
+        self._tokens -= taken
+        self.dropped_bytes += len(data) - taken
+        return data[:taken]
+
+
+class Handoff(Generic[T]):
+    """A queue from an RX thread (the only writer) to an output thread (the only reader)
+    that holds at most `cap` items: one more is dropped and counted, so a far end never
+    grows it without bound while the output thread is busy."""
+
+    def __init__(self, cap: int) -> None:
+        self.cap = cap
+        self.dropped = 0  # the RX thread writes it, `stats` reads it
+        self._queue: queue.SimpleQueue[T] = queue.SimpleQueue()
+
+    def put(self, item: T) -> None:
+        if self._queue.qsize() >= self.cap:  # only this thread adds: the check holds
+            self.dropped += 1
+            return
+        self._queue.put(item)
+
+    def take_all(self) -> list[T]:
+        """What waits now (at most `cap` items: the output thread's work is bounded)."""
+        items: list[T] = []
+        if self._queue.empty():  # the usual tick: no exception raised and caught
+            return items
+        for _ in range(self.cap):
+            try:
+                items.append(self._queue.get_nowait())
+            except queue.Empty:
+                break
+        return items
+
+
 class ReplyRx(Worker):
-    """Reads what the far end of a channel output sends (a CRSF module's telemetry) and
-    hands the bytes, with when they were read, to `on_bytes` (the output thread's queue)."""
+    """Reads what the far end of an output sends (a CRSF module's telemetry) and hands the
+    bytes, with when they were read, to `on_bytes` (the output thread's queue). At most
+    `RxBudget` of them: a far end that floods the line loses the excess here, counted."""
 
     def __init__(
         self, name: str, link: SerialLink, on_bytes: Callable[[tuple[bytes, float]], None]
@@ -531,6 +592,7 @@ class ReplyRx(Worker):
         super().__init__(name)
         self.link = link
         self.on_bytes = on_bytes
+        self.budget = RxBudget(link.baudrate)
 
     def run(self) -> None:
         while not self.stopping:
@@ -538,30 +600,57 @@ class ReplyRx(Worker):
                 self.sleep(0.1)
                 continue
             data = self.link.read()
-            if data:
-                self.on_bytes((data, time.monotonic()))
+            if not data:
+                continue
+            now = time.monotonic()
+            dropped_before = self.budget.dropped_bytes
+            admitted = self.budget.admit(data, now)
+            if self.budget.dropped_bytes and not dropped_before:
+                self._say_dropping()
+            if admitted:
+                self.on_bytes((admitted, now))
+
+    def _say_dropping(self) -> None:
+        """The first drop is logged; every dropped byte is counted (stats: rx bytes dropped)."""
+        log.warning(
+            "%s: %s sends faster than %d baud carries; the excess is dropped unread "
+            "(counted in stats: rx bytes dropped)",
+            self.name,
+            self.link.url,
+            self.link.baudrate,
+        )
 
 
 class RxThread(ReplyRx):
-    """Reads what the far end sends on a C2-16B line and hands each frame to `on_frame`
-    (the output thread's queue: its session answers `<` and `4` requests)."""
+    """Reads what the far end sends on a C2-16B line and puts each request in `received`
+    (the output thread's queue: its session answers `<` and `4` requests). A request past
+    RX_FRAMES_QUEUED waiting is dropped and counted (`requests_dropped`): the session answers
+    a node at most once a tick anyway."""
 
     def __init__(
-        self, name: str, link: SerialLink, on_frame: Callable[[c2_16b.Frame], None]
+        self,
+        name: str,
+        link: SerialLink,
+        received: queue.SimpleQueue[c2_16b.Frame],
     ) -> None:
         super().__init__(name, link, self._decode)
-        self.on_frame = on_frame
+        self.received = received
         self.decoder = c2_16b.Decoder()
         self.requests = 0
+        self.requests_dropped = 0
 
     def _decode(self, received: tuple[bytes, float]) -> None:
         for frame in self.decoder.feed(received[0]):
             self._hand_over(frame)
 
     def _hand_over(self, frame: c2_16b.Frame) -> None:
-        if is_request(frame):
-            self.requests += 1
-            self.on_frame(frame)
+        if not is_request(frame):
+            return
+        self.requests += 1
+        if self.received.qsize() >= RX_FRAMES_QUEUED:  # only this thread adds to it
+            self.requests_dropped += 1
+            return
+        self.received.put(frame)
 
 
 def is_request(frame: c2_16b.Frame) -> bool:

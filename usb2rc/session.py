@@ -1,6 +1,6 @@
 """The line sessions: what goes on one output line, as sans-IO state machines.
 
-(A little over 500 lines on purpose: C2Session's invariants — announce state, codes, owed
+(About 600 lines on purpose: C2Session's invariants — announce state, codes, owed
 service frames, stalls and flushes — hold only together, and are tested together.)
 
 A `C2Session` is one C2-16B output's line protocol (h11's `Connection` is the model): it owns
@@ -34,6 +34,8 @@ Invariants, whatever the line does (docs/ICD.md, "Service frames" and "A stalled
 - a service frame cut short is sent again;
 - after a flush the line starts over: the startup frame, a `2` for each node announced on the
   line whose device left since, the connect sequence of every device present;
+- a node stays announced while the far end's request announces it again (only a `2` or
+  a startup frame ends an announcement);
 - a data frame's status is `!` unless the node is live and announced; then `&` while a
   handover asks for it, else `%` while its battery is low, else `>` (docs/ICD.md, "Status
   priority"). A `&` carries its destination in byte 4 and uses no message code.
@@ -174,7 +176,9 @@ class C2Session:
         # went out, so the receiver may still believe what it read before the first one.
         self._told: set[int] = set()  # nodes whose whole 1,6,5,7 went out on this line
         self._left_told: set[int] = set()  # ... and whose device left after that
-        self._requests: list[int | None] = []  # `<` (None) and `4` (node) to answer
+        # the far end's requests since the last tick, coalesced: a `<`, and the `4`s by node
+        self._asked_all = False
+        self._polled: set[int] = set()
         self._last: list[_Slot] = []
         self._last_len = 0
         self._round_robin = 0
@@ -256,32 +260,53 @@ class C2Session:
 
         `<` (any Node-ID): the connect sequence of every device present, in Node-ID order.
         `4` for node N: the connect sequence of each device present on N, else `2`.
-        A sequence still owed is not queued twice, so a far end that keeps asking cannot
-        fill the line with service frames."""
+        Requests are coalesced until the tick answers them (a `<`, and each polled node,
+        once), and a sequence still owed is not queued twice: however often the far end
+        asks, what is owed stays one answer per node."""
         if isinstance(frame, c2_16b.DataFrame) and frame.status == c2_16b.CONFIG_REQUEST:
-            self._requests.append(None)
+            self._asked_all = True
             return True
         if isinstance(frame, c2_16b.ServiceFrame) and frame.service is c2_16b.Service.POLL:
-            self._requests.append(frame.node_id)
+            self._polled.add(frame.node_id)
             return True
         return False
 
+    @property
+    def pending_requests(self) -> int:
+        """Requests waiting for the next tick, coalesced (at most one per Node-ID and a `<`)."""
+        return len(self._polled) + self._asked_all
+
+    def _clear_requests(self) -> None:
+        self._asked_all = False
+        self._polled.clear()
+
     def _answer_requests(self) -> None:
         """Answered in the tick, after its events: a device that left meanwhile is not
-        announced again ahead of its `2`."""
-        requests, self._requests = self._requests, []
-        for node_id in requests:
-            if node_id is None:
-                self._announce(sorted(self._present))
-            elif self._present.get(node_id):
-                self._announce([node_id])
-            else:
-                self._queue_once(ServiceEvent(EventKind.DISCONNECTED, node_id))
+        announced again ahead of its `2`. One pass over what is owed, whatever was asked."""
+        if not self._asked_all and not self._polled:
+            return
+        present = {node_id for node_id, devices in self._present.items() if devices}
+        announce = present if self._asked_all else present & self._polled
+        absent = self._polled - present
+        self._clear_requests()
+        owed = {o.event for o in self._owed}
+        self._announce(sorted(announce), owed)
+        for node_id in sorted(absent):
+            self._queue_new(ServiceEvent(EventKind.DISCONNECTED, node_id), owed)
 
-    def _announce(self, node_ids: Sequence[int]) -> None:
+    def _announce(self, node_ids: Sequence[int], owed: set[ServiceEvent] | None = None) -> None:
+        """Queue the connect sequence of every device present on `node_ids` that is not owed
+        already (`owed`: the events owed now, when the caller has them)."""
+        owed = {o.event for o in self._owed} if owed is None else owed
         for node_id in node_ids:
             for event in self._present.get(node_id, {}).values():
-                self._queue_once(event)
+                self._queue_new(event, owed)
+
+    def _queue_new(self, event: ServiceEvent, owed: set[ServiceEvent]) -> None:
+        """`_queue_once` with the owed events at hand (kept up to date here)."""
+        if self.line_open and event not in owed:
+            self._owed.extend(self._owed_frames(event))
+            owed.add(event)
 
     # --- ticks ---------------------------------------------------------------------------
 
@@ -298,7 +323,7 @@ class C2Session:
         self.statuses.follow(frames)
         self._last, self._last_len = [], 0
         if not self.line_open:
-            self._requests.clear()
+            self._clear_requests()
             return b""  # nothing is queued for a dead line: it starts afresh when back
         for event in events:
             self._queue(event)
@@ -343,7 +368,11 @@ class C2Session:
         owed_after = list(self._owed)[len(taken) :]
         announcing = {o.node_id for o in owed_after if o.event.kind is EventKind.CONNECTED}
         leaving = {o.node_id for o in owed_after if o.is_disconnect}
-        announced = _announced_after(self._announced, taken) - announcing
+        # A node announced on this line (its whole 1,6,5,7 out, no `2` and no startup frame
+        # since) stays announced while it is announced again (a `<` or `4` answered, another
+        # device on it): its data frames stay `>`, a request never costs a live node its
+        # live frames (docs/ICD.md, "Sequences"). Any other node with a sequence owed is not.
+        announced = _announced_after(self._announced, taken) - (announcing - self._announced)
         # a node new on this line waits for its connect sequence; a node whose `2` is still
         # owed waits for it (its next frame of any kind comes after the `2`)
         return announced, (announcing - self._on_line) | leaving
@@ -483,9 +512,7 @@ class C2Session:
                 self._queue_once(connected)
 
     def _queue_once(self, event: ServiceEvent) -> None:
-        if not self.line_open or any(o.event == event for o in self._owed):
-            return
-        self._owed.extend(self._owed_frames(event))
+        self._queue_new(event, {o.event for o in self._owed})
 
     def _owed_frames(self, event: ServiceEvent) -> list[_Owed]:
         kw, node = self._kw(), event.node_id

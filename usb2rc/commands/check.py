@@ -47,6 +47,7 @@ from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.hid.replay import ReplayBackend
 from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.outputs import protocol
+from usb2rc.outputs.crsf_checks import address_warnings
 from usb2rc.outputs.sumd_receivers import receiver_warnings
 from usb2rc.port_url import port_argument
 from usb2rc.service_sandbox import sandbox_warnings
@@ -157,7 +158,8 @@ def describe_output(output: OutputConfig) -> str:
         return f"{text}  axes {ranges}"
     if output.protocol == "crsf":
         follow = "follows the module's rate" if output.option("follow_module") else "own rate"
-        return f"{text}  axes 172..1811 (988-2012 us), {follow}, no frames while failsafe"
+        to = f"to 0x{output.option('address'):02X}"
+        return f"{text}  {to}, axes 172..1811 (988-2012 us), {follow}, no frames while failsafe"
     if output.protocol == "sbus":
         return f"{text}  8E2, axes 172..1811, frame-lost + failsafe flags while failsafe"
     if output.protocol == "mavlink":
@@ -219,7 +221,10 @@ def warnings(config: Config, mapping: Mapping) -> list[Problem]:
     return [
         problem
         for output in config.outputs
-        for problem in receiver_warnings(output, mapping.sumd_channels(output), pinned)
+        for problem in [
+            *receiver_warnings(output, mapping.sumd_channels(output), pinned),
+            *address_warnings(output),
+        ]
     ]
 
 

@@ -54,6 +54,20 @@ def _service_status(reader: NodeReader, node: Node, path: str) -> Any:
     return reader.choice(node, path, ("ascii", "binary"))
 
 
+CRSF_ADDRESSES = {
+    "module": crsf_codec.ADDRESS_MODULE,
+    "flight_controller": crsf_codec.ADDRESS_FLIGHT_CONTROLLER,
+}
+
+
+def _crsf_address(reader: NodeReader, node: Node, path: str) -> Any:
+    """`module` (0xEE), `flight_controller` (0xC8) or an address byte 0..255, as the byte."""
+    if isinstance(reader.scalar(node), int):
+        return reader.integer(node, path, 0, 0xFF)
+    name = reader.choice(node, path, (*CRSF_ADDRESSES, "an integer 0..255"))
+    return None if name is None else CRSF_ADDRESSES[name]
+
+
 @dataclass(frozen=True)
 class OutputProtocol:
     """One output protocol as the rest of usb2rc sees it.
@@ -167,7 +181,7 @@ PROTOCOLS: dict[str, OutputProtocol] = {
         ),
         OutputProtocol(
             "crsf",
-            "CRSF RC_CHANNELS_PACKED to an ExpressLRS / Crossfire transmitter module",
+            "CRSF RC_CHANNELS_PACKED to an ExpressLRS / Crossfire module or a flight controller",
             default_baudrate=400000,
             default_rate_hz=250,
             frame_length=_crsf_frame_length,
@@ -178,6 +192,12 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             options={
                 "follow_module": Option(
                     _boolean, True, "follow the module's timing-correction frames"
+                ),
+                "address": Option(
+                    _crsf_address,
+                    crsf_codec.ADDRESS_MODULE,
+                    "RC frames to `module` (0xEE, a TX module) or `flight_controller` "
+                    "(0xC8, an FC's receiver UART), or an address byte 0..255",
                 ),
             },
         ),

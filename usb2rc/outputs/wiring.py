@@ -80,7 +80,7 @@ def build_c2_16b(ctx: OutputContext) -> BuiltOutput:
     tick_bytes = frames_per_tick(out.baudrate, out.rate_hz, frame_len) * frame_len
     link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(tick_bytes))
     c2 = C2Output(ctx.name, link, ctx.table, settings, ctx.on_tick, ctx.on_first_write)
-    return BuiltOutput(link, c2, RxThread(f"{ctx.name}-rx", link, c2.received.put))
+    return BuiltOutput(link, c2, RxThread(f"{ctx.name}-rx", link, c2.received))
 
 
 def build_sumd(ctx: OutputContext) -> BuiltOutput:
@@ -108,6 +108,7 @@ def build_crsf(ctx: OutputContext) -> BuiltOutput:
     session = CrsfSession(
         1.0 / out.rate_hz,
         follow_module=bool(out.option("follow_module")),
+        address=int(out.option("address")),
         min_interval_s=entry.bits_per_second(1.0, len(channels)) / out.baudrate,
     )
     link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(channels.frame_length))
