@@ -299,7 +299,7 @@ def run_root_commands(usb2rc: list[str], root: Path, folder: Path) -> list[str]:
     failures = []
     for command in ROOTED:
         if command.startswith("usb2rc check"):  # PI.md's step between: "set the port"
-            installed = tmp_path / "etc" / "usb2rc" / "usb2rc.yaml"
+            installed = root / "etc" / "usb2rc" / "usb2rc.yaml"
             installed.write_text(installed.read_text().replace("# port:", "port:", 1))
         result = subprocess.run(
             [*usb2rc, *rooted(command, root)],
