@@ -67,7 +67,15 @@ from usb2rc.config_status import check_handovers
 from usb2rc.outputs import OutputProtocol, option_keys
 from usb2rc.outputs import protocol as output_protocol
 from usb2rc.port_url import url_problem
-from usb2rc.yamlnodes import ConfigError, NodeReader, Problem, Where, compose, decode
+from usb2rc.yamlnodes import (
+    ConfigError,
+    NodeReader,
+    Problem,
+    Where,
+    compose,
+    decode,
+    reject_recording,
+)
 
 __all__ = [
     "DEFAULT_BAUDRATE",
@@ -130,6 +138,8 @@ def load_config(path: str) -> Config:
     with open(path, "rb") as fh:
         data = fh.read(MAX_CONFIG_BYTES + 1)
     if len(data) > MAX_CONFIG_BYTES:
+        # a recording is the likely large file given here by mistake: name it as such
+        reject_recording(data[:4096].decode("utf-8", "replace"), str(path))
         message = (
             f"larger than {MAX_CONFIG_BYTES // 1024} KiB: a config is a few KiB, and a larger "
             "one would hold up the outputs while a reload parses it"
