@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import os
 import select
+import socket
 import statistics
 import termios
 import threading
@@ -32,6 +33,7 @@ import pytest
 from daemon_harness import DECODERS, PtyLine, StickState, install, run_daemon, timed_recording
 
 from usb2rc.protocol import c2_16b
+from usb2rc.transport import SOCKET_SEND_BUFFER
 
 REST_S = 0.5  # the stick rests first: the neutral guard arms on a stick at rest
 RAMP_S = 20.0  # then X ramps from 0 to 16383: one HID step every RAMP_S / 16383 s
@@ -41,7 +43,9 @@ TOLERANCE_S = 0.25  # value steps (MAVLink: 20 ms), report spacing, a loaded 2-c
 # What the far end's own N_TTY line discipline holds: the writer cannot drop it (measured in
 # test_what_a_pty_flush_drops); it holds the first bytes written after the far end stopped.
 PTY_FAR_END_BUFFER = 4095
+CRSF_RC_FRAME_LEN = 26  # address, length, type, 22 channel bytes, CRC
 PTY_KERNEL_QUEUE = 16384  # at least what the kernel queues on the writer's side of a pty
+PTY_KERNEL_QUEUE_MAX = 16896  # ... and at most (measured: Linux 6.x, 256-byte writes)
 
 
 @dataclass(frozen=True)
@@ -136,7 +140,10 @@ class RecordingLine(PtyLine):
         self.reading.set()
         self.resumed_at_read = 0
         super().__init__(protocol)
-        tty.setraw(self.master)
+
+    def _run(self) -> None:
+        tty.setraw(self.master)  # as a receiver reads a serial port: no line editing
+        super()._run()
 
     def _reading(self) -> bool:
         return self.reading.wait(0.05)
@@ -163,9 +170,12 @@ class Ages:
     fresh_frames: int
     oldest_s: float  # the oldest frame after the far end's buffer
     oldest_overall_s: float
+    stale_frames: int  # after the far end's buffer: frames older than a tick + TOLERANCE_S
 
 
-def frame_ages(line: RecordingLine, protocol: Protocol) -> Ages:
+def frame_ages(
+    line: RecordingLine, protocol: Protocol, far_end_buffer: int = PTY_FAR_END_BUFFER
+) -> Ages:
     """Decode the bytes again, in order, each read with its time; the clock offset is the
     median of arrival minus ramp time over the live frames read before the stall."""
     decoder = DECODERS.get(line.protocol, c2_16b.Decoder)()
@@ -183,7 +193,7 @@ def frame_ages(line: RecordingLine, protocol: Protocol) -> Ages:
     assert len(offsets) > 20, f"{line.protocol}: the ramp was not seen before the stall"
     offset = statistics.median(offsets)
     after = b"".join(r.data for r in reads[resumed_at:])
-    buffered = decoder.feed(after[:PTY_FAR_END_BUFFER])
+    buffered = decoder.feed(after[:far_end_buffer])
     buffered_ages = [
         reads[resumed_at].time - offset - protocol.ramp_time(v)
         for v in map(protocol.value, buffered)
@@ -193,13 +203,14 @@ def frame_ages(line: RecordingLine, protocol: Protocol) -> Ages:
     position = 0
     for read in reads[resumed_at:]:
         start, position = position, position + len(read.data)
-        chunk = read.data[max(0, PTY_FAR_END_BUFFER - start) :]
+        chunk = read.data[max(0, far_end_buffer - start) :]
         for frame in decoder.feed(chunk) if chunk else []:
             value = protocol.value(frame)
             if value is not None:
                 ages.append(read.time - offset - protocol.ramp_time(value))
     assert ages, f"{line.protocol}: nothing fresh after the resume"
-    return Ages(len(buffered), len(ages), max(ages), max([*ages, *buffered_ages]))
+    stale = sum(age > 1 / protocol.rate_hz + TOLERANCE_S for age in ages)
+    return Ages(len(buffered), len(ages), max(ages), max([*ages, *buffered_ages]), stale)
 
 
 # --- the journey ------------------------------------------------------------------------
@@ -216,7 +227,8 @@ def on_ramp(line: RecordingLine, protocol: Protocol) -> Callable[[list[Any]], bo
     def seen(frames: list[Any]) -> bool:
         values = [v for v in map(protocol.value, frames) if v is not None]
         started = (protocol.high - protocol.low) * 0.1 + protocol.low  # the ramp starts at 0
-        return any(v < started for v in values) and len(values) > 100
+        first = next((i for i, v in enumerate(values) if v < started), len(values))
+        return len(values) - first > 50  # enough frames on the ramp to calibrate the clock
 
     return seen
 
@@ -251,6 +263,10 @@ def test_no_stale_frame_reaches_a_pty_receiver_after_a_stall(
     for name in ("sumd", "crsf", "sbus", "mavlink"):
         bound = 1 / PROTOCOLS[name].rate_hz + TOLERANCE_S
         assert results[name].oldest_s <= bound, (name, results[name])
+    # C2-16B's own bound (docs/ICD.md): at most what the pty holds, as old as the stall
+    c2_stale_bytes = results["c2-16b"].stale_frames * (c2_16b.FRAME_LEN + 1)
+    record_property("c2_stale_bytes", c2_stale_bytes)
+    assert c2_stale_bytes <= PTY_KERNEL_QUEUE_MAX, results["c2-16b"]
 
 
 # --- what a pty flush can drop ------------------------------------------------------------
@@ -316,3 +332,66 @@ def _no_stray_threads() -> Any:
     yield
     for thread in set(threading.enumerate()) - before:
         thread.join(5)
+
+
+# --- socket://: what cannot be flushed is bounded by the buffers --------------------------
+
+
+class TcpFarEnd(RecordingLine):
+    """A TCP bridge that reads what usb2rc sends to `socket://`, can stop reading, and
+    keeps its own receive buffer at `SOCKET_SEND_BUFFER` (as usb2rc keeps its send buffer)."""
+
+    def __init__(self, protocol: str) -> None:
+        self.server = socket.socket()
+        self.server.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, SOCKET_SEND_BUFFER)
+        self.server.bind(("127.0.0.1", 0))
+        self.server.listen(1)
+        self.url = f"socket://127.0.0.1:{self.server.getsockname()[1]}"
+        self.conn: socket.socket | None = None
+        super().__init__(protocol)
+        self.pty_master = self.master  # the pty PtyLine opened: unused here
+
+    def _run(self) -> None:
+        self.server.settimeout(10)
+        self.conn, _ = self.server.accept()
+        self.master = self.conn.fileno()  # PtyLine's loop reads it as it reads a pty master
+        PtyLine._run(self)
+
+    def close(self) -> None:
+        super().close()  # closes the socket's fd as `master`
+        os.close(self.pty_master)
+        if self.conn is not None:
+            self.conn.detach()
+        self.server.close()
+
+
+def test_a_stalled_socket_delivers_no_more_than_its_buffers_hold(
+    tmp_path: Path, replay_dir: Path, record_property: Callable[[str, Any], None]
+) -> None:
+    """docs/ICD.md, "A stalled line": a `socket://` line cannot be flushed, so what was
+    queued when the far end stopped reading arrives after it, as old as the stall; how much
+    is bounded by usb2rc's send buffer (`SOCKET_SEND_BUFFER`, which Linux doubles) plus the
+    far end's receive buffer (here the same, doubled too)."""
+    crsf = PROTOCOLS["crsf"]
+    far_end = TcpFarEnd("crsf")
+    config = tmp_path / "tcp.yaml"
+    config.write_text("outputs:\n  - " + crsf.config.format(port=far_end.url) + "\n")
+    daemon = run_daemon(tmp_path, far_end.url, replay_dir, "--config", str(config))
+    try:
+        install(replay_dir / "ramp.hid", ramp_recording())
+        far_end.wait_for(on_ramp(far_end, crsf), timeout=15)
+        far_end.stall()
+        time.sleep(STALL_S)  # the bridge's stall: longer than its buffers take to fill
+        far_end.resume()
+        done = time.monotonic() + 1.0
+        far_end.wait_seen(lambda seen: seen and seen[-1].time > done, timeout=10)
+    finally:
+        assert daemon.stop() == 0
+        far_end.close()
+    ages = frame_ages(far_end, crsf, far_end_buffer=0)
+    bound_bytes = 2 * SOCKET_SEND_BUFFER + 2 * SOCKET_SEND_BUFFER
+    stale_bytes = ages.stale_frames * CRSF_RC_FRAME_LEN
+    record_property("socket_stale_bytes", stale_bytes)
+    print(f"socket:// crsf: {ages}, {stale_bytes} stale bytes, bound {bound_bytes}")
+    assert STALL_S * crsf.rate_hz * CRSF_RC_FRAME_LEN > bound_bytes  # the buffers filled
+    assert 0 < stale_bytes <= bound_bytes, ages
