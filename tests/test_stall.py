@@ -344,3 +344,47 @@ def test_a_sumd_pty_holds_no_more_than_a_tick_behind_a_far_end_that_stopped_read
         link.close()
         os.close(master)
         os.close(slave)
+
+
+# --- a serial port: its queue is dropped when the stall begins ----------------------------
+
+
+def test_a_serial_port_queue_is_dropped_when_a_stall_begins(monkeypatch):
+    """A port whose OS reports its transmit queue (a UART; here a pty posing as one, its
+    queue count set by the test): when the queue is over two ticks the line is stalled, and
+    what it holds, as old as the stall, is dropped at once; the line starts over with the
+    startup frame (a C2-16B receiver may have read any part of what was dropped)."""
+    from usb2rc import transport
+
+    queued = [0]
+    monkeypatch.setattr(transport.SerialLink, "_reports_queue", lambda self, port: True)
+    monkeypatch.setattr(transport, "_out_waiting", lambda port: queued[0])
+    master, slave = os.openpty()
+    tty.setraw(master)
+    table = NodeTable()
+    link = SerialLink(os.ttyname(slave), max_queued_bytes=queue_cap(6 * 36))
+    out = C2Output("uart", link, table, C2Settings(version=__version__))
+    try:
+        assert link.open_now()
+        table.add_device(0, info("a", "1-1"), BINDING, Source.of(StickState(x=0)), "JOYSTICK")
+        for _ in range(3):
+            out.tick()
+        queued[0] = queue_cap(6 * 36)  # the far end stopped: the UART holds two ticks
+        out.tick()
+        assert link.stats.writes_skipped_queue_full == 1 and link.stats.flushes == 1
+        assert out.stats.stalls == 1 and not out.c2.stalled  # the queue is empty: go on
+        got = b""
+        while select.select([master], [], [], 0.2)[0]:
+            got += os.read(master, 65536)
+        queued[0] = 0
+        out.tick()
+        while select.select([master], [], [], 0.2)[0]:
+            got += os.read(master, 65536)
+        frames = c2_16b.Decoder().feed(got)
+        starts = [i for i, f in enumerate(frames) if is_startup(f)]
+        assert len(starts) == 2, starts  # the first line, and the line started over
+        check_stream(frames)
+    finally:
+        link.close()
+        os.close(master)
+        os.close(slave)
