@@ -273,12 +273,15 @@ def test_no_stale_frame_reaches_a_pty_receiver_after_a_stall(
 
 
 def fill(fd: int) -> int:
-    """Write until the kernel takes no more; how many bytes it took."""
+    """Write until the kernel takes no more; how many bytes it took. The kernel hands what
+    it queued to the far end's line discipline in the background: the pty is full once it
+    stays unwritable."""
     os.set_blocking(fd, False)
     taken = 0
-    with contextlib.suppress(BlockingIOError):
-        while True:
-            taken += os.write(fd, bytes(256))
+    while select.select([], [fd], [], 0.2)[1]:
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                taken += os.write(fd, bytes(256))
     return taken
 
 
