@@ -29,14 +29,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import pytest
 from daemon_harness import DECODERS, PtyLine, StickState, install, run_daemon, timed_recording
 
 from usb2rc.protocol import c2_16b
 from usb2rc.transport import SOCKET_SEND_BUFFER
 
 REST_S = 0.5  # the stick rests first: the neutral guard arms on a stick at rest
-RAMP_S = 20.0  # then X ramps from 0 to 16383: one HID step every RAMP_S / 16383 s
+RAMP_S = 20.0  # then X ramps from 0 to 16383 in this long, a report every EVENT_S
 EVENT_S = 0.01  # a report every 10 ms
 STALL_S = 4.0  # the far ends do not read for this long (the scenario itself)
 TOLERANCE_S = 0.25  # value steps (MAVLink: 20 ms), report spacing, a loaded 2-core machine
@@ -327,14 +326,6 @@ def test_a_dropped_pty_queue_takes_bytes_at_once() -> None:
     finally:
         os.close(master)
         os.close(slave)
-
-
-@pytest.fixture(autouse=True)
-def _no_stray_threads() -> Any:
-    before = set(threading.enumerate())
-    yield
-    for thread in set(threading.enumerate()) - before:
-        thread.join(5)
 
 
 # --- socket://: what cannot be flushed is bounded by the buffers --------------------------
