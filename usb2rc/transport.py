@@ -230,11 +230,14 @@ class SerialLink:
 
     def _limit_socket_buffer(self, port: serial.SerialBase) -> None:
         """A TCP bridge that stops reading holds back what the send buffer holds: keep it
-        small, so what comes out after a stall is not seconds old."""
+        small, so what comes out after a stall is not seconds old. And send each tick at
+        once: Nagle's algorithm would hold a small write back until the bridge acknowledges
+        the last one (up to its delayed-ACK time, 40 ms on Linux: several ticks)."""
         sock = _socket_of(port)
         if sock is not None:
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SOCKET_SEND_BUFFER)
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
     # --- the writer thread ---------------------------------------------------------------
 
