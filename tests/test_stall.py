@@ -369,22 +369,34 @@ def test_a_serial_port_queue_is_dropped_when_a_stall_begins(monkeypatch):
         table.add_device(0, info("a", "1-1"), BINDING, Source.of(StickState(x=0)), "JOYSTICK")
         for _ in range(3):
             out.tick()
+        decoder = c2_16b.Decoder()
+        written_before = link.stats.bytes_written
+        before = decoder.feed(read_bytes(master, written_before))
+        assert any(f.status == LIVE for f in data(before))
         queued[0] = queue_cap(6 * 36)  # the far end stopped: the UART holds two ticks
         out.tick()
         assert link.stats.writes_skipped_queue_full == 1 and link.stats.flushes == 1
         assert out.stats.stalls == 1 and not out.c2.stalled  # the queue is empty: go on
-        got = b""
-        while select.select([master], [], [], 0.2)[0]:
-            got += os.read(master, 65536)
         queued[0] = 0
         out.tick()
-        while select.select([master], [], [], 0.2)[0]:
-            got += os.read(master, 65536)
-        frames = c2_16b.Decoder().feed(got)
-        starts = [i for i, f in enumerate(frames) if is_startup(f)]
-        assert len(starts) == 2, starts  # the first line, and the line started over
-        check_stream(frames)
+        after = decoder.feed(read_bytes(master, link.stats.bytes_written - written_before))
+        assert is_startup(after[0])  # the line started over
+        check_stream(before + after)
     finally:
         link.close()
         os.close(master)
         os.close(slave)
+
+
+def data(frames: list[c2_16b.Frame]) -> list[c2_16b.DataFrame]:
+    return [f for f in frames if isinstance(f, c2_16b.DataFrame)]
+
+
+def read_bytes(fd: int, count: int, timeout: float = 10.0) -> bytes:
+    """Read exactly `count` bytes from a pty master (or fail at the deadline)."""
+    got = b""
+    deadline = time.monotonic() + timeout
+    while len(got) < count:
+        assert select.select([fd], [], [], max(0.0, deadline - time.monotonic()))[0], len(got)
+        got += os.read(fd, count - len(got))
+    return got
