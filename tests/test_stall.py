@@ -13,11 +13,13 @@ import select
 import signal
 import threading
 import time
+import tty
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
 from daemon_harness import PtyLine, StickState, install, recording, run_daemon
+from test_stall_journeys import PTY_FAR_END_BUFFER, PTY_KERNEL_QUEUE
 from test_state_scheduler import BINDING, Source, info
 
 from usb2rc import __version__
@@ -312,37 +314,89 @@ def test_codes_are_consecutive_across_a_stall():
 # --- SUMD on a pty, in-process ----------------------------------------------------------
 
 
-def test_a_stalled_sumd_pty_drops_its_stale_frames_at_the_drain():
-    """A SUMD receiver must not act on old channel values either: at the drain the link
-    drops what the pty holds and the next frame carries the current values."""
+def test_a_sumd_pty_holds_no_more_than_a_tick_behind_a_far_end_that_stopped_reading():
+    """A SUMD receiver must not act on old channel values (issue 19): on a pty the output
+    drops what the far end left unread before each tick's write, so a far end that reads
+    again gets what its own line discipline kept (`PTY_FAR_END_BUFFER`, which only it can
+    drop) and then the current frame, never the kernel's ~16 KB of old frames."""
     master, slave = os.openpty()
+    tty.setraw(master)
     link = SerialLink(os.ttyname(slave))
     value = [0x2260]
     channels = SumdChannels([lambda nodes: (value[0], False)] * 8)
     out = SumdOutput("sumd", link, NodeTable(), channels)
     try:
         assert link.open_now()
-        for _ in range(100_000):  # until a write is short and the pty stays full
-            out.tick()
-            if out.sumd.stalled and not select.select([], [slave], [], 0.2)[1]:
-                break
-            out.sumd.line_drained()  # the kernel made room in the background: fill on
-        assert out.sumd.stalled
-        written = link.stats.bytes_written
+        frame_len = sumd.frame_length(8)
+        for _ in range(2 * (PTY_FAR_END_BUFFER + PTY_KERNEL_QUEUE) // frame_len):
+            out.tick()  # twice what the pty can hold, and nobody reads
+        assert not out.sumd.stalled and link.stats.short_writes == 0
         value[0] = 0x3B60  # the stick moved during the stall
-        got = os.read(master, 65536)  # the far end reads again ...
-        # ... the kernel frees room on the writer's side in the background: once it has,
-        # the output sees the drain, drops the rest and sends a fresh frame
-        assert select.select([], [slave], [], 10)[1]
         out.tick()
-        assert link.stats.flushes == 1 and not out.sumd.stalled
+        got = b""
         while select.select([master], [], [], 0.2)[0]:
             got += os.read(master, 65536)
         decoder = sumd.SumdDecoder()
         frames = [*decoder.feed(got), *decoder.flush()]
         assert frames[-1].channels == (0x3B60,) * 8
-        assert len(got) < written // 2, (len(got), written)  # not the pty's whole buffer
+        assert len(got) <= PTY_FAR_END_BUFFER + frame_len, len(got)
     finally:
         link.close()
         os.close(master)
         os.close(slave)
+
+
+# --- a serial port: its queue is dropped when the stall begins ----------------------------
+
+
+def test_a_serial_port_queue_is_dropped_when_a_stall_begins(monkeypatch):
+    """A port whose OS reports its transmit queue (a UART; here a pty posing as one, its
+    queue count set by the test): when the queue is over two ticks the line is stalled, and
+    what it holds, as old as the stall, is dropped at once; the line starts over with the
+    startup frame (a C2-16B receiver may have read any part of what was dropped)."""
+    from usb2rc import transport
+
+    queued = [0]
+    monkeypatch.setattr(transport.SerialLink, "_reports_queue", lambda self, port: True)
+    monkeypatch.setattr(transport, "_out_waiting", lambda port: queued[0])
+    master, slave = os.openpty()
+    tty.setraw(master)
+    table = NodeTable()
+    link = SerialLink(os.ttyname(slave), max_queued_bytes=queue_cap(6 * 36))
+    out = C2Output("uart", link, table, C2Settings(version=__version__))
+    try:
+        assert link.open_now()
+        table.add_device(0, info("a", "1-1"), BINDING, Source.of(StickState(x=0)), "JOYSTICK")
+        for _ in range(3):
+            out.tick()
+        decoder = c2_16b.Decoder()
+        written_before = link.stats.bytes_written
+        before = decoder.feed(read_bytes(master, written_before))
+        assert any(f.status == LIVE for f in data(before))
+        queued[0] = queue_cap(6 * 36)  # the far end stopped: the UART holds two ticks
+        out.tick()
+        assert link.stats.writes_skipped_queue_full == 1 and link.stats.flushes == 1
+        assert out.stats.stalls == 1 and not out.c2.stalled  # the queue is empty: go on
+        queued[0] = 0
+        out.tick()
+        after = decoder.feed(read_bytes(master, link.stats.bytes_written - written_before))
+        assert is_startup(after[0])  # the line started over
+        check_stream(before + after)
+    finally:
+        link.close()
+        os.close(master)
+        os.close(slave)
+
+
+def data(frames: list[c2_16b.Frame]) -> list[c2_16b.DataFrame]:
+    return [f for f in frames if isinstance(f, c2_16b.DataFrame)]
+
+
+def read_bytes(fd: int, count: int, timeout: float = 10.0) -> bytes:
+    """Read exactly `count` bytes from a pty master (or fail at the deadline)."""
+    got = b""
+    deadline = time.monotonic() + timeout
+    while len(got) < count:
+        assert select.select([fd], [], [], max(0.0, deadline - time.monotonic()))[0], len(got)
+        got += os.read(fd, count - len(got))
+    return got

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import socket
 import threading
 
 import serial
 
 from usb2rc import transport
-from usb2rc.transport import LineEvent, SerialLink
+from usb2rc.transport import SOCKET_SEND_BUFFER, LineEvent, SerialLink
 
 
 def test_a_slow_open_runs_aside_and_is_reported_once(monkeypatch):
@@ -221,3 +222,20 @@ def test_a_port_that_reports_its_queue_is_not_flushed():
         assert link._adopted.in_waiting == 2  # what was written is still there
     finally:
         link.close()
+
+
+def test_a_socket_line_keeps_its_send_buffer_small_and_sends_each_tick_at_once():
+    """docs/ICD.md, "A stalled line": what a stalled `socket://` can deliver late is bounded
+    by the send buffer usb2rc asks for (Linux doubles it); and no tick waits for the far
+    end's acknowledgement of the last one (Nagle's algorithm off)."""
+    server = socket.create_server(("127.0.0.1", 0))
+    link = SerialLink(f"socket://127.0.0.1:{server.getsockname()[1]}")
+    try:
+        assert link.open_now()
+        sock = transport._socket_of(link._port)
+        assert sock is not None
+        assert sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY)
+        assert sock.getsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF) == 2 * SOCKET_SEND_BUFFER
+    finally:
+        link.close()
+        server.close()

@@ -196,8 +196,26 @@ class TickThread(Worker):
             self._safe_call(callback)
 
 
+STALL_LOG_QUIET_S = 10.0  # a line that stalls again and again is logged once in this long
+
+
 class _LineThread(TickThread):
-    """An output thread: follows its link and feeds the session what the line did."""
+    """An output thread: follows its link and feeds the session what the line did.
+
+    The one place that decides what happens to stale bytes (docs/ICD.md, "A stalled line"):
+    - a stall on a port whose transmit queue the OS reports (a serial port) drops that
+      queue at once (`SerialLink.discard_stale`) and the session starts over
+      (`line_flushed`): what was queued is as old as the stall, and the empty queue takes
+      fresh frames at once;
+    - on a pty, whose queue the OS hides, a channel output (`drops_unread_each_tick`) drops
+      what the far end has not taken before each tick's write (`discard_unread`), so the
+      kernel never holds a frame older than a tick; a C2-16B output cannot (its session
+      must know what went out), so it waits for the full queue to drain and drops the rest
+      then (`resume_line`);
+    - a socket cannot be flushed: the session waits for the drain and goes on.
+    """
+
+    drops_unread_each_tick = True  # a frame lost to the flush is replaced by the next one
 
     def __init__(
         self,
@@ -212,10 +230,13 @@ class _LineThread(TickThread):
         self.link = link
         self.session = session
         self._stalled_since = 0.0
+        self._stall_logged_at = -STALL_LOG_QUIET_S
+        self._stalls_not_logged = 0
 
     def follow_link(self) -> None:
         """The line's events, in this thread only: a new port is adopted (and the session
-        told) before anything is written on it; a stalled line is resumed once drained."""
+        told) before anything is written on it; a stalled line is resumed once drained;
+        on a pty, what the far end left unread since the last tick is dropped."""
         if not self.link.is_open:
             self.link.try_open()
         event = self.link.line_event()
@@ -225,6 +246,8 @@ class _LineThread(TickThread):
             self.session.line_lost()
         if self.session.stalled and self.link.drained():
             self.resume_line()
+        if self.drops_unread_each_tick and isinstance(self.link, SerialLink):
+            self.link.discard_unread()
 
     def resume_line(self) -> None:
         """The far end reads again. What the OS still holds is as old as the stall: the
@@ -235,7 +258,8 @@ class _LineThread(TickThread):
             self.session.line_flushed()
         else:
             self.session.line_drained()
-        log.info(
+        self._log_stall(
+            logging.INFO,
             "%s: %s takes bytes again after %.1f s; %s",
             self.name,
             self.link.url,
@@ -244,6 +268,44 @@ class _LineThread(TickThread):
             if flushed
             else "resumed with fresh frames",
         )
+
+    def stall_began(self, written: Written, size: int) -> None:
+        """The far end takes no more bytes. Where the OS reports the queue (a serial port)
+        it is dropped now: it holds frames as old as the stall, and once empty it takes
+        fresh frames, so the line starts over at once. Elsewhere the session waits for the
+        drain (on a pty the full queue is the only sign the far end reads again)."""
+        self._stalled_since = time.monotonic()
+        link = self.link
+        flushed = isinstance(link, SerialLink) and not link.hides_queue and link.discard_stale()
+        if flushed:
+            self.session.line_flushed()
+        self._log_stall(
+            logging.WARNING,
+            "%s: %s stalled: the far end takes no more bytes (%d of %d went out); %s",
+            self.name,
+            self.link.url,
+            written.sent,
+            size,
+            "dropped what its queue held, starting over"
+            if flushed
+            else "no frames are added until it drains",
+        )
+
+    def _log_stall(self, level: int, text: str, *args: object) -> None:
+        """A line that stalls again and again (a serial far end that never reads, whose
+        queue is dropped at each stall) is logged once in STALL_LOG_QUIET_S; the stats
+        count every stall and flush."""
+        now = time.monotonic()
+        if level == logging.WARNING:
+            if now - self._stall_logged_at < STALL_LOG_QUIET_S:
+                self._stalls_not_logged += 1
+                return
+            if self._stalls_not_logged:
+                text += f" ({self._stalls_not_logged} more stalls since the last such line)"
+            self._stall_logged_at, self._stalls_not_logged = now, 0
+        elif self._stalls_not_logged:
+            level = logging.DEBUG  # the resume of a stall that was not logged either
+        log.log(level, text, *args)
 
     def wait(self, delay_s: float) -> bool:
         """Between ticks. While the line is stalled, wait on the port itself and resume
@@ -266,15 +328,7 @@ class _LineThread(TickThread):
         if written.lost:  # what went out before the failure counts; the line is gone
             self.session.line_lost()
         elif delivered.stalled:
-            self._stalled_since = time.monotonic()
-            log.warning(
-                "%s: %s stalled: the far end takes no more bytes (%d of %d went out); "
-                "no frames are added until it drains",
-                self.name,
-                self.link.url,
-                written.sent,
-                len(data),
-            )
+            self.stall_began(written, len(data))
         self.stats.stalls = self.session.stalls
         if written.sent or written.unsure:
             self.note_write()
@@ -301,6 +355,10 @@ class _LineThread(TickThread):
 
 class C2Output(_LineThread):
     """SERaero C2-16B: startup, service frames, one data frame per node per tick."""
+
+    # The session must know what went out (service frames, message codes); a flush on a
+    # pty, where the OS cannot say whether it dropped anything, would leave it guessing.
+    drops_unread_each_tick = False
 
     def __init__(
         self,

@@ -17,8 +17,16 @@ A write never blocks a tick and says how many bytes went out (`Written`):
 Where the OS reports its transmit queue (serial ports, `loop://`), a write that would push
 it past `max_queued_bytes` is skipped (0 bytes); where it does not (ptys, sockets), a write
 the OS does not take whole says the far end stopped reading. Either way the writer waits
-for `drained()` before it writes again; then `discard_stale()` drops what a pty still holds
-from before the stall (the far end must not act on it), and says whether it could.
+for `drained()` before it writes again.
+
+Dropping stale bytes: this module only says what the OS lets it drop, the output thread
+(`scheduler._LineThread`) decides when. `discard_stale()` drops what the OS holds for the
+far end (`tcflush(TCOFLUSH)`, as pyserial's `reset_output_buffer()`) on any posix port: a
+serial port's transmit queue, a pty's kernel queue. On a pty that is not all of it: the far
+end's own line discipline keeps the first 4095 bytes it did not read, which only the far
+end can drop (tests/test_stall_journeys.py::test_what_a_pty_flush_drops). `hides_queue`
+says the OS does not tell what waits (a pty): there a write the far end has not taken one
+tick later is stale, and only a flush before the next write keeps it off the line.
 """
 
 from __future__ import annotations
@@ -55,7 +63,7 @@ class LinkStats:
     bytes_read: int = 0
     losses: int = 0
     opens: int = 0
-    flushes: int = 0  # stale bytes dropped from the OS queue after a stall (ptys)
+    flushes: int = 0  # the OS queue dropped when a stall began or drained (posix ports)
 
 
 @dataclass(frozen=True)
@@ -222,11 +230,14 @@ class SerialLink:
 
     def _limit_socket_buffer(self, port: serial.SerialBase) -> None:
         """A TCP bridge that stops reading holds back what the send buffer holds: keep it
-        small, so what comes out after a stall is not seconds old."""
+        small, so what comes out after a stall is not seconds old. And send each tick at
+        once: Nagle's algorithm would hold a small write back until the bridge acknowledges
+        the last one (up to its delayed-ACK time, 40 ms on Linux: several ticks)."""
         sock = _socket_of(port)
         if sock is not None:
             with contextlib.suppress(OSError):
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SOCKET_SEND_BUFFER)
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
     # --- the writer thread ---------------------------------------------------------------
 
@@ -283,17 +294,33 @@ class SerialLink:
             return True  # the next write finds out what is wrong
 
     def discard_stale(self) -> bool:
-        """After a stall: drop what the OS still holds for the far end; True if it did.
-
-        Only where the OS does not report its queue but the port is a posix fd (ptys): there
-        the kernel holds about 18 KB, frames as old as the stall, which the far end would
-        read and act on before anything fresh. A reported queue never holds more than two
-        ticks (`max_queued_bytes`), so it is left alone; sockets and other URLs cannot be
-        flushed (False: the caller must assume all of it arrives)."""
-        port = self._adopted
-        if port is None or self._queue_known:
+        """A stall began, or the stalled line drained: drop what the OS still holds for the
+        far end; True if it could (the caller must then assume any suffix of what it wrote
+        was lost). A posix port can: a serial port's transmit queue (at most two ticks), a
+        pty's kernel queue (about 16 KB, frames as old as the stall). Sockets and other URLs
+        cannot (False: the caller must assume all of it arrives). Counted in `flushes`."""
+        if not self._flush():
             return False
-        fd = _posix_fd(port)
+        self.stats.flushes += 1
+        return True
+
+    @property
+    def hides_queue(self) -> bool:
+        """The adopted port is a posix fd whose OS does not say what waits in it (a pty)."""
+        port = self._adopted
+        return port is not None and not self._queue_known and _posix_fd(port) is not None
+
+    def discard_unread(self) -> bool:
+        """Before a tick's write where the OS hides its queue (`hides_queue`, a pty): drop
+        what the far end has not taken since the last tick. A far end that reads has the
+        kernel hand it the bytes at once, so what is still there is a tick old: it waits
+        behind a far end that stopped reading. The OS does not say whether anything was
+        there, so this is not counted as a flush. True if it flushed."""
+        return self.hides_queue and self._flush()
+
+    def _flush(self) -> bool:
+        port = self._adopted
+        fd = None if port is None else _posix_fd(port)
         if fd is None:
             return False
         try:
@@ -301,7 +328,6 @@ class SerialLink:
         except (OSError, termios.error) as exc:
             log.debug("serial port %s: could not drop the stale bytes: %s", self.url, exc)
             return False
-        self.stats.flushes += 1
         return True
 
     def wait_drained(self, timeout_s: float) -> bool:
