@@ -12,6 +12,7 @@ import sys
 import time
 from collections import Counter
 
+from usb2rc import log_escape
 from usb2rc.commands.arguments import replay_dir
 from usb2rc.config import Config, ConfigError, load_config
 from usb2rc.daemon import Daemon, NoPortError
@@ -82,6 +83,7 @@ def setup_logging(level: str) -> None:
         "%(levelname)s %(message)s" if under_systemd() else "%(asctime)s %(levelname)s %(message)s"
     )
     logging.basicConfig(level=getattr(logging, level.upper()), format=fmt, stream=sys.stderr)
+    log_escape.install()  # device-chosen names with ESC/BEL never reach the log raw
 
 
 def config_path_for(args: argparse.Namespace) -> str | None:
