@@ -5,10 +5,12 @@ outputs")."""
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import socket
 import time
 from fractions import Fraction
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -17,7 +19,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common
 
 from usb2rc import config_mavlink, transport_udp
-from usb2rc.config import ConfigError, load_config_text
+from usb2rc.config import ConfigError, load_config, load_config_text
 from usb2rc.config_mavlink import MavlinkOptions
 from usb2rc.config_model import ChannelRef
 from usb2rc.outputs import mavlink
@@ -310,6 +312,49 @@ def test_a_bad_udp_address_names_the_port_line() -> None:
     assert error.startswith(
         "m.yaml:3: outputs[0].port: 'udpin:0.0.0.0:0': expected udpin:HOST:PORT"
     )
+
+
+def test_allow_is_for_udpin_and_takes_addresses_or_networks() -> None:
+    (error,) = errors(
+        "outputs:\n  - protocol: mavlink\n    port: udpout:127.0.0.1:14550\n"
+        "    allow: [192.168.2.2]\n"
+    )
+    assert error.startswith("m.yaml:4: outputs[0].allow: only a udpin: port takes calls")
+    (error,) = errors(
+        "outputs:\n  - protocol: mavlink\n    port: udpin:127.0.0.1:14550\n"
+        "    allow:\n      - 10.0.0.0/24\n      - vehicle\n"
+    )
+    assert error.startswith("m.yaml:6: outputs[0].allow[1]: 'vehicle' is not an address")
+    text = (
+        "outputs:\n  - protocol: mavlink\n    port: udpin:127.0.0.1:1\n    allow: [10.0.0.7/24]\n"
+    )
+    (out,) = load_config_text(text).outputs
+    assert MavlinkOptions.of(out).allow == ("10.0.0.0/24",)
+
+
+def test_a_signing_key_file_is_relative_to_the_config_and_signed_bytes_are_counted(
+    tmp_path: Path,
+) -> None:
+    key = tmp_path / "keys" / "vehicle.key"
+    key.parent.mkdir()
+    key.write_text("  secret phrase \n")
+    key.chmod(0o600)
+    config = tmp_path / "m.yaml"
+    text = (
+        "outputs:\n  - protocol: mavlink\n    port: /dev/ttyUSB0\n    baudrate: {}\n"
+        "    signing_key_file: keys/vehicle.key\n"
+    )
+    config.write_text(text.format(9600))
+    with pytest.raises(ConfigError) as refused:  # (50 Hz x (50 + 13) + 21 + 13) x 10 bit
+        load_config(str(config))
+    assert "needs 31840 baud, more than the line's 9600; it carries at most 15 Hz" in str(
+        refused.value
+    )
+    config.write_text(text.format(57600))
+    (out,) = load_config(str(config)).outputs
+    assert MavlinkOptions.of(out).signing_key_file == str(key)
+    assert config_mavlink.read_signing_key(str(key)) == hashlib.sha256(b"secret phrase").digest()
+    assert key.stat().st_mode & 0o777 == 0o600
 
 
 def test_mavlink_keys_are_not_options_of_other_protocols() -> None:
