@@ -18,11 +18,9 @@ import hashlib
 import os
 import re
 import select
-import signal
 import socket
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +34,8 @@ from daemon_harness import (
     pwm_of_int16,
     recording,
     scale,
+    stats_until,
+    wait_until,
 )
 from pymavlink.dialects.v20 import common
 
@@ -50,14 +50,6 @@ def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
         probe.bind(("127.0.0.1", 0))
         return int(probe.getsockname()[1])
-
-
-def wait_until(condition: Callable[[], Any], what: str, timeout: float = 10.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while not (result := condition()):
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.02)
-    return result
 
 
 def heartbeat(system: int, key: bytes | None = None, kind: int = common.MAV_TYPE_QUADROTOR) -> Any:
@@ -125,18 +117,6 @@ class Vehicle:
         self.sock.close()
 
 
-def stats_line(daemon: DaemonProcess, pattern: str) -> re.Match[str]:
-    """Ask for the stats (SIGUSR1) until a line of the log matches `pattern`."""
-    wait_until(lambda: " running" in daemon.log(), "the daemon to run (its signals handled)")
-
-    def seen() -> re.Match[str] | None:
-        daemon.signal(signal.SIGUSR1)
-        time.sleep(0.05)
-        return re.search(pattern, daemon.log())
-
-    return wait_until(seen, f"a stats line matching {pattern!r}")  # type: ignore[no-any-return]
-
-
 def udpin_config(tmp_path: Path, port: int, extra: str = "") -> Path:
     config = tmp_path / "udpin.yaml"
     config.write_text(f"outputs:\n  - protocol: mavlink\n    port: udpin:127.0.0.1:{port}\n{extra}")
@@ -167,7 +147,7 @@ def test_udpin_keeps_the_vehicle_that_called_against_garbage_and_spoofed_heartbe
         sent = [os.urandom(40), heartbeat(42)(), heartbeat(42)(), heartbeat(1)()]
         for datagram in sent:
             spoofer.sendto(datagram, ("127.0.0.1", port))
-        stats_line(daemon, rf"from others ignored {len(sent)}\b")
+        stats_until(daemon, rf"from others ignored {len(sent)}\b")
         before = len(vehicle.overrides())
         wait_until(lambda: len(vehicle.overrides()) >= before + 10, "overrides going on")
         assert channels(vehicle.overrides()[-1])[0] == X_LIVE
@@ -186,6 +166,26 @@ def test_udpin_keeps_the_vehicle_that_called_against_garbage_and_spoofed_heartbe
         spoofer.close()
 
 
+def answers_only_the_right_caller(
+    daemon: DaemonProcess, wrong: Vehicle, ignored: str, **right: Any
+) -> list[Any]:
+    """`wrong` calls and is counted (`ignored`: a stats line pattern), never answered; then
+    a `Vehicle(**right)` calls and is answered, and `wrong` still is not. Stops both."""
+    try:
+        stats_until(daemon, ignored)
+        assert not wrong.messages
+        answered = Vehicle(wrong.port, **right)
+        try:
+            wait_until(lambda: of_type(answered.messages, "HEARTBEAT"), "an answer")
+            assert answered.bad == 0 and not wrong.messages
+            return list(answered.messages)
+        finally:
+            answered.close()
+    finally:
+        assert daemon.stop() == 0
+        wrong.close()
+
+
 def test_udpin_allow_takes_calls_only_from_the_listed_network(
     tmp_path: Path, replay_dir: Path
 ) -> None:
@@ -193,18 +193,7 @@ def test_udpin_allow_takes_calls_only_from_the_listed_network(
     config = udpin_config(tmp_path, port, "    allow: [127.0.0.2/32]\n")
     daemon = start(tmp_path, replay_dir, config)
     outsider = Vehicle(port)  # 127.0.0.1: a valid HEARTBEAT of system 1, not allowed
-    try:
-        stats_line(daemon, r"not allowed [1-9]")
-        assert not outsider.messages
-        insider = Vehicle(port, host="127.0.0.2")
-        try:
-            wait_until(lambda: of_type(insider.messages, "HEARTBEAT"), "the allowed caller")
-            assert not outsider.messages
-        finally:
-            insider.close()
-    finally:
-        assert daemon.stop() == 0
-        outsider.close()
+    answers_only_the_right_caller(daemon, outsider, r"not allowed [1-9]", host="127.0.0.2")
 
 
 def key_file(tmp_path: Path, mode: int = 0o600) -> Path:
@@ -252,18 +241,9 @@ def test_signed_udpin_locks_only_to_a_signed_heartbeat(tmp_path: Path, replay_di
     config = udpin_config(tmp_path, port, f"    signing_key_file: {key_file(tmp_path)}\n")
     daemon = start(tmp_path, replay_dir, config)
     unsigned = Vehicle(port)  # right system, no signature: a spoofer without the key
-    try:
-        stats_line(daemon, r"peer none \(no vehicle has called yet\).*from others ignored [1-9]")
-        signed = Vehicle(port, key=KEY)
-        try:
-            wait_until(lambda: of_type(signed.messages, "HEARTBEAT"), "the signed vehicle")
-            assert signed.bad == 0 and all(m._signed for m in signed.messages)
-            assert not unsigned.messages
-        finally:
-            signed.close()
-    finally:
-        assert daemon.stop() == 0
-        unsigned.close()
+    waiting = r"peer none \(no vehicle has called yet\).*from others ignored [1-9]"
+    answers = answers_only_the_right_caller(daemon, unsigned, waiting, key=KEY)
+    assert all(m._signed for m in answers)
 
 
 def test_a_key_file_others_can_read_is_refused_with_the_fix(tmp_path: Path) -> None:

@@ -6,23 +6,21 @@ recording stays within the file's size of the RSS replaying a small one."""
 from __future__ import annotations
 
 import re
-import signal
-import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from daemon_harness import DaemonProcess, PtyLine, StickState, install, recording, run_daemon
+from daemon_harness import (
+    DaemonProcess,
+    PtyLine,
+    StickState,
+    install,
+    recording,
+    run_daemon,
+    stats_until,
+    wait_until,
+)
 
 EVIL_NAME = "Evil\x1b]0;pwned\x07Stick\x1b[31m"  # a window title, a bell, a colour
-
-
-def wait_until(condition: Callable[[], Any], what: str, timeout: float = 15.0) -> Any:
-    deadline = time.monotonic() + timeout
-    while not (result := condition()):
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.05)
-    return result
 
 
 def test_a_device_name_with_esc_and_bel_is_escaped_in_the_log(
@@ -66,14 +64,7 @@ def replaying_peak_rss(tmp_path: Path, text: str) -> int:
     line = PtyLine()
     daemon = run_daemon(tmp_path, line.path, replay_dir)
     try:
-        wait_until(lambda: " running" in daemon.log(), "the daemon to run")
-
-        def playing() -> bool:
-            daemon.signal(signal.SIGUSR1)
-            time.sleep(0.05)
-            return re.search(r"\): [1-9]\d* reports", daemon.log()) is not None
-
-        wait_until(playing, "reports played")
+        stats_until(daemon, r"\): [1-9]\d* reports", timeout=15)
         return peak_rss_bytes(daemon)
     finally:
         assert daemon.stop() == 0
