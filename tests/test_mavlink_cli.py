@@ -128,6 +128,22 @@ def test_monitor_shows_what_each_mavlink_output_would_send(tmp_path: Path) -> No
     assert "MANUAL_CONTROL x 1000 y -1000 z 1000 r -1000 buttons 0x00000001" in out.stdout
 
 
+def test_monitor_outputs_shows_whom_a_udpin_output_answers(tmp_path: Path) -> None:
+    """Before a vehicle calls, monitor --outputs says so, with what was ignored (issue 19)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    config = tmp_path / "m.yaml"
+    config.write_text(f"outputs:\n  - protocol: mavlink\n    port: udpin:127.0.0.1:{port}\n")
+    replay = tmp_path / "replay"
+    replay.mkdir()
+    args = ["--config", str(config), "--replay", str(replay), "--outputs", "--seconds", "1"]
+    out = usb2rc("monitor", *args, "--plain")
+    assert out.returncode == 0, out.stderr
+    assert "peer none (no vehicle has called yet)" in out.stdout
+    assert "from others ignored 0, not allowed 0" in out.stdout
+
+
 def test_pymavlink_is_imported_only_with_a_mavlink_output() -> None:
     """The registry names MAVLink's decoder and build function as strings: the daemon, the
     config and the commands load without pymavlink's 2 MB dialect (a Pi's start time)."""
