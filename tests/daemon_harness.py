@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import select
 import signal
 import socket
@@ -348,6 +349,28 @@ def run_daemon(
     return DaemonProcess(
         ["--port", port, "--replay", str(replay_dir), *extra], tmp_path / "daemon.log", env
     )
+
+
+def wait_until(condition: Callable[[], Any], what: str, timeout: float = 10.0) -> Any:
+    """Poll `condition` until truthy (its value is returned); fail naming `what`."""
+    deadline = time.monotonic() + timeout
+    while not (result := condition()):
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.02)
+    return result
+
+
+def stats_until(daemon: DaemonProcess, pattern: str, timeout: float = 10.0) -> re.Match[str]:
+    """Ask for the stats (SIGUSR1) until the log matches `pattern`; first wait until the
+    daemon runs (before, SIGUSR1's default action would kill it)."""
+    wait_until(lambda: " running" in daemon.log(), "the daemon to run (its signals handled)")
+
+    def seen() -> re.Match[str] | None:
+        daemon.signal(signal.SIGUSR1)
+        time.sleep(0.05)
+        return re.search(pattern, daemon.log())
+
+    return wait_until(seen, f"a stats line matching {pattern!r}", timeout)  # type: ignore[no-any-return]
 
 
 def data_frames(frames: list[Any], node_id: int | None = None) -> list[c2_16b.DataFrame]:

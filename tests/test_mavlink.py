@@ -5,9 +5,12 @@ outputs")."""
 
 from __future__ import annotations
 
+import hashlib
+import logging
 import socket
 import time
 from fractions import Fraction
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -15,8 +18,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common
 
-from usb2rc import config_mavlink
-from usb2rc.config import ConfigError, load_config_text
+from usb2rc import config_mavlink, transport_udp
+from usb2rc.config import ConfigError, load_config, load_config_text
 from usb2rc.config_mavlink import MavlinkOptions
 from usb2rc.config_model import ChannelRef
 from usb2rc.outputs import mavlink
@@ -311,6 +314,49 @@ def test_a_bad_udp_address_names_the_port_line() -> None:
     )
 
 
+def test_allow_is_for_udpin_and_takes_addresses_or_networks() -> None:
+    (error,) = errors(
+        "outputs:\n  - protocol: mavlink\n    port: udpout:127.0.0.1:14550\n"
+        "    allow: [192.168.2.2]\n"
+    )
+    assert error.startswith("m.yaml:4: outputs[0].allow: only a udpin: port takes calls")
+    (error,) = errors(
+        "outputs:\n  - protocol: mavlink\n    port: udpin:127.0.0.1:14550\n"
+        "    allow:\n      - 10.0.0.0/24\n      - vehicle\n"
+    )
+    assert error.startswith("m.yaml:6: outputs[0].allow[1]: 'vehicle' is not an address")
+    text = (
+        "outputs:\n  - protocol: mavlink\n    port: udpin:127.0.0.1:1\n    allow: [10.0.0.7/24]\n"
+    )
+    (out,) = load_config_text(text).outputs
+    assert MavlinkOptions.of(out).allow == ("10.0.0.0/24",)
+
+
+def test_a_signing_key_file_is_relative_to_the_config_and_signed_bytes_are_counted(
+    tmp_path: Path,
+) -> None:
+    key = tmp_path / "keys" / "vehicle.key"
+    key.parent.mkdir()
+    key.write_text("  secret phrase \n")
+    key.chmod(0o600)
+    config = tmp_path / "m.yaml"
+    text = (
+        "outputs:\n  - protocol: mavlink\n    port: /dev/ttyUSB0\n    baudrate: {}\n"
+        "    signing_key_file: keys/vehicle.key\n"
+    )
+    config.write_text(text.format(9600))
+    with pytest.raises(ConfigError) as refused:  # (50 Hz x (50 + 13) + 21 + 13) x 10 bit
+        load_config(str(config))
+    assert "needs 31840 baud, more than the line's 9600; it carries at most 15 Hz" in str(
+        refused.value
+    )
+    config.write_text(text.format(57600))
+    (out,) = load_config(str(config)).outputs
+    assert MavlinkOptions.of(out).signing_key_file == str(key)
+    assert config_mavlink.read_signing_key(str(key)) == hashlib.sha256(b"secret phrase").digest()
+    assert key.stat().st_mode & 0o777 == 0o600
+
+
 def test_mavlink_keys_are_not_options_of_other_protocols() -> None:
     (error,) = errors(
         "outputs:\n  - protocol: sumd\n    port: /dev/null\n    message: manual_control\n"
@@ -344,33 +390,63 @@ def test_udpout_sends_each_write_as_one_datagram() -> None:
             link.close()
 
 
-def test_udpin_opens_with_the_first_datagram_and_answers_the_last_sender() -> None:
+def test_udpin_locks_to_the_first_caller_and_moves_only_after_its_silence() -> None:
     probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     probe.bind(("127.0.0.1", 0))
     port = probe.getsockname()[1]
     probe.close()
-    link = UdpLink(f"udpin:127.0.0.1:{port}")
+    clock = [100.0]
+    link = UdpLink(
+        f"udpin:127.0.0.1:{port}", lambda data: data.startswith(b"call"), clock=lambda: clock[0]
+    )
     first = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     second = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     for sender in (first, second):
         sender.bind(("127.0.0.1", 0))
     try:
         assert not link.open_now() and link.line_event() is None  # nobody to talk to yet
-        assert not link.is_open and "nothing received yet" in link.last_error
+        assert not link.is_open and "no vehicle has called yet" in link.last_error
         assert link.write(b"x").sent == 0
-        first.sendto(b"hello", ("127.0.0.1", port))
+        first.sendto(b"noise", ("127.0.0.1", port))  # not a call: counted, still nobody
+        wait_until(lambda: link.line_event() is None and link.datagrams_from_others == 1)
+        first.sendto(b"call", ("127.0.0.1", port))
         assert wait_until(lambda: link.line_event()) is LineEvent.OPENED
         assert link.is_open and link.last_error == ""
         link.write(b"to-first")
         assert first.recv(100) == b"to-first"
-        second.sendto(b"hi", ("127.0.0.1", port))
+        second.sendto(b"call too", ("127.0.0.1", port))  # the peer talks: no redirect
+        wait_until(lambda: link.line_event() is None and link.datagrams_from_others == 2)
+        assert link.peer == first.getsockname() and link.take_received() == b"call"
+        clock[0] += transport_udp.PEER_SILENT_S  # the first went silent: a new call is taken
+        second.sendto(b"call again", ("127.0.0.1", port))
         wait_until(lambda: link.line_event() is None and link.peer == second.getsockname())
         link.write(b"to-second")
         assert second.recv(100) == b"to-second"
+        assert link.peer_locks == 2
     finally:
         link.close()
         first.close()
         second.close()
+
+
+def test_udp_open_failures_retry_once_a_second_and_log_each_error_once(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    clock = [0.0]
+    link = UdpLink("udpout:no-such-host.invalid:14550", clock=lambda: clock[0])
+    with caplog.at_level(logging.DEBUG, logger="usb2rc.udp"):
+        for _ in range(5):  # five ticks in the same second: one attempt
+            assert not link.open_now()
+        assert link._open_failures.attempts == 1
+        for _ in range(59):
+            clock[0] += transport_udp.REOPEN_INTERVAL_S
+            link.open_now()
+        errors = [r for r in caplog.records if r.levelno == logging.ERROR]
+        assert len(errors) == 1 and "retrying every 1 s" in errors[0].getMessage()
+        clock[0] += transport_udp.REOPEN_INTERVAL_S  # a minute later: one reminder
+        link.open_now()
+        errors = [r for r in caplog.records if r.levelno == logging.ERROR]
+        assert len(errors) == 2 and "still failing (60 attempts" in errors[1].getMessage()
 
 
 def test_udp_urls() -> None:

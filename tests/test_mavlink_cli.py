@@ -5,6 +5,7 @@ tests/data/configs/broken/mavlink-problems.yaml (test_check_icd_cli runs every b
 from __future__ import annotations
 
 import json
+import re
 import socket
 import subprocess
 import sys
@@ -91,6 +92,18 @@ def test_icd_describes_each_mavlink_output() -> None:
     assert "| z | node1.z | axis | 0..1000 |" in text
     assert "| buttons bit 1 | node0.button2 | button | 1 pressed |" in text
     assert "no MANUAL_CONTROL, heartbeats only" in text
+    # a UDP port has no baud rate; the serial one has its own (issue 20)
+    assert "| mavlink | udpout:127.0.0.1:14550 | - (UDP) | 50 |" in text
+    assert "| mavlink | /dev/ttyUSB0 | 57600 | 25 |" in text
+
+
+def test_the_mavlink_example_names_files_that_exist_and_no_sitl_udp() -> None:
+    """Its comments' commands run as written from the source tree (issue 20: they named a
+    `config/` folder that does not exist), and plain SITL is TCP, not UDP 14550."""
+    text = GOOD.read_text()
+    named = re.findall(r"--config (\S+?)`", text)
+    assert named and all((ROOT / path).is_file() for path in named), named
+    assert "socket://127.0.0.1:5760" in text and "SITL listening on UDP" not in text
 
 
 def test_monitor_shows_what_each_mavlink_output_would_send(tmp_path: Path) -> None:
@@ -113,6 +126,22 @@ def test_monitor_shows_what_each_mavlink_output_would_send(tmp_path: Path) -> No
     # node 3 has no device: the override output is in failsafe; MANUAL_CONTROL reads node 0
     assert "mavlink udpout:127.0.0.1:9: FAILSAFE: releases every channel" in out.stdout
     assert "MANUAL_CONTROL x 1000 y -1000 z 1000 r -1000 buttons 0x00000001" in out.stdout
+
+
+def test_monitor_outputs_shows_whom_a_udpin_output_answers(tmp_path: Path) -> None:
+    """Before a vehicle calls, monitor --outputs says so, with what was ignored (issue 19)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    config = tmp_path / "m.yaml"
+    config.write_text(f"outputs:\n  - protocol: mavlink\n    port: udpin:127.0.0.1:{port}\n")
+    replay = tmp_path / "replay"
+    replay.mkdir()
+    args = ["--config", str(config), "--replay", str(replay), "--outputs", "--seconds", "1"]
+    out = usb2rc("monitor", *args, "--plain")
+    assert out.returncode == 0, out.stderr
+    assert "peer none (no vehicle has called yet)" in out.stdout
+    assert "from others ignored 0, not allowed 0" in out.stdout
 
 
 def test_pymavlink_is_imported_only_with_a_mavlink_output() -> None:

@@ -1,7 +1,8 @@
 """The checks only a MAVLink output has (the output registry's `check` hook, run by
 config.py after the keys are read): its channel count by message, MANUAL_CONTROL's layout
-(x, y, z, r, then buttons), a UDP port's address, and on a serial line the bandwidth of the
-control message each tick plus a heartbeat a second. Each problem is at the line of its key
+(x, y, z, r, then buttons), a UDP port's address (`allow` only on udpin), the signing key
+file (readable, owner only), and on a serial line the bandwidth of the control message each
+tick plus a heartbeat a second. Each problem is at the line of its key
 (the output's own line when the key is missing); docs/CONFIG.md, "MAVLink outputs".
 """
 
@@ -17,8 +18,11 @@ from usb2rc.config_mavlink import (
     MESSAGE_BYTES,
     OVERRIDE_MAX_CHANNELS,
     RC_CHANNELS_OVERRIDE,
+    SIGNATURE_BYTES,
     MavlinkOptions,
+    SigningKeyError,
     baud_needed,
+    read_signing_key,
 )
 from usb2rc.config_model import OutputConfig
 from usb2rc.udp_url import is_udp_url, parse_udp_url
@@ -38,11 +42,12 @@ def check_mavlink_output(
         except ValueError as exc:
             at = items["port"][1] if "port" in items else node
             reader.error(at, f"{path}.port", str(exc), "udpout:HOST:PORT, udpin:HOST:PORT")
+    options = MavlinkOptions.of(output)
+    _check_link_keys(reader, items, path, output, options)
     if "channels" in items:
         node = items["channels"][1]
-    options = MavlinkOptions.of(output)
     if output.port and not is_udp_url(output.port):
-        _check_bandwidth(reader, node, items, path, output, options.message)
+        _check_bandwidth(reader, node, items, path, output, options)
     channels = output.channels
     if options.message == RC_CHANNELS_OVERRIDE:
         if channels is not None and not 1 <= len(channels) <= OVERRIDE_MAX_CHANNELS:
@@ -69,13 +74,41 @@ def check_mavlink_output(
             reader.report(where.problem(message, "nodeN.buttonK"))
 
 
-def _check_bandwidth(
-    reader: NodeReader, node: Node, items: Items, path: str, output: OutputConfig, message: str
+def _check_link_keys(
+    reader: NodeReader, items: Items, path: str, output: OutputConfig, options: MavlinkOptions
 ) -> None:
-    needed = baud_needed(message, output.rate_hz)
+    """`allow` only where something calls (udpin); a signing key file usb2rc can use."""
+    udpin = (output.port or "").startswith("udpin:")
+    if options.allow and not udpin:
+        reader.error(
+            items["allow"][1],
+            f"{path}.allow",
+            "only a udpin: port takes calls from other addresses (udpout and serial talk "
+            "to one far end)",
+            "remove allow, or listen with udpin:HOST:PORT",
+        )
+    if options.signing_key_file:
+        try:
+            read_signing_key(options.signing_key_file)
+        except SigningKeyError as exc:
+            reader.error(items["signing_key_file"][1], f"{path}.signing_key_file", str(exc))
+
+
+def _check_bandwidth(
+    reader: NodeReader,
+    node: Node,
+    items: Items,
+    path: str,
+    output: OutputConfig,
+    options: MavlinkOptions,
+) -> None:
+    message, signed = options.message, bool(options.signing_key_file)
+    needed = baud_needed(message, output.rate_hz, signed)
     if needed <= output.baudrate:
         return
-    most_hz = (output.baudrate / BITS_PER_BYTE - HEARTBEAT_BYTES) / MESSAGE_BYTES[message]
+    extra = SIGNATURE_BYTES if signed else 0
+    line_bytes = output.baudrate / BITS_PER_BYTE - HEARTBEAT_BYTES - extra
+    most_hz = line_bytes / (MESSAGE_BYTES[message] + extra)
     key = "rate_hz" if "rate_hz" in items else "baudrate" if "baudrate" in items else None
     at = items[key][1] if key else node
     reader.error(

@@ -522,7 +522,7 @@ class MavlinkOutput(_LineThread):
     """MAVLink: a heartbeat a second and the control message each tick, one write (one
     datagram on UDP) per message; the session decides what a failsafe sends
     (`usb2rc.outputs.mavlink`). What the far end sent reaches the session here, once a
-    tick: on UDP read from the socket (non-blocking; udpin learns from it whom to send to),
+    tick: on UDP read from the socket (non-blocking; udpin locks to the vehicle that called),
     on a serial line from the RX thread (`received`, a queue, as CRSF's)."""
 
     def __init__(
@@ -559,7 +559,7 @@ class MavlinkOutput(_LineThread):
             return
         values = self.channels.evaluate(self.table.frames(self.subscriber))
         self._first_in_tick = True
-        for message in self.mav.tick(time.monotonic(), values):
+        for message in self.mav.tick(time.monotonic(), values, time.time()):
             self.send(message)
             if self.mav.stalled or not self.mav.line_open:
                 break
@@ -576,7 +576,10 @@ class MavlinkOutput(_LineThread):
     def protocol_stats(self) -> dict[str, Any]:
         from usb2rc.outputs.mavlink import stats_record  # pymavlink: with a MAVLink output
 
-        return stats_record(self.mav)
+        record = stats_record(self.mav)
+        if isinstance(self.link, UdpLink):
+            record.update(self.link.counters())
+        return record
 
 
 RX_LINE_SHARE = 2.0  # a far end is read at up to twice what its baud rate carries

@@ -53,6 +53,11 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("far_end_heartbeats", "heartbeats {}"),
     ("far_end_heartbeat_from", "(last from {})"),
     ("far_end_skipped", "bytes skipped {}"),
+    ("far_end_bad_signatures", "bad signatures {}"),
+    ("udp_peer", "peer {}"),
+    ("datagrams_from_peer", "datagrams from it {}"),
+    ("datagrams_from_others", "from others ignored {}"),
+    ("datagrams_not_allowed", "not allowed {}"),
 )
 
 

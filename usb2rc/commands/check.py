@@ -176,7 +176,7 @@ def mavlink_text(output: OutputConfig) -> str:
     )
     if output.port and is_udp_url(output.port):
         return text + " (UDP: no baud rate)"
-    needed = baud_needed(opts.message, output.rate_hz)
+    needed = baud_needed(opts.message, output.rate_hz, bool(opts.signing_key_file))
     return text + f", needs {needed} of {output.baudrate} baud"
 
 

@@ -32,6 +32,7 @@ from usb2rc.hid.usages import GD_JOYSTICK
 from usb2rc.mapping import Mapping, compile_mapping
 from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT
 from usb2rc.scaling import node_button_bit
+from usb2rc.udp_url import is_udp_url
 
 FORMATS = ("markdown", "text")
 
@@ -211,6 +212,9 @@ def mavlink_section(mapping: Mapping, output: OutputConfig, index: int, fmt: str
             "every channel released (0 on 1-8, 65534 on 9-18) for 1 s, then heartbeats only."
             if opts.message == RC_CHANNELS_OVERRIDE
             else "no MANUAL_CONTROL, heartbeats only (the autopilot's manual-control loss)."
+        )
+        + (
+            " Every message signed (MAVLink 2 signing, link id 0)." if opts.signing_key_file else ""
         ),
         "",
     ]
@@ -218,6 +222,11 @@ def mavlink_section(mapping: Mapping, output: OutputConfig, index: int, fmt: str
 
 
 # --------------------------------------------------------------------------- document
+
+
+def _baud(output: OutputConfig) -> str:
+    """A UDP port has no baud rate (its default 115200 means nothing there)."""
+    return "- (UDP)" if output.port and is_udp_url(output.port) else str(output.baudrate)
 
 
 def node_section(config: Config, node_id: int, fmt: str) -> list[str]:
@@ -325,9 +334,7 @@ def document(config: Config, fmt: str) -> list[str]:
         "",
     ]
     lines += heading("Outputs", 2, fmt)
-    rows = [
-        [o.protocol, o.port or "(--port)", o.baudrate, f"{o.rate_hz:g}"] for o in config.outputs
-    ]
+    rows = [[o.protocol, o.port or "(--port)", _baud(o), f"{o.rate_hz:g}"] for o in config.outputs]
     lines += table(["protocol", "port", "baud", "Hz"], rows, fmt)
     for node_id in sorted(mapping.pinned_node_ids()):
         lines += node_section(config, node_id, fmt)

@@ -14,6 +14,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 
+from usb2rc import log_escape
 from usb2rc.commands.arguments import replay_dir
 from usb2rc.config import Config, ConfigError, load_config, load_runnable
 from usb2rc.daemon import Daemon, NoPortError, ReloadResult, log_reload
@@ -85,6 +86,7 @@ def setup_logging(level: str) -> None:
         "%(levelname)s %(message)s" if under_systemd() else "%(asctime)s %(levelname)s %(message)s"
     )
     logging.basicConfig(level=getattr(logging, level.upper()), format=fmt, stream=sys.stderr)
+    log_escape.install()  # device-chosen names with ESC/BEL never reach the log raw
 
 
 def config_path_for(args: argparse.Namespace) -> str | None:

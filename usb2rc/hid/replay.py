@@ -5,10 +5,13 @@ A file that appears is a plug, a file that goes is an unplug. Files whose names 
 plays its `E:` events with their recorded timing relative to `open()` (scaled by `speed`),
 once, then holds until its file goes; `loop=True` replays forever.
 
-A plug does not parse the whole recording: the directory scan reads a new file but parses
-its header only (descriptor, name, IDs: what `DeviceInfo` needs), and a device parses its
-events as it plays them, in its own reader thread, a few per read (the first lap of a loop;
-later laps reuse them). A 4 s recording at 1 kHz is ~4000 lines and ~5-15 ms of Python:
+A plug does not read the whole recording: the directory scan parses a new file's header
+only (descriptor, name, IDs: what `DeviceInfo` needs) and looks for a fault mark (a scan in
+1 MB chunks), and a device reads its events from the file as they come due, in its own
+reader thread: it holds the open file and its position, never the text nor the events it
+played (a loop reads the file again from the top each lap). A 20 MB recording cost ~5x its
+size in RSS while the whole text and every event were held (issue 19); it costs a line's
+worth now. A 4 s recording at 1 kHz is ~4000 lines and ~5-15 ms of Python:
 parsed at once on the hot-plug thread, it competed with the scheduler for the GIL while the
 daemon ran (bench/bench_plug_cost.py). The price: an `E:` line that is not valid is found when it
 is played, not when the file appears. Its device's `read()` then raises `OSError(EIO)`
@@ -40,8 +43,9 @@ from usb2rc.hid.recording import RecordedEvent, Recording, RecordingError, open_
 
 log = logging.getLogger(__name__)
 
-FAULT_MARK = "usb2rc-fault"
-FAULT_RE = re.compile(r"^\s*#\s*usb2rc-fault:\s*read-error\s+at\s+([0-9.]+)\s*$", re.MULTILINE)
+FAULT_MARK = b"usb2rc-fault"
+FAULT_RE = re.compile(r"^\s*#\s*usb2rc-fault:\s*read-error\s+at\s+([0-9.]+)\s*$")
+SCAN_CHUNK = 1 << 20  # the fault-mark scan reads this much at a time
 # How often a device looks whether its file is still there (a stat): the unplug latency.
 GONE_CHECK_S = 0.05
 
@@ -51,19 +55,61 @@ StatId = tuple[int, int, int]  # inode, mtime_ns, size: one 'plug' of a file
 
 @dataclass(frozen=True)
 class ReplayFile:
-    """A recording file's header and text, and the stat that identifies this 'plug'."""
+    """A recording file's header and the stat that identifies this 'plug' (not its text:
+    a device reads its events from the file, `EventFile`)."""
 
     path: Path
     stat_id: StatId
-    recording: Recording  # the header: descriptor, name, IDs; no events (see `events()`)
+    recording: Recording  # the header: descriptor, name, IDs; no events
     fault_at: float | None
     info: DeviceInfo
-    text: str
 
-    def events(self) -> Iterator[RecordedEvent]:
-        """The events, parsed as they are taken (RecordingError at the first bad line)."""
-        lines = io.StringIO(self.text, newline=None)  # universal newlines, like open()
-        return open_recording(lines, source=str(self.path))[1]
+
+def _open_text(path: Path) -> io.TextIOWrapper:
+    """A recording as text: UTF-8 (what cannot be decoded replaced), universal newlines."""
+    return open(path, encoding="utf-8", errors="replace")
+
+
+class EventFile:
+    """One device's events, read from its file as they come due: the open file and its
+    position, never the text. `restart()` reads them again from the top (a loop's next
+    lap). `next()` and `close()` may come from different threads (a reader, a closer)."""
+
+    def __init__(self, source: ReplayFile) -> None:
+        self.source = str(source.path)
+        self._lock = threading.Lock()
+        self._fh: io.TextIOWrapper | None = None
+        try:
+            self._fh = _open_text(source.path)
+        except FileNotFoundError:
+            raise DeviceGone(f"{source.path}: replay file is gone") from None
+        if _id_of(os.fstat(self._fh.fileno())) != source.stat_id:  # replaced since its scan
+            self.close()
+            raise DeviceGone(f"{source.path}: replay file replaced")
+        self._events: Iterator[RecordedEvent] = iter(())
+        self.restart()
+
+    def restart(self) -> None:
+        with self._lock:
+            if self._fh is not None:
+                self._fh.seek(0)
+                self._events = open_recording(self._fh, source=self.source)[1]
+
+    def next(self) -> RecordedEvent | None:
+        """The next event; None at the end (or once closed). RecordingError at a bad line."""
+        with self._lock:
+            if self._fh is None:
+                return None
+            return next(self._events, None)
+
+    def close(self) -> None:
+        with self._lock:
+            fh, self._fh = self._fh, None
+        if fh is not None:
+            fh.close()
+
+    def __del__(self) -> None:  # a device dropped without close() (a test's) closes its file
+        self.close()
 
 
 def _stat_id(path: Path) -> StatId | None:
@@ -81,12 +127,20 @@ def _id_of(st: os.stat_result) -> StatId:
     return st.st_ino, st.st_mtime_ns, st.st_size
 
 
-def _fault_time(text: str) -> float | None:
-    # The substring test first: the multi-line regex over a 200 KB recording is one C call
-    # of ~1-2 ms that holds the GIL; `in` takes ~50 µs.
-    if FAULT_MARK not in text:
-        return None
-    times = [float(m) for m in FAULT_RE.findall(text)]
+def _fault_time(path: Path) -> float | None:
+    """The earliest `# usb2rc-fault: read-error at SECONDS` of the file, if any. A substring
+    scan of the bytes in chunks first (C speed, a chunk's memory); the lines are parsed
+    only in a file that has the mark (a test's)."""
+    with open(path, "rb") as fh:
+        tail = b""
+        while chunk := fh.read(SCAN_CHUNK):
+            if FAULT_MARK in tail + chunk[: len(FAULT_MARK)] or FAULT_MARK in chunk:
+                break
+            tail = chunk[-len(FAULT_MARK) :]
+        else:
+            return None
+    with _open_text(path) as lines:
+        times = [float(m.group(1)) for line in lines if (m := FAULT_RE.match(line))]
     return min(times) if times else None
 
 
@@ -121,10 +175,10 @@ def load_replay_file(path: Path) -> ReplayFile:
     stat_id = _stat_id(path)
     if stat_id is None:
         raise FileNotFoundError(errno.ENOENT, "file vanished", str(path))
-    text = path.read_text(encoding="utf-8", errors="replace")
-    header, _ = open_recording(io.StringIO(text, newline=None), source=str(path))
+    with _open_text(path) as lines:
+        header, _ = open_recording(lines, source=str(path))
     info = _make_info(path, stat_id, header)
-    return ReplayFile(path, stat_id, header, _fault_time(text), info, text)
+    return ReplayFile(path, stat_id, header, _fault_time(path), info)
 
 
 def _not_a_recording(path: Path, exc: Exception) -> str:
@@ -251,24 +305,23 @@ class ReplayDevice:
         self._path = str(source.path)
         self._speed = speed
         self._on_broken = on_broken
-        # The events are parsed as they come due, on the reader's thread (module docstring);
-        # the lists grow over the first lap, which later laps replay.
-        self._pending: Iterator[RecordedEvent] | None = source.events()
-        self._reports: list[bytes] = []
-        self._times: list[float] = []  # due after the lap's start (scaled by speed)
-        self._last_time_s = 0.0  # the last parsed event's recorded time
+        # The events are read from the file as they come due, on the reader's thread
+        # (module docstring); only the next one is held (`_report`, `_due`).
+        self._events = EventFile(source)
         self._want_loop = loop
-        self._loop = False  # known once every event is parsed: loop, and there are events
-        self._lap_s = 0.0  # the same
+        self._lap = 0
+        self._lap_s = 0.0  # a lap's length, known at the end of the first lap
+        self._lap_events = 0  # events of the first lap, and its last one's recorded time
+        self._last_time_s = 0.0
         self._closed = WakeFlag()  # close() wakes a read waiting for the next report
         self._t0 = time.monotonic()
         self._fault_due = (
             math.inf if source.fault_at is None else self._t0 + source.fault_at / speed
         )
         self._fault = f"{self.info.path}: injected read error"
-        self._lap = 0
-        self._i = 0  # the next event of this lap
-        self._due = self._due_of(0, 0)  # when events[_i] of lap _lap is due; inf: none left
+        self._report = b""
+        self._due = math.inf  # when `_report` is due; inf: none left
+        self._advance()
         self._next_gone_check = 0.0
         self._quiet_until = 0.0  # before this, read needs neither a gone check nor a fault
         self.busy_s = 0.0
@@ -283,34 +336,39 @@ class ReplayDevice:
     def report_descriptor(self) -> bytes:
         return self._source.recording.descriptor
 
-    def _due_of(self, lap: int, i: int) -> float:
-        if i >= len(self._times) and not self._parse_next():
-            if not self._loop:
-                return math.inf
-            lap, i = lap + 1, 0
-            self._lap, self._i = lap, i
+    def _advance(self) -> None:
+        """Read the next event into `_report` / `_due` (a loop's next lap starts over at the
+        file's top); `_due` is inf when none is left."""
+        event = self._read_event()
+        if event is None and self._next_lap():
+            event = self._read_event()
+        if event is None:
+            self._due = math.inf
+            return
+        self._report = event.report
         # From t0 each time (not a running sum): a device looped for hours does not drift.
-        return self._t0 + lap * self._lap_s + self._times[i]
+        self._due = self._t0 + self._lap * self._lap_s + event.time_s / self._speed
 
-    def _parse_next(self) -> bool:
-        """Parse the recording's next event; False at its end (or at a bad line)."""
-        pending = self._pending
-        if pending is None:
-            return False
+    def _read_event(self) -> RecordedEvent | None:
         try:
-            event = next(pending)
-        except StopIteration:
-            self._pending = None
-            self._loop = self._want_loop and bool(self._times)
-            self._lap_s = self._loop_period(len(self._times), self._last_time_s) / self._speed
-            return False
+            event = self._events.next()
         except RecordingError as exc:
-            self._pending = None
+            self._events.close()
             self._bad_line(exc)
+            return None
+        if event is not None and self._lap == 0:
+            self._lap_events += 1
+            self._last_time_s = event.time_s
+        return event
+
+    def _next_lap(self) -> bool:
+        """At the end of the events: start the next lap if looping (and there are events)."""
+        if not self._want_loop or not self._lap_events:
             return False
-        self._times.append(event.time_s / self._speed)
-        self._reports.append(event.report)
-        self._last_time_s = event.time_s
+        if self._lap == 0:
+            self._lap_s = self._loop_period(self._lap_events, self._last_time_s) / self._speed
+        self._lap += 1
+        self._events.restart()
         return True
 
     def _bad_line(self, exc: RecordingError) -> None:
@@ -379,11 +437,10 @@ class ReplayDevice:
             self.busy_s += time.perf_counter() - started - waited
 
     def _deliver(self) -> bytes:
-        i = self._i
-        report = self._reports[i]
-        self._i = i + 1
-        self._due = self._due_of(self._lap, i + 1)
+        report = self._report
+        self._advance()
         return report
 
     def close(self) -> None:
         self._closed.set()
+        self._events.close()

@@ -18,6 +18,12 @@ Two pieces, both sans-IO (no thread, no socket, no clock: `now` is passed in):
     failsafe fires (PX4 COM_RC_LOSS_T; ArduPilot's RC_OVERRIDE_TIME).
   What the far end sends is parsed with a second pymavlink instance
   (`protocol.mavlink.MavlinkDecoder`, `received`): its heartbeats are counted for the stats.
+- With a signing key (`signing_key_file`) every message is signed (MAVLink 2 signing, link
+  id 0, timestamps from the wall clock passed to `tick`), and only messages signed with the
+  key count from the far end.
+- `VehicleCall`: whether a datagram to a udpin port is the vehicle calling (a HEARTBEAT
+  from `target_system`, signed when signing is on): `transport_udp.UdpLink` locks to the
+  first sender that calls.
 
 pymavlink packs every byte (`message.pack(mav)`); nothing here writes MAVLink by hand.
 """
@@ -26,7 +32,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -40,7 +46,7 @@ from usb2rc.config_mavlink import (
     MavlinkOptions,
 )
 from usb2rc.mapping import ChannelSource
-from usb2rc.protocol.mavlink import MavlinkDecoder
+from usb2rc.protocol.mavlink import MavlinkDecoder, set_up_signing, signing_timestamp
 from usb2rc.scaling import (
     MANUAL_MAX,
     MANUAL_MIN,
@@ -164,7 +170,7 @@ def release_channels(count: int = OVERRIDE_MAX_CHANNELS) -> list[int]:
 class FarEnd:
     """What the far end sent, as pymavlink parsed it (for the stats line)."""
 
-    decoder: MavlinkDecoder = field(default_factory=MavlinkDecoder)
+    decoder: MavlinkDecoder
     heartbeats: int = 0
     last_heartbeat_from: tuple[int, int] | None = None  # (system, component)
 
@@ -172,13 +178,19 @@ class FarEnd:
 class MavlinkSession:
     """The MAVLink line of one output, sans-IO: `tick(now, values)` → the messages to send,
     one `bytes` each (one datagram each on UDP), and `wrote(sent)` for each of them in
-    order. The line events are those of `usb2rc.session.SumdSession`."""
+    order. The line events are those of `usb2rc.session.SumdSession`. `key`: the signing
+    key (`config_mavlink.read_signing_key`), `wall_time`: the wall clock at the start."""
 
-    def __init__(self, settings: MavlinkOptions) -> None:
+    def __init__(
+        self, settings: MavlinkOptions, key: bytes | None = None, wall_time: float = 0.0
+    ) -> None:
         self.settings = settings
+        self.signed = key is not None
         self.mav = mavlink2.MAVLink(
             None, srcSystem=settings.system_id, srcComponent=settings.component_id
         )
+        if key is not None:
+            set_up_signing(self.mav, key, wall_time, sign_outgoing=True)
         self.line_open = False
         self.stalled = False
         self.stalls = 0
@@ -186,7 +198,7 @@ class MavlinkSession:
         self.controls = 0  # override / manual_control messages sent (live values)
         self.releases = 0  # override messages releasing every channel (failsafe)
         self.silent_ticks = 0  # ticks without a control message (failsafe)
-        self.far_end = FarEnd()
+        self.far_end = FarEnd(MavlinkDecoder(key, wall_time))
         self._next_heartbeat: float | None = None
         self._failsafe_since: float | None = None
         self._pending: deque[int] = deque()
@@ -222,12 +234,17 @@ class MavlinkSession:
 
     # --- ticks -------------------------------------------------------------------------------
 
-    def tick(self, now: float, values: ControlValues) -> list[bytes]:
+    def tick(self, now: float, values: ControlValues, wall_time: float = 0.0) -> list[bytes]:
         """This tick's messages: a heartbeat when due, then the control message (or the
-        release, or nothing, in failsafe)."""
+        release, or nothing, in failsafe). `wall_time` keeps signing timestamps on the wall
+        clock (each message's is one more than the last's: they fall behind otherwise, and
+        a vehicle that restarts refuses a stream more than a minute old)."""
         self._pending.clear()
         if not self.line_open or self.stalled:
             return []
+        if self.signed:
+            signing = self.mav.signing
+            signing.timestamp = max(signing.timestamp, signing_timestamp(wall_time))
         if self._stopping:
             values = replace(values, failsafe=True)
             self._stop_ticked = True
@@ -312,6 +329,25 @@ class MavlinkSession:
                 far.last_heartbeat_from = (message.get_srcSystem(), message.get_srcComponent())
 
 
+class VehicleCall:
+    """Whether one datagram to a udpin port is the vehicle calling: a valid HEARTBEAT from
+    `target_system` (any system when 0) that is not a ground station's, signed with the
+    key when signing is on. Each datagram is parsed on its own (no bytes of one sender
+    joined to another's); signing timestamps seen are kept, so a replayed one is refused."""
+
+    def __init__(self, target_system: int, key: bytes | None = None, wall_time: float = 0.0):
+        self.target_system = target_system
+        self.decoder = MavlinkDecoder(key, wall_time)
+
+    def __call__(self, datagram: bytes) -> bool:
+        return any(map(self._calls, self.decoder.feed_alone(datagram)))
+
+    def _calls(self, message: Any) -> bool:
+        if message.get_type() != "HEARTBEAT" or message.type == mavlink2.MAV_TYPE_GCS:
+            return False
+        return self.target_system in (0, message.get_srcSystem())
+
+
 def stats_record(session: MavlinkSession) -> dict[str, Any]:
     """The output's MAVLink counters, for the stats record (labels: `usb2rc.stats_text`)."""
     far = session.far_end
@@ -327,6 +363,8 @@ def stats_record(session: MavlinkSession) -> dict[str, Any]:
     if far.last_heartbeat_from is not None:
         record["far_end_heartbeat_from"] = "{}/{}".format(*far.last_heartbeat_from)
     record["far_end_skipped"] = far.decoder.bytes_skipped
+    if session.signed:
+        record["far_end_bad_signatures"] = far.decoder.bad_signatures
     return record
 
 

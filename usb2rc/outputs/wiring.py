@@ -7,13 +7,14 @@ what comes back.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import serial
 
 from usb2rc.config import OutputConfig
-from usb2rc.config_mavlink import MavlinkOptions
+from usb2rc.config_mavlink import MavlinkOptions, read_signing_key
 from usb2rc.mapping import Mapping
 from usb2rc.outputs import protocol
 from usb2rc.outputs.channels import RC11_SCALE, OutputChannels
@@ -151,9 +152,11 @@ def build_mavlink(ctx: OutputContext) -> BuiltOutput:
     assert out.port
     options = MavlinkOptions.of(out)
     channels = mavlink.MavlinkChannels(ctx.mapping.sumd_channels(out), options.message)
+    key = read_signing_key(options.signing_key_file) if options.signing_key_file else None
     link: SerialLink | UdpLink
     if is_udp_url(out.port):
-        link = UdpLink(out.port)
+        call = mavlink.VehicleCall(options.target_system, key, time.time())
+        link = UdpLink(out.port, call, options.allow)
     else:
         tick_bytes = mavlink.heartbeat_bytes() + mavlink.max_message_bytes(options.message)
         link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(tick_bytes))
@@ -162,7 +165,7 @@ def build_mavlink(ctx: OutputContext) -> BuiltOutput:
         link,
         ctx.table,
         channels,
-        mavlink.MavlinkSession(options),
+        mavlink.MavlinkSession(options, key, time.time()),
         out.rate_hz,
         ctx.on_tick,
         ctx.on_first_write,
