@@ -171,7 +171,7 @@ def test_calibrate_writes_what_check_accepts_and_keeps_the_comments(tmp_path, pa
     assert axes["slider"].calibration == Calibration(0, 127, 255)
     assert axes["slider"].deadband == 0 and axes["rz"].calibration is None
     checked = subprocess.run(
-        usb2rc("check", "--config", str(config), "--replay", str(folder)),
+        usb2rc("check", "--config", str(config), "--replay", str(folder), "--port", "/dev/ttyUSB0"),
         capture_output=True,
         text=True,
         timeout=60,
