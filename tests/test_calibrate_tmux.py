@@ -212,7 +212,10 @@ def test_calibrate_over_the_demo_recordings(tmp_path, pane):
     }
     assert all(a.calibration is None for a in throttle.axes)  # DEVICE named the stick only
     checked = subprocess.run(
-        usb2rc("check", "--config", str(config)), capture_output=True, text=True, timeout=60
+        usb2rc("check", "--config", str(config), "--port", "/dev/ttyUSB0"),
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     assert checked.returncode == 0, checked.stderr
 
