@@ -199,7 +199,7 @@ def test_check_warns_about_an_address_neither_a_module_nor_a_flight_controller()
 def test_usb2rc_check_prints_the_warning_and_exits_0(tmp_path: Path):
     path = tmp_path / "fc.yaml"
     path.write_text(
-        "outputs:\n  - protocol: crsf\n    port: /dev/null\n    address: flight_controller\n"
+        "outputs:\n  - protocol: crsf\n    port: /dev/ttyUSB0\n    address: flight_controller\n"
         "    channels: [node0.x]\n"
     )
     done = subprocess.run(

@@ -21,6 +21,10 @@ from usb2rc.state import MissingEntry, NodeTable
 HOTAS = ROOT / "usb2rc" / "data" / "config" / "hotas.yaml"
 DEMO = ROOT / "usb2rc" / "data" / "demo"
 PEDALS_MATCH = "vid 0x044f, pid 0xb679"
+# the line of the pedals' entry in the shipped file (its comments may grow)
+PEDALS_LINE = next(
+    n for n, line in enumerate(HOTAS.read_text().splitlines(), 1) if "- name: pedals" in line
+)
 WARNING = "missing: node 2 config entry 'pedals' (vid 0x044f, pid 0xb679; "
 STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ", re.MULTILINE)
 
@@ -57,11 +61,20 @@ def test_hotas_on_the_demo_warns_of_the_missing_pedals_within_5_s(tmp_path, line
     warned = next(ln for ln in lines if WARNING in ln)
     # within 5 s of start, on the daemon's own clock (its first log line is its start)
     assert (log_time(warned) - log_time(lines[0])).total_seconds() < 5.0
-    assert "WARNING" in warned and f"{HOTAS}:55: devices[2]" in warned and "plug it in" in warned
+    assert (
+        "WARNING" in warned
+        and f"{HOTAS}:{PEDALS_LINE}: devices[2]" in warned
+        and "plug it in" in warned
+    )
     assert log.count(WARNING) == 1  # once, not every tick (the next is a minute later)
     stats = json.loads(next(ln for ln in lines if ln.startswith(stats_line)))["stats"]
     assert stats["missing_devices"] == [
-        {"node_id": 2, "entry": "pedals", "match": PEDALS_MATCH, "where": f"{HOTAS}:55: devices[2]"}
+        {
+            "node_id": 2,
+            "entry": "pedals",
+            "match": PEDALS_MATCH,
+            "where": f"{HOTAS}:{PEDALS_LINE}: devices[2]",
+        }
     ]
 
 
@@ -84,7 +97,7 @@ def test_monitor_waits_for_the_entry_by_its_match():
 
 
 def entry(node_id: int = 2, name: str = "pedals") -> MissingEntry:
-    return MissingEntry(node_id, name, PEDALS_MATCH, "hotas.yaml:55")
+    return MissingEntry(node_id, name, PEDALS_MATCH, f"hotas.yaml:{PEDALS_LINE}")
 
 
 def test_warnings_come_after_the_grace_then_once_a_minute():

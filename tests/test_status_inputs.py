@@ -50,7 +50,7 @@ def test_the_descriptor_parser_decodes_battery_strength_as_hid_tools_does():
     assert decoder.state().values[battery.index] == reference[(GDC_BATTERY_STRENGTH, 0)] == 17
 
 
-def bound(config_text: str = "", report: bytes = pad_report()):
+def bound(config_text: str = "defaults: true\n", report: bytes = pad_report()):
     layout = parse_descriptor(PAD_DESCRIPTOR)
     mapping = compile_mapping(load_config_text(config_text, "c.yaml"))
     binding = mapping.bind(PAD, layout)
