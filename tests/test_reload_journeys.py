@@ -9,6 +9,7 @@ log line; `usb2rc check` must refuse the same file (one function judges both).
 
 from __future__ import annotations
 
+import re
 import os
 import signal
 import subprocess
@@ -19,6 +20,7 @@ from pathlib import Path
 import pytest
 from cli_harness import usb2rc
 from daemon_harness import (
+    INVERT_UNGUARDED_X_CONFIG,
     INVERT_X_CONFIG,
     ROOT,
     DaemonProcess,
@@ -136,10 +138,10 @@ def test_a_reload_without_a_port_takes_the_port_given_with_dash_dash_port(
     """Decision: `--port` replaces the first output's port at start and on every reload, so
     a config without one is taken (and `check --port` passes it)."""
     config = tmp_path / "usb2rc.yaml"
-    config.write_text(without_port(INVERT_X_CONFIG.format(invert="true")))
+    config.write_text(without_port(INVERT_UNGUARDED_X_CONFIG.format(invert="true")))
     daemon = started(tmp_path, line, replay_dir, config, "--port", line.path)
     try:
-        config.write_text(without_port(INVERT_X_CONFIG.format(invert="false")))
+        config.write_text(without_port(INVERT_UNGUARDED_X_CONFIG.format(invert="false")))
         daemon.signal(signal.SIGHUP)
         wait_log(daemon, "reloaded")
         after = len(line.frames())
@@ -329,7 +331,7 @@ def test_check_replay_warns_about_entries_no_device_matches():
     assert result.returncode == 0, result.stderr
     assert result.stdout.splitlines()[-1] == "usb2rc/data/config/hotas.yaml: OK"
     (warning,) = [ln for ln in result.stderr.splitlines() if "matches entry" in ln]
-    assert warning.startswith("usb2rc/data/config/hotas.yaml:55: devices[2]: warning: ")
+    assert re.match(r"usb2rc/data/config/hotas.yaml:\d+: devices\[2\]: warning: ", warning)
     assert "no device in usb2rc/data/demo matches entry 'pedals'" in warning
     assert "(match: vid 0x044f, pid 0xb679)" in warning
 
