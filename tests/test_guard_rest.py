@@ -46,8 +46,18 @@ from usb2rc.guard import (
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
-from usb2rc.hid.usages import GD_GAMEPAD, GD_JOYSTICK, GD_RX, GD_RY, GD_RZ, GD_X, GD_Y, GD_Z
-from usb2rc.hid.usages import GD_DIAL, GD_SLIDER
+from usb2rc.hid.usages import (
+    GD_DIAL,
+    GD_GAMEPAD,
+    GD_JOYSTICK,
+    GD_RX,
+    GD_RY,
+    GD_RZ,
+    GD_SLIDER,
+    GD_X,
+    GD_Y,
+    GD_Z,
+)
 from usb2rc.known_devices import all_devices, guard_axis, lookup, parse_devices
 from usb2rc.protocol import c2_16b
 from usb2rc.state import NodeTable
@@ -164,19 +174,18 @@ def test_a_centre_axis_unmoved_at_an_end_names_the_fix_after_fixed_s() -> None:
 def test_a_game_pad_rests_looser_than_a_joystick() -> None:
     assert default_tolerance(GD_JOYSTICK) == DEFAULT_TOLERANCE == 0.1
     assert default_tolerance(GD_GAMEPAD) == GAMEPAD_TOLERANCE
-    assert GAMEPAD_TOLERANCE == pytest.approx(7849 / 32767, abs=0.005)  # XInput's deadzone
+    assert pytest.approx(7849 / 32767, abs=0.005) == GAMEPAD_TOLERANCE  # XInput's deadzone
     assert default_tolerance(GD_JOYSTICK, "gamepad") == GAMEPAD_TOLERANCE  # the database's
 
 
 def test_every_database_entry_loads_with_a_source_and_a_rest_for_each_axis() -> None:
     devices = all_devices()
-    assert len({(d.vid, d.pid) for d in devices}) == len(devices) >= 8
+    assert len({(d.vid, d.pid) for d in devices}) == len(devices) >= 6
     for d in devices:
         assert d.source.strip() and d.name and d.axes
         assert all(a.arm in ("centre", "low", "high", "any") and a.role for a in d.axes)
-    assert lookup(0x044F, 0xB687) is not None and lookup(0x044F, 0xB687).name.startswith(
-        "Thrustmaster TWCS"
-    )
+    twcs = lookup(0x044F, 0xB687)
+    assert twcs is not None and twcs.name.startswith("Thrustmaster TWCS")
     assert lookup(0x1234, 0x5678) is None
 
 
@@ -193,7 +202,7 @@ def test_a_malformed_entry_is_named() -> None:
 def test_a_config_arm_overrides_the_database() -> None:
     twcs = lookup(0x044F, 0xB687)
     from_db = guard_axis(2, "Z", GD_Z, GD_JOYSTICK, twcs)
-    assert from_db is not None and (from_db.arm, from_db.label) == ("high", "Z (throttle)")
+    assert from_db is not None and (from_db.arm, from_db.label) == ("low", "Z (throttle)")
     assert guard_axis(2, "Z", GD_Z, GD_JOYSTICK, twcs, ("any", None)) is None
     assert guard_axis(2, "Z", GD_Z, GD_JOYSTICK, None) is None  # no entry: Z is not guarded
 
@@ -264,14 +273,14 @@ def test_a_dualshock_3_at_rest_goes_live_with_zero_config(
 def test_a_twcs_plugged_with_the_throttle_forward_waits_until_pulled_back(
     tmp_path: Path, line: PtyLine, replay_dir: Path
 ) -> None:
-    """The TWCS throttle is HID Z (0..65535): forward 0, pulled back 65535 (the database's
-    `arm: high`). Forward for 1 s after the plug: `!` with the held (failsafe) values; pulled
-    back: `>`, and no live frame carries the forward throttle."""
+    """The TWCS throttle is HID Z (0..65535), idle at 0 (the database's `arm: low`, as
+    data/config/hotas.yaml). Forward for 1 s after the plug: `!` with the held (failsafe)
+    values; pulled back: `>`, and no live frame carries the forward throttle."""
     descriptor = real_descriptor("044f:b687")
     centred = {u: 512 for u in (GD_X, GD_Y, GD_RZ, GD_RX, GD_RY, GD_SLIDER, GD_DIAL)}
 
     def throttle(t: float) -> dict[int, int]:
-        return {**centred, GD_Z: 0 if t < 1.0 else 65535}
+        return {**centred, GD_Z: 65535 if t < 1.0 else 0}
 
     text = capture(descriptor, "044f b687", "TWCS Throttle", throttle, report_id=1)
     daemon = run_daemon(tmp_path, line.path, replay_dir)
@@ -282,10 +291,10 @@ def test_a_twcs_plugged_with_the_throttle_forward_waits_until_pulled_back(
         assert live_at >= 25  # forward for 1 s: ~50 ticks of `!`
         assert {f.status for f in frames[:live_at]} == {FAILSAFE}
         z_slot = c2_16b.AXIS_NAMES.index("z")
-        assert all(f.axes[z_slot] == 32767 for f in frames[live_at:] if f.status == LIVE)
+        assert all(f.axes[z_slot] == -32768 for f in frames[live_at:] if f.status == LIVE)
     finally:
         assert daemon.stop() == 0, daemon.log()
-    assert "node 0 waits for Z (throttle) high (TWCS Throttle)" in daemon.log()
+    assert "node 0 waits for Z (throttle) low (TWCS Throttle)" in daemon.log()
 
 
 # Thrustmaster TFRP: no public capture of its report descriptor was found, so this one is
