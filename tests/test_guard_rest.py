@@ -249,6 +249,16 @@ def first_live(line: PtyLine, node_id: int = 0) -> int:
     return [f.status for f in data_frames(line.frames(), node_id)].index(LIVE)
 
 
+def assert_goes_live(tmp_path: Path, line: PtyLine, replay_dir: Path, file: str, text: str) -> None:
+    """The daemon, zero config: the replayed device's node goes `>` (within 20 s)."""
+    daemon = run_daemon(tmp_path, line.path, replay_dir)
+    try:
+        install(replay_dir / file, text)
+        first_live(line)
+    finally:
+        assert daemon.stop() == 0, daemon.log()
+
+
 def test_a_dualshock_3_at_rest_goes_live_with_zero_config(
     tmp_path: Path, line: PtyLine, replay_dir: Path
 ) -> None:
@@ -262,12 +272,7 @@ def test_a_dualshock_3_at_rest_goes_live_with_zero_config(
         return {GD_X: 141 + j, GD_Y: 111, GD_Z: 128, GD_RZ: 128 - j}
 
     text = capture(descriptor, "054c 0268", "Sony PLAYSTATION(R)3 Controller", at_rest, report_id=1)
-    daemon = run_daemon(tmp_path, line.path, replay_dir)
-    try:
-        install(replay_dir / "ds3.hid", text(0.0, 2.0))
-        first_live(line)
-    finally:
-        assert daemon.stop() == 0, daemon.log()
+    assert_goes_live(tmp_path, line, replay_dir, "ds3.hid", text(0.0, 2.0))
 
 
 def test_a_twcs_plugged_with_the_throttle_forward_waits_until_pulled_back(
@@ -317,12 +322,7 @@ def test_tfrp_pedals_at_rest_go_live_with_zero_config(
         return {GD_X: 0, GD_Y: 0, GD_Z: 512}
 
     text = capture(TFRP_DESCRIPTOR, "044f b678", "T.Flight Rudder Pedals", at_rest)
-    daemon = run_daemon(tmp_path, line.path, replay_dir)
-    try:
-        install(replay_dir / "tfrp.hid", text(0.0, 1.0))
-        first_live(line)
-    finally:
-        assert daemon.stop() == 0, daemon.log()
+    assert_goes_live(tmp_path, line, replay_dir, "tfrp.hid", text(0.0, 1.0))
 
 
 def test_a_stick_swept_at_full_travel_never_goes_live_end_to_end(
