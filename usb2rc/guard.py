@@ -140,7 +140,8 @@ NO_GUARD = NeutralGuard()
 @dataclass
 class RestWatch:
     """Whether a plugged device's guarded axes have rested long enough: one per device, fed
-    each reader record once (by its report count) with the record's time and the time now.
+    each reader record once (a reader publishes each as a new object) with the record's
+    time, and the time of the frame that reads it.
 
     Decisions (docs/ICD.md, "Neutral guard"): the rest starts at the first record in which
     every guarded axis is inside its tolerance; a record with one outside, or one that
@@ -156,7 +157,7 @@ class RestWatch:
     first: dict[int, int] = field(default_factory=dict)  # slot -> its first value (wire)
     moved: set[int] = field(default_factory=set)  # slots whose value changed since the plug
     record: object = None  # the reader record last taken (each is a new object)
-    plugged: float | None = None  # the time of the first record
+    plugged: float | None = None  # the time of the first frame that read the device
     fixed: bool = False  # a centre axis stuck at an end since the plug (see above)
     waiting: tuple[str, ...] = ()
 
@@ -198,10 +199,7 @@ class RestWatch:
             self.since, self.spans = None, {}
             return
         units = {a.slot: _unit(a, wire_axes) for a in guard.axes}
-        spans = {
-            slot: (min(x, self.spans.get(slot, (x, x))[0]), max(x, self.spans.get(slot, (x, x))[1]))
-            for slot, x in units.items()
-        }
+        spans = {slot: _widen(self.spans.get(slot), x) for slot, x in units.items()}
         if self.since is None or any(hi - lo > REST_SPAN for lo, hi in spans.values()):
             self.since, spans = at, {slot: (x, x) for slot, x in units.items()}
         self.spans = spans
@@ -242,6 +240,11 @@ class RestWatch:
         if axis.arm != "centre" or value is None or axis.slot in self.moved:
             return False
         return abs(wire_to_unit(value, axis.unsigned)) >= 1.0 - END_MARGIN
+
+
+def _widen(span: tuple[float, float] | None, x: float) -> tuple[float, float]:
+    """The span of an axis's values during the rest, with `x`."""
+    return (x, x) if span is None else (min(span[0], x), max(span[1], x))
 
 
 def _unit(axis: GuardedAxis, wire_axes: Sequence[int | None]) -> float:
