@@ -139,6 +139,19 @@ def test_a_resting_stick_arms_whichever_output_reads_it_and_however_often() -> N
     assert not table.frames()[0].failsafe
 
 
+def test_a_rest_seen_report_by_report_counts_though_no_frame_read_it_in_time() -> None:
+    """Centred at t0 and read at once; the next report (the very next one: count + 1) moves
+    the stick 2 REST_S later: it had rested, so the device arms. After unseen reports (the
+    count jumps) nothing is known of the time between: it does not."""
+    for next_count, armed in ((2, True), (5, False)):
+        table, source, clock = stick_table()
+        report_at(source, clock, StickState(), 1)
+        assert table.frames()[0].failsafe
+        clock.now += 2 * REST_S
+        report_at(source, clock, StickState(x=16383), next_count)
+        assert table.frames()[0].failsafe is not armed, next_count
+
+
 def test_a_move_during_the_rest_starts_it_again() -> None:
     table, source, clock = stick_table()
     report_at(source, clock, StickState(), 1)

@@ -147,9 +147,12 @@ class RestWatch:
     every guarded axis is inside its tolerance; a record with one outside, or one that
     widens an axis's span of values beyond REST_SPAN, starts it again. The device arms once
     REST_S has passed since the rest started (a device that sends no report while it rests
-    still arms: nothing moved). A centre axis that has not changed in the FIXED_S since the
-    plug and sits at an end of its travel is `fixed` (a hand holding a stick moves it before
-    then): it names the fix (`arm: any`) in what it waits for.
+    still arms: nothing moved), or when the report that ends a rest comes REST_S after it
+    started and every report since was seen (consecutive report counts: nothing moved
+    unseen), so a rest is not lost because no frame read the node during it. A centre
+    axis that has not changed in the FIXED_S since the plug and sits at an end of its
+    travel is `fixed` (a hand holding a stick moves it before then): it names the fix
+    (`arm: any`) in what it waits for.
     """
 
     since: float | None = None  # when the current rest began (a record's time)
@@ -157,6 +160,8 @@ class RestWatch:
     first: dict[int, int] = field(default_factory=dict)  # slot -> its first value (wire)
     moved: set[int] = field(default_factory=set)  # slots whose value changed since the plug
     record: object = None  # the reader record last taken (each is a new object)
+    reports: int = -1  # its report count
+    run_since: float | None = None  # start of the rest seen report by report (no gap)
     plugged: float | None = None  # the time of the first frame that read the device
     fixed: bool = False  # a centre axis stuck at an end since the plug (see above)
     waiting: tuple[str, ...] = ()
@@ -166,19 +171,26 @@ class RestWatch:
         guard: NeutralGuard,
         wire_axes: Sequence[int | None],
         trims: Mapping[int, float] | None,
-        record: tuple[object, float | None],
+        record: tuple[object, int, float | None],
         now: float,
     ) -> tuple[str, ...]:
         """What the device still waits for (empty: it has rested): `record` is the reader
-        record and its time, `now` the time of this frame (same clock)."""
-        new, at = record
+        record, its report count and its time; `now` the time of this frame (same clock)."""
+        new, reports, at = record
         if self.plugged is None:
             self.plugged = now
         if new is not self.record:
-            self.record = new
+            gapless = reports == self.reports + 1 and at is not None
+            run = self.run_since
+            if gapless and at is not None and run is not None and at - run >= REST_S:
+                self.waiting = ()  # it rested, report after report, before this one
+                return self.waiting
+            self.record, self.reports = new, reports
             # a record without a time (made by hand: a reader always stamps its records)
             # cannot show how long the device rested: its rest counts as long enough
-            self._take(guard, wire_axes, trims, -math.inf if at is None else at)
+            taken_at = -math.inf if at is None else at
+            self._take(guard, wire_axes, trims, taken_at)
+            self._follow_run(gapless, taken_at)
         if self.since is not None and now - self.since >= REST_S:
             self.waiting = ()
         elif self.since is not None:
@@ -203,6 +215,14 @@ class RestWatch:
         if self.since is None or any(hi - lo > REST_SPAN for lo, hi in spans.values()):
             self.since, spans = at, {slot: (x, x) for slot, x in units.items()}
         self.spans = spans
+
+    def _follow_run(self, gapless: bool, at: float) -> None:
+        """The rest as seen report by report: it goes on while every report is seen, and
+        starts again at a report that follows unseen ones (or that starts the rest)."""
+        if self.since is None:
+            self.run_since = None
+        elif not gapless or self.run_since is None or self.since == at:
+            self.run_since = at
 
     def _note_moves(self, guard: NeutralGuard, wire_axes: Sequence[int | None]) -> None:
         for axis in guard.axes:

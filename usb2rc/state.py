@@ -140,7 +140,7 @@ class _Attached:
             inputs = _trimmed(inputs, trims, self.binding)
         if not self.armed:
             when = time.monotonic() if now is None else now
-            timed = (record, record.at)
+            timed = (record, record.reports, record.at)
             self.waiting = self.rest.check(self.binding.guard, inputs.axes, trims, timed, when)
             if self.waiting:
                 return self.binding.failsafe(self.last_inputs), False
