@@ -101,7 +101,11 @@ def hat_round(t: float, start: float, step: float) -> int:
     return k if k < 8 else HAT_NULL
 
 
+REST_LEAD_S = 0.5  # both devices hold their t=0 values (at rest) first: the neutral guard's rest
+
+
 def stick_values(t: float) -> dict[str, int]:
+    t = max(0.0, t - REST_LEAD_S)
     if t < 10:  # circles on X/Y, growing from the centre over the first 2 s
         gain = min(1.0, t / 2.0)
         x = wave(t, 4.0, 0, 16383, gain=gain)
@@ -120,6 +124,7 @@ def stick_values(t: float) -> dict[str, int]:
 
 
 def throttle_values(t: float) -> dict[str, int]:
+    t = max(0.0, t - REST_LEAD_S)
     return {
         "z": triangle(t, 10.0, 0, 65535),
         "x": wave(t, 3.0, 0, 1023),

@@ -9,6 +9,7 @@ harness's own scaling (daemon_harness.expected_frame), not from the code under t
 from __future__ import annotations
 
 import math
+import time
 
 from daemon_harness import (
     T16000M_DESCRIPTOR,
@@ -21,7 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from usb2rc.binding import default_binding
-from usb2rc.guard import GuardedAxis, NeutralGuard
+from usb2rc.guard import REST_S, GuardedAxis, NeutralGuard
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import PRESSES_KEPT, DeviceReader, ReaderRecord
@@ -148,7 +149,7 @@ def test_every_press_shows_in_the_next_frame_of_each_output(ops: list) -> None:
     now plus every button pressed (a rising edge) since that output's previous frame, and
     nothing else."""
     reader = DeviceReader(NoDevice(), LAYOUT.make_decoder(), lambda r, c: None)  # type: ignore[arg-type]
-    table = NodeTable()
+    table = NodeTable(clock=lambda: time.monotonic() + REST_S)  # frames after the guard's rest
     outputs = [table.subscribe(events=False), table.subscribe(events=False)]
     table.add_device(0, NoDevice.info, BINDING, reader, "JOYSTICK")
     buttons = 0

@@ -12,7 +12,7 @@ import threading
 import time
 from pathlib import Path
 
-from daemon_harness import INVERT_X_CONFIG, StickState, install, recording
+from daemon_harness import INVERT_X_CONFIG, StickState, install, timed_recording
 
 from usb2rc.config import load_config_text
 from usb2rc.daemon import expected_nodes
@@ -63,8 +63,8 @@ class ScriptedBackend:
 
 
 def plug_stick(folder: Path, name: str = "stick.hid") -> DeviceInfo:
-    # plugged at rest (the neutral guard), then at full right
-    install(folder / name, recording([StickState(), StickState(x=16383)], hold_s=0.01))
+    # plugged at rest for longer than the neutral guard's rest (guard.REST_S), then full right
+    install(folder / name, timed_recording([(0.0, StickState()), (0.2, StickState(x=16383))]))
     return next(i for i in ReplayBackend(folder).enumerate() if i.path.endswith(name))
 
 

@@ -117,7 +117,8 @@ def test_monitor_shows_what_each_mavlink_output_would_send(tmp_path: Path) -> No
     replay = tmp_path / "replay"
     replay.mkdir()
     state = StickState(x=16383, y=0, rz=0, slider=255, buttons=1)
-    install(replay / "stick.hid", recording([StickState(), state]))  # at rest first: the guard
+    # at rest first, for a few of monitor's 10 Hz looks: the guard's rest (docs/ICD.md)
+    install(replay / "stick.hid", recording([StickState()] * 3 + [state]))
     out = usb2rc(
         "monitor", "--config", str(config), "--replay", str(replay), "--seconds", "1.5", "--plain"
     )

@@ -49,6 +49,7 @@ from umockdev_harness import (
     wait_until,
 )
 
+from usb2rc.known_devices import lookup
 from usb2rc.protocol import c2_16b
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -345,15 +346,19 @@ def test_open_gets_each_devices_own_descriptor(every_device) -> None:
 SIM_THROTTLE = 0x000200BB
 
 
-def rest_reports(descriptor: bytes) -> list[bytes]:
+def rest_reports(descriptor: bytes, vid: int = 0, pid: int = 0) -> list[bytes]:
     """Every input report with each value at the middle of its range (a Throttle at its
-    low end): what the neutral guard waits for before a device goes live."""
+    low end, an axis of the device database at its rest): what the neutral guard waits for
+    before a device goes live."""
+    known = lookup(vid, pid)
     reports = []
     for ref in ref_reports(descriptor).values():
-        values = {
-            key: f.logical_min if key[0] == SIM_THROTTLE else (f.logical_min + f.logical_max) // 2
-            for key, f in ref.values.items()
-        }
+        values = {}
+        for key, f in ref.values.items():
+            entry = known.axis(key[0]) if known else None
+            arm = entry.arm if entry else "low" if key[0] == SIM_THROTTLE else "centre"
+            ends = {"low": f.logical_min, "high": f.logical_max}
+            values[key] = ends.get(arm, (f.logical_min + f.logical_max) // 2)
         reports.append(encode(ref, values))
     return reports
 
@@ -385,7 +390,7 @@ def test_every_real_device_reports_reach_the_frames(every_device, tmp_path: Path
             wait_announced(line, node_id)
         deliveries = []
         for node_id, (fake, node) in enumerate(plugged):
-            arm(tb, line, node, node_id, rest_reports(fake.descriptor))
+            arm(tb, line, node, node_id, rest_reports(fake.descriptor, fake.vid, fake.pid))
             top = x_report(fake.descriptor, at_max=True)
             bottom = x_report(fake.descriptor, at_max=False)
             deliveries.append(
@@ -613,7 +618,9 @@ def test_record_reproduces_the_reports_and_replays_to_the_same_frames(
 ) -> None:
     hidraw = bed.add(stick("1-1.2"))
     recording = replay_dir / "t16000m.hid"
-    states = [StickState(), *script()[:11]]  # at rest first: the replay goes live at once
+    # at rest first, for two reports: the neutral guard's rest (docs/ICD.md), seen report by
+    # report on replay, so the replay goes live on the second with the values at rest
+    states = [StickState(), StickState(), *script()[:11]]
     with open(recording, "w") as out:
         proc = subprocess.Popen(
             [
@@ -659,7 +666,7 @@ def test_record_reproduces_the_reports_and_replays_to_the_same_frames(
 
     replayed = run_daemon(tmp_path, line.path, replay_dir)
     try:
-        want = [expected_frame(s) for s in states]
+        want = [expected_frame(s) for s in states[1:]]  # the two at rest: one run of frames
         line.wait_for(lambda f: distinct_live(f, 0)[-1:] == want[-1:], timeout=15)
         assert distinct_live(line.frames(), 0) == want
     finally:

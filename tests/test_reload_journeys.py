@@ -9,8 +9,8 @@ log line; `usb2rc check` must refuse the same file (one function judges both).
 
 from __future__ import annotations
 
-import re
 import os
+import re
 import signal
 import subprocess
 import sys

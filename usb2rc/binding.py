@@ -24,14 +24,7 @@ from usb2rc.config_model import (
     LowBatteryConfig,
     TrimSwitchConfig,
 )
-from usb2rc.guard import (
-    DEFAULT_TOLERANCE,
-    NO_GUARD,
-    GuardedAxis,
-    NeutralGuard,
-    default_arm,
-    normalize_arm,
-)
+from usb2rc.guard import NO_GUARD, GuardedAxis, NeutralGuard
 from usb2rc.hid.descriptor import DeviceLayout, InputField, InputState
 from usb2rc.hid.usages import (
     GD_DIAL,
@@ -47,6 +40,7 @@ from usb2rc.hid.usages import (
     SIMULATION_PAGE,
     usage_name,
 )
+from usb2rc.known_devices import KnownDevice, guard_axis
 from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
 from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT, NODE_BUTTONS
 from usb2rc.scaling import (
@@ -488,14 +482,18 @@ def default_binding(
     name: str,
     node_id: int | None = None,
     device: DeviceConfig | None = None,
+    known: KnownDevice | None = None,
 ) -> DeviceBinding:
+    """The default layout; `known`: the device's entry in the device database (its guard)."""
     axes, guarded = [], []
     for slot, f in default_axis_fields(layout):
         fn, info = _field_axis(f, None, slot)
         axes.append((AXIS_SLOTS.index(slot), fn, info, None))
-        arm = default_arm(f.usage, layout.application)
-        if arm != "any":
-            guarded.append(GuardedAxis(AXIS_SLOTS.index(slot), info.source, arm))
+        axis_guard = guard_axis(
+            AXIS_SLOTS.index(slot), info.source, f.usage, layout.application, known
+        )
+        if axis_guard is not None:
+            guarded.append(axis_guard)
     hats, notes = [], []
     hat = first_hat(layout)
     if hat is not None:
@@ -553,19 +551,23 @@ def _configured_axis(layout: DeviceLayout, axis: AxisConfig) -> tuple[AxisFn, Ax
 
 
 def configured_binding(
-    layout: DeviceLayout, device: DeviceConfig, button_runs: Sequence[ButtonRun] | None = None
+    layout: DeviceLayout,
+    device: DeviceConfig,
+    button_runs: Sequence[ButtonRun] | None = None,
+    known: KnownDevice | None = None,
 ) -> DeviceBinding:
-    """The entry's binding on this device; `button_runs`: the entry's, compiled already.
+    """The entry's binding on this device; `button_runs`: the entry's, compiled already;
+    `known`: the device's entry in the device database (where an axis without `arm:` rests).
     Raises MappingError naming the config line when a usage is not in the device."""
     if device.default_layout:
-        return default_binding(layout, device.name, device.node_id, device)
+        return default_binding(layout, device.name, device.node_id, device, known)
     if button_runs is None:
         button_runs = compile_button_runs([(r.hid, r.node) for r in device.buttons])
     axes, guarded, trims = [], [], []
     for axis in device.axes:
         fn, info = _configured_axis(layout, axis)
         axes.append((AXIS_SLOTS.index(axis.slot), fn, info, axis.failsafe))
-        guarded += _guarded_axis(axis, info, layout.application)
+        guarded += _guarded_axis(axis, info, layout.application, known)
         if axis.trim_switch is not None:
             trims.append(_trim_switch(layout, axis.trim_switch, AXIS_SLOTS.index(axis.slot)))
     hats, notes = [], []
@@ -590,14 +592,17 @@ def configured_binding(
     )
 
 
-def _guarded_axis(axis: AxisConfig, info: AxisInfo, application: int) -> list[GuardedAxis]:
-    """The axis's guard: `arm:` as configured, else by its usage (guard.default_arm)."""
-    arm = normalize_arm(axis.arm) if axis.arm else default_arm(axis.usage, application)
-    if arm == "any":
-        return []
-    tolerance = DEFAULT_TOLERANCE if axis.arm_tolerance is None else axis.arm_tolerance
+def _guarded_axis(
+    axis: AxisConfig, info: AxisInfo, application: int, known: KnownDevice | None
+) -> list[GuardedAxis]:
+    """The axis's guard: `arm:` as configured, else the device database's, else by its
+    usage (known_devices.guard_axis)."""
     slot = AXIS_SLOTS.index(axis.slot)
-    return [GuardedAxis(slot, info.source, arm, tolerance, axis.unsigned, axis.trim)]
+    configured = (axis.arm, axis.arm_tolerance)
+    guarded = guard_axis(slot, info.source, axis.usage, application, known, configured)
+    if guarded is None:
+        return []
+    return [replace(guarded, unsigned=axis.unsigned, trim=axis.trim)]
 
 
 def _trim_switch(layout: DeviceLayout, config: TrimSwitchConfig, slot: int) -> TrimSwitch:

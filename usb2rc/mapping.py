@@ -36,6 +36,7 @@ from usb2rc.config import (
 )
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DeviceLayout
+from usb2rc.known_devices import KnownDevice, lookup
 from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
 
 
@@ -103,9 +104,10 @@ class CompiledEntry:
     def node_id(self) -> int | None:
         return self.config.node_id
 
-    def bind(self, layout: DeviceLayout) -> DeviceBinding:
-        """Raises MappingError naming the config line when a usage is not in the device."""
-        return configured_binding(layout, self.config, self.button_runs)
+    def bind(self, layout: DeviceLayout, known: KnownDevice | None = None) -> DeviceBinding:
+        """Raises MappingError naming the config line when a usage is not in the device.
+        `known`: the device's entry in the device database (where axes without `arm:` rest)."""
+        return configured_binding(layout, self.config, self.button_runs, known)
 
 
 def compile_entry(device: DeviceConfig) -> CompiledEntry:
@@ -145,11 +147,13 @@ class Mapping:
         does not have.
         """
         entry = self.compiled_entry_for(info)
+        known = lookup(info.vid, info.pid)  # the device database (docs/ICD.md, "Neutral guard")
         if entry is not None:
-            return entry.bind(layout)
+            return entry.bind(layout, known)
         if not self.config.defaults:
             return None
-        return default_binding(layout, info.product or f"{info.vid:04x}:{info.pid:04x}")
+        name = info.product or (known.name if known else f"{info.vid:04x}:{info.pid:04x}")
+        return default_binding(layout, name, known=known)
 
     def pinned_node_ids(self) -> set[int]:
         return {e.node_id for e in self.entries if e.node_id is not None}

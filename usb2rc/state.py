@@ -13,12 +13,15 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import Any, Protocol
 
 from usb2rc.binding import DeviceBinding, NodeInputs
 from usb2rc.config_model import HandoverConfig
+from usb2rc.guard import RestWatch
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import InputState
 from usb2rc.hid.reader import ReaderRecord
@@ -107,6 +110,7 @@ class _Attached:
     # the guarded axes rest; `waiting` names those that did not, at the last frame.
     armed: bool = False
     waiting: tuple[str, ...] = ()
+    rest: RestWatch = field(default_factory=RestWatch)  # how long it has rested (guard.py)
     # No lost taps: per output (subscriber), the reader's press serial it has shown.
     seen_presses: dict[int, int] = field(default_factory=dict)
     trim_serial: int = 0  # the press serial the trims have stepped on
@@ -132,13 +136,17 @@ class _Attached:
         return self.read()[0]
 
     def read(
-        self, subscriber: int | None = None, trims: dict[int, float] | None = None
+        self,
+        subscriber: int | None = None,
+        trims: dict[int, float] | None = None,
+        now: float | None = None,
     ) -> tuple[NodeInputs, bool]:
         """What the device sends now and whether that is live (under the table lock), both
         from one reader record: a record published between two reads must not give a frame
         marked live that carries the held values. `subscriber`: the output asking, whose
         frame also shows the buttons tapped since its last frame; `trims`: the node's
-        stepped trims of the slots this device has trim switches for."""
+        stepped trims of the slots this device has trim switches for; `now`: the time of
+        the frame (the neutral guard's rest has a time), None: time.monotonic()."""
         record = self.source.record  # read once: liveness and values from the same record
         if record.bad_spells != self.bad_spells_seen:
             self._bad_reports_began(record)
@@ -156,7 +164,9 @@ class _Attached:
         if trims:
             inputs = _trimmed(inputs, trims, self.binding)
         if not self.armed:
-            self.waiting = tuple(self.binding.guard.waiting_for(inputs.axes, trims))
+            when = time.monotonic() if now is None else now
+            timed = (record, record.reports, record.at)
+            self.waiting = self.rest.check(self.binding.guard, inputs.axes, trims, timed, when)
             if self.waiting:
                 return self.binding.failsafe(self.last_inputs), False
             self.armed = True
@@ -222,7 +232,12 @@ class _Node:
             return True
         return bool(self.expected) or not all(a.live for a in self.attached)
 
-    def frame(self, subscriber: int | None = None, trims: TrimStore | None = None) -> NodeFrame:
+    def frame(
+        self,
+        subscriber: int | None = None,
+        trims: TrimStore | None = None,
+        now: float | None = None,
+    ) -> NodeFrame:
         axes = [0] * AXIS_COUNT
         group1 = group2 = unsigned = 0
         handover: HandoverConfig | None = None
@@ -236,7 +251,7 @@ class _Node:
             if attached.binding.trim_switches and trims is not None:
                 attached.step_trims(self.node_id, trims)
                 own_trims = trims.of_switches(self.node_id, attached.binding.trim_switches)
-            inputs, live = attached.read(subscriber, own_trims)
+            inputs, live = attached.read(subscriber, own_trims, now)
             all_live = all_live and live
             _merge_axes(axes, inputs)
             group1 |= inputs.group1
@@ -269,7 +284,8 @@ class _Node:
                     ("bad reports", f"good reports from {name} (its last {bad} were refused)")
                 )
             elif a.waiting:
-                why.append((f"guard {name}", f"{', '.join(a.waiting)} ({name})"))
+                kind = f"guard {name}" + (" fixed" if a.rest.fixed else "")
+                why.append((kind, f"{', '.join(a.waiting)} ({name})"))
             elif not a.live:
                 why.append(("unknown", f"{name} (no report yet)"))
         why += [("expected", _not_plugged(name, entry)) for name, entry in self.expected.items()]
@@ -320,8 +336,11 @@ Expected = dict[int, dict[str, ExpectedEntry]]
 class NodeTable:
     """Node-IDs, the devices feeding them, and the service events each output still owes."""
 
-    def __init__(self, expected: Expected | None = None) -> None:
+    def __init__(
+        self, expected: Expected | None = None, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         self._lock = threading.Lock()
+        self._clock = clock  # the frames' time: the neutral guard's rest (the readers' clock)
         self._nodes: dict[int, _Node] = {}
         self._by_key: dict[str, tuple[int, _Attached]] = {}
         self._outbox: list[list[ServiceEvent] | None] = []  # None: frames only (SUMD)
@@ -378,9 +397,10 @@ class NodeTable:
         frames, changes = [], []
         if subscriber is not None and not self._latching[subscriber]:
             subscriber = None
+        now = self._clock()
         for node_id in sorted(self._nodes):
             node = self._nodes[node_id]
-            frame = node.frame(subscriber, self._trims)
+            frame = node.frame(subscriber, self._trims, now)
             frames.append(frame)
             change = None if self._stopping else node.failsafe_change(frame.failsafe)
             if change:

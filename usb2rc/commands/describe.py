@@ -1,9 +1,14 @@
-"""`usb2rc describe FILE | --hex HEX [--json] [--reports N]`: what usb2rc reads in a device.
+"""`usb2rc describe FILE | --hex HEX | --known [--json] [--reports N]`: what usb2rc reads in
+a device.
 
 Prints the parsed layout of a HID report descriptor (from a hid-recorder file or raw hex):
 each input field (report ID, usage, bit offset / size, logical range, null state), the
-buttons, the top-level application, and the default C2-16B mapping the device would get. For
-a hid-recorder file also the decoded values of its first N recorded reports.
+buttons, the top-level application, and the default C2-16B mapping the device would get
+(with its neutral guard: from the device database when the file's vid:pid is in it). For a
+hid-recorder file also the decoded values of its first N recorded reports.
+
+`--known` lists the device database instead (usb2rc/data/devices.yaml): each known device,
+its axes' roles and where they rest, and the public source of each entry.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from usb2rc.binding import default_binding
 from usb2rc.hid.descriptor import DescriptorError, DeviceLayout, parse_descriptor
 from usb2rc.hid.recording import Recording, RecordingError, read_recording
 from usb2rc.hid.usages import device_type_name, usage_name
+from usb2rc.known_devices import KnownDevice, all_devices, lookup
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -27,6 +33,11 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     )
     parser.add_argument("file", nargs="?", help="a hid-recorder file")
     parser.add_argument("--hex", metavar="HEX", help="the descriptor as hex bytes instead")
+    parser.add_argument(
+        "--known",
+        action="store_true",
+        help="list the device database: known devices, their axes' rest and sources",
+    )
     parser.add_argument("--json", action="store_true", help="machine-readable output")
     parser.add_argument(
         "--reports", type=int, default=10, metavar="N", help="decode the first N reports (10)"
@@ -40,7 +51,7 @@ class DescribeError(ValueError):
 
 def load(args: argparse.Namespace) -> tuple[bytes, Recording | None]:
     if (args.file is None) == (args.hex is None):
-        raise DescribeError("give either FILE or --hex HEX")
+        raise DescribeError("give either FILE or --hex HEX (or --known)")
     if args.hex is not None:
         try:
             return bytes.fromhex(args.hex.replace(":", " ")), None
@@ -122,7 +133,37 @@ def text_lines(
     return lines
 
 
+def known_dict(device: KnownDevice) -> dict[str, Any]:
+    return {
+        "vid": f"{device.vid:04x}",
+        "pid": f"{device.pid:04x}",
+        "name": device.name,
+        "kind": device.kind,
+        "source": device.source,
+        "axes": [
+            {"usage": usage_name(a.usage), "role": a.role, "arm": a.arm, "why": a.why}
+            for a in device.axes
+        ],
+    }
+
+
+def run_known(as_json: bool) -> int:
+    devices = all_devices()
+    if as_json:
+        print(json.dumps([known_dict(d) for d in devices], indent=2))
+        return 0
+    print(f"{len(devices)} known devices (usb2rc/data/devices.yaml; a config `arm:` overrides):")
+    for device in devices:
+        print("\n".join(device.describe()))
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.known:
+        if args.file is not None or args.hex is not None:
+            print("usb2rc describe: --known takes no FILE or --hex", file=sys.stderr)
+            return 2
+        return run_known(args.json)
     try:
         descriptor, recording = load(args)
         layout = parse_descriptor(descriptor)
@@ -131,7 +172,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     info = layout_dict(layout)
     name = recording.name if recording and recording.name else "device"
-    mapping = default_binding(layout, name).describe()[1:]
+    known = lookup(recording.vid, recording.pid) if recording else None
+    mapping = default_binding(layout, name, known=known).describe()[1:]
     reports = decoded_reports(layout, recording, args.reports) if recording else []
     if args.json:
         info.update(default_mapping=[line.strip() for line in mapping], reports=reports)

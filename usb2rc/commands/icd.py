@@ -257,7 +257,8 @@ def guard_lines(devices: Sequence[DeviceConfig]) -> list[str]:
         if device.default_layout:
             lines.append(
                 f"Neutral guard of {device.name}: X, Y and Rz at the centre on a Joystick or "
-                "Game Pad, a Simulation Controls Throttle low (the default layout)."
+                "Game Pad, a Simulation Controls Throttle low (the default layout), or as "
+                "the device database says (usb2rc describe --known)."
             )
             continue
         rests = [r for r in (_axis_rest(axis) for axis in device.axes) if r]
