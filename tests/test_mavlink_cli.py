@@ -95,6 +95,10 @@ def test_icd_describes_each_mavlink_output() -> None:
     # a UDP port has no baud rate; the serial one has its own (issue 20)
     assert "| mavlink | udpout:127.0.0.1:14550 | - (UDP) | 50 |" in text
     assert "| mavlink | /dev/ttyUSB0 | 57600 | 25 |" in text
+    for command in ("icd", "check"):
+        document = json.loads(usb2rc(command, "--config", str(GOOD), "--json").stdout)
+        bauds = [out["baudrate"] for out in document["outputs"]]
+        assert bauds == [None, 57600], (command, bauds)
 
 
 def test_the_mavlink_example_names_files_that_exist_and_no_sitl_udp() -> None:

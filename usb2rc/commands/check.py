@@ -359,7 +359,8 @@ def output_records(config: Config) -> list[dict[str, Any]]:
         {
             "protocol": out.protocol,
             "port": out.port,
-            "baudrate": out.baudrate,
+            # a UDP port has no baud rate: null, as `icd` prints "- (UDP)"
+            "baudrate": None if out.port and is_udp_url(out.port) else out.baudrate,
             "rate_hz": out.rate_hz,
         }
         for out in config.outputs

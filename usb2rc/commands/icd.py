@@ -406,7 +406,7 @@ def run(args: argparse.Namespace) -> int:
 # number):
 #
 #     {"config": FILE | null,
-#      "outputs": [{"protocol", "port", "baudrate", "rate_hz"}],
+#      "outputs": [{"protocol", "port", "baudrate" (null for UDP), "rate_hz"}],
 #      "nodes": [{"node_id", "devices": [{"name", "match", "default_layout"}],
 #                 "axes": [{"slot", "device", "source", "kind", "range", "failsafe", "shaping"}],
 #                 "buttons": [{"button", "group", "bit", "device", "source"}],
