@@ -180,6 +180,7 @@ class _Attached:
         began and ended between two frames still re-arms the guard."""
         self.bad_spells_seen = record.bad_spells
         self.armed = False
+        self.rest = RestWatch()  # the rest must be seen anew, after the bad run
         if record.reports:
             self.last_inputs = self.binding.apply(record.state)  # held; buttons cleared
 
@@ -658,6 +659,9 @@ def _rebind_attached(node_id: int, attached: _Attached, binding: DeviceBinding) 
     if attached.present and not binding.same_axes(attached.binding):
         attached.last_inputs = attached.inputs()  # what it sent under the old mapping
         attached.armed = False
+        # a new watch: a rest seen under the old mapping (or the report that ended it, seen
+        # only now because an armed device's records were not watched) does not count
+        attached.rest = RestWatch()
         log.warning(
             "config reload: node %d: %s's axes map differently now: the neutral guard "
             "checks it again (%s) before it goes live",
