@@ -10,15 +10,20 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+import serial
 
 from usb2rc.config import Config, OutputConfig
 from usb2rc.daemon import READ_AHEAD_S, Daemon
 from usb2rc.hid.replay import ReplayBackend
 from usb2rc.protocol import crsf
 from usb2rc.scheduler import CrsfOutput, Pace
+from usb2rc.transport import LineEvent, SerialLink
 
+REAL_SERIAL_FOR_URL = serial.serial_for_url
 WAIT_S = 5.0  # a safety net only: every wait below ends on its condition
 
 
@@ -144,3 +149,127 @@ def test_only_the_output_thread_writes_its_pace_and_follows_the_module(
     assert writes.writers == {thread.name}
     assert writes.loose == []
     assert thread.pace.period_s == 0.010
+
+
+# --- SerialLink: one writer per field; a close waits for a read in progress -----------------
+
+
+class _Seams:
+    """Seams in one `loop://` port: a read that stops until `go` (or fails), and a log of
+    what happened to the port in which order."""
+
+    def __init__(self) -> None:
+        self.ports: list[serial.SerialBase] = []
+        self.order: list[str] = []
+        self.reading = threading.Event()
+        self.go = threading.Event()
+        self.fail_reads = False
+        self.closing = threading.Event()
+
+    def open(self, url: str, **kwargs: Any) -> serial.SerialBase:
+        port = REAL_SERIAL_FOR_URL("loop://", **kwargs)
+        real_read, real_close = port.read, port.close
+
+        def read(size: int = 1) -> bytes:
+            self.reading.set()
+            assert self.go.wait(WAIT_S)
+            if self.fail_reads:
+                raise serial.SerialException(
+                    "device reports readiness to read but returned no data"
+                )
+            data: bytes = real_read(size)
+            self.order.append("read done")
+            return data
+
+        def close() -> None:
+            self.order.append("closed")
+            self.closing.set()
+            real_close()
+
+        port.read, port.close = read, close  # type: ignore[method-assign]
+        self.ports.append(port)
+        return port
+
+
+def test_a_port_lost_during_a_read_is_closed_after_the_read(monkeypatch: Any) -> None:
+    """The writer finds the line lost while the RX thread is inside `port.read`: it closes
+    the port only once the read is over (a read on a closed pyserial port raises TypeError
+    or AttributeError, which the link no longer catches)."""
+    seams = _Seams()
+    monkeypatch.setattr(serial, "serial_for_url", seams.open)
+    link = SerialLink("seams://")
+    assert link.open_now() and link.line_event() is LineEvent.OPENED
+    link.write(b"abc")
+    link._port_lock = _SaysWhenWaited(seams.closing)  # type: ignore[assignment]
+    got: list[bytes] = []
+    rx = threading.Thread(target=lambda: got.append(link.read()), name="rx")
+    rx.start()
+    assert seams.reading.wait(WAIT_S)  # the RX thread is inside port.read
+    writer = threading.Thread(target=link._lost, args=(OSError("write failed"),), name="w")
+    writer.start()
+    assert seams.closing.wait(WAIT_S)  # the writer waits for the read (racy: closes now)
+    seams.go.set()
+    rx.join(WAIT_S)
+    writer.join(WAIT_S)
+    assert seams.order == ["read done", "closed"]
+    assert got == [b"abc"] and not link.is_open
+    link.close()
+
+
+def test_each_link_field_has_one_writer_thread(monkeypatch: Any) -> None:
+    """A whole journey (open in the helper thread, adopt, write, a read fails in the RX
+    thread, the writer closes and reopens) with every field assignment recorded: each
+    field is written by one thread (`_offer`, the opener's handoff, only under its lock)."""
+    seams = _Seams()
+    monkeypatch.setattr(serial, "serial_for_url", seams.open)
+    writers: dict[str, set[str]] = {}
+    offers_unlocked: list[str] = []
+
+    def record(link: Any, name: str, value: Any) -> None:
+        object.__setattr__(link, name, value)
+        who = threading.current_thread().name
+        if who == "MainThread":  # the constructor; close() at stop
+            return
+        writers.setdefault(name, set()).add("opener" if who.startswith("open ") else who)
+        if name == "_offer" and not link._lock.locked():
+            offers_unlocked.append(who)
+
+    watched = type("Watched", (SerialLink,), {"__setattr__": record})
+    link = watched("seams://", reopen_interval_s=0.0)
+
+    def until(condition: Callable[[], bool]) -> None:
+        for _ in range(int(WAIT_S / 0.005)):
+            if condition():
+                return
+            threading.Event().wait(0.005)
+        raise AssertionError("never")
+
+    def writer() -> None:
+        until(lambda: link.try_open() or link.line_event() is LineEvent.OPENED)
+        until(lambda: link.line_event() is LineEvent.OPENED or link._adopted is not None)
+        link.write(b"abc")
+        seams.fail_reads = True
+        seams.go.set()
+        until(lambda: link.line_event() is LineEvent.LOST)
+        seams.fail_reads = False
+        until(lambda: (link.try_open() and False) or link.line_event() is LineEvent.OPENED)
+
+    def reader() -> None:
+        until(lambda: link.readable)
+        link.read()  # fails: reported to the writer
+
+    threads = [
+        threading.Thread(target=writer, name="writer"),
+        threading.Thread(target=reader, name="rx"),
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(WAIT_S)
+    assert len(seams.ports) == 2 and link.is_open
+    link.close()
+    assert offers_unlocked == []
+    assert writers.pop("_offer") <= {"opener", "writer"}
+    assert writers.pop("_broken") == {"rx"}
+    assert all(who == {"writer"} for who in writers.values()), writers
+    assert link.stats.bytes_read == 0 and link.stats.losses == 1 and link.stats.opens == 2
