@@ -5,13 +5,14 @@ Any pyserial URL works (`/dev/serial0`, `socket://host:port`, `spy:///dev/ttyUSB
 happens in a helper thread, so a slow open never blocks a tick.
 
 Two threads use a link: the output's writer thread and its RX thread. Only the writer thread
-writes, closes and *adopts* a port: the opener publishes a new port, and the writer learns
+writes, closes and *adopts* a port: the opener offers a new port, and the writer learns
 of it from `line_event()` (OPENED) before it writes anything on it, so the output session
-always hears of a new line before its first byte goes out.
+always hears of a new line before its first byte goes out. Each field has one writer
+(`SerialLink`'s docstring); a close waits for a read in progress.
 
 A write never blocks a tick and says how many bytes went out (`Written`):
-- posix ports (serial ports, ptys): one non-blocking `os.write` on the port's fd;
-- `socket://`: one non-blocking `send` on its socket (whose send buffer is kept small);
+- posix ports (serial ports, ptys) and `socket://` (whose send buffer is kept small): one
+  non-blocking `os.write` on the port's `fileno()` (`plain_fd`);
 - other URLs (`loop://`, `rfc2217://`, ...): `port.write` in pieces that fit the write
   timeout; a piece that times out may or may not have gone (`Written.unsure`).
 Where the OS reports its transmit queue (serial ports, `loop://`), a write that would push
