@@ -244,15 +244,20 @@ def test_each_link_field_has_one_writer_thread(monkeypatch: Any) -> None:
             threading.Event().wait(0.005)
         raise AssertionError("never")
 
+    def follow() -> LineEvent | None:
+        """What `_LineThread.follow_link` does with the link each tick."""
+        if not link.is_open:
+            link.try_open()
+        return link.line_event()
+
     def writer() -> None:
-        until(lambda: link.try_open() or link.line_event() is LineEvent.OPENED)
-        until(lambda: link.line_event() is LineEvent.OPENED or link._adopted is not None)
+        until(lambda: follow() is LineEvent.OPENED)  # opened by the helper thread
         link.write(b"abc")
         seams.fail_reads = True
-        seams.go.set()
-        until(lambda: link.line_event() is LineEvent.LOST)
+        seams.go.set()  # the RX thread's read fails now
+        until(lambda: follow() is LineEvent.LOST)
         seams.fail_reads = False
-        until(lambda: (link.try_open() and False) or link.line_event() is LineEvent.OPENED)
+        until(lambda: follow() is LineEvent.OPENED)  # the second port
 
     def reader() -> None:
         until(lambda: link.readable)
