@@ -25,7 +25,7 @@ from usb2rc.config import load_config_text
 from usb2rc.protocol import crsf, sbus
 from usb2rc.protocol import rc11 as block
 from usb2rc.protocol.crc import crc8_dvb_s2
-from usb2rc.rc_sessions import SYNC_STALE_S, CrsfSession, SbusSession
+from usb2rc.rc_sessions import SYNC_STALE_S, CrsfSession, ModuleLink, SbusSession
 from usb2rc.scaling import axis_to_rc11, button_to_rc11
 
 VECTORS = json.loads(
@@ -228,7 +228,7 @@ def test_crsf_session_keeps_the_link_statistics() -> None:
     session = _open_crsf()
     stats = crsf.LinkStatistics(60, 61, 87, 7, 0, 5, 2, 70, 90, 3)
     session.received(crsf.encode_link_statistics(stats), 5.0)
-    assert session.link == stats
+    assert session.link == ModuleLink(stats, 5.0)  # one value: the figures with their time
     assert "link quality 87% up / 90% down, RSSI -60 dBm, SNR 7 dB" in session.link_text(5.5)
 
 

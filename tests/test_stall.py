@@ -247,7 +247,7 @@ class LoopRig:
         self.out = C2Output("loop", self.link, self.table, settings)
 
     def read_all(self) -> None:
-        port = self.link._port
+        port = self.link._adopted
         assert port is not None
         while waiting := port.in_waiting:
             self.received += port.read(waiting)
@@ -264,7 +264,7 @@ def test_loop_stalled_while_sticks_come_and_go():
     for _ in range(20):  # ... and stops: the queue holds two ticks, then nothing is added
         rig.out.tick()
     assert rig.out.c2.stalled and rig.link.stats.writes_skipped_queue_full >= 1
-    assert rig.link._port.out_waiting <= queue_cap(6 * 36)
+    assert rig.link._adopted.out_waiting <= queue_cap(6 * 36)
     rig.table.remove_device(a.key)
     rig.table.add_device(1, b, BINDING, Source.of(StickState(x=16383)), "JOYSTICK")
     for _ in range(10):
@@ -357,7 +357,7 @@ def test_a_serial_port_queue_is_dropped_when_a_stall_begins(monkeypatch):
     from usb2rc import transport
 
     queued = [0]
-    monkeypatch.setattr(transport.SerialLink, "_reports_queue", lambda self, port: True)
+    monkeypatch.setattr(transport, "is_pty", lambda fd: False)  # a pty posing as a UART
     monkeypatch.setattr(transport, "_out_waiting", lambda port: queued[0])
     master, slave = os.openpty()
     tty.setraw(master)

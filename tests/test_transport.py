@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import socket
 import threading
 
@@ -168,7 +169,7 @@ def test_a_pty_says_how_much_went_and_when_it_drains():
     link = SerialLink(os.ttyname(slave))
     try:
         assert link.open_now() and link.line_event() is LineEvent.OPENED
-        assert link._queued_bytes(link._adopted) is None  # not reported on a pty
+        assert link.hides_queue  # its queue is not reported on a pty
         chunk = bytes(216)
         written = [link.write(chunk) for _ in range(400)]  # far more than a pty holds
         assert any(w.sent < len(chunk) for w in written)  # the OS said: no more
@@ -231,11 +232,12 @@ def test_a_socket_line_keeps_its_send_buffer_small_and_sends_each_tick_at_once()
     server = socket.create_server(("127.0.0.1", 0))
     link = SerialLink(f"socket://127.0.0.1:{server.getsockname()[1]}")
     try:
-        assert link.open_now()
-        sock = transport._socket_of(link._port)
-        assert sock is not None
-        assert sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY)
-        assert sock.getsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF) == 2 * SOCKET_SEND_BUFFER
+        assert link.open_now() and link.line_event() is LineEvent.OPENED
+        fd = transport.plain_fd(link._adopted)
+        assert fd is not None
+        with socket.socket(fileno=os.dup(fd)) as sock:  # the same socket as the link's
+            assert sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY)
+            assert sock.getsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF) == 2 * SOCKET_SEND_BUFFER
     finally:
         link.close()
         server.close()

@@ -145,7 +145,8 @@ class Daemon:
         self._on_ready = on_ready
         self._on_tick = on_tick
         self._on_status = on_status
-        self._ready_once = threading.Event()
+        self._ready_once = threading.Event()  # set once, under _ready_lock; read anywhere
+        self._ready_lock = threading.Lock()
         self.outputs = [self._make_output(i, out) for i, out in enumerate(self.output_configs)]
         self.lifecycle = DeviceLifecycle(
             backend, self.table, self.mapping, self._make_reader, forget=self._forget
@@ -171,11 +172,16 @@ class Daemon:
         self._become_ready("first frame written: usb2rc is running")
 
     def _become_ready(self, message: str) -> None:
-        if not self._ready_once.is_set():
+        """Once, whichever output threads get here together: the check and the set are one
+        step under `_ready_lock`, so READY=1 and the "running" line go out exactly once. The
+        hooks run outside the lock (sd_notify is a socket write)."""
+        with self._ready_lock:
+            if self._ready_once.is_set():
+                return
             self._ready_once.set()
-            log.info(message)
-            if self._on_ready:
-                self._on_ready()
+        log.info(message)
+        if self._on_ready:
+            self._on_ready()
 
     def _status(self, text: str) -> None:
         if self._on_status:
@@ -201,9 +207,11 @@ class Daemon:
         two since), then until READ_AHEAD_S before the tick after. Two wake-ups per tick
         instead of one per report in the last READ_AHEAD_S; a report in the last LAST_CALL_S
         goes with the next tick (the tick's own wake-up is not more precise than that)."""
-        out = min(self.outputs, key=lambda o: o.thread.next_deadline).thread
-        due, now = out.next_deadline, time.monotonic()
-        for wake in (due - READ_AHEAD_S, due - LAST_CALL_S, due + out.period_s - READ_AHEAD_S):
+        # One read of each output's pace: its deadline and period are one value (the
+        # output thread may replace it meanwhile; never half of it).
+        pace = min((o.thread.pace for o in self.outputs), key=lambda p: p.deadline)
+        due, now = pace.deadline, time.monotonic()
+        for wake in (due - READ_AHEAD_S, due - LAST_CALL_S, due + pace.period_s - READ_AHEAD_S):
             if wake > now:
                 return wake - now
         return 0.0  # the outputs have not started, or stopped ticking: read as reports come

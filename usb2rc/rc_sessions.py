@@ -51,6 +51,16 @@ class SbusSession(FrameLineSession):
 
 
 @dataclass(frozen=True)
+class ModuleLink:
+    """The module's last link statistics and when they came (clock of the session's
+    caller): one value, replaced whole, so a stats thread never reads one report's
+    figures with another's time."""
+
+    stats: crsf.LinkStatistics
+    at: float
+
+
+@dataclass(frozen=True)
 class ModuleTiming:
     """The module's last timing correction, as followed: when it came (clock of the
     session's caller), its packet interval and the offset it asked for (seconds)."""
@@ -82,8 +92,9 @@ class CrsfSession(FrameLineSession):
         self.follow_module = follow_module
         self.min_interval_s = max(MIN_INTERVAL_S, min_interval_s)
         self.decoder = crsf.CrsfDecoder()
-        self.link: crsf.LinkStatistics | None = None
-        self.link_at: float | None = None
+        # Written by the output thread only (`received`), read by the stats thread: one
+        # immutable value, assigned in one step.
+        self.link: ModuleLink | None = None
         self.timing: ModuleTiming | None = None
         self.withheld = 0  # ticks without an RC frame because a channel is in failsafe
         self.timing_frames = 0
@@ -103,7 +114,7 @@ class CrsfSession(FrameLineSession):
         """Bytes read from the module at clock `now`."""
         for frame in self.decoder.feed(data):
             if isinstance(frame, crsf.LinkStatistics):
-                self.link, self.link_at = frame, now
+                self.link = ModuleLink(frame, now)
             elif isinstance(frame, crsf.TimingSync):
                 self._follow(frame, now)
             else:
@@ -151,14 +162,15 @@ class CrsfSession(FrameLineSession):
     def link_text(self, now: float) -> str:
         """Link quality and timing for `stats` and `monitor`."""
         parts = []
-        if self.link is None or self.link_at is None:
+        module_link = self.link  # one read: the figures and their time belong together
+        if module_link is None:
             parts.append("no link statistics from the module")
         else:
-            link = self.link
+            link = module_link.stats
             parts.append(
                 f"link quality {link.uplink_link_quality}% up / "
                 f"{link.downlink_link_quality}% down, RSSI -{link.uplink_rssi_1} dBm, "
-                f"SNR {link.uplink_snr} dB ({now - self.link_at:.1f} s ago)"
+                f"SNR {link.uplink_snr} dB ({now - module_link.at:.1f} s ago)"
             )
         if self.timing is not None and self.following(now):
             parts.append(

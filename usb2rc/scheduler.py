@@ -94,8 +94,21 @@ class OutputStats:
         return errors[min(len(errors) - 1, int(len(errors) * 0.99))] * 1000.0
 
 
+@dataclass(frozen=True)
+class Pace:
+    """When an output's next tick is due (monotonic) and its period now: one value, so a
+    reader thread pacing on it (`Daemon._reader_pause`) never pairs one tick's deadline
+    with another's period. Only the output's own thread replaces it, whole."""
+
+    deadline: float
+    period_s: float
+
+
 class TickThread(Worker):
-    """Calls `tick()` every 1/rate_hz s on absolute monotonic deadlines until stopped."""
+    """Calls `tick()` every 1/rate_hz s on absolute monotonic deadlines until stopped.
+
+    `pace` is written by this thread only (one assignment of an immutable `Pace`); other
+    threads read it whole."""
 
     def __init__(
         self,
@@ -105,26 +118,25 @@ class TickThread(Worker):
         on_first_write: Callable[[], None] | None = None,
     ) -> None:
         super().__init__(name)
-        self.period_s = 1.0 / rate_hz
+        self.pace = Pace(0.0, 1.0 / rate_hz)  # deadline 0: not ticking yet
         self.stats = OutputStats()
         self.on_tick = on_tick  # after every tick, on this thread (the watchdog hook)
         self.on_first_write = on_first_write  # once, after the first successful write
         self.last_tick_monotonic = 0.0
-        self.next_deadline = 0.0  # when the next tick is due (monotonic): readers pace on it
         self._last_write = 0.0
         self._logged_errors: set[str] = set()
 
     def run(self) -> None:
         deadline = time.monotonic()
         while not self.stopping:
-            self.next_deadline = deadline
+            self._set_pace(deadline, self.period_s)
             delay = deadline - time.monotonic()
             if delay > 0 and self.wait(delay):
                 break
             started = time.monotonic()
             if started - deadline > self.period_s / 2:
                 self.stats.late_ticks += 1
-            self.next_deadline = deadline + self.period_s  # readers sample for the next one
+            self._set_pace(deadline + self.period_s, self.period_s)  # readers sample for it
             if self._safe_tick():
                 self.stats.ticks += 1
                 self.last_tick_monotonic = time.monotonic()
@@ -137,6 +149,15 @@ class TickThread(Worker):
                 deadline += missed * self.period_s
         self.final_ticks()
         self.finish()
+
+    @property
+    def period_s(self) -> float:
+        """The period now (a CRSF module may change it; `pace` has it with its deadline)."""
+        return self.pace.period_s
+
+    def _set_pace(self, deadline: float, period_s: float) -> None:
+        """This thread only: publish the next deadline with the period, in one step."""
+        self.pace = Pace(deadline, period_s)
 
     def wait(self, delay_s: float) -> bool:
         """Between ticks: wait delay_s, or less if stopped (then True)."""
@@ -496,14 +517,17 @@ class CrsfOutput(ChannelOutput):
         """The session says when: the module's interval and phase while it sends timing
         corrections, the configured rate otherwise."""
         now = time.monotonic()
-        self.period_s = self.crsf.interval_s(now)
-        return self.crsf.next_send(due, now)
+        period_s = self.crsf.interval_s(now)
+        following = self.crsf.next_send(due, now)
+        self._set_pace(self.pace.deadline, period_s)
+        return following
 
     def protocol_stats(self) -> dict[str, Any]:
         """The module's link quality, timing and what was withheld: the figures for
         scripts, and `module`, the line a person reads."""
         session, decoder = self.crsf, self.crsf.decoder
-        link = session.link
+        module_link = session.link  # one read: one report's figures
+        link = None if module_link is None else module_link.stats
         return {
             "module": session.link_text(time.monotonic()),
             "link_quality_up": None if link is None else link.uplink_link_quality,

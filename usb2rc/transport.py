@@ -5,13 +5,14 @@ Any pyserial URL works (`/dev/serial0`, `socket://host:port`, `spy:///dev/ttyUSB
 happens in a helper thread, so a slow open never blocks a tick.
 
 Two threads use a link: the output's writer thread and its RX thread. Only the writer thread
-writes, closes and *adopts* a port: the opener publishes a new port, and the writer learns
+writes, closes and *adopts* a port: the opener offers a new port, and the writer learns
 of it from `line_event()` (OPENED) before it writes anything on it, so the output session
-always hears of a new line before its first byte goes out.
+always hears of a new line before its first byte goes out. Each field has one writer
+(`SerialLink`'s docstring); a close waits for a read in progress.
 
 A write never blocks a tick and says how many bytes went out (`Written`):
-- posix ports (serial ports, ptys): one non-blocking `os.write` on the port's fd;
-- `socket://`: one non-blocking `send` on its socket (whose send buffer is kept small);
+- posix ports (serial ports, ptys) and `socket://` (whose send buffer is kept small): one
+  non-blocking `os.write` on the port's `fileno()` (`plain_fd`);
 - other URLs (`loop://`, `rfc2217://`, ...): `port.write` in pieces that fit the write
   timeout; a piece that times out may or may not have gone (`Written.unsure`).
 Where the OS reports its transmit queue (serial ports, `loop://`), a write that would push
@@ -38,6 +39,7 @@ import os
 import queue
 import select
 import socket
+import stat
 import termios
 import threading
 import time
@@ -45,24 +47,29 @@ from dataclasses import dataclass
 from typing import Any
 
 import serial
-import serial.serialposix
+from serial.urlhandler import protocol_socket
 
 log = logging.getLogger("usb2rc.serial")
 
-PTY_SLAVE_MAJORS = range(136, 144)  # Linux UNIX98 pty slaves: TIOCOUTQ always reads 0
 SOCKET_SEND_BUFFER = 4096  # bytes: what a stalled TCP bridge can hold back from us
+PTY_SLAVE_DIR = "/dev/pts/"  # where Linux names UNIX98 pty slaves (os.ttyname)
+PROC_DEVICES = "/proc/devices"  # the kernel's character majors, by driver name
+PTY_SLAVE_DRIVERS = ("pts", "ttyp")  # UNIX98 and legacy BSD pty slaves
 
 
 @dataclass
 class LinkStats:
+    """A link's counters. Each has one writer: the output (writer) thread, except
+    `bytes_read` (the RX thread); the stats thread only reads them."""
+
     bytes_written: int = 0
     writes: int = 0
     writes_skipped_queue_full: int = 0
     write_timeouts: int = 0
     short_writes: int = 0  # the OS took less than the whole write (the far end stalls)
-    bytes_read: int = 0
+    bytes_read: int = 0  # the RX thread's
     losses: int = 0
-    opens: int = 0
+    opens: int = 0  # ports adopted by the writer
     flushes: int = 0  # the OS queue dropped when a stall began or drained (posix ports)
 
 
@@ -79,6 +86,93 @@ class Written:
 class LineEvent(enum.Enum):
     OPENED = "opened"  # the writer adopted a new port: a fresh line
     LOST = "lost"  # the port failed and is closed
+
+
+@dataclass(frozen=True)
+class _Opened:
+    """What one open attempt gave the writer: a port, or why there is none. The opener
+    thread only opens; logging, counting and adopting are the writer's."""
+
+    port: serial.SerialBase | None
+    error: str = ""
+
+
+class FdKind(enum.Enum):
+    """What a port writes on directly (see `plain_fd`), learnt once at adoption."""
+
+    TTY = "tty"  # a serial port: its OS reports the transmit queue
+    PTY = "pty"  # a pty slave: TIOCOUTQ reads 0 whatever waits in it
+    SOCKET = "socket"  # socket://: no queue to ask, nothing to flush
+
+
+@dataclass(frozen=True)
+class _Handle:
+    """The adopted port and how the writer writes on it (writer thread only)."""
+
+    port: serial.SerialBase
+    fd: int | None  # None: through `port.write` (spy://, loop://, rfc2217://)
+    kind: FdKind | None
+    queue_known: bool  # `port.out_waiting` says what waits (a serial port, loop://)
+
+
+# --- what pyserial has no public API for: one function each, held to the real handlers by
+# tests/test_pyserial_contract.py ---------------------------------------------------------
+
+# Handlers whose `write` puts the bytes on their fd unchanged. pyserial has no public "write
+# what the OS takes now and say how much" (its `write` with a write timeout loops until all
+# went or raises, the count unknown), so usb2rc writes on the fd itself where that is the
+# same bytes: the posix port and socket://. A handler that changes or watches what goes out
+# (spy:// logs it, rfc2217:// escapes 0xFF) overrides `write` and is written through it.
+PLAIN_WRITES = (serial.Serial.write, protocol_socket.Serial.write)
+
+
+def plain_fd(port: serial.SerialBase) -> int | None:
+    """The fd to write `port`'s bytes on directly, or None: through `port.write`."""
+    if getattr(type(port), "write", None) not in PLAIN_WRITES:
+        return None
+    try:
+        fd = port.fileno()  # public on both: the port's fd, the socket's
+    except (OSError, ValueError, AttributeError):  # io.UnsupportedOperation; closed
+        return None
+    return fd if isinstance(fd, int) and fd >= 0 else None
+
+
+def fd_kind(fd: int) -> FdKind | None:
+    """What the fd is, from the OS: a socket, a pty slave or another tty."""
+    try:
+        mode = os.fstat(fd).st_mode
+    except OSError:
+        return None
+    if stat.S_ISSOCK(mode):
+        return FdKind.SOCKET
+    if not stat.S_ISCHR(mode) or not os.isatty(fd):
+        return None
+    return FdKind.PTY if is_pty(fd) else FdKind.TTY
+
+
+def is_pty(fd: int) -> bool:
+    """A pty slave: named under /dev/pts/, or its major is a pty driver's in /proc/devices
+    (a pty from another devpts mount has no name here). No hard-coded majors."""
+    with contextlib.suppress(OSError):
+        if os.ttyname(fd).startswith(PTY_SLAVE_DIR):
+            return True
+    try:
+        return os.major(os.fstat(fd).st_rdev) in pty_slave_majors()
+    except OSError:
+        return False
+
+
+def pty_slave_majors(devices: str = PROC_DEVICES) -> frozenset[int]:
+    """The character majors the kernel gives pty slave drivers (empty if unreadable)."""
+    majors: set[int] = set()
+    with contextlib.suppress(OSError), open(devices, encoding="ascii", errors="replace") as f:
+        for line in f:
+            if line.strip() == "Block devices:":
+                break
+            number, _, name = line.strip().partition(" ")
+            if number.isdigit() and name in PTY_SLAVE_DRIVERS:
+                majors.add(int(number))
+    return frozenset(majors)
 
 
 def _out_waiting(port: Any) -> int:
@@ -106,31 +200,18 @@ def _describe_open_error(url: str, exc: Exception) -> str:
     return f"serial port {url}: {text}"
 
 
-def _posix_fd(port: serial.SerialBase) -> int | None:
-    """The fd to write on directly: a plain posix port (not a `spy://` wrapper, whose own
-    write logs what goes out)."""
-    if not isinstance(port, serial.serialposix.Serial):
-        return None
-    if type(port).write is not serial.serialposix.Serial.write:
-        return None
-    fd = getattr(port, "fd", None)
-    return fd if isinstance(fd, int) else None
-
-
-def _socket_of(port: serial.SerialBase) -> socket.socket | None:
-    sock = getattr(port, "_socket", None)  # pyserial's socket:// keeps it non-blocking
-    return sock if isinstance(sock, socket.socket) else None
-
-
-def _is_pty(fd: int) -> bool:
-    try:
-        return os.major(os.fstat(fd).st_rdev) in PTY_SLAVE_MAJORS
-    except OSError:
-        return False
-
-
 class SerialLink:
-    """One serial output line, shared by the output's writer thread and its RX thread."""
+    """One serial output line, shared by the output's writer thread and its RX thread.
+
+    Who writes what (docs/DESIGN.md, "Threads"):
+    - the opener thread only opens a port and offers the result (`_offer`, under `_lock`);
+    - the writer thread owns everything else: it takes the offer, adopts the port (`_handle`,
+      `_adopted`), writes, logs, counts (`stats`, `last_error`) and closes;
+    - the RX thread reads the adopted port and reports a failed read (`_broken`, its only
+      field besides `stats.bytes_read`); the writer acts on it at its next tick.
+    A port is closed only under `_port_lock`, which a read holds: a read never runs on a
+    closed port (at most one read timeout, 50 ms, delays a close).
+    """
 
     def __init__(
         self,
@@ -150,45 +231,54 @@ class SerialLink:
         self.write_timeout_s = write_timeout_s
         self.max_queued_bytes = max_queued_bytes
         self.reopen_interval_s = reopen_interval_s
-        self._opener: threading.Thread | None = None
-        self._closing = False
         self.stats = LinkStats()
-        self._port: serial.SerialBase | None = None  # published by the opener
-        self._adopted: serial.SerialBase | None = None  # the writer's port (writer thread)
-        self._queue_known = False  # the adopted port reports its transmit queue
+        self.last_error = ""  # writer thread
+        self._closing = False  # close() only
+        self._lock = threading.Lock()  # guards the offer slot, not I/O
+        self._offer: _Opened | None = None  # opener -> writer
+        self._opener: threading.Thread | None = None  # writer thread
+        self._handle: _Handle | None = None  # the adopted port (writer thread)
+        self._port_lock = threading.Lock()  # a read holds it; a close takes it
         # A read failure seen by the RX thread: (port, error). Only the writer thread closes
         # the port, so a write never races a close (nor an fd number reused meanwhile).
         self._broken: tuple[serial.SerialBase, BaseException] | None = None
-        self._lock = threading.Lock()  # guards _port replacement, not I/O
-        self._next_attempt = 0.0
-        self._was_lost_logged = False
-        self.last_error = ""
+        self._next_attempt = 0.0  # writer thread
+        self._down_logged = False  # writer thread: the port's absence was logged
+
+    @property
+    def _adopted(self) -> serial.SerialBase | None:
+        handle = self._handle
+        return None if handle is None else handle.port
 
     @property
     def is_open(self) -> bool:
-        return self._port is not None
+        """A port is adopted, or opened and waiting for the writer (any thread)."""
+        offer = self._offer
+        return self._handle is not None or (offer is not None and offer.port is not None)
 
     @property
     def readable(self) -> bool:
-        port, broken = self._port, self._broken
+        port, broken = self._adopted, self._broken
         return port is not None and (broken is None or broken[0] is not port)
 
-    # --- opening (any thread) ------------------------------------------------------------
+    # --- opening ---------------------------------------------------------------------------
 
     def open_now(self) -> bool:
-        """Open the port in this thread (at start). Never raises. The writer still adopts it
-        through `line_event()`, so its first tick starts the line with the startup frame."""
-        if self._port is not None:
+        """Open the port in this thread (at start, before the writer runs). Never raises.
+        The writer still adopts it through `line_event()`, so its first tick starts the
+        line with the startup frame."""
+        if self.is_open:
             return True
         self._next_attempt = time.monotonic() + self.reopen_interval_s
         self._open()
-        return self._port is not None
+        self._note_failed_open()
+        return self.is_open
 
     def try_open(self) -> bool:
-        """Never blocks: if the port is closed and the retry interval has passed, open it in
-        a helper thread (a USB-serial adapter or a TCP bridge can take a while to open) and
-        return; the writer adopts it with `line_event()` once it is open."""
-        if self._port is not None:
+        """Writer thread. Never blocks: if the port is closed and the retry interval has
+        passed, open it in a helper thread (a USB-serial adapter or a TCP bridge can take a
+        while to open) and return; the writer adopts it with `line_event()` once open."""
+        if self.is_open:
             return True
         now = time.monotonic()
         opener = self._opener
@@ -200,6 +290,7 @@ class SerialLink:
         return False
 
     def _open(self) -> None:
+        """The opener: open, and offer the port (or the error) to the writer; nothing else."""
         try:
             port = serial.serial_for_url(
                 self.url,
@@ -211,33 +302,42 @@ class SerialLink:
                 exclusive=True,
             )
         except Exception as exc:  # whatever a URL handler raises: logged, retried
-            self.last_error = _describe_open_error(self.url, exc)
-            if not self._was_lost_logged:
-                log.error("%s; retrying every %.0f s", self.last_error, self.reopen_interval_s)
-                self._was_lost_logged = True
-            return
-        if self._closing:
-            port.close()
-            return
-        self._limit_socket_buffer(port)
-        self.stats.opens += 1
-        if self._was_lost_logged:
-            log.warning("serial port %s is back", self.url)
-        self._was_lost_logged = False
-        self.last_error = ""
+            opened = _Opened(None, _describe_open_error(self.url, exc))
+        else:
+            if self._closing:
+                port.close()
+                return
+            opened = _Opened(port)
         with self._lock:
-            self._port = port  # one step: the writer adopts it whole, or not yet
+            self._offer = opened  # one step: the writer takes it whole, or not yet
 
-    def _limit_socket_buffer(self, port: serial.SerialBase) -> None:
-        """A TCP bridge that stops reading holds back what the send buffer holds: keep it
-        small, so what comes out after a stall is not seconds old. And send each tick at
-        once: Nagle's algorithm would hold a small write back until the bridge acknowledges
-        the last one (up to its delayed-ACK time, 40 ms on Linux: several ticks)."""
-        sock = _socket_of(port)
-        if sock is not None:
-            with contextlib.suppress(OSError):
-                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SOCKET_SEND_BUFFER)
-                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    def _take_offer(self) -> _Opened | None:
+        with self._lock:
+            offer, self._offer = self._offer, None
+        return offer
+
+    def _note_failed_open(self) -> None:
+        """A failed open is logged once, until a port is adopted again."""
+        offer = self._offer
+        if offer is None or offer.port is not None:
+            return
+        self._take_offer()
+        self.last_error = offer.error
+        if not self._down_logged:
+            log.error("%s; retrying every %.0f s", self.last_error, self.reopen_interval_s)
+            self._down_logged = True
+
+    def _adopt(self, port: serial.SerialBase) -> None:
+        fd = plain_fd(port)
+        kind = None if fd is None else fd_kind(fd)
+        if kind is FdKind.SOCKET and fd is not None:
+            _limit_socket_buffer(fd)
+        self._handle = _Handle(port, fd, kind, _reports_queue(port, kind))
+        self.stats.opens += 1
+        if self._down_logged:
+            log.warning("serial port %s is back", self.url)
+        self._down_logged = False
+        self.last_error = ""
 
     # --- the writer thread ---------------------------------------------------------------
 
@@ -248,23 +348,27 @@ class SerialLink:
         if adopted is not None and broken is not None and broken[0] is adopted:
             self._lost(broken[1])
             return LineEvent.LOST
-        port = self._port
-        if port is None or port is adopted:
+        self._note_failed_open()
+        if self._offer is None:
             return None
-        self._adopted = port
-        self._queue_known = self._reports_queue(port)
+        offer = self._take_offer()
+        if offer is None or offer.port is None:
+            return None
+        if adopted is not None:  # a port already adopted (never: try_open waits for a loss)
+            self._close(adopted)
+        self._adopt(offer.port)
         return LineEvent.OPENED
 
     def write(self, data: bytes) -> Written:
         """Write one tick's bytes on the adopted port, without blocking the tick."""
-        port = self._adopted
-        if port is None or not data:
+        handle = self._handle
+        if handle is None or not data:
             return Written(0)
-        queued = self._queued_bytes(port)
+        queued = self._queued_bytes(handle)
         if queued is not None and queued + len(data) > self.max_queued_bytes:
             self.stats.writes_skipped_queue_full += 1
             return Written(0)
-        result = self._put(port, data)
+        result = self._put(handle, data)
         if result.lost:
             return result
         self.stats.writes += 1
@@ -276,22 +380,16 @@ class SerialLink:
     def drained(self) -> bool:
         """After a stall: may the writer write again? With a reported transmit queue, once it
         holds at most half of `max_queued_bytes`; otherwise once the OS takes bytes again
-        (the port's fd or socket is writable)."""
-        port = self._adopted
-        if port is None:
+        (the port's fd is writable)."""
+        handle = self._handle
+        if handle is None:
             return False
-        queued = self._queued_bytes(port)
+        queued = self._queued_bytes(handle)
         if queued is not None:
             return queued <= self.max_queued_bytes // 2
-        handle: int | socket.socket | None = _posix_fd(port)
-        if handle is None:
-            handle = _socket_of(port)
-        if handle is None:
+        if handle.fd is None:
             return True  # nothing to ask: try again
-        try:
-            return bool(select.select([], [handle], [], 0)[1])
-        except (OSError, ValueError):
-            return True  # the next write finds out what is wrong
+        return _writable(handle.fd, 0.0)
 
     def discard_stale(self) -> bool:
         """A stall began, or the stalled line drained: drop what the OS still holds for the
@@ -307,8 +405,8 @@ class SerialLink:
     @property
     def hides_queue(self) -> bool:
         """The adopted port is a posix fd whose OS does not say what waits in it (a pty)."""
-        port = self._adopted
-        return port is not None and not self._queue_known and _posix_fd(port) is not None
+        handle = self._handle
+        return handle is not None and handle.kind is FdKind.PTY
 
     def discard_unread(self) -> bool:
         """Before a tick's write where the OS hides its queue (`hides_queue`, a pty): drop
@@ -319,49 +417,37 @@ class SerialLink:
         return self.hides_queue and self._flush()
 
     def _flush(self) -> bool:
-        port = self._adopted
-        fd = None if port is None else _posix_fd(port)
-        if fd is None:
+        handle = self._handle
+        if handle is None or handle.fd is None or handle.kind not in (FdKind.TTY, FdKind.PTY):
             return False
         try:
-            termios.tcflush(fd, termios.TCOFLUSH)
+            termios.tcflush(handle.fd, termios.TCOFLUSH)  # as pyserial's reset_output_buffer
         except (OSError, termios.error) as exc:
             log.debug("serial port %s: could not drop the stale bytes: %s", self.url, exc)
             return False
         return True
 
     def wait_drained(self, timeout_s: float) -> bool:
-        """`drained()`, but where the OS can say when the fd or socket takes bytes again,
-        wait up to timeout_s for it (writer thread, between ticks): a far end reads a pty's
-        whole buffer in well under a tick, so a drain seen only at the next tick comes after
-        the stale bytes were read."""
-        port = self._adopted
-        if port is None or self._queue_known:
+        """`drained()`, but where the OS can say when the fd takes bytes again, wait up to
+        timeout_s for it (writer thread, between ticks): a far end reads a pty's whole
+        buffer in well under a tick, so a drain seen only at the next tick comes after the
+        stale bytes were read."""
+        handle = self._handle
+        if handle is None or handle.queue_known or handle.fd is None:
             return self.drained()
-        handle: int | socket.socket | None = _posix_fd(port)
-        if handle is None:
-            handle = _socket_of(port)
-        if handle is None:
-            return self.drained()
-        try:
-            return bool(select.select([], [handle], [], max(0.0, timeout_s))[1])
-        except (OSError, ValueError):
-            return True  # the next write finds out what is wrong
+        return _writable(handle.fd, max(0.0, timeout_s))
 
-    def _put(self, port: serial.SerialBase, data: bytes) -> Written:
+    def _put(self, handle: _Handle, data: bytes) -> Written:
         """One write; a failure closes the port (`lost`), after what went out before it."""
-        fd, sock = _posix_fd(port), _socket_of(port)
+        if handle.fd is None:
+            return self._put_in_pieces(handle.port, data)
         try:
-            if fd is not None:
-                return Written(os.write(fd, data))  # a failing write(2) writes nothing
-            if sock is not None:
-                return Written(sock.send(data))
+            return Written(os.write(handle.fd, data))  # non-blocking; a failure writes nothing
         except BlockingIOError:
             return Written(0)
         except OSError as exc:
             self._lost(exc)
             return Written(0, lost=True)
-        return self._put_in_pieces(port, data)
 
     def _put_in_pieces(self, port: serial.SerialBase, data: bytes) -> Written:
         """`port.write` in pieces the write timeout allows at the baud rate (pyserial's
@@ -381,65 +467,89 @@ class SerialLink:
             sent += len(chunk)
         return Written(sent)
 
-    def _reports_queue(self, port: serial.SerialBase) -> bool:
-        fd = _posix_fd(port)
-        if fd is not None and _is_pty(fd):
-            return False  # a pty's TIOCOUTQ reads 0 whatever waits in it
-        if _socket_of(port) is not None:
-            return False
-        try:
-            _out_waiting(port)
-        except (AttributeError, NotImplementedError, serial.SerialException, OSError):
-            return False
-        return True
-
-    def _queued_bytes(self, port: serial.SerialBase) -> int | None:
+    def _queued_bytes(self, handle: _Handle) -> int | None:
         """Bytes in the OS transmit queue, or None where the OS does not tell."""
-        if not self._queue_known:
+        if not handle.queue_known:
             return None
         try:
-            return _out_waiting(port)
+            return _out_waiting(handle.port)
         except (AttributeError, NotImplementedError, serial.SerialException, OSError):
             return None
 
     def _lost(self, exc: BaseException) -> None:
-        with self._lock:
-            port, self._port = self._port, None
-            self._adopted = None
-        if port is None:
+        handle, self._handle = self._handle, None
+        if handle is None:
             return
         self.stats.losses += 1
         self.last_error = f"serial port {self.url} lost: {exc}"
         log.error("%s; retrying every %.0f s", self.last_error, self.reopen_interval_s)
-        self._was_lost_logged = True
+        self._down_logged = True
         self._next_attempt = time.monotonic() + self.reopen_interval_s
-        with contextlib.suppress(serial.SerialException, OSError):
+        self._close(handle.port)
+
+    def _close(self, port: serial.SerialBase) -> None:
+        """Close a port no thread reads any more: the RX thread reads only the adopted
+        port, and only while it holds `_port_lock`."""
+        with self._port_lock, contextlib.suppress(serial.SerialException, OSError):
             port.close()
 
     # --- the RX thread -------------------------------------------------------------------
 
     def read(self) -> bytes:
-        """Whatever arrived (waits up to the port's 50 ms timeout); b'' when closed."""
-        port = self._port
-        if port is None or not self.readable:
-            return b""
-        try:
-            data: bytes = port.read(max(1, min(_in_waiting(port), 4096)))
-        except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
-            # TypeError/AttributeError: pyserial's posix read on a port closed under it.
-            self._broken = (port, exc)  # the writer closes it and reopens
-            return b""
+        """Whatever arrived (waits up to the port's 50 ms timeout); b'' when closed. A
+        failed read is reported to the writer (`_broken`), which closes the port."""
+        with self._port_lock:
+            port = self._adopted  # the writer un-adopts before it closes: this one is open
+            if port is None or not self.readable:
+                return b""
+            try:
+                data: bytes = port.read(max(1, min(_in_waiting(port), 4096)))
+            except (serial.SerialException, OSError) as exc:
+                self._broken = (port, exc)
+                return b""
         self.stats.bytes_read += len(data)
         return data
 
     def close(self) -> None:
+        """At stop, by the writer thread (or after it was joined)."""
         self._closing = True
         opener = self._opener
         if opener is not None and opener is not threading.current_thread():
             opener.join(self.reopen_interval_s)
-        with self._lock:
-            port, self._port = self._port, None
-            self._adopted = None
-        if port is not None:
-            with contextlib.suppress(serial.SerialException, OSError):
-                port.close()
+        handle, self._handle = self._handle, None
+        offer = self._take_offer()
+        if handle is not None:
+            self._close(handle.port)
+        if offer is not None and offer.port is not None:
+            self._close(offer.port)
+
+
+def _writable(fd: int, timeout_s: float) -> bool:
+    try:
+        return bool(select.select([], [fd], [], timeout_s)[1])
+    except (OSError, ValueError):
+        return True  # the next write finds out what is wrong
+
+
+def _reports_queue(port: serial.SerialBase, kind: FdKind | None) -> bool:
+    """Whether `out_waiting` says what waits: not on a pty (TIOCOUTQ reads 0 whatever waits
+    in it) nor a socket; elsewhere if the handler has it (SerialBase lacks it)."""
+    if kind in (FdKind.PTY, FdKind.SOCKET):
+        return False
+    try:
+        _out_waiting(port)
+    except (AttributeError, NotImplementedError, serial.SerialException, OSError):
+        return False
+    return True
+
+
+def _limit_socket_buffer(fd: int) -> None:
+    """A TCP bridge that stops reading holds back what the send buffer holds: keep it
+    small, so what comes out after a stall is not seconds old. And send each tick at
+    once: Nagle's algorithm would hold a small write back until the bridge acknowledges
+    the last one (up to its delayed-ACK time, 40 ms on Linux: several ticks). pyserial
+    gives the socket only as `fileno()`: the options are set through a duplicate of it
+    (the same socket; the duplicate is closed at once)."""
+    with contextlib.suppress(OSError), socket.socket(fileno=os.dup(fd)) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SOCKET_SEND_BUFFER)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)

@@ -16,7 +16,9 @@ It offers what the output thread needs of a link (`transport.SerialLink`'s shape
 `line_event()`, `write()`, `drained()`, ... A datagram goes out whole or not at all; the
 socket is non-blocking, so a write never blocks a tick. What arrives from the peer is kept
 for `take_received()` (the output thread reads it once a tick, no other thread touches the
-socket). An open that fails (a host that does not resolve) is retried once every
+socket). The output thread is the one writer of every field: no helper or RX thread, and
+`open_now()` runs before that thread starts, `Daemon.stop`'s `close()` after it was joined.
+An open that fails (a host that does not resolve) is retried once every
 `REOPEN_INTERVAL_S`, logged once per distinct error and then reminded at most once every
 `REMIND_S` (`OpenFailures`).
 """

@@ -59,7 +59,7 @@ class BuiltOutput:
 
     The daemon uses of `link` what `SerialLink` (and MAVLink's `UdpLink`) offers:
     `open_now()`, `is_open`, `url`, `last_error`, `stats` (`LinkStats`) and `close()`; of
-    `thread` a `TickThread`'s `start`, `stop`, `join`, `stats`, `period_s`, `next_deadline`,
+    `thread` a `TickThread`'s `start`, `stop`, `join`, `stats`, `period_s`, `pace`,
     `last_tick_monotonic` and `protocol_stats()`."""
 
     link: SerialLink | UdpLink

@@ -1,0 +1,280 @@
+"""One owner per piece of shared state (issue 21): each test drives the two sides of a former
+race explicitly through a seam, or checks which thread writes a field; none relies on luck.
+
+- `Daemon._become_ready`: the check and the set are one step (READY=1 goes out once);
+- `TickThread.pace`: the deadline and the period are one value, written by the output thread;
+- `CrsfSession.link`: the module's figures with their time, one value (tests/test_crsf_sbus.py).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import serial
+
+from usb2rc.config import Config, OutputConfig
+from usb2rc.daemon import READ_AHEAD_S, Daemon
+from usb2rc.hid.replay import ReplayBackend
+from usb2rc.protocol import crsf
+from usb2rc.scheduler import CrsfOutput, Pace
+from usb2rc.transport import LineEvent, SerialLink
+
+REAL_SERIAL_FOR_URL = serial.serial_for_url
+WAIT_S = 5.0  # a safety net only: every wait below ends on its condition
+
+
+def _daemon(tmp_path: Path, protocol: str = "c2-16b", **hooks: Any) -> Daemon:
+    config = Config(outputs=(OutputConfig(protocol=protocol, port="loop://", rate_hz=50),))
+    return Daemon(config, ReplayBackend(tmp_path), **hooks)
+
+
+class _CheckSeam(threading.Event):
+    """The ready flag, with a seam in its check: the first caller to find it unset stops
+    there until `go`, as an output thread preempted between the check and the set."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.first_inside = threading.Event()
+        self.go = threading.Event()
+
+    def is_set(self) -> bool:
+        unset = not super().is_set()
+        if unset and not self.first_inside.is_set():
+            self.first_inside.set()
+            assert self.go.wait(WAIT_S)
+        return not unset
+
+
+class _SaysWhenWaited:
+    """A lock that tells when a second thread waits for it."""
+
+    def __init__(self, waited: threading.Event) -> None:
+        self._lock = threading.Lock()
+        self._waited = waited
+
+    def __enter__(self) -> None:
+        if not self._lock.acquire(blocking=False):
+            self._waited.set()
+            self._lock.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self._lock.release()
+
+
+def test_two_outputs_becoming_ready_together_send_ready_once(tmp_path: Path) -> None:
+    readies: list[str] = []
+    daemon = _daemon(tmp_path, on_ready=lambda: readies.append(threading.current_thread().name))
+    seam = _CheckSeam()
+    second_came = threading.Event()  # the second output waits for the lock, or went past
+    daemon._ready_once = seam
+    daemon._ready_lock = _SaysWhenWaited(second_came)  # type: ignore[assignment]
+
+    def become_ready(then: threading.Event | None) -> None:
+        daemon._become_ready("ready")
+        if then is not None:
+            then.set()
+
+    first = threading.Thread(target=become_ready, args=(None,), name="output1")
+    second = threading.Thread(target=become_ready, args=(second_came,), name="output2")
+    first.start()
+    assert seam.first_inside.wait(WAIT_S)  # output1 checked: not ready yet
+    second.start()
+    assert second_came.wait(WAIT_S)  # output2 waits for output1's step (or, racy, went past)
+    seam.go.set()
+    first.join(WAIT_S)
+    second.join(WAIT_S)
+    assert readies == ["output1"]
+
+
+def test_the_readers_pace_on_one_deadline_and_period(tmp_path: Path) -> None:
+    """`_reader_pause` reads an output's pace once: an output that replaces it between two
+    reads (here: at every read) cannot pair one tick's deadline with another's period."""
+    daemon = _daemon(tmp_path)
+    now = time.monotonic()
+    paces = iter([Pace(now + 0.010, 0.020), Pace(now + 0.500, 1.0)] * 4)
+
+    class Replacing:
+        @property
+        def pace(self) -> Pace:
+            return next(paces)
+
+    daemon.outputs[0].thread = Replacing()  # type: ignore[assignment]
+    pause = daemon._reader_pause()
+    assert 0 < pause <= 0.010 - READ_AHEAD_S  # the first value's wake-up, whole
+
+
+class _PaceWrites:
+    """Which thread assigns `pace` (and that nobody assigns the old loose fields)."""
+
+    def __init__(self) -> None:
+        self.writers: set[str] = set()
+        self.loose: list[str] = []
+
+
+def _watch_pace(thread: CrsfOutput, writes: _PaceWrites) -> None:
+    def setattr_watched(obj: Any, name: str, value: Any) -> None:
+        if name == "pace":
+            writes.writers.add(threading.current_thread().name)
+        if name in ("next_deadline", "period_s"):
+            writes.loose.append(name)
+        object.__setattr__(obj, name, value)
+
+    thread.__class__ = type("Watched", (type(thread),), {"__setattr__": setattr_watched})
+
+
+def test_only_the_output_thread_writes_its_pace_and_follows_the_module(
+    tmp_path: Path,
+) -> None:
+    daemon = _daemon(tmp_path, protocol="crsf")
+    thread = daemon.outputs[0].thread
+    assert isinstance(thread, CrsfOutput)
+    writes = _PaceWrites()
+    _watch_pace(thread, writes)
+    # the module asks for 10 ms (0.1 µs units): next_due follows it from the first tick
+    thread.crsf.received(crsf.encode_timing_sync(100_000, 0), time.monotonic())
+    thread.start()
+    try:
+        for _ in range(int(WAIT_S / 0.01)):
+            if thread.stats.ticks >= 3:
+                break
+            threading.Event().wait(0.01)
+    finally:
+        thread.stop()
+        thread.join(WAIT_S)
+    assert thread.stats.ticks >= 3
+    assert writes.writers == {thread.name}
+    assert writes.loose == []
+    assert thread.pace.period_s == 0.010
+
+
+# --- SerialLink: one writer per field; a close waits for a read in progress -----------------
+
+
+class _Seams:
+    """Seams in one `loop://` port: a read that stops until `go` (or fails), and a log of
+    what happened to the port in which order."""
+
+    def __init__(self) -> None:
+        self.ports: list[serial.SerialBase] = []
+        self.order: list[str] = []
+        self.reading = threading.Event()
+        self.go = threading.Event()
+        self.fail_reads = False
+        self.closing = threading.Event()
+
+    def open(self, url: str, **kwargs: Any) -> serial.SerialBase:
+        port = REAL_SERIAL_FOR_URL("loop://", **kwargs)
+        real_read, real_close = port.read, port.close
+
+        def read(size: int = 1) -> bytes:
+            self.reading.set()
+            assert self.go.wait(WAIT_S)
+            if self.fail_reads:
+                raise serial.SerialException(
+                    "device reports readiness to read but returned no data"
+                )
+            data: bytes = real_read(size)
+            self.order.append("read done")
+            return data
+
+        def close() -> None:
+            self.order.append("closed")
+            self.closing.set()
+            real_close()
+
+        port.read, port.close = read, close  # type: ignore[method-assign]
+        self.ports.append(port)
+        return port
+
+
+def test_a_port_lost_during_a_read_is_closed_after_the_read(monkeypatch: Any) -> None:
+    """The writer finds the line lost while the RX thread is inside `port.read`: it closes
+    the port only once the read is over (a read on a closed pyserial port raises TypeError
+    or AttributeError, which the link no longer catches)."""
+    seams = _Seams()
+    monkeypatch.setattr(serial, "serial_for_url", seams.open)
+    link = SerialLink("seams://")
+    assert link.open_now() and link.line_event() is LineEvent.OPENED
+    link.write(b"abc")
+    link._port_lock = _SaysWhenWaited(seams.closing)  # type: ignore[assignment]
+    got: list[bytes] = []
+    rx = threading.Thread(target=lambda: got.append(link.read()), name="rx")
+    rx.start()
+    assert seams.reading.wait(WAIT_S)  # the RX thread is inside port.read
+    writer = threading.Thread(target=link._lost, args=(OSError("write failed"),), name="w")
+    writer.start()
+    assert seams.closing.wait(WAIT_S)  # the writer waits for the read (racy: closes now)
+    seams.go.set()
+    rx.join(WAIT_S)
+    writer.join(WAIT_S)
+    assert seams.order == ["read done", "closed"]
+    assert got == [b"abc"] and not link.is_open
+    link.close()
+
+
+def test_each_link_field_has_one_writer_thread(monkeypatch: Any) -> None:
+    """A whole journey (open in the helper thread, adopt, write, a read fails in the RX
+    thread, the writer closes and reopens) with every field assignment recorded: each
+    field is written by one thread (`_offer`, the opener's handoff, only under its lock)."""
+    seams = _Seams()
+    monkeypatch.setattr(serial, "serial_for_url", seams.open)
+    writers: dict[str, set[str]] = {}
+    offers_unlocked: list[str] = []
+
+    def record(link: Any, name: str, value: Any) -> None:
+        object.__setattr__(link, name, value)
+        who = threading.current_thread().name
+        if who == "MainThread":  # the constructor; close() at stop
+            return
+        writers.setdefault(name, set()).add("opener" if who.startswith("open ") else who)
+        if name == "_offer" and not link._lock.locked():
+            offers_unlocked.append(who)
+
+    watched = type("Watched", (SerialLink,), {"__setattr__": record})
+    link = watched("seams://", reopen_interval_s=0.0)
+
+    def until(condition: Callable[[], bool]) -> None:
+        for _ in range(int(WAIT_S / 0.005)):
+            if condition():
+                return
+            threading.Event().wait(0.005)
+        raise AssertionError("never")
+
+    def follow() -> LineEvent | None:
+        """What `_LineThread.follow_link` does with the link each tick."""
+        if not link.is_open:
+            link.try_open()
+        return link.line_event()
+
+    def writer() -> None:
+        until(lambda: follow() is LineEvent.OPENED)  # opened by the helper thread
+        link.write(b"abc")
+        seams.fail_reads = True
+        seams.go.set()  # the RX thread's read fails now
+        until(lambda: follow() is LineEvent.LOST)
+        seams.fail_reads = False
+        until(lambda: follow() is LineEvent.OPENED)  # the second port
+
+    def reader() -> None:
+        until(lambda: link.readable)
+        link.read()  # fails: reported to the writer
+
+    threads = [
+        threading.Thread(target=writer, name="writer"),
+        threading.Thread(target=reader, name="rx"),
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(WAIT_S)
+    assert len(seams.ports) == 2 and link.is_open
+    link.close()
+    assert offers_unlocked == []
+    assert writers.pop("_offer") <= {"opener", "writer"}
+    assert writers.pop("_broken") == {"rx"}
+    assert all(who == {"writer"} for who in writers.values()), writers
+    assert link.stats.bytes_read == 0 and link.stats.losses == 1 and link.stats.opens == 2
