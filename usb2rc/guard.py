@@ -199,6 +199,12 @@ class RestWatch:
             self.waiting = tuple(self._not_at_rest(guard, wire_axes, trims, now))
         return self.waiting
 
+    @property
+    def rested_at(self) -> float | None:
+        """When the current rest will have lasted REST_S (None: not resting): the step due
+        then arms the device, even inside a base period that already had its step."""
+        return None if self.since is None else self.since + REST_S
+
     def _take(
         self,
         guard: NeutralGuard,
