@@ -12,7 +12,6 @@ that the kernel may already have given to another device.
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -322,7 +321,8 @@ class NodeTable:
         self._snapshot = EMPTY
         self._layout = 0  # bumped whenever devices, entries or bindings change
         self._stepped: tuple[int, int, tuple[ReaderRecord, ...]] | None = None
-        self._rest_due = math.inf  # when a resting device's rest is long enough: a step then
+        # devices resting, not long enough yet at the last step: a step when one has
+        self._resting: list[RestWatch] = []
         self._attachments = 0  # device ids handed out
         for node_id, entries in (expected or {}).items():
             self._nodes[node_id] = _Node(node_id, expected=dict(entries))
@@ -399,7 +399,7 @@ class NodeTable:
         period = int(now // BASE_PERIOD_S)
         last = self._stepped
         same = last is not None and last[:2] == (period, self._layout) and _same(last[2], records)
-        if same and now < self._rest_due:
+        if same and not any(rest.rested_by(now) for rest in self._resting):
             return []
         self._stepped = (period, self._layout, records)
         return self._step_locked(period, now, nodes, iter(records))
@@ -418,10 +418,7 @@ class NodeTable:
             if change:
                 changes.append(change)
         self._snapshot = TableSnapshot(period, now, tuple(views))
-        self._rest_due = min(
-            (_or_never(a.rest.rested_at) for n in nodes for a in n.attached if not a.armed),
-            default=math.inf,
-        )
+        self._resting = _resting(nodes, now)
         return changes
 
     def request_connect_sequences(self, subscriber: int, node_id: int | None = None) -> int:
@@ -705,5 +702,8 @@ def _connected(node_id: int, attached: _Attached) -> ServiceEvent:
     return ServiceEvent(EventKind.CONNECTED, node_id, attached.info, attached.device_type)
 
 
-def _or_never(when: float | None) -> float:
-    return math.inf if when is None else when
+def _resting(nodes: list[_Node], now: float) -> list[RestWatch]:
+    """The waiting devices' rests not long enough at `now`: a step is due once one is, even
+    inside a period that had its step (a rest long enough by now was seen by this step)."""
+    waiting = (a.rest for node in nodes for a in node.attached if not a.armed)
+    return [rest for rest in waiting if rest.since is not None and not rest.rested_by(now)]
