@@ -12,10 +12,16 @@ from pathlib import Path
 
 import pytest
 from daemon_harness import (
+    RELEASED,
     T16000M_DESCRIPTOR,
     RecordSource,
     StickState,
+    UdpLine,
+    channels,
     install,
+    of_type,
+    pwm_of_int16,
+    scale,
     timed_recording,
 )
 from hypothesis import given, settings
@@ -55,12 +61,13 @@ def jittering_stick(seconds: float, every_s: float = 0.01) -> str:
 def test_a_udpin_output_nobody_called_does_not_delay_arming(tmp_path: Path) -> None:
     """The only output is MAVLink `udpin` and no vehicle has called: it never reads the node
     table. The stick at rest arms anyway (docs/ICD.md, "Neutral guard"): the master clock
-    steps the table. (Before, only an output's read armed it: the node stayed `!`.)"""
+    steps the table; when the vehicle calls, its first override is already the stick's.
+    (Before, only an output's read armed it: the node stayed `!`.)"""
     install(tmp_path / "stick.hid", jittering_stick(30.0))
-    url = f"udpin:127.0.0.1:{free_udp_port()}"
-    daemon = Daemon(
-        Config(outputs=(OutputConfig(protocol="mavlink", port=url),)), ReplayBackend(tmp_path)
-    )
+    port = free_udp_port()
+    outputs = (OutputConfig(protocol="mavlink", port=f"udpin:127.0.0.1:{port}"),)
+    daemon = Daemon(Config(outputs=outputs), ReplayBackend(tmp_path))
+    vehicle = UdpLine()
     daemon.start()
     try:
         deadline = time.monotonic() + 10
@@ -69,8 +76,28 @@ def test_a_udpin_output_nobody_called_does_not_delay_arming(tmp_path: Path) -> N
             threading.Event().wait(0.02)
         assert daemon.outputs[0].thread.stats.writes == 0  # nobody called: nothing sent
         assert not daemon.table.snapshot().nodes[0].frame.failsafe
+        first = first_override_once_called(vehicle, port)
+        centre = {pwm_of_int16(scale(x, 0, 16383)) for x in (8192, 8193)}
+        assert channels(first) != RELEASED and channels(first)[0] in centre
     finally:
         daemon.stop()
+        vehicle.close()
+
+
+def first_override_once_called(vehicle: UdpLine, port: int) -> object:
+    """The vehicle calls (heartbeats) until the daemon answers; its first override."""
+    from pymavlink.dialects.v20 import common
+
+    mav = common.MAVLink(None, srcSystem=1, srcComponent=1)
+    beat = mav.heartbeat_encode(
+        common.MAV_TYPE_QUADROTOR, common.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4
+    ).pack(mav)
+    deadline = time.monotonic() + 10
+    while not of_type(vehicle.frames(), "RC_CHANNELS_OVERRIDE"):
+        assert time.monotonic() < deadline, "no answer to the vehicle's heartbeats"
+        vehicle.sock.sendto(beat, ("127.0.0.1", port))
+        threading.Event().wait(0.1)
+    return of_type(vehicle.frames(), "RC_CHANNELS_OVERRIDE")[0]
 
 
 @dataclass
