@@ -1,12 +1,15 @@
 """Node state: the one lock-guarded place where devices (hot-plug and reader threads) meet
 the outputs (scheduler threads).
 
-Devices are attached to Node-IDs; each output subscribes and gets, per tick and under one
-lock, the service events queued for it and the current frame of every node. Readers never
-take this lock: each publishes one immutable `ReaderRecord` by a single assignment, and the
-table reads it once per device when a frame is built. Devices are added and removed only by
-the lifecycle thread (usb2rc.lifecycle); a device is removed by its reader, not by a path
-that the kernel may already have given to another device.
+Devices are attached to Node-IDs. One step per base period (usb2rc.nodestep) reads each
+reader's record once, runs the neutral guard and the trims, and publishes an immutable
+snapshot of every node; each output subscribes and gets, per tick and under one lock, the
+service events queued for it and the latest snapshot's frames through its own tap latch.
+Reading never changes the nodes: which outputs exist, or tick, does not change when a
+device arms. Readers never take this lock: each publishes one immutable `ReaderRecord` by a
+single assignment. Devices are added and removed only by the lifecycle thread
+(usb2rc.lifecycle); a device is removed by its reader, not by a path that the kernel may
+already have given to another device.
 """
 
 from __future__ import annotations
