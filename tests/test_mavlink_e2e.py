@@ -146,9 +146,8 @@ def test_udpin_answers_the_vehicle_that_called_and_counts_its_heartbeats(tmp_pat
             assert time.monotonic() < deadline, "no answer to the vehicle's heartbeats"
             vehicle.sock.sendto(beat, ("127.0.0.1", port))
             time.sleep(0.1)
-        # Plugged once the link is up: the neutral guard arms on an output tick that sees the
-        # stick at rest (docs/ICD.md, "Neutral guard"), and a udpin output nobody has called
-        # does not tick yet.
+        # Plugged once the link is up (the node step arms the stick at rest whether or not
+        # the output ticks: docs/ICD.md, "Neutral guard"; tests/test_node_step.py).
         install(replay_dir / "stick.hid", recording([CENTRED, STICK]))
         x = pwm(STICK.x, 0, 16383)  # the default list: node 0's x, y, z, rz, ...
         vehicle.wait_for(lambda ms: channels(of_type(ms, "RC_CHANNELS_OVERRIDE")[-1])[0] == x)

@@ -30,6 +30,7 @@ from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.lifecycle import DeviceLifecycle
 from usb2rc.mapping import Mapping, compile_mapping, match_text
+from usb2rc.nodestep import NodeClock
 from usb2rc.outputs import protocol
 from usb2rc.outputs.wiring import OutputContext
 from usb2rc.scheduler import C2Output, ReplyRx, RxThread, TickThread
@@ -142,6 +143,8 @@ class Daemon:
         self.output_configs = outputs_with_port(config, port_override) if outputs else ()
         self.mapping: Mapping = compile_mapping(config)
         self.table = NodeTable(expected_nodes(self.mapping))
+        # the master clock: one node step per base period, whether or not an output reads
+        self.node_clock = NodeClock(self.table.step_if_due, time.monotonic)
         self._on_ready = on_ready
         self._on_tick = on_tick
         self._on_status = on_status
@@ -246,6 +249,7 @@ class Daemon:
         for info in present:
             self.lifecycle.plugged(info)
         self.lifecycle.handle_queued()  # before the outputs start: no thread owns them yet
+        self.node_clock.start()
         for out in self.outputs:
             out.thread.start()
             if out.rx is not None:
@@ -269,6 +273,8 @@ class Daemon:
             if out.rx is not None:
                 out.rx.join(JOIN_TIMEOUT_S)
             out.link.close()
+        self.node_clock.stop()
+        self.node_clock.join(JOIN_TIMEOUT_S)
         if self._switch_interval is not None:
             sys.setswitchinterval(self._switch_interval)
             self._switch_interval = None

@@ -191,13 +191,18 @@ class RestWatch:
             taken_at = -math.inf if at is None else at
             self._take(guard, wire_axes, trims, taken_at)
             self._follow_run(gapless, taken_at)
-        if self.since is not None and now - self.since >= REST_S:
+        if self.rested_by(now):
             self.waiting = ()
         elif self.since is not None:
             self.waiting = (f"{_labels(guard)} still for {REST_S:g} s",)
         else:
             self.waiting = tuple(self._not_at_rest(guard, wire_axes, trims, now))
         return self.waiting
+
+    def rested_by(self, now: float) -> bool:
+        """The current rest has lasted REST_S at `now`: the step then arms the device (the
+        node table steps at that time, even inside a base period that had its step)."""
+        return self.since is not None and now - self.since >= REST_S
 
     def _take(
         self,

@@ -1,12 +1,15 @@
 """Node state: the one lock-guarded place where devices (hot-plug and reader threads) meet
 the outputs (scheduler threads).
 
-Devices are attached to Node-IDs; each output subscribes and gets, per tick and under one
-lock, the service events queued for it and the current frame of every node. Readers never
-take this lock: each publishes one immutable `ReaderRecord` by a single assignment, and the
-table reads it once per device when a frame is built. Devices are added and removed only by
-the lifecycle thread (usb2rc.lifecycle); a device is removed by its reader, not by a path
-that the kernel may already have given to another device.
+Devices are attached to Node-IDs. One step per base period (usb2rc.nodestep) reads each
+reader's record once, runs the neutral guard and the trims, and publishes an immutable
+snapshot of every node; each output subscribes and gets, per tick and under one lock, the
+service events queued for it and the latest snapshot's frames through its own tap latch.
+Reading never changes the nodes: which outputs exist, or tick, does not change when a
+device arms. Readers never take this lock: each publishes one immutable `ReaderRecord` by a
+single assignment. Devices are added and removed only by the lifecycle thread
+(usb2rc.lifecycle); a device is removed by its reader, not by a path that the kernel may
+already have given to another device.
 """
 
 from __future__ import annotations
@@ -14,19 +17,30 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Protocol
 
 from usb2rc.binding import DeviceBinding, NodeInputs
-from usb2rc.config_model import HandoverConfig
 from usb2rc.guard import RestWatch
 from usb2rc.hid.backend import DeviceInfo
-from usb2rc.hid.descriptor import InputState
 from usb2rc.hid.reader import ReaderRecord
+from usb2rc.nodestep import (
+    BASE_PERIOD_S,
+    EMPTY,
+    DeviceView,
+    NodeView,
+    TableSnapshot,
+    TapLatch,
+    compose,
+    merge_axes,
+    trimmed,
+)
+from usb2rc.nodestep import (
+    NodeFrame as NodeFrame,  # re-exported: the sessions speak in it
+)
 from usb2rc.protocol.c2_16b import AXIS_COUNT, AXIS_NAMES
-from usb2rc.scaling import add_trim
 from usb2rc.trims import TrimStore
 
 log = logging.getLogger("usb2rc.nodes")
@@ -45,19 +59,6 @@ class ServiceEvent:
     info: DeviceInfo | None = None
     device_type: str = ""
     error_code: int = 0
-
-
-@dataclass(frozen=True)
-class NodeFrame:
-    node_id: int
-    failsafe: bool
-    axes: tuple[int, ...]
-    group1: int
-    group2: int
-    unsigned_slots: int = 0  # bit k set: axis slot k is a uint16 (binding.unsigned_slots)
-    # the status a live node asks for (the session decides: docs/ICD.md, "Status priority")
-    handover: HandoverConfig | None = None  # a handover button is down: `&`, and where to
-    low_battery: bool = False  # a device's battery is low: `%`
 
 
 @dataclass(frozen=True)
@@ -111,8 +112,7 @@ class _Attached:
     armed: bool = False
     waiting: tuple[str, ...] = ()
     rest: RestWatch = field(default_factory=RestWatch)  # how long it has rested (guard.py)
-    # No lost taps: per output (subscriber), the reader's press serial it has shown.
-    seen_presses: dict[int, int] = field(default_factory=dict)
+    device_id: int = 0  # the table's number for this attachment (TapLatch's key)
     trim_serial: int = 0  # the press serial the trims have stepped on
     bad_spells_seen: int = 0  # the reader's runs of bad reports this device has answered
     trim_positions: dict[int, int] = field(default_factory=dict)  # hat switches: slot -> -1/0/1
@@ -131,46 +131,43 @@ class _Attached:
         """Present, with a state from a report, and not refusing its reports now."""
         return self.present and record.reports > 0 and not record.in_error
 
-    def inputs(self) -> NodeInputs:
-        """What the device sends now (under the table lock)."""
-        return self.read()[0]
+    def last_step(self, now: float) -> NodeInputs:
+        """What the device sends at its last step (under the table lock): the unplug, the
+        stop, or a reload that changed its axes steps it once more, on its reader's last
+        record, for the values it holds (trims aside, as a held value never had them)."""
+        return self.step(self.source.record, None, now).inputs
 
-    def read(
-        self,
-        subscriber: int | None = None,
-        trims: dict[int, float] | None = None,
-        now: float | None = None,
-    ) -> tuple[NodeInputs, bool]:
-        """What the device sends now and whether that is live (under the table lock), both
-        from one reader record: a record published between two reads must not give a frame
-        marked live that carries the held values. `subscriber`: the output asking, whose
-        frame also shows the buttons tapped since its last frame; `trims`: the node's
-        stepped trims of the slots this device has trim switches for; `now`: the time of
-        the frame (the neutral guard's rest has a time), None: time.monotonic()."""
-        record = self.source.record  # read once: liveness and values from the same record
+    def step(self, record: ReaderRecord, trims: dict[int, float] | None, now: float) -> DeviceView:
+        """The device in this step (under the table lock): what it sends and whether that
+        is live, both from one reader record (a record published between two reads must
+        not give a frame marked live that carries the held values). `trims`: the node's
+        stepped trims of the slots this device has trim switches for; `now`: the step's
+        time (the neutral guard's rest has a time); `record`: its reader's, read once."""
         if record.bad_spells != self.bad_spells_seen:
             self._bad_reports_began(record)
         if not self._known(record):
-            return self.binding.failsafe(self.last_inputs), False
-        state = record.state
-        if subscriber is not None:
-            seen = self.seen_presses.get(subscriber, 0)
-            if record.press_serial != seen:
-                self.seen_presses[subscriber] = record.press_serial
-                taps = record.pressed_since(seen) & ~state.buttons
-                if taps:
-                    state = InputState(state.values, state.buttons | taps)
-        inputs = self.binding.apply(state)
+            return self._view(record, self.binding.failsafe(self.last_inputs), False)
+        inputs = self.binding.apply(record.state)
         if trims:
-            inputs = _trimmed(inputs, trims, self.binding)
+            inputs = trimmed(inputs, trims, self.binding)
         if not self.armed:
-            when = time.monotonic() if now is None else now
             timed = (record, record.reports, record.at)
-            self.waiting = self.rest.check(self.binding.guard, inputs.axes, trims, timed, when)
+            self.waiting = self.rest.check(self.binding.guard, inputs.axes, trims, timed, now)
             if self.waiting:
-                return self.binding.failsafe(self.last_inputs), False
+                return self._view(record, self.binding.failsafe(self.last_inputs), False)
             self.armed = True
-        return inputs, True
+        return self._view(record, inputs, True, trims)
+
+    def _view(
+        self,
+        record: ReaderRecord,
+        inputs: NodeInputs,
+        live: bool,
+        trims: dict[int, float] | None = None,
+    ) -> DeviceView:
+        known = self._known(record)
+        own_trims = tuple(sorted(trims.items())) if trims else ()
+        return DeviceView(self.device_id, self.binding, inputs, live, known, record, own_trims)
 
     def _bad_reports_began(self, record: ReaderRecord) -> None:
         """The device refused BAD_REPORTS_LIMIT reports in a row (docs/ICD.md "Device error
@@ -179,16 +176,21 @@ class _Attached:
         the reader's count of such runs, not on what a frame happened to see: a run that
         began and ended between two frames still re-arms the guard."""
         self.bad_spells_seen = record.bad_spells
-        self.armed = False
-        self.rest = RestWatch()  # the rest must be seen anew, after the bad run
+        self.disarm()
         if record.reports:
             self.last_inputs = self.binding.apply(record.state)  # held; buttons cleared
 
-    def step_trims(self, node_id: int, store: TrimStore) -> None:
+    def disarm(self) -> None:
+        """Through the neutral guard again, as a re-plugged device: a new rest from here (a
+        rest or a report run seen before, by the old binding or before the bad reports,
+        must not arm it)."""
+        self.armed = False
+        self.rest = RestWatch()
+
+    def step_trims(self, node_id: int, store: TrimStore, record: ReaderRecord) -> None:
         """Step the node's trims from this device's trim switches: a button press steps once
         (every press, from the reader's press log), a hat steps when pushed (sampled)."""
         switches = self.binding.trim_switches
-        record = self.source.record
         if not switches or not self._known(record):
             return
         rising = [mask for serial, mask in record.presses if serial > self.trim_serial]
@@ -233,44 +235,28 @@ class _Node:
             return True
         return bool(self.expected) or not all(a.live for a in self.attached)
 
-    def frame(
-        self,
-        subscriber: int | None = None,
-        trims: TrimStore | None = None,
-        now: float | None = None,
-    ) -> NodeFrame:
-        axes = [0] * AXIS_COUNT
-        group1 = group2 = unsigned = 0
-        handover: HandoverConfig | None = None
-        low_battery = False
-        all_live = True
+    def step(self, trims: TrimStore, now: float, records: Iterator[ReaderRecord]) -> NodeView:
+        """The node in this step: each device stepped once (trims, guard) on its next
+        record from `records`, then merged."""
+        base = [0] * AXIS_COUNT
+        base_unsigned = 0
         for entry in self.expected.values():
-            _merge_axes(axes, entry.inputs)
-            unsigned |= entry.unsigned_slots
+            merge_axes(base, entry.inputs)
+            base_unsigned |= entry.unsigned_slots
+        devices = []
         for attached in self.attached:
             own_trims = None
-            if attached.binding.trim_switches and trims is not None:
-                attached.step_trims(self.node_id, trims)
+            record = next(records)
+            if attached.binding.trim_switches:
+                attached.step_trims(self.node_id, trims, record)
                 own_trims = trims.of_switches(self.node_id, attached.binding.trim_switches)
-            inputs, live = attached.read(subscriber, own_trims, now)
-            all_live = all_live and live
-            _merge_axes(axes, inputs)
-            group1 |= inputs.group1
-            group2 |= inputs.group2
-            unsigned |= attached.binding.unsigned_slots  # computed once, with the binding
-            if inputs.handover:  # one handover button per node (config_status)
-                handover = attached.binding.handover
-            low_battery = low_battery or inputs.low_battery
-        return NodeFrame(
-            self.node_id,
-            not self.attached or bool(self.expected) or not all_live,  # as `failsafe` says
-            tuple(axes),
-            group1,
-            group2,
-            unsigned,
-            handover,
-            low_battery,
-        )
+            devices.append(attached.step(record, own_trims, now))
+        # as `failsafe` says
+        failsafe = not self.attached or bool(self.expected) or not all(d.live for d in devices)
+        merged = [(d.binding, d.inputs) for d in devices]
+        frame = compose(self.node_id, failsafe, base, base_unsigned, merged)
+        waiting = tuple(text for _, text in self.reasons()) if failsafe else ()
+        return NodeView(frame, tuple(devices), tuple(base), base_unsigned, waiting)
 
     def reasons(self) -> list[tuple[str, str]]:
         """Why the node is `!`: (kind, text) per device or entry it waits for."""
@@ -316,21 +302,6 @@ def _not_plugged(name: str, entry: ExpectedEntry) -> str:
     return f"{name} (not plugged: {entry.match})" if entry.match else f"{name} (not plugged)"
 
 
-def _trimmed(inputs: NodeInputs, trims: dict[int, float], binding: DeviceBinding) -> NodeInputs:
-    axes = list(inputs.axes)
-    for slot, trim in trims.items():
-        value, info = axes[slot], binding.axis_info[slot]
-        if value is not None and info is not None:
-            axes[slot] = add_trim(value, trim, info.unsigned)
-    return replace(inputs, axes=tuple(axes))
-
-
-def _merge_axes(axes: list[int], inputs: NodeInputs) -> None:
-    for slot, value in enumerate(inputs.axes):
-        if value is not None:
-            axes[slot] = value
-
-
 Expected = dict[int, dict[str, ExpectedEntry]]
 
 
@@ -345,9 +316,17 @@ class NodeTable:
         self._nodes: dict[int, _Node] = {}
         self._by_key: dict[str, tuple[int, _Attached]] = {}
         self._outbox: list[list[ServiceEvent] | None] = []  # None: frames only (SUMD)
-        self._latching: list[bool] = []  # per subscriber: its frames show taps
+        self._latches: list[TapLatch | None] = []  # per subscriber (None: no taps shown)
         self._trims = TrimStore()
         self._stopping = False
+        # The step (docs/DESIGN.md, "Node state: one step per period"): the latest snapshot,
+        # and what it was made from: the period, the devices' layout, the readers' records.
+        self._snapshot = EMPTY
+        self._layout = 0  # bumped whenever devices, entries or bindings change
+        self._stepped: tuple[int, int, tuple[ReaderRecord, ...]] | None = None
+        # devices resting, not long enough yet at the last step: a step when one has
+        self._resting: list[RestWatch] = []
+        self._attachments = 0  # device ids handed out
         for node_id, entries in (expected or {}).items():
             self._nodes[node_id] = _Node(node_id, expected=dict(entries))
 
@@ -359,7 +338,7 @@ class NodeTable:
         (taps=False: the state as it is, for `monitor`'s view)."""
         with self._lock:
             self._outbox.append([] if events else None)
-            self._latching.append(taps)
+            self._latches.append(TapLatch() if taps else None)
             return len(self._outbox) - 1
 
     def collect(self, subscriber: int) -> tuple[list[ServiceEvent], list[NodeFrame]]:
@@ -370,43 +349,80 @@ class NodeTable:
                 events = []
             else:
                 self._outbox[subscriber] = []
-            frames, changes = self._frames_locked(subscriber)
+            changes = self._step_if_due_locked()
+            frames = self._frames_of(subscriber)
         _log_changes(changes)
         return events, frames
 
     def frames(self, subscriber: int | None = None) -> list[NodeFrame]:
-        """Every node's frame; with `subscriber`, buttons tapped since its last frame show
-        as pressed (no lost taps, docs/ICD.md "Taps")."""
+        """Every node's frame in the latest step; with `subscriber`, buttons tapped since
+        its last frame show as pressed (no lost taps, docs/ICD.md "Taps")."""
         with self._lock:
-            frames, changes = self._frames_locked(subscriber)
+            changes = self._step_if_due_locked()
+            frames = self._frames_of(subscriber)
         _log_changes(changes)
         return frames
+
+    def snapshot(self) -> TableSnapshot:
+        """The latest step's snapshot, as it is: reading it changes nothing."""
+        return self._snapshot
+
+    def step_if_due(self) -> TableSnapshot:
+        """Run the step unless it already ran for this period, these reader records and
+        these devices (the master clock's call, each base period); the latest snapshot."""
+        with self._lock:
+            changes = self._step_if_due_locked()
+            snapshot = self._snapshot
+        _log_changes(changes)
+        return snapshot
 
     def stop(self) -> None:
         """usb2rc stops: every device counts as gone from now on (no service events), so
         every node sends `!` with its failsafe or held values (docs/ICD.md, "Stop")."""
         with self._lock:
             self._stopping = True
+            self._layout += 1
             for node in self._nodes.values():
                 for attached in node.attached:
                     if attached.present:
-                        attached.last_inputs = attached.inputs()
+                        attached.last_inputs = attached.last_step(self._clock())
                         attached.present = False
             self._by_key.clear()
 
-    def _frames_locked(self, subscriber: int | None = None) -> tuple[list[NodeFrame], list[str]]:
-        frames, changes = [], []
-        if subscriber is not None and not self._latching[subscriber]:
-            subscriber = None
+    def _frames_of(self, subscriber: int | None) -> list[NodeFrame]:
+        latch = None if subscriber is None else self._latches[subscriber]
+        return self._snapshot.frames if latch is None else latch.frames(self._snapshot)
+
+    def _step_if_due_locked(self) -> list[str]:
+        """The step, memoised: it runs once per (period, devices, records), whoever calls."""
         now = self._clock()
-        for node_id in sorted(self._nodes):
-            node = self._nodes[node_id]
-            frame = node.frame(subscriber, self._trims, now)
-            frames.append(frame)
-            change = None if self._stopping else node.failsafe_change(frame.failsafe)
+        # each reader's record read once: the step uses these (values and liveness agree)
+        nodes = [self._nodes[node_id] for node_id in sorted(self._nodes)]
+        records = tuple(a.source.record for node in nodes for a in node.attached)
+        period = int(now // BASE_PERIOD_S)
+        last = self._stepped
+        same = last is not None and last[:2] == (period, self._layout) and _same(last[2], records)
+        if same and not any(rest.rested_by(now) for rest in self._resting):
+            return []
+        self._stepped = (period, self._layout, records)
+        return self._step_locked(period, now, nodes, iter(records))
+
+    def _step_locked(
+        self, period: int, now: float, nodes: list[_Node], records: Iterator[ReaderRecord]
+    ) -> list[str]:
+        """One step: every node once, in Node-ID order, on the records read for it; the
+        snapshot published with one assignment; the lines to log (a node entered or left
+        failsafe)."""
+        views, changes = [], []
+        for node in nodes:
+            view = node.step(self._trims, now, records)
+            views.append(view)
+            change = None if self._stopping else node.failsafe_change(view.frame.failsafe)
             if change:
                 changes.append(change)
-        return frames, changes
+        self._snapshot = TableSnapshot(period, now, tuple(views))
+        self._resting = _resting(nodes, now)
+        return changes
 
     def request_connect_sequences(self, subscriber: int, node_id: int | None = None) -> int:
         """Answer a `<` (node_id None: every present node) or a `4` poll for one node.
@@ -458,6 +474,9 @@ class NodeTable:
     def _attach_locked(self, node_id: int, attached: _Attached) -> None:
         """The device feeds node_id from now on; the node announces it (`1`,`6`,`5`,`7`)."""
         info, binding = attached.info, attached.binding
+        self._attachments += 1
+        attached.device_id = self._attachments
+        self._layout += 1
         node = self._nodes.setdefault(node_id, _Node(node_id))
         kept = []
         for old in node.attached:
@@ -515,8 +534,9 @@ class NodeTable:
             if entry is None or (source is not None and entry[1].source is not source):
                 return None
             del self._by_key[key]
+            self._layout += 1
             node_id, attached = entry
-            attached.last_inputs = attached.inputs()
+            attached.last_inputs = attached.last_step(self._clock())
             attached.present = False
             if error_code:
                 event = ServiceEvent(EventKind.ERROR, node_id, attached.info, "", error_code)
@@ -627,11 +647,12 @@ class NodeTable:
     def rebind(self, rebind_one: Any, expected: Expected) -> None:
         """After a config reload: give every attached device its new binding (same node)."""
         with self._lock:
+            self._layout += 1
             for node in self._nodes.values():
                 for attached in node.attached:
                     new_binding = rebind_one(attached.info)
                     if new_binding is not None:
-                        _rebind_attached(node.node_id, attached, new_binding)
+                        _rebind_attached(node.node_id, attached, new_binding, self._clock())
                 switches = [t for a in node.attached for t in a.binding.trim_switches]
                 for change in self._trims.keep(node.node_id, switches):
                     log.warning("config reload: node %d: %s", node.node_id, change)
@@ -650,18 +671,20 @@ class NodeTable:
                 box.append(event)
 
 
-def _rebind_attached(node_id: int, attached: _Attached, binding: DeviceBinding) -> None:
+def _same(before: tuple[ReaderRecord, ...], now: tuple[ReaderRecord, ...]) -> bool:
+    """The same reader records, one by one (each a new object when a reader publishes)."""
+    return len(before) == len(now) and all(a is b for a, b in zip(before, now, strict=True))
+
+
+def _rebind_attached(node_id: int, attached: _Attached, binding: DeviceBinding, now: float) -> None:
     """A reload's new binding for a device that stays on its node (docs/ICD.md "A reload
     and the live devices"): an armed device stays armed while its axes map as before; one
     whose axis mapping changed is a new stick to the receiver (inverted, another usage, a
     new calibration: a deflected stick would step), so it holds what it sent and waits for
     its guarded axes to rest, as a re-plugged device. At rest, that is the next frame."""
     if attached.present and not binding.same_axes(attached.binding):
-        attached.last_inputs = attached.inputs()  # what it sent under the old mapping
-        attached.armed = False
-        # a new watch: a rest seen under the old mapping (or the report that ended it, seen
-        # only now because an armed device's records were not watched) does not count
-        attached.rest = RestWatch()
+        attached.last_inputs = attached.last_step(now)  # what it sent under the old mapping
+        attached.disarm()
         log.warning(
             "config reload: node %d: %s's axes map differently now: the neutral guard "
             "checks it again (%s) before it goes live",
@@ -680,3 +703,10 @@ def _log_changes(changes: list[str]) -> None:
 
 def _connected(node_id: int, attached: _Attached) -> ServiceEvent:
     return ServiceEvent(EventKind.CONNECTED, node_id, attached.info, attached.device_type)
+
+
+def _resting(nodes: list[_Node], now: float) -> list[RestWatch]:
+    """The waiting devices' rests not long enough at `now`: a step is due once one is, even
+    inside a period that had its step (a rest long enough by now was seen by this step)."""
+    waiting = (a.rest for node in nodes for a in node.attached if not a.armed)
+    return [rest for rest in waiting if rest.since is not None and not rest.rested_by(now)]

@@ -1,0 +1,205 @@
+"""The node step (usb2rc.nodestep, docs/DESIGN.md "Node state: one step per period"): one
+step per base period publishes an immutable snapshot; reading it changes nothing, so the
+guard arms and the trims step whichever outputs read, and whether any does."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+from dataclasses import FrozenInstanceError, dataclass
+from pathlib import Path
+
+import pytest
+from daemon_harness import (
+    RELEASED,
+    T16000M_DESCRIPTOR,
+    RecordSource,
+    StickState,
+    UdpLine,
+    channels,
+    install,
+    of_type,
+    pwm_of_int16,
+    scale,
+    timed_recording,
+)
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from usb2rc.binding import default_binding
+from usb2rc.config import Config, OutputConfig
+from usb2rc.daemon import Daemon
+from usb2rc.guard import REST_S
+from usb2rc.hid.backend import DeviceInfo
+from usb2rc.hid.descriptor import parse_descriptor
+from usb2rc.hid.reader import ReaderRecord
+from usb2rc.hid.replay import ReplayBackend
+from usb2rc.nodestep import BASE_PERIOD_S
+from usb2rc.state import NodeTable
+
+LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
+BINDING = default_binding(LAYOUT, "T.16000M")  # X, Y, Rz guarded at the centre
+INFO = DeviceInfo(key="k0", path="k0", vid=0x044F, pid=0xB10A, product="T.16000M")
+
+
+def free_udp_port() -> int:
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port: int = probe.getsockname()[1]
+    probe.close()
+    return port
+
+
+def jittering_stick(seconds: float, every_s: float = 0.01) -> str:
+    """A stick at rest that keeps reporting (its sensor jitters by one count): each of its
+    records is fresh, so only a step after REST_S of them can arm it."""
+    count = int(seconds / every_s)
+    return timed_recording([(i * every_s, StickState(x=8192 + i % 2)) for i in range(count)])
+
+
+def test_a_udpin_output_nobody_called_does_not_delay_arming(tmp_path: Path) -> None:
+    """The only output is MAVLink `udpin` and no vehicle has called: it never reads the node
+    table. The stick at rest arms anyway (docs/ICD.md, "Neutral guard"): the master clock
+    steps the table; when the vehicle calls, its first override is already the stick's.
+    (Before, only an output's read armed it: the node stayed `!`.)"""
+    install(tmp_path / "stick.hid", jittering_stick(30.0))
+    port = free_udp_port()
+    outputs = (OutputConfig(protocol="mavlink", port=f"udpin:127.0.0.1:{port}"),)
+    daemon = Daemon(Config(outputs=outputs), ReplayBackend(tmp_path))
+    vehicle = UdpLine()
+    daemon.start()
+    try:
+        deadline = time.monotonic() + 10
+        while daemon.table.describe().get("0", {}).get("failsafe", True):
+            assert time.monotonic() < deadline, daemon.table.describe()
+            threading.Event().wait(0.02)
+        assert daemon.outputs[0].thread.stats.writes == 0  # nobody called: nothing sent
+        assert not daemon.table.snapshot().nodes[0].frame.failsafe
+        first = first_override_once_called(vehicle, port)
+        centre = {pwm_of_int16(scale(x, 0, 16383)) for x in (8192, 8193)}
+        assert channels(first) != RELEASED and channels(first)[0] in centre
+    finally:
+        daemon.stop()
+        vehicle.close()
+
+
+def first_override_once_called(vehicle: UdpLine, port: int) -> object:
+    """The vehicle calls (heartbeats) until the daemon answers; its first override."""
+    from pymavlink.dialects.v20 import common
+
+    mav = common.MAVLink(None, srcSystem=1, srcComponent=1)
+    beat = mav.heartbeat_encode(
+        common.MAV_TYPE_QUADROTOR, common.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 4
+    ).pack(mav)
+    deadline = time.monotonic() + 10
+    while not of_type(vehicle.frames(), "RC_CHANNELS_OVERRIDE"):
+        assert time.monotonic() < deadline, "no answer to the vehicle's heartbeats"
+        vehicle.sock.sendto(beat, ("127.0.0.1", port))
+        threading.Event().wait(0.1)
+    return of_type(vehicle.frames(), "RC_CHANNELS_OVERRIDE")[0]
+
+
+@dataclass
+class Clock:
+    now: float = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+STATES = st.builds(
+    StickState,
+    x=st.sampled_from([8192, 8000, 0, 16383]),
+    buttons=st.integers(0, 3),
+)
+OPS = st.lists(
+    st.one_of(
+        st.tuples(st.just("report"), STATES),
+        st.tuples(st.just("wait"), st.sampled_from([BASE_PERIOD_S, REST_S, 0.001])),
+    ),
+    min_size=1,
+    max_size=25,
+)
+
+
+def record_of(
+    state: StickState, reports: int, at: float, presses: tuple[tuple[int, int], ...] = ()
+) -> ReaderRecord:
+    """A reader's record: `state` decoded, with its press log (serial, buttons down)."""
+    decoder = LAYOUT.make_decoder()
+    decoder.feed(state.report())
+    serial = presses[-1][0] if presses else 0
+    return ReaderRecord(decoder.state(), reports, 0, at, presses, serial)
+
+
+def drive(ops: list, readers: int, reads: int) -> list[tuple]:
+    """Feed `ops` to a table, one step after each; between steps `readers` threads (one
+    output each) read `reads` times. The snapshots' contents, step by step."""
+    clock = Clock()
+    table = NodeTable(clock=clock)
+    outputs = [table.subscribe(events=False) for _ in range(readers)]
+    source = RecordSource(ReaderRecord(LAYOUT.initial_state(), 0))
+    table.add_device(0, INFO, BINDING, source, "JOYSTICK")
+    buttons, reports, seen = 0, 0, []
+    presses: tuple[tuple[int, int], ...] = ()
+    for op in ops:
+        if op[0] == "report":
+            rising = op[1].buttons & ~buttons
+            buttons, reports = op[1].buttons, reports + 1
+            if rising:
+                presses = (*presses, (len(presses) + 1, rising))
+            source.record = record_of(op[1], reports, clock.now, presses)
+        else:
+            clock.now += op[1]
+        snapshot = table.step_if_due()
+        threads = [
+            threading.Thread(target=lambda k=k: [table.frames(outputs[k]) for _ in range(reads)])
+            for k in range(readers)
+        ]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        assert table.snapshot() is snapshot  # reads never made a new one
+        seen.append((snapshot.frames, tuple(n.waiting_for for n in snapshot.nodes)))
+    return seen
+
+
+@settings(max_examples=60, deadline=None)
+@given(OPS, st.integers(1, 3), st.integers(1, 4))
+def test_reading_the_snapshot_from_many_threads_changes_nothing(
+    ops: list, readers: int, reads: int
+) -> None:
+    """Any number of reads from any number of outputs, in any interleaving, between two
+    steps: the same snapshots as a table nobody read."""
+    assert drive(ops, readers, reads) == drive(ops, 0, 0)
+
+
+def test_a_snapshot_is_immutable() -> None:
+    table = NodeTable(clock=Clock())
+    table.add_device(0, INFO, BINDING, RecordSource(ReaderRecord(LAYOUT.initial_state(), 0)), "J")
+    node = table.step_if_due().nodes[0]
+    with pytest.raises(FrozenInstanceError):
+        node.frame = node.frame  # type: ignore[misc]
+
+
+def test_a_tap_shows_in_exactly_one_frame_of_each_output_whoever_reads_first() -> None:
+    """A tap over between two steps: each output's next frame shows it, once, in either
+    order of reading (docs/ICD.md, "Taps")."""
+    for order in ([0, 1], [1, 0]):
+        clock = Clock()
+        table = NodeTable(clock=clock)
+        outputs = [table.subscribe(events=False), table.subscribe(events=False)]
+        source = RecordSource(record_of(StickState(), 1, clock.now))
+        table.add_device(0, INFO, BINDING, source, "JOYSTICK")
+        clock.now += REST_S + BASE_PERIOD_S
+        assert not table.step_if_due().frames[0].failsafe
+        source.record = record_of(StickState(buttons=1), 2, clock.now, ((1, 1),))
+        source.record = record_of(StickState(), 3, clock.now, ((1, 1),))  # released: a tap
+        shown = {k: [] for k in outputs}
+        for _ in range(2):
+            for k in order:
+                shown[outputs[k]].append(table.frames(outputs[k])[0].group1 & 1)
+        assert shown == {outputs[0]: [1, 0], outputs[1]: [1, 0]}
+        assert table.snapshot().frames[0].group1 & 1 == 0  # the snapshot: as it is
