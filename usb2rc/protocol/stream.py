@@ -1,0 +1,125 @@
+"""The one resync-and-count loop of every serial stream decoder, sans-IO.
+
+C2-16B, SUMD, CRSF, SBUS and iBus decoders share one contract: `feed(chunk)` returns the
+frames that chunk completed, for any chunking, and never raises; `flush()` ends the stream;
+the counters `frames`, `bytes_in`, `bytes_skipped` and `crc_failures` say what was seen.
+`StreamDecoder` holds that loop once. A protocol supplies three steps:
+
+- `_find_start(buffer, pos, end)`: where the next candidate frame may start (-1: nowhere);
+- `_candidate_length(buffer, start, end)`: its length in bytes, 0 when its header is
+  implausible, None when the header is cut off (wait for more bytes);
+- `_parse(buffer, start, length)`: the frame, or `Rejected.CRC` / `Rejected.SHAPE`.
+
+A rejected or implausible candidate skips ONE byte and the search goes on, so a frame
+starting inside a corrupted region is still found. A candidate cut off by the end of the
+buffer waits for more bytes; at `flush()` it is skipped the same way, so a shorter frame hidden
+behind a plausible header still comes out. Two optional hooks serve C2-16B's line feed and its
+two-byte header: `_after_frame` (what to consume after a frame) and `_keep_tail` (the bytes
+kept when no candidate starts, because they may begin one).
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+from typing import Generic, TypeVar
+
+FrameT = TypeVar("FrameT")
+
+
+class Rejected(Enum):
+    """Why `_parse` refused a complete candidate: its checksum (counted in `crc_failures`) or
+    its shape (a footer or another fixed byte: not counted, no checksum was tried)."""
+
+    CRC = "crc"
+    SHAPE = "shape"
+
+
+class StreamDecoder(Generic[FrameT]):
+    """Streaming decoder skeleton: subclasses supply the three protocol steps above."""
+
+    def __init__(self) -> None:
+        self._buffer = bytearray()
+        self.frames = 0
+        self.bytes_skipped = 0
+        self.crc_failures = 0
+        self.bytes_in = 0
+
+    def feed(self, chunk: bytes | bytearray | memoryview) -> list[FrameT]:
+        """The frames completed by `chunk`."""
+        self.bytes_in += len(chunk)
+        self._buffer += chunk
+        return self._scan(at_end=False)
+
+    def flush(self) -> list[FrameT]:
+        """End of stream: incomplete candidates are skipped; frames found behind them return."""
+        frames = self._scan(at_end=True)
+        self.bytes_skipped += len(self._buffer)
+        self._buffer.clear()
+        self._stream_ended()
+        return frames
+
+    # --- the protocol's steps ----------------------------------------------------------------
+
+    def _find_start(self, buffer: bytearray, pos: int, end: int) -> int:
+        raise NotImplementedError
+
+    def _candidate_length(self, buffer: bytearray, start: int, end: int) -> int | None:
+        raise NotImplementedError
+
+    def _parse(self, buffer: bytearray, start: int, length: int) -> FrameT | Rejected:
+        raise NotImplementedError
+
+    # --- optional hooks (the defaults suit every protocol but C2-16B) ---------------------
+
+    def _scan_from(self, buffer: bytearray, end: int) -> int:
+        """Where a scan starts (C2-16B: after a line feed owed by the previous chunk)."""
+        return 0
+
+    def _after_frame(self, buffer: bytearray, pos: int, end: int) -> int:
+        """Where the search goes on after a frame ending at `pos`."""
+        return pos
+
+    def _keep_tail(self, buffer: bytearray, pos: int, end: int) -> int:
+        """No candidate from `pos` on: where the bytes kept for the next chunk begin."""
+        return end
+
+    def _stream_ended(self) -> None:
+        """`flush()` emptied the buffer: forget any state about what follows it."""
+
+    # --- the loop ----------------------------------------------------------------------------
+
+    def _scan(self, at_end: bool) -> list[FrameT]:
+        buffer = self._buffer
+        end = len(buffer)
+        pos = self._scan_from(buffer, end)
+        frames: list[FrameT] = []
+        skipped = 0
+        while True:
+            start = self._find_start(buffer, pos, end)
+            if start < 0:
+                keep_from = self._keep_tail(buffer, pos, end)
+                skipped += keep_from - pos
+                pos = keep_from
+                break
+            skipped += start - pos
+            pos = start
+            length = self._candidate_length(buffer, start, end)
+            if length is None or start + length > end:
+                if not at_end:
+                    break  # wait for the rest of this candidate
+                skipped += 1
+                pos = start + 1
+                continue
+            frame = self._parse(buffer, start, length) if length else Rejected.SHAPE
+            if isinstance(frame, Rejected):
+                if frame is Rejected.CRC:
+                    self.crc_failures += 1
+                skipped += 1
+                pos = start + 1
+                continue
+            frames.append(frame)
+            pos = self._after_frame(buffer, start + length, end)
+        del buffer[:pos]
+        self.bytes_skipped += skipped
+        self.frames += len(frames)
+        return frames
