@@ -164,7 +164,8 @@ def describe_output(output: OutputConfig) -> str:
         return f"{text}  8E2, axes 172..1811, frame-lost + failsafe flags while failsafe"
     if output.protocol == "mavlink":
         return f"{text}  {mavlink_text(output)}"
-    return text
+    note = protocol(output.protocol).note
+    return f"{text}  {note}" if note else text
 
 
 def mavlink_text(output: OutputConfig) -> str:

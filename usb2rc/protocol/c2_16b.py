@@ -25,7 +25,7 @@ from enum import IntEnum
 from typing import TypeAlias
 
 from usb2rc.protocol.crc import crc16_arc
-from usb2rc.protocol.stream import Rejected, StreamDecoder
+from usb2rc.protocol.stream import Rejected, StreamDecoder, header_tail
 
 FRAME_LEN = 35
 HEADER = b"H-"
@@ -406,7 +406,7 @@ class Decoder(StreamDecoder[Frame]):
 
     def _keep_tail(self, buffer: bytearray, pos: int, end: int) -> int:
         """No `H-` from pos on: skip everything but a trailing 'H' that may start one."""
-        return end - 1 if end > pos and buffer[end - 1] == HEADER[0] else end
+        return header_tail(buffer, pos, end, HEADER)
 
     def _stream_ended(self) -> None:
         self._lf_may_follow = False

@@ -177,6 +177,8 @@ class CrsfDecoder(StreamDecoder[CrsfFrame]):
     stream (a plausible header near the end waits for bytes that never come)."""
 
     def _find_start(self, buffer: bytearray, pos: int, end: int) -> int:
+        if pos < end and buffer[pos] in ADDRESSES:
+            return pos  # the usual case: a frame right after the last one
         found = _ADDRESS_BYTE.search(buffer, pos)
         return -1 if found is None else found.start()
 

@@ -26,6 +26,11 @@ from typing import Generic, TypeVar
 FrameT = TypeVar("FrameT")
 
 
+def header_tail(buffer: bytearray, pos: int, end: int, header: bytes) -> int:
+    """For `_keep_tail` of a two-byte header: keep a last byte that may be its first half."""
+    return end - 1 if end > pos and buffer[end - 1] == header[0] else end
+
+
 class Rejected(Enum):
     """Why `_parse` refused a complete candidate: its checksum (counted in `crc_failures`) or
     its shape (a footer or another fixed byte: not counted, no checksum was tried)."""
@@ -89,13 +94,20 @@ class StreamDecoder(Generic[FrameT]):
     # --- the loop ----------------------------------------------------------------------------
 
     def _scan(self, at_end: bool) -> list[FrameT]:
+        # The RX hot path: the steps are bound once per call, not looked up per candidate.
         buffer = self._buffer
         end = len(buffer)
+        find_start, candidate_length, parse = (
+            self._find_start,
+            self._candidate_length,
+            self._parse,
+        )
+        after_frame = self._after_frame
         pos = self._scan_from(buffer, end)
         frames: list[FrameT] = []
         skipped = 0
         while True:
-            start = self._find_start(buffer, pos, end)
+            start = find_start(buffer, pos, end)
             if start < 0:
                 keep_from = self._keep_tail(buffer, pos, end)
                 skipped += keep_from - pos
@@ -103,14 +115,14 @@ class StreamDecoder(Generic[FrameT]):
                 break
             skipped += start - pos
             pos = start
-            length = self._candidate_length(buffer, start, end)
+            length = candidate_length(buffer, start, end)
             if length is None or start + length > end:
                 if not at_end:
                     break  # wait for the rest of this candidate
                 skipped += 1
                 pos = start + 1
                 continue
-            frame = self._parse(buffer, start, length) if length else Rejected.SHAPE
+            frame = parse(buffer, start, length) if length else Rejected.SHAPE
             if isinstance(frame, Rejected):
                 if frame is Rejected.CRC:
                     self.crc_failures += 1
@@ -118,7 +130,7 @@ class StreamDecoder(Generic[FrameT]):
                 pos = start + 1
                 continue
             frames.append(frame)
-            pos = self._after_frame(buffer, start + length, end)
+            pos = after_frame(buffer, start + length, end)
         del buffer[:pos]
         self.bytes_skipped += skipped
         self.frames += len(frames)
