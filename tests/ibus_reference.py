@@ -38,9 +38,7 @@ class RefIbusReader:
                 self.pending = self.pending[1:]
                 continue
             frames.append(
-                RefIbusFrame(
-                    [candidate[2 + 2 * i] | candidate[3 + 2 * i] << 8 for i in range(14)]
-                )
+                RefIbusFrame([candidate[2 + 2 * i] | candidate[3 + 2 * i] << 8 for i in range(14)])
             )
             self.pending = self.pending[32:]
         return frames
