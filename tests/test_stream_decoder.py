@@ -4,6 +4,7 @@ counters after every chunk and after `flush()`, on random, mixed and mutated str
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from typing import Any
 
@@ -86,7 +87,7 @@ def streams(draw: st.DrawFn, make_frame: Callable[[st.DrawFn], bytes]) -> bytes:
 
 def _chunked(data: bytes, cuts: list[int]) -> list[bytes]:
     points = sorted({0, len(data), *(cut % (len(data) + 1) for cut in cuts)})
-    return [data[a:b] for a, b in zip(points, points[1:], strict=False)]
+    return [data[a:b] for a, b in itertools.pairwise(points)]
 
 
 def _counters(decoder: Any) -> tuple[int, ...]:

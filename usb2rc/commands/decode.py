@@ -1,5 +1,5 @@
-"""`usb2rc decode`: print the C2-16B, SUMD, CRSF, SBUS or MAVLink frames in a capture, stdin,
-a port or (MAVLink) a UDP port. The decoder is the output registry's (`usb2rc.outputs`).
+"""`usb2rc decode`: print the C2-16B, SUMD, CRSF, SBUS, iBus or MAVLink frames in a capture,
+stdin, a port or (MAVLink) a UDP port. The decoder is the output registry's (`usb2rc.outputs`).
 
 SOURCE is a file (read to its end), `-` for stdin, or a serial port: a character device
 path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C; for
