@@ -380,15 +380,12 @@ class Decoder(StreamDecoder[Frame]):
     one incomplete frame (34 bytes) between calls.
     """
 
+    START = HEADER
+    FRAME_LEN = FRAME_LEN  # the status is checked with the CRC, once all 35 bytes are in
+
     def __init__(self) -> None:
         super().__init__()
         self._lf_may_follow = False  # the buffer ended right after a frame
-
-    def _find_start(self, buffer: bytearray, pos: int, end: int) -> int:
-        return buffer.find(HEADER, pos)
-
-    def _candidate_length(self, buffer: bytearray, start: int, end: int) -> int:
-        return FRAME_LEN  # the status is checked with the CRC, once all 35 bytes are in
 
     def _scan_from(self, buffer: bytearray, end: int) -> int:
         """The previous chunk ended right after a frame: an LF starting this one is its LF."""

@@ -87,11 +87,8 @@ class IbusDecoder(StreamDecoder[IbusFrame]):
     A candidate is 0x20 0x40; one whose checksum fails counts in `crc_failures` and skips ONE
     byte. Frames of other commands or lengths (telemetry) are not candidates."""
 
-    def _find_start(self, buffer: bytearray, pos: int, end: int) -> int:
-        return buffer.find(HEADER, pos)
-
-    def _candidate_length(self, buffer: bytearray, start: int, end: int) -> int:
-        return FRAME_LEN
+    START = HEADER
+    FRAME_LEN = FRAME_LEN
 
     def _keep_tail(self, buffer: bytearray, pos: int, end: int) -> int:
         """No 0x20 0x40 from pos on: keep a trailing 0x20 that may start one."""

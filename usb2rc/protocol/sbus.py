@@ -80,11 +80,8 @@ class SbusDecoder(StreamDecoder[SbusFrame]):
     A frame is 0x0F, 22 bytes, a flags byte, 0x00. Anything else skips ONE byte. SBUS has
     no CRC (`crc_failures` stays 0; it is there for the common summary)."""
 
-    def _find_start(self, buffer: bytearray, pos: int, end: int) -> int:
-        return buffer.find(HEADER, pos)
-
-    def _candidate_length(self, buffer: bytearray, start: int, end: int) -> int:
-        return FRAME_LEN
+    START = bytes((HEADER,))
+    FRAME_LEN = FRAME_LEN
 
     def _parse(self, buffer: bytearray, start: int, length: int) -> SbusFrame | Rejected:
         if buffer[start + FRAME_LEN - 1] != FOOTER:

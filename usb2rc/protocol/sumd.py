@@ -99,8 +99,7 @@ class SumdDecoder(StreamDecoder[SumdFrame]):
     bytes come: call `flush()` at the end of the stream.
     """
 
-    def _find_start(self, buffer: bytearray, pos: int, end: int) -> int:
-        return buffer.find(VENDOR_ID, pos)
+    START = bytes((VENDOR_ID,))
 
     def _candidate_length(self, buffer: bytearray, start: int, end: int) -> int | None:
         """Frame length of a plausible header at `start`, 0 if implausible, None if cut off."""
