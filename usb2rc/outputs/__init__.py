@@ -230,6 +230,7 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             bits_per_byte=sbus_codec.BITS_PER_BYTE,
             channels=(1, 18),
             channels_required=True,
+            note="8E2, axes 172..1811, frame-lost + failsafe flags while failsafe",
         ),
         OutputProtocol(
             "ibus",
