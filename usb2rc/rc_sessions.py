@@ -1,10 +1,14 @@
-"""The CRSF and SBUS line sessions, sans-IO (no thread, no port, no clock: time is passed in).
+"""The CRSF, SBUS and iBus line sessions, sans-IO (no thread, no port, no clock: time is passed in).
 
 Both are `session.FrameLineSession`s: one frame a tick while the line is open and not
 stalled, channel values in (11-bit wire values, `outputs.channels.RC11_SCALE`), bytes out.
 
 - `SbusSession`: a 25-byte frame every tick; while any listed channel's node is in failsafe
   the frame carries the frame-lost and failsafe flags (docs/ICD.md, "SBUS output").
+- `IbusSession`: a 32-byte frame of 14 channels (µs, `outputs.channels.IBUS_SCALE`) every
+  tick while every listed channel is live; while any is in failsafe it sends nothing, as
+  CRSF does: iBus has no failsafe flag, the receiver's own failsafe fires on the silence
+  (docs/ICD.md, "iBus output").
 - `CrsfSession`: an RC_CHANNELS_PACKED frame every tick while every listed channel is live
   (to the module's address 0xEE, or to a flight controller's 0xC8: `address`);
   while any is in failsafe it sends nothing, so the ExpressLRS transmitter module stops and
@@ -19,7 +23,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from usb2rc.protocol import crsf, rc11, sbus
+from usb2rc.protocol import crsf, ibus, rc11, sbus
 from usb2rc.scaling import RC11_CENTRE, RC11_LOW
 from usb2rc.session import FrameLineSession
 
@@ -48,6 +52,21 @@ class SbusSession(FrameLineSession):
             frame_lost=failsafe,
             failsafe=failsafe,
         )
+
+
+class IbusSession(FrameLineSession):
+    """iBus: channels 1..14 in µs; channels past the list at 1000 µs ("off" for a switch)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.withheld = 0  # ticks without a frame because a channel is in failsafe
+
+    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        if failsafe:
+            self.withheld += 1
+            return b""
+        unlisted = [ibus.PULSE_LOW] * (ibus.CHANNELS - len(channels))
+        return ibus.encode_ibus([*channels[: ibus.CHANNELS], *unlisted])
 
 
 @dataclass(frozen=True)

@@ -160,11 +160,10 @@ def describe_output(output: OutputConfig) -> str:
         follow = "follows the module's rate" if output.option("follow_module") else "own rate"
         to = f"to 0x{output.option('address'):02X}"
         return f"{text}  {to}, axes 172..1811 (988-2012 us), {follow}, no frames while failsafe"
-    if output.protocol == "sbus":
-        return f"{text}  8E2, axes 172..1811, frame-lost + failsafe flags while failsafe"
     if output.protocol == "mavlink":
         return f"{text}  {mavlink_text(output)}"
-    return text
+    note = protocol(output.protocol).note
+    return f"{text}  {note}" if note else text
 
 
 def mavlink_text(output: OutputConfig) -> str:

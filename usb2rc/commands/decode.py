@@ -1,5 +1,5 @@
-"""`usb2rc decode`: print the C2-16B, SUMD, CRSF, SBUS or MAVLink frames in a capture, stdin,
-a port or (MAVLink) a UDP port. The decoder is the output registry's (`usb2rc.outputs`).
+"""`usb2rc decode`: print the C2-16B, SUMD, CRSF, SBUS, iBus or MAVLink frames in a capture,
+stdin, a port or (MAVLink) a UDP port. The decoder is the output registry's (`usb2rc.outputs`).
 
 SOURCE is a file (read to its end), `-` for stdin, or a serial port: a character device
 path or a pyserial URL (`socket://host:port`, `loop://`, ...), read until Ctrl-C; for
@@ -27,7 +27,7 @@ import sys
 from collections import Counter
 from collections.abc import Callable, Generator, Iterable
 from contextlib import closing
-from typing import Any, BinaryIO, TypeGuard
+from typing import Any, BinaryIO, Protocol, TypeGuard, runtime_checkable
 
 from usb2rc.outputs import PROTOCOLS, protocol
 from usb2rc.protocol import crsf
@@ -35,12 +35,25 @@ from usb2rc.protocol.c2_16b import (
     DATA_STATUS_NAMES,
     HANDOVER,
     DataFrame,
-    Decoder,
     ServiceFrame,
 )
 from usb2rc.protocol.sbus import SbusFrame
-from usb2rc.protocol.sumd import SumdDecoder, SumdFrame
+from usb2rc.protocol.stream import StreamDecoder
+from usb2rc.protocol.sumd import SumdFrame
 from usb2rc.udp_url import is_udp_url, parse_udp_url
+
+
+@runtime_checkable
+class DescribedFrame(Protocol):
+    """A frame that says how it prints (`protocol.ibus.IbusFrame`): a protocol whose frames
+    do needs no branch here, only its registry row."""
+
+    def kind(self) -> str: ...
+
+    def text(self) -> str: ...
+
+    def record(self) -> dict[str, object]: ...
+
 
 # Any: a pymavlink message (pymavlink is imported only for --protocol mavlink)
 AnyFrame = DataFrame | ServiceFrame | SumdFrame | SbusFrame | crsf.CrsfFrame | Any
@@ -237,6 +250,8 @@ def _silence_stdout() -> None:
 
 def frame_kind(frame: AnyFrame) -> str:
     """`live`, `failsafe`, ... for data and SUMD frames; the service name for service frames."""
+    if isinstance(frame, DescribedFrame):
+        return frame.kind()
     if isinstance(frame, ServiceFrame):
         return frame.service.service_name
     if isinstance(frame, SumdFrame):
@@ -263,6 +278,8 @@ _CRSF_KINDS: dict[type, str] = {
 
 
 def json_record(frame: AnyFrame) -> dict[str, Any]:
+    if isinstance(frame, DescribedFrame):
+        return frame.record()
     if isinstance(frame, DataFrame):
         return _data_record(frame)
     if isinstance(frame, ServiceFrame):
@@ -343,6 +360,8 @@ def json_line(frame: AnyFrame) -> str:
 
 
 def text_line(frame: AnyFrame) -> str:
+    if isinstance(frame, DescribedFrame):
+        return frame.text()
     if isinstance(frame, DataFrame):
         byte4 = f"to {frame.code}" if frame.status == HANDOVER else f"code {frame.code}"
         return (
@@ -401,7 +420,7 @@ def _service_text(frame: ServiceFrame) -> str:
     return line + (" (binary status)" if frame.binary_status else "")
 
 
-def summary(decoder: Decoder | SumdDecoder | Any, kinds: Counter[str]) -> str:
+def summary(decoder: StreamDecoder[Any] | Any, kinds: Counter[str]) -> str:
     by_kind = ", ".join(f"{kind} {count}" for kind, count in _ordered(kinds.items()))
     return (
         f"summary: frames {decoder.frames} ({by_kind or 'none'}), "

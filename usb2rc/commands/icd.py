@@ -30,6 +30,7 @@ from usb2rc.config_mavlink import MANUAL_AXES, RC_CHANNELS_OVERRIDE, MavlinkOpti
 from usb2rc.guard import DEFAULT_TOLERANCE, default_arm, normalize_arm
 from usb2rc.hid.usages import GD_JOYSTICK
 from usb2rc.mapping import Mapping, compile_mapping
+from usb2rc.outputs import protocol
 from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT
 from usb2rc.scaling import node_button_bit
 from usb2rc.udp_url import is_udp_url
@@ -356,7 +357,33 @@ def document(config: Config, fmt: str) -> list[str]:
             lines += heading(f"{name} output {i + 1} ({output.port or '--port'})", 2, fmt)
             lines += [RC11_NOTES[output.protocol], ""]
             lines += table(["channel", "source", "kind", "wire"], rc11_rows(mapping, output), fmt)
+        elif (entry := protocol(output.protocol)).note and entry.scale_path:
+            lines += heading(f"{entry.title} output {i + 1} ({output.port or '--port'})", 2, fmt)
+            lines += [entry.note, ""]
+            lines += table(["channel", "source", "kind", "wire"], scaled_rows(mapping, output), fmt)
     return lines
+
+
+def scaled_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
+    """The channels of an output whose registry row has a `WireScale`, from that scale;
+    channels past the list at the released-button value (what such a session pads with)."""
+    entry = protocol(output.protocol)
+    scale = entry.scale()
+    axis = f"{scale.axis(-32768)}..{scale.axis(32767)}, centre {scale.axis(0)}"
+    button = f"{scale.button(False)} / {scale.button(True)}"
+    rows: list[list[object]] = []
+    sources = mapping.sumd_channels(output)
+    for i, source in enumerate(sources, start=1):
+        if source.kind == "button":
+            rows.append([i, source.name, "button", button])
+        else:
+            kind = "axis, unsigned" if source.unsigned else "axis, signed"
+            rows.append([i, source.name, kind, axis])
+    assert entry.channels is not None  # a channel output: its row says how many
+    most = entry.channels[1]
+    if len(sources) < most:
+        rows.append([f"{len(sources) + 1}..{most}", "(not listed)", "", scale.button(False)])
+    return rows
 
 
 RC11_NOTES = {

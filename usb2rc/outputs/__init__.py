@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 from usb2rc import config_mavlink
 from usb2rc.protocol import c2_16b as c2_16b_codec
 from usb2rc.protocol import crsf as crsf_codec
+from usb2rc.protocol import ibus as ibus_codec
 from usb2rc.protocol import sbus as sbus_codec
 from usb2rc.protocol import sumd as sumd_codec
 
@@ -93,6 +94,15 @@ class OutputProtocol:
     # has. A protocol with one owns its channel count and bandwidth checks (MAVLink: both
     # depend on its `message`, and UDP has no baud rate); config.py skips the generic ones.
     check_path: str = ""
+    # One line on the wire and the failsafe, and "module:attribute" of the channels'
+    # `WireScale`: with both, `check` and `icd` describe the output with no branch of their own.
+    note: str = ""
+    scale_path: str = ""
+    display_name: str = ""  # as docs write it, when not the name in capitals
+
+    @property
+    def title(self) -> str:
+        return self.display_name or self.name.upper()
 
     def decoder(self) -> Any:
         return _resolve(self.decoder_path)()
@@ -101,6 +111,10 @@ class OutputProtocol:
         """The protocol's own config checks (`check_path`), if it has any."""
         if self.check_path:
             _resolve(self.check_path)(*args)
+
+    def scale(self) -> Any:
+        """The channels' `outputs.channels.WireScale` (`scale_path`)."""
+        return _resolve(self.scale_path)
 
     def build(self, context: Any) -> Any:
         return _resolve(self.build_path)(context)
@@ -138,6 +152,10 @@ def _crsf_frame_length(_channels: int) -> int:
 
 def _sbus_frame_length(_channels: int) -> int:
     return sbus_codec.FRAME_LEN
+
+
+def _ibus_frame_length(_channels: int) -> int:
+    return ibus_codec.FRAME_LEN
 
 
 def _mavlink_frame_length(_channels: int) -> int:
@@ -212,6 +230,25 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             bits_per_byte=sbus_codec.BITS_PER_BYTE,
             channels=(1, 18),
             channels_required=True,
+            note="8E2, axes 172..1811, frame-lost + failsafe flags while failsafe",
+        ),
+        OutputProtocol(
+            "ibus",
+            "FlySky iBus: 14 channels 1000..2000 µs, silent while failsafe",
+            default_baudrate=ibus_codec.BAUDRATE,
+            # 100 Hz as SUMD and SBUS: FlySky receivers send every 7 ms but flight controllers
+            # take any rate, and 32 bytes at 115200 baud fit up to 360 Hz.
+            default_rate_hz=100,
+            frame_length=_ibus_frame_length,
+            decoder_path="usb2rc.protocol.ibus:IbusDecoder",
+            build_path="usb2rc.outputs.wiring:build_ibus",
+            channels=(1, ibus_codec.CHANNELS),
+            channels_required=True,
+            note="32-byte frames, 14 channels, 115200 baud 8N1; channels past the list "
+            "1000 µs. While a listed channel's node is in failsafe no frame is sent: the "
+            'receiver\'s own failsafe takes over (docs/ICD.md, "iBus output").',
+            scale_path="usb2rc.outputs.channels:IBUS_SCALE",
+            display_name="iBus",
         ),
         OutputProtocol(
             "mavlink",

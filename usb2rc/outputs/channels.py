@@ -1,6 +1,6 @@
 """Channel outputs' channels: node frames → wire values and the failsafe flag, for any protocol.
 
-SUMD, CRSF and SBUS (and MAVLink's RC override) carry a list of channels named the same way in
+SUMD, CRSF, SBUS and iBus (and MAVLink's RC override) carry a list of channels named the same way in
 the config: `nodeN.<slot>` (an axis slot of node N) or `nodeN.buttonK` (node button K, 1..56);
 `config.ChannelRef` holds one, parsed once, and `Mapping.sumd_channels(output)` resolves an
 output's list (or the default one) into `ChannelSource`s. Here they are evaluated, once a tick,
@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 from usb2rc.config import ChannelRef
 from usb2rc.mapping import ChannelSource
+from usb2rc.protocol.ibus import axis_to_ibus, button_to_ibus
 from usb2rc.scaling import axis_to_rc11, button_to_rc11, node_button_bit
 from usb2rc.state import NodeFrame
 
@@ -41,6 +42,7 @@ class WireScale:
 
 
 RC11_SCALE = WireScale(axis_to_rc11, button_to_rc11)  # CRSF and SBUS: 172..1811, centre 992
+IBUS_SCALE = WireScale(axis_to_ibus, button_to_ibus)  # iBus: 1000..2000 µs, centre 1500
 
 
 def _axis_wire(value: int | None, unsigned: bool, scale: WireScale) -> int:

@@ -17,10 +17,10 @@ from usb2rc.config import OutputConfig
 from usb2rc.config_mavlink import MavlinkOptions, read_signing_key
 from usb2rc.mapping import Mapping
 from usb2rc.outputs import protocol
-from usb2rc.outputs.channels import RC11_SCALE, OutputChannels
+from usb2rc.outputs.channels import IBUS_SCALE, RC11_SCALE, OutputChannels, WireScale
 from usb2rc.outputs.sumd import SumdChannels
 from usb2rc.protocol import c2_16b
-from usb2rc.rc_sessions import CrsfSession, SbusSession
+from usb2rc.rc_sessions import CrsfSession, IbusSession, SbusSession
 from usb2rc.scheduler import (
     C2Output,
     ChannelOutput,
@@ -95,16 +95,16 @@ def build_sumd(ctx: OutputContext) -> BuiltOutput:
     return BuiltOutput(link, thread)
 
 
-def _rc11_channels(ctx: OutputContext) -> OutputChannels:
+def _scaled_channels(ctx: OutputContext, scale: WireScale) -> OutputChannels:
     sources = ctx.mapping.sumd_channels(ctx.config)
     frame_length = protocol(ctx.config.protocol).frame_length(len(sources))
-    return OutputChannels.scaled(sources, RC11_SCALE, frame_length)
+    return OutputChannels.scaled(sources, scale, frame_length)
 
 
 def build_crsf(ctx: OutputContext) -> BuiltOutput:
     out = ctx.config
     assert out.port
-    channels = _rc11_channels(ctx)
+    channels = _scaled_channels(ctx, RC11_SCALE)
     entry = protocol("crsf")
     session = CrsfSession(
         1.0 / out.rate_hz,
@@ -122,7 +122,7 @@ def build_crsf(ctx: OutputContext) -> BuiltOutput:
 def build_sbus(ctx: OutputContext) -> BuiltOutput:
     out = ctx.config
     assert out.port
-    channels = _rc11_channels(ctx)
+    channels = _scaled_channels(ctx, RC11_SCALE)
     link = SerialLink(
         out.port,
         out.baudrate,
@@ -136,6 +136,24 @@ def build_sbus(ctx: OutputContext) -> BuiltOutput:
         ctx.table,
         channels,
         SbusSession(),
+        out.rate_hz,
+        ctx.on_tick,
+        ctx.on_first_write,
+    )
+    return BuiltOutput(link, thread)
+
+
+def build_ibus(ctx: OutputContext) -> BuiltOutput:
+    out = ctx.config
+    assert out.port
+    channels = _scaled_channels(ctx, IBUS_SCALE)
+    link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(channels.frame_length))
+    thread = ChannelOutput(
+        ctx.name,
+        link,
+        ctx.table,
+        channels,
+        IbusSession(),
         out.rate_hz,
         ctx.on_tick,
         ctx.on_first_write,

@@ -25,6 +25,7 @@ from enum import IntEnum
 from typing import TypeAlias
 
 from usb2rc.protocol.crc import crc16_arc
+from usb2rc.protocol.stream import Rejected, StreamDecoder, header_tail
 
 FRAME_LEN = 35
 HEADER = b"H-"
@@ -365,8 +366,9 @@ def _decode_data(buffer: bytearray, start: int) -> DataFrame:
     return DataFrame(fields[0], fields[1], fields[2], fields[3:13], fields[13], fields[14])
 
 
-class Decoder:
-    """Streaming C2-16B decoder: `feed(chunk)` returns the frames completed by that chunk.
+class Decoder(StreamDecoder[Frame]):
+    """Streaming C2-16B decoder (`usb2rc.protocol.stream`): `feed(chunk)` returns the frames
+    completed by that chunk.
 
     Works for any chunking (one byte at a time included) and never raises. A candidate is an
     `H-` followed by a known status; byte 4 may hold anything (a service frame's service code
@@ -378,52 +380,14 @@ class Decoder:
     one incomplete frame (34 bytes) between calls.
     """
 
+    START = HEADER
+    FRAME_LEN = FRAME_LEN  # the status is checked with the CRC, once all 35 bytes are in
+
     def __init__(self) -> None:
-        self._buffer = bytearray()
+        super().__init__()
         self._lf_may_follow = False  # the buffer ended right after a frame
-        self.frames = 0
-        self.bytes_skipped = 0
-        self.crc_failures = 0
-        self.bytes_in = 0
 
-    def feed(self, chunk: bytes | bytearray | memoryview) -> list[Frame]:
-        self.bytes_in += len(chunk)
-        self._buffer += chunk
-        return self._scan()
-
-    def flush(self) -> list[Frame]:
-        """End of stream: the buffered bytes (an incomplete frame) count as skipped."""
-        self.bytes_skipped += len(self._buffer)
-        self._buffer.clear()
-        self._lf_may_follow = False
-        return []
-
-    def _scan(self) -> list[Frame]:
-        buffer = self._buffer
-        end = len(buffer)
-        pos = self._consume_pending_line_feed(buffer, end)
-        frames: list[Frame] = []
-        while True:
-            start = buffer.find(HEADER, pos)
-            if start < 0:
-                pos = self._skip_to_possible_header(buffer, pos, end)
-                break
-            self.bytes_skipped += start - pos
-            pos = start
-            if end - start < FRAME_LEN:
-                break  # wait for the rest of this candidate
-            frame = self._frame_at(buffer, start)
-            if frame is None:
-                self.bytes_skipped += 1
-                pos = start + 1
-                continue
-            frames.append(frame)
-            pos = self._after_frame(buffer, start + FRAME_LEN, end)
-        del buffer[:pos]
-        self.frames += len(frames)
-        return frames
-
-    def _consume_pending_line_feed(self, buffer: bytearray, end: int) -> int:
+    def _scan_from(self, buffer: bytearray, end: int) -> int:
         """The previous chunk ended right after a frame: an LF starting this one is its LF."""
         if not self._lf_may_follow or end == 0:
             return 0
@@ -437,21 +401,21 @@ class Decoder:
             return pos
         return pos + 1 if buffer[pos] == LF else pos
 
-    def _skip_to_possible_header(self, buffer: bytearray, pos: int, end: int) -> int:
+    def _keep_tail(self, buffer: bytearray, pos: int, end: int) -> int:
         """No `H-` from pos on: skip everything but a trailing 'H' that may start one."""
-        keep_from = end - 1 if end > pos and buffer[end - 1] == HEADER[0] else end
-        self.bytes_skipped += keep_from - pos
-        return keep_from
+        return header_tail(buffer, pos, end, HEADER)
 
-    def _frame_at(self, buffer: bytearray, start: int) -> Frame | None:
+    def _stream_ended(self) -> None:
+        self._lf_may_follow = False
+
+    def _parse(self, buffer: bytearray, start: int, length: int) -> Frame | Rejected:
         status = buffer[start + 2]
         service = _SERVICE_BY_STATUS.get(status)
         if service is None and status not in DATA_STATUSES:
-            return None
+            return Rejected.SHAPE
         crc_end = start + _CRC_OFFSET
         if crc16_arc(buffer[start:crc_end]) != _CRC.unpack_from(buffer, crc_end)[0]:
-            self.crc_failures += 1
-            return None
+            return Rejected.CRC
         if service is None:
             return _decode_data(buffer, start)
         payload = bytes(buffer[start + 5 : crc_end])

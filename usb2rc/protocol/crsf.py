@@ -22,12 +22,14 @@ The encoders raise ValueError on bad input; the decoder never raises.
 
 from __future__ import annotations
 
+import re
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 from usb2rc.protocol import rc11
 from usb2rc.protocol.crc import crc8_dvb_s2
+from usb2rc.protocol.stream import Rejected, StreamDecoder
 
 ADDRESS_FLIGHT_CONTROLLER = 0xC8  # also the "sync" byte
 ADDRESS_RADIO = 0xEA  # the handset
@@ -40,6 +42,11 @@ TYPE_RC_CHANNELS_PACKED = 0x16
 TYPE_RADIO_ID = 0x3A
 SUBTYPE_TIMING_CORRECTION = 0x10
 EXTENDED_TYPES_FROM = 0x28  # types from here on carry destination and origin first
+
+# Any address byte: where a candidate frame may start.
+_ADDRESS_BYTE = re.compile(
+    b"[" + b"".join(re.escape(bytes((a,))) for a in sorted(ADDRESSES)) + b"]"
+)
 
 MIN_LENGTH, MAX_LENGTH = 2, 62  # the length byte: type + payload + CRC
 MAX_FRAME_LEN = MAX_LENGTH + 2
@@ -161,67 +168,29 @@ def parse_frame(address: int, frame_type: int, payload: bytes) -> CrsfFrame:
     return OtherFrame(address, frame_type, bytes(payload))
 
 
-class CrsfDecoder:
-    """Streaming CRSF decoder, the same contract as the C2-16B and SUMD decoders.
+class CrsfDecoder(StreamDecoder[CrsfFrame]):
+    """Streaming CRSF decoder on the common base (`usb2rc.protocol.stream`).
 
     A candidate is a known address byte followed by a length of 2..62; one whose CRC fails
     counts in `crc_failures`. A failed or implausible candidate skips ONE byte and the search
     goes on. Bytes outside frames count in `bytes_skipped`. Call `flush()` at the end of the
     stream (a plausible header near the end waits for bytes that never come)."""
 
-    def __init__(self) -> None:
-        self._buffer = bytearray()
-        self.frames = 0
-        self.bytes_skipped = 0
-        self.crc_failures = 0
-        self.bytes_in = 0
+    def _find_start(self, buffer: bytearray, pos: int, end: int) -> int:
+        if pos < end and buffer[pos] in ADDRESSES:
+            return pos  # the usual case: a frame right after the last one
+        found = _ADDRESS_BYTE.search(buffer, pos)
+        return -1 if found is None else found.start()
 
-    def feed(self, chunk: bytes | bytearray | memoryview) -> list[CrsfFrame]:
-        self.bytes_in += len(chunk)
-        self._buffer += chunk
-        return self._scan(at_end=False)
+    def _candidate_length(self, buffer: bytearray, start: int, end: int) -> int | None:
+        if end - start < 2:
+            return None
+        length = buffer[start + 1]
+        return length + 2 if MIN_LENGTH <= length <= MAX_LENGTH else 0
 
-    def flush(self) -> list[CrsfFrame]:
-        frames = self._scan(at_end=True)
-        self.bytes_skipped += len(self._buffer)
-        self._buffer.clear()
-        return frames
-
-    def _scan(self, at_end: bool) -> list[CrsfFrame]:
-        buffer = self._buffer
-        end = len(buffer)
-        pos = 0
-        frames: list[CrsfFrame] = []
-        while pos < end:
-            if buffer[pos] not in ADDRESSES:
-                self.bytes_skipped += 1
-                pos += 1
-                continue
-            if end - pos < 2:
-                if at_end:
-                    self.bytes_skipped += end - pos
-                    pos = end
-                break
-            length = buffer[pos + 1]
-            if not MIN_LENGTH <= length <= MAX_LENGTH:
-                self.bytes_skipped += 1
-                pos += 1
-                continue
-            frame_end = pos + 2 + length
-            if frame_end > end:
-                if not at_end:
-                    break
-                self.bytes_skipped += 1
-                pos += 1
-                continue
-            body = bytes(buffer[pos + 2 : frame_end - 1])
-            if crc8_dvb_s2(body) != buffer[frame_end - 1]:
-                self.crc_failures += 1
-                self.bytes_skipped += 1
-                pos += 1
-                continue
-            frames.append(parse_frame(buffer[pos], body[0], body[1:]))
-            pos = frame_end
-        del buffer[:pos]
-        self.frames += len(frames)
-        return frames
+    def _parse(self, buffer: bytearray, start: int, length: int) -> CrsfFrame | Rejected:
+        frame_end = start + length
+        body = bytes(buffer[start + 2 : frame_end - 1])
+        if crc8_dvb_s2(body) != buffer[frame_end - 1]:
+            return Rejected.CRC
+        return parse_frame(buffer[start], body[0], body[1:])

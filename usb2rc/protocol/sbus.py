@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from usb2rc.protocol import rc11
+from usb2rc.protocol.stream import Rejected, StreamDecoder
 
 HEADER = 0x0F
 FOOTER = 0x00
@@ -73,51 +74,16 @@ def parse_frame(data: bytes | bytearray | memoryview) -> SbusFrame:
     )
 
 
-class SbusDecoder:
-    """Streaming SBUS decoder, the same contract as the other decoders.
+class SbusDecoder(StreamDecoder[SbusFrame]):
+    """Streaming SBUS decoder on the common base (`usb2rc.protocol.stream`).
 
     A frame is 0x0F, 22 bytes, a flags byte, 0x00. Anything else skips ONE byte. SBUS has
     no CRC (`crc_failures` stays 0; it is there for the common summary)."""
 
-    def __init__(self) -> None:
-        self._buffer = bytearray()
-        self.frames = 0
-        self.bytes_skipped = 0
-        self.crc_failures = 0
-        self.bytes_in = 0
+    START = bytes((HEADER,))
+    FRAME_LEN = FRAME_LEN
 
-    def feed(self, chunk: bytes | bytearray | memoryview) -> list[SbusFrame]:
-        self.bytes_in += len(chunk)
-        self._buffer += chunk
-        return self._scan()
-
-    def flush(self) -> list[SbusFrame]:
-        frames = self._scan()
-        self.bytes_skipped += len(self._buffer)
-        self._buffer.clear()
-        return frames
-
-    def _scan(self) -> list[SbusFrame]:
-        buffer = self._buffer
-        end = len(buffer)
-        pos = 0
-        frames: list[SbusFrame] = []
-        while True:
-            start = buffer.find(HEADER, pos)
-            if start < 0:
-                self.bytes_skipped += end - pos
-                pos = end
-                break
-            self.bytes_skipped += start - pos
-            pos = start
-            if end - start < FRAME_LEN:
-                break
-            if buffer[start + FRAME_LEN - 1] != FOOTER:
-                self.bytes_skipped += 1
-                pos = start + 1
-                continue
-            frames.append(parse_frame(buffer[start : start + FRAME_LEN]))
-            pos = start + FRAME_LEN
-        del buffer[:pos]
-        self.frames += len(frames)
-        return frames
+    def _parse(self, buffer: bytearray, start: int, length: int) -> SbusFrame | Rejected:
+        if buffer[start + FRAME_LEN - 1] != FOOTER:
+            return Rejected.SHAPE
+        return parse_frame(buffer[start : start + FRAME_LEN])

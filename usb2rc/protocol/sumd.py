@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from usb2rc.protocol.crc import crc16_xmodem
+from usb2rc.protocol.stream import Rejected, StreamDecoder
 
 VENDOR_ID = 0xA8
 STATUS_LIVE = 0x01
@@ -87,8 +88,8 @@ def button_to_sumd(pressed: bool) -> int:
     return PULSE_HIGH if pressed else PULSE_LOW
 
 
-class SumdDecoder:
-    """Streaming SUMD decoder, the same contract as the C2-16B `Decoder`.
+class SumdDecoder(StreamDecoder[SumdFrame]):
+    """Streaming SUMD decoder on the common base (`usb2rc.protocol.stream`).
 
     A candidate is 0xA8, status 0x01/0x81 and a count of 2..32; one whose CRC fails counts in
     `crc_failures`. A failed or implausible candidate skips ONE byte and the search for the
@@ -98,55 +99,9 @@ class SumdDecoder:
     bytes come: call `flush()` at the end of the stream.
     """
 
-    def __init__(self) -> None:
-        self._buffer = bytearray()
-        self.frames = 0
-        self.bytes_skipped = 0
-        self.crc_failures = 0
-        self.bytes_in = 0
+    START = bytes((VENDOR_ID,))
 
-    def feed(self, chunk: bytes | bytearray | memoryview) -> list[SumdFrame]:
-        self.bytes_in += len(chunk)
-        self._buffer += chunk
-        return self._scan(at_end=False)
-
-    def flush(self) -> list[SumdFrame]:
-        """End of stream: incomplete candidates are skipped; frames found behind them return."""
-        frames = self._scan(at_end=True)
-        self.bytes_skipped += len(self._buffer)
-        self._buffer.clear()
-        return frames
-
-    def _scan(self, at_end: bool) -> list[SumdFrame]:
-        buffer = self._buffer
-        end = len(buffer)
-        pos = 0
-        frames: list[SumdFrame] = []
-        while True:
-            start = buffer.find(VENDOR_ID, pos)
-            if start < 0:
-                self.bytes_skipped += end - pos
-                pos = end
-                break
-            self.bytes_skipped += start - pos
-            pos = start
-            length = self._candidate_length(buffer, start, end)
-            complete = length is not None and start + length <= end
-            if not complete and not at_end:
-                break  # wait for the rest of this candidate
-            frame = self._frame_at(buffer, start, length) if complete and length else None
-            if frame is None or length is None:
-                self.bytes_skipped += 1
-                pos = start + 1
-                continue
-            frames.append(frame)
-            pos = start + length
-        del buffer[:pos]
-        self.frames += len(frames)
-        return frames
-
-    @staticmethod
-    def _candidate_length(buffer: bytearray, start: int, end: int) -> int | None:
+    def _candidate_length(self, buffer: bytearray, start: int, end: int) -> int | None:
         """Frame length of a plausible header at `start`, 0 if implausible, None if cut off."""
         if end - start < HEADER_LEN:
             return None
@@ -155,11 +110,10 @@ class SumdDecoder:
             return 0
         return frame_length(count)
 
-    def _frame_at(self, buffer: bytearray, start: int, length: int) -> SumdFrame | None:
+    def _parse(self, buffer: bytearray, start: int, length: int) -> SumdFrame | Rejected:
         crc_at = start + length - CRC_LEN
         if crc16_xmodem(buffer[start:crc_at]) != _CRC.unpack_from(buffer, crc_at)[0]:
-            self.crc_failures += 1
-            return None
+            return Rejected.CRC
         count = buffer[start + 2]
         channels = _CHANNELS_BY_COUNT[count].unpack_from(buffer, start + HEADER_LEN)
         return SumdFrame(buffer[start + 1] == STATUS_FAILSAFE, channels)
