@@ -203,7 +203,7 @@ def _describe_open_error(url: str, exc: Exception) -> str:
 class SerialLink:
     """One serial output line, shared by the output's writer thread and its RX thread.
 
-    Who writes what (docs/DESIGN.md, "Threads"):
+    Who writes what (docs/DESIGN.md, "Threads and what each owns"):
     - the opener thread only opens a port and offers the result (`_offer`, under `_lock`);
     - the writer thread owns everything else: it takes the offer, adopts the port (`_handle`,
       `_adopted`), writes, logs, counts (`stats`, `last_error`) and closes;
