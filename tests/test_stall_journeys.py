@@ -38,7 +38,9 @@ REST_S = 0.5  # the stick rests first: the neutral guard arms on a stick at rest
 RAMP_S = 20.0  # then X ramps from 0 to 16383 in this long, a report every EVENT_S
 EVENT_S = 0.01  # a report every 10 ms
 STALL_S = 4.0  # the far ends do not read for this long (the scenario itself)
-TOLERANCE_S = 0.25  # value steps (MAVLink: 20 ms), report spacing, a loaded 2-core machine
+# value steps (MAVLink: 20 ms), report spacing, and this test reader's own scheduling on a
+# loaded 2-core machine (seen: 0.32 s while two suites ran); stale frames were 2-3.4 s old
+TOLERANCE_S = 1.0
 # What the far end's own N_TTY line discipline holds: the writer cannot drop it (measured in
 # test_what_a_pty_flush_drops); it holds the first bytes written after the far end stopped.
 PTY_FAR_END_BUFFER = 4095
