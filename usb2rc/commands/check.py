@@ -34,7 +34,6 @@ from usb2rc.config import (
     Config,
     ConfigError,
     DeviceConfig,
-    MatchConfig,
     OutputConfig,
     Problem,
     load_config,
@@ -45,7 +44,7 @@ from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DescriptorError, parse_descriptor
 from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.hid.replay import ReplayBackend
-from usb2rc.mapping import Mapping, compile_mapping
+from usb2rc.mapping import Mapping, compile_mapping, match_text
 from usb2rc.outputs import protocol
 from usb2rc.outputs.crsf_checks import address_warnings
 from usb2rc.outputs.sumd_receivers import receiver_warnings
@@ -256,13 +255,6 @@ def unmatched_entries(
         for device in mapping.devices
         if id(device) not in matched
     ]
-
-
-def match_text(match: MatchConfig) -> str:
-    parts = [f"vid 0x{match.vid:04x}"] if match.vid is not None else []
-    parts += [f"pid 0x{match.pid:04x}"] if match.pid is not None else []
-    parts += [f"{key} {getattr(match, key)!r}" for key in ("serial", "port", "product")]
-    return ", ".join(p for p in parts if not p.endswith(" None"))
 
 
 @dataclass
