@@ -10,8 +10,8 @@ import statistics
 import time
 from collections.abc import Callable
 
-from usb2rc.protocol import c2_16b
-from usb2rc.protocol.sumd import SumdDecoder, encode_sumd
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.sumd.codec import SumdDecoder, encode_sumd
 
 AXES = [-32768, 32767, 0, 1, -1, 1000, -1000, 12345, -12345, 32767]
 SUMD_16 = [0x2260 + 128 * index for index in range(16)]

@@ -58,7 +58,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from daemon_harness import StickState, real_device_recordings, recording, scale  # noqa: E402
 
-from usb2rc.protocol import c2_16b  # noqa: E402
+from usb2rc.protocols.c2_16b import codec as c2_16b  # noqa: E402
 
 PERIOD_S = 0.020
 X_MAX = 16383  # T.16000M X: 14 bits
@@ -246,7 +246,7 @@ def latency_figures(
 
 
 def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[str, Any]:
-    from usb2rc.config import Config
+    from usb2rc.config.load import Config
     from usb2rc.daemon import Daemon
     from usb2rc.hid.replay import ReplayBackend, ReplayDevice
 

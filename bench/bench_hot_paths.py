@@ -38,15 +38,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from daemon_harness import StickState, recording
 
-from usb2rc.config import Config
+from usb2rc.config.load import Config
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import DeviceReader, ReaderRecord
 from usb2rc.hid.replay import ReplayBackend, install_file
-from usb2rc.mapping import compile_mapping
+from usb2rc.nodes.mapping import compile_mapping
+from usb2rc.nodes.table import NodeTable
 from usb2rc.scheduler import C2Output
 from usb2rc.session import C2Settings
-from usb2rc.state import NodeTable
 from usb2rc.transport import SerialLink
 
 PERIOD_S = 0.020

@@ -39,16 +39,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from daemon_harness import real_device_recordings
 
-from usb2rc.config import Config
+from usb2rc.config.load import Config
 from usb2rc.hid import descriptor
 from usb2rc.hid.backend import Device
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.hid.replay import ReplayBackend, install_file
-from usb2rc.lifecycle import DeviceLifecycle
-from usb2rc.mapping import compile_mapping
-from usb2rc.state import NodeTable
+from usb2rc.nodes.lifecycle import DeviceLifecycle
+from usb2rc.nodes.mapping import compile_mapping
+from usb2rc.nodes.table import NodeTable
 
 
 class LongestCall:

@@ -26,7 +26,8 @@ from typing import Any, Protocol
 
 from rc_reference import RefCrsfReader, RefSbusReader
 
-from usb2rc.protocol import c2_16b, sumd
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.sumd import codec as sumd
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -1,13 +1,13 @@
-"""The four stream decoders as they were before `usb2rc.protocol.stream` (issue 21): the
+"""The four stream decoders as they were before `usb2rc.protocols.stream` (issue 21): the
 reference that tests/test_stream_decoder.py holds the new ones to, frame for frame and counter
 for counter. Copied unchanged but for imports; do not edit them to follow the new code."""
 
 from __future__ import annotations
 
-from usb2rc.protocol.c2_16b import (
+from usb2rc.protocols.c2_16b.codec import (
     _CRC as _C2_CRC,
 )
-from usb2rc.protocol.c2_16b import (
+from usb2rc.protocols.c2_16b.codec import (
     _CRC_OFFSET,
     _SERVICE_BY_STATUS,
     ASCII_SERVICE_OFFSET,
@@ -17,20 +17,20 @@ from usb2rc.protocol.c2_16b import (
     ServiceFrame,
     _decode_data,
 )
-from usb2rc.protocol.c2_16b import (
+from usb2rc.protocols.c2_16b.codec import (
     FRAME_LEN as C2_FRAME_LEN,
 )
-from usb2rc.protocol.c2_16b import (
+from usb2rc.protocols.c2_16b.codec import (
     HEADER as C2_HEADER,
 )
-from usb2rc.protocol.crc import crc8_dvb_s2, crc16_arc, crc16_xmodem
-from usb2rc.protocol.crsf import ADDRESSES, MAX_LENGTH, MIN_LENGTH, CrsfFrame
-from usb2rc.protocol.crsf import parse_frame as parse_crsf
-from usb2rc.protocol.sbus import FOOTER, SbusFrame
-from usb2rc.protocol.sbus import FRAME_LEN as SBUS_FRAME_LEN
-from usb2rc.protocol.sbus import HEADER as SBUS_HEADER
-from usb2rc.protocol.sbus import parse_frame as parse_sbus
-from usb2rc.protocol.sumd import (
+from usb2rc.protocols.crc import crc8_dvb_s2, crc16_arc, crc16_xmodem
+from usb2rc.protocols.crsf.codec import ADDRESSES, MAX_LENGTH, MIN_LENGTH, CrsfFrame
+from usb2rc.protocols.crsf.codec import parse_frame as parse_crsf
+from usb2rc.protocols.sbus.codec import FOOTER, SbusFrame
+from usb2rc.protocols.sbus.codec import FRAME_LEN as SBUS_FRAME_LEN
+from usb2rc.protocols.sbus.codec import HEADER as SBUS_HEADER
+from usb2rc.protocols.sbus.codec import parse_frame as parse_sbus
+from usb2rc.protocols.sumd.codec import (
     _CHANNELS_BY_COUNT,
     _CRC,
     CRC_LEN,

@@ -14,8 +14,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from usb2rc.protocol import c2_16b
-from usb2rc.protocol.sumd import axis_to_sumd, button_to_sumd, encode_sumd
+from usb2rc.config import layout
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.sumd.codec import axis_to_sumd, button_to_sumd, encode_sumd
 
 SAMPLES_DIR = Path(__file__).resolve().parent.parent / "usb2rc" / "data" / "samples"
 C2_SAMPLE_NAME = "c2-16b-sample.bin"
@@ -36,7 +37,7 @@ def triangle(step: int, period: int, phase: int = 0) -> int:
 
 
 def sample_axes(step: int) -> list[int]:
-    axes = [0] * c2_16b.AXIS_COUNT
+    axes = [0] * layout.AXIS_COUNT
     axes[0] = triangle(step, 40)  # x
     axes[1] = triangle(step, 40, phase=10)  # y
     axes[2] = -32768 + step * 65535 // (LIVE_FRAMES - 1)  # z: throttle ramp, low to high

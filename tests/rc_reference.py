@@ -1,6 +1,6 @@
 """A second CRSF / SBUS decoder, written for the tests from the protocol descriptions alone
 (docs/ICD.md, "CRSF output" and "SBUS output"), bit by bit, sharing no code with
-usb2rc.protocol: the codec's frames are checked against it, and the end-to-end tests read
+usb2rc.protocols: the codec's frames are checked against it, and the end-to-end tests read
 the daemon's lines with it.
 
 - CRC-8/DVB-S2: polynomial x^8 + x^7 + x^6 + x^4 + x^2 + 1 (0xD5), MSB first, init 0, over

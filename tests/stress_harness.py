@@ -30,7 +30,7 @@ from typing import Any
 
 from daemon_harness import ROOT, PtyLine
 
-from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 RESULTS = ROOT / "bench" / "results" / "stress-summary.json"
 _RESULTS_LOCK = threading.Lock()

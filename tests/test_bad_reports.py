@@ -22,7 +22,7 @@ from test_reader import RecordingDecoder
 
 from usb2rc.hid.backend import DeviceGone, DeviceInfo
 from usb2rc.hid.reader import BAD_REPORTS_LIMIT, DeviceReader
-from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
 BAD_REPORTS = 0x06

@@ -12,8 +12,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from usb2rc import __version__
-from usb2rc.protocol import c2_16b
-from usb2rc.protocol.c2_16b import (
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.c2_16b.codec import (
     FAILSAFE,
     FRAME_LEN,
     LIVE,

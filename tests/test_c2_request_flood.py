@@ -27,7 +27,7 @@ from daemon_harness import (
     services,
 )
 
-from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 WAIT_S = 30.0
 NODES = (0, 1)

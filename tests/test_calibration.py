@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from usb2rc.calibration import (
+from usb2rc.config.calibration import (
     DEADBAND_MARGIN,
     MAX_SUGGESTED_DEADBAND,
     REST_SAMPLES,
@@ -16,7 +16,7 @@ from usb2rc.calibration import (
     rest_noise,
     suggest_deadband,
 )
-from usb2rc.config import Calibration
+from usb2rc.config.load import Calibration
 
 X = AxisTarget(0, "stick", "x", "X", 1, 0, 1023)
 THROTTLE = AxisTarget(0, "stick", "slider", "Slider", 2, 0, 255, deadband=0.1)

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from usb2rc.commands.check import warnings
-from usb2rc.config import load_config_text
-from usb2rc.mapping import compile_mapping
+from usb2rc.config.load import load_config_text
+from usb2rc.nodes.mapping import compile_mapping
 
 STICK = """
 devices:

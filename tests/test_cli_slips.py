@@ -12,7 +12,7 @@ import pytest
 from cli_harness import usb2rc
 
 from usb2rc.cli import COMMANDS
-from usb2rc.port_url import url_problem
+from usb2rc.config.port_url import url_problem
 
 ROOT = Path(__file__).resolve().parent.parent
 SAMPLES = ROOT / "usb2rc" / "data" / "samples"

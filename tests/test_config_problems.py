@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from usb2rc.commands.check import load_or_default
-from usb2rc.config import (
+from usb2rc.config.load import (
     ChannelRef,
     ConfigError,
     OutputConfig,
@@ -17,7 +17,7 @@ from usb2rc.config import (
     load_config,
     load_config_text,
 )
-from usb2rc.mapping import compile_mapping
+from usb2rc.nodes.mapping import compile_mapping
 
 BROKEN = sorted((Path(__file__).parent / "data" / "configs" / "broken").glob("*.yaml"))
 

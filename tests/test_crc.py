@@ -7,7 +7,7 @@ import random
 from hypothesis import given
 from hypothesis import strategies as st
 
-from usb2rc.protocol.crc import crc16_arc, crc16_xmodem
+from usb2rc.protocols.crc import crc16_arc, crc16_xmodem
 
 CHECK_INPUT = b"123456789"
 

@@ -25,8 +25,8 @@ import pytest
 from daemon_harness import PtyLine, StickState, expected_frame, install, recording, run_daemon
 
 from usb2rc.commands.check import describe_output, warnings
-from usb2rc.config import ConfigError, load_config_text
-from usb2rc.mapping import compile_mapping
+from usb2rc.config.load import ConfigError, load_config_text
+from usb2rc.nodes.mapping import compile_mapping
 
 WAIT_S = 20.0
 SYNC_FC = 0xC8

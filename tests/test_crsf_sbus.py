@@ -21,12 +21,13 @@ from rc_reference import (
     rc11,
 )
 
-from usb2rc.config import load_config_text
-from usb2rc.protocol import crsf, sbus
-from usb2rc.protocol import rc11 as block
-from usb2rc.protocol.crc import crc8_dvb_s2
+from usb2rc.config.load import load_config_text
+from usb2rc.nodes.scaling import axis_to_rc11, button_to_rc11
+from usb2rc.protocols import rc11 as block
+from usb2rc.protocols.crc import crc8_dvb_s2
+from usb2rc.protocols.crsf import codec as crsf
+from usb2rc.protocols.sbus import codec as sbus
 from usb2rc.rc_sessions import SYNC_STALE_S, CrsfSession, ModuleLink, SbusSession
-from usb2rc.scaling import axis_to_rc11, button_to_rc11
 
 VECTORS = json.loads(
     (Path(__file__).parent / "data" / "vectors" / "crsf-sbus-published.json").read_text()

@@ -16,7 +16,7 @@ from daemon_harness import (
 )
 
 from usb2rc import __version__
-from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
 

@@ -21,7 +21,8 @@ from daemon_harness import (
     services,
 )
 
-from usb2rc.protocol import c2_16b, sumd
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.sumd import codec as sumd
 
 LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
 

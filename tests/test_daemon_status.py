@@ -10,7 +10,7 @@ from daemon_harness import StickState, data_frames, install, recording, run_daem
 from test_status_inputs import PAD_DESCRIPTOR, pad_report
 
 from usb2rc.hid.recording import RecordedEvent, Recording, format_recording
-from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
 HANDOVER, LOW_BATTERY = c2_16b.HANDOVER, c2_16b.LOW_BATTERY

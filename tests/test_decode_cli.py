@@ -1,7 +1,7 @@
 """`usb2rc decode` end to end, against streams built by an encoder written here.
 
 The acceptance streams are built with struct and bitwise CRCs in this file, not with
-usb2rc.protocol, so a bug shared by encoder and decoder cannot hide.
+usb2rc.protocols, so a bug shared by encoder and decoder cannot hide.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from usb2rc.commands import demo
-from usb2rc.receiver import ReceiverModel
+from usb2rc.protocols.c2_16b.receiver import ReceiverModel
 
 ROOT = Path(__file__).resolve().parent.parent
 WAIT_S = 60.0

@@ -158,10 +158,10 @@ def test_the_docs_see_their_own_headings() -> None:
 @pytest.mark.parametrize(
     ("citing", "section"),
     [
-        ("usb2rc/mapping.py", "Axis scaling"),
-        ("usb2rc/mapping.py", "Default axis layout"),
-        ("usb2rc/mapping.py", "Failsafe"),
-        ("usb2rc/hid/node_ids.py", "Node-IDs"),
+        ("usb2rc/nodes/mapping.py", "Axis scaling"),
+        ("usb2rc/nodes/mapping.py", "Default axis layout"),
+        ("usb2rc/nodes/mapping.py", "Failsafe"),
+        ("usb2rc/nodes/node_ids.py", "Node-IDs"),
         ("tests/daemon_harness.py", "Default button layout"),
     ],
 )

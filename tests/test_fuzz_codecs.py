@@ -30,7 +30,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from stress_harness import chunks, env_int, figures, mutate
 
-from usb2rc.protocol import c2_16b, sumd
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.sumd import codec as sumd
 
 C2_STATUSES = sorted(c2_16b.DATA_STATUSES)
 SERVICE_STATUSES = [0x31 + i for i in range(8)] + list(range(1, 9))

@@ -21,12 +21,12 @@ from daemon_harness import (
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from usb2rc.binding import default_binding
-from usb2rc.guard import REST_S, GuardedAxis, NeutralGuard
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import PRESSES_KEPT, DeviceReader, ReaderRecord
-from usb2rc.state import NodeTable
+from usb2rc.nodes.binding import default_binding
+from usb2rc.nodes.guard import REST_S, GuardedAxis, NeutralGuard
+from usb2rc.nodes.table import NodeTable
 
 LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
 BINDING = default_binding(LAYOUT, "T.16000M")  # a JOYSTICK: X, Y, Rz guarded at the centre
@@ -187,7 +187,7 @@ def test_a_trim_steps_once_per_press_and_never_leaves_its_limit(
 ) -> None:
     """Button 1 steps down, 2 up; presses between two frames all count (the press log);
     the value is the steps summed and clamped at each step (docs/CONFIG.md, "Trims")."""
-    from usb2rc.trims import TrimSwitch
+    from usb2rc.nodes.trims import TrimSwitch
 
     switch = TrimSwitch(0, step, limit, minus=1, plus=2)
     binding = default_binding(LAYOUT, "T.16000M")

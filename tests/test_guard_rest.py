@@ -35,14 +35,7 @@ from daemon_harness import (
 )
 from hid_encoder import encode, ref_reports
 
-from usb2rc.binding import default_binding
-from usb2rc.guard import (
-    DEFAULT_TOLERANCE,
-    FIXED_S,
-    GAMEPAD_TOLERANCE,
-    REST_S,
-    default_tolerance,
-)
+from usb2rc.config import layout
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
@@ -58,9 +51,17 @@ from usb2rc.hid.usages import (
     GD_Y,
     GD_Z,
 )
-from usb2rc.known_devices import all_devices, guard_axis, lookup, parse_devices
-from usb2rc.protocol import c2_16b
-from usb2rc.state import NodeTable
+from usb2rc.nodes.binding import default_binding
+from usb2rc.nodes.guard import (
+    DEFAULT_TOLERANCE,
+    FIXED_S,
+    GAMEPAD_TOLERANCE,
+    REST_S,
+    default_tolerance,
+)
+from usb2rc.nodes.known_devices import all_devices, guard_axis, lookup, parse_devices
+from usb2rc.nodes.table import NodeTable
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
 DATA = Path(__file__).parent / "data" / "real-devices.json"
@@ -308,7 +309,7 @@ def test_a_twcs_plugged_with_the_throttle_forward_waits_until_pulled_back(
         frames = data_frames(line.frames(), 0)
         assert live_at >= 25  # forward for 1 s: ~50 ticks of `!`
         assert {f.status for f in frames[:live_at]} == {FAILSAFE}
-        z_slot = c2_16b.AXIS_NAMES.index("z")
+        z_slot = layout.AXIS_NAMES.index("z")
         assert all(f.axes[z_slot] == -32768 for f in frames[live_at:] if f.status == LIVE)
     finally:
         assert daemon.stop() == 0, daemon.log()

@@ -19,7 +19,7 @@ from daemon_harness import (
 )
 from ibus_reference import RefIbusReader, microseconds
 
-from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 WAIT_S = 20.0
 STICK_A = [StickState(), StickState(x=2000, y=16383, buttons=1)]

@@ -13,14 +13,14 @@ from pathlib import Path
 import pytest
 from daemon_harness import ROOT, StickState, install, recording
 
-from usb2rc.binding import default_axis_fields, default_binding
 from usb2rc.cli import main
 from usb2rc.commands.init import read_devices
-from usb2rc.config import load_config_text
+from usb2rc.commands.starter import PluggedDevice, starter_config
+from usb2rc.config.load import load_config_text
 from usb2rc.hid.descriptor import InputState
 from usb2rc.hid.recording import read_recording
-from usb2rc.mapping import compile_mapping
-from usb2rc.starter_config import PluggedDevice, starter_config
+from usb2rc.nodes.binding import default_axis_fields, default_binding
+from usb2rc.nodes.mapping import compile_mapping
 
 DEMO = ROOT / "usb2rc" / "data" / "demo"
 
@@ -184,7 +184,7 @@ def test_buttons_follow_the_default_runs_up_to_the_devices_last(count):
 
 
 def test_a_replaced_file_keeps_its_mode_and_leaves_no_temporary(tmp_path):
-    from usb2rc.textfile import write_atomically
+    from usb2rc.service.textfile import write_atomically
 
     target = tmp_path / "usb2rc.yaml"
     target.write_text("old\n")

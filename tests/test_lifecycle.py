@@ -14,15 +14,15 @@ from pathlib import Path
 
 from daemon_harness import INVERT_X_CONFIG, StickState, install, timed_recording
 
-from usb2rc.config import load_config_text
+from usb2rc.config.load import load_config_text
 from usb2rc.daemon import expected_nodes
 from usb2rc.hid.backend import Device, DeviceGone, DeviceInfo, DevicePermissionError, ErrorCode
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.hid.replay import ReplayBackend
-from usb2rc.lifecycle import DeviceLifecycle
-from usb2rc.mapping import compile_mapping
-from usb2rc.state import EventKind, NodeTable
+from usb2rc.nodes.lifecycle import DeviceLifecycle
+from usb2rc.nodes.mapping import compile_mapping
+from usb2rc.nodes.table import EventKind, NodeTable
 
 WAIT_S = 10.0
 
@@ -211,7 +211,7 @@ def test_a_device_without_its_node_yet_is_looked_at_again(tmp_path: Path) -> Non
 def test_a_daemon_that_never_started_stops_cleanly(tmp_path: Path) -> None:
     """`serve` stops the daemon whatever `start()` got to, so stop must cope with threads
     that never started."""
-    from usb2rc.config import Config
+    from usb2rc.config.load import Config
     from usb2rc.daemon import Daemon
 
     daemon = Daemon(Config.default(), ReplayBackend(tmp_path), port_override="loop://")

@@ -16,14 +16,14 @@ from daemon_harness import INVERT_X_CONFIG, T16000M_DESCRIPTOR
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from usb2rc.config import Config, load_config_text
+from usb2rc.config.load import Config, load_config_text
 from usb2rc.daemon import expected_nodes
 from usb2rc.hid.backend import DeviceInfo, DevicePermissionError, ErrorCode
 from usb2rc.hid.descriptor import DeviceLayout, InputState
 from usb2rc.hid.reader import OnExit, ReaderRecord
-from usb2rc.lifecycle import DeviceLifecycle, Reload
-from usb2rc.mapping import compile_mapping
-from usb2rc.state import EventKind, NodeTable
+from usb2rc.nodes.lifecycle import DeviceLifecycle, Reload
+from usb2rc.nodes.mapping import compile_mapping
+from usb2rc.nodes.table import EventKind, NodeTable
 
 PORTS = ("1-1.2", "1-1.3", "1-1.4")
 # Zero config (automatic Node-IDs), and every T.16000M pinned to node 4 (a second one clashes).

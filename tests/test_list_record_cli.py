@@ -114,7 +114,7 @@ def test_list_names_the_udev_rule_on_permission_denied(monkeypatch, capsys) -> N
 
 
 def test_list_takes_pins_from_config(tmp_path: Path, capsys) -> None:
-    pytest.importorskip("usb2rc.mapping")
+    pytest.importorskip("usb2rc.nodes.mapping")
     for stem in ("a", "b", "c"):
         install_file(tmp_path / f"{stem}.hid", recording_text([], descriptor=DEMO_STICK))
     config = tmp_path / "cfg" / "usb2rc.yaml"

@@ -6,13 +6,13 @@ from fractions import Fraction
 
 import pytest
 
-from usb2rc.binding import MappingError, NodeInputs, default_axis_fields
-from usb2rc.config import Config, load_config_text
+from usb2rc.config.load import Config, load_config_text
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DeviceLayout, InputField, InputState
-from usb2rc.mapping import ChannelSource, compile_mapping
-from usb2rc.outputs.sumd import sumd_value
-from usb2rc.scaling import hat_direction, scale_linear, to_wire
+from usb2rc.nodes.binding import MappingError, NodeInputs, default_axis_fields
+from usb2rc.nodes.mapping import ChannelSource, compile_mapping
+from usb2rc.nodes.scaling import hat_direction, scale_linear, to_wire
+from usb2rc.protocols.sumd.channels import sumd_value
 
 X, Y, Z, RX, RY, RZ, SLIDER, DIAL, WHEEL, HAT = (
     0x10030, 0x10031, 0x10032, 0x10033, 0x10034, 0x10035, 0x10036, 0x10037, 0x10038, 0x10039,

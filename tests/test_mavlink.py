@@ -18,10 +18,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common
 
-from usb2rc import config_mavlink, transport_udp
-from usb2rc.config import ConfigError, load_config, load_config_text
-from usb2rc.config_mavlink import MavlinkOptions
-from usb2rc.config_model import ChannelRef
+from usb2rc import transport_udp
+from usb2rc.config import mavlink as config_mavlink
+from usb2rc.config.load import ConfigError, load_config, load_config_text
+from usb2rc.config.mavlink import MavlinkOptions
+from usb2rc.config.model import ChannelRef
+from usb2rc.nodes.scaling import axis_to_manual, axis_to_manual_z, axis_to_pwm
+from usb2rc.nodes.table import NodeFrame, NodeTable
 from usb2rc.outputs import mavlink
 from usb2rc.outputs.mavlink import (
     HEARTBEAT_S,
@@ -30,10 +33,8 @@ from usb2rc.outputs.mavlink import (
     MavlinkChannels,
     MavlinkSession,
 )
-from usb2rc.scaling import axis_to_manual, axis_to_manual_z, axis_to_pwm
 from usb2rc.scheduler import MavlinkOutput
-from usb2rc.state import NodeFrame, NodeTable
-from usb2rc.stats_text import output_line
+from usb2rc.service.stats_text import output_line
 from usb2rc.transport import LineEvent, SerialLink
 from usb2rc.transport_udp import UdpLink, parse_udp_url
 
@@ -495,7 +496,7 @@ def channels_or_none(message: Any) -> list[int] | None:
 def test_the_registry_builds_a_serial_output_whose_far_end_is_read() -> None:
     """`mavlink` through the registry on a serial line: an RX thread hands what the far end
     sent to the session (loop:// echoes usb2rc's own heartbeats back, so it sees them)."""
-    from usb2rc.mapping import compile_mapping
+    from usb2rc.nodes.mapping import compile_mapping
     from usb2rc.outputs import protocol
     from usb2rc.outputs.wiring import OutputContext
     from usb2rc.scheduler import ReplyRx

@@ -13,10 +13,10 @@ from pathlib import Path
 
 from daemon_harness import ROOT, DaemonProcess, PtyLine, data_frames
 
-from usb2rc.config import load_config
+from usb2rc.config.load import load_config
 from usb2rc.daemon import expected_nodes
-from usb2rc.missing_devices import FIRST_WARNING_S, REPEAT_S, MissingWarnings
-from usb2rc.state import MissingEntry, NodeTable
+from usb2rc.nodes.missing import FIRST_WARNING_S, REPEAT_S, MissingWarnings
+from usb2rc.nodes.table import MissingEntry, NodeTable
 
 HOTAS = ROOT / "usb2rc" / "data" / "config" / "hotas.yaml"
 DEMO = ROOT / "usb2rc" / "data" / "demo"

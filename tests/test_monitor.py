@@ -26,10 +26,10 @@ import pytest
 from daemon_harness import ROOT, StickState, install, scale, timed_recording
 
 from usb2rc.commands import monitor
-from usb2rc.config import Config, load_config, load_config_text
+from usb2rc.config.load import Config, load_config, load_config_text
 from usb2rc.hid.backend import ErrorCode
 from usb2rc.hid.replay import ReplayBackend
-from usb2rc.state import EventKind, ServiceEvent
+from usb2rc.nodes.table import EventKind, ServiceEvent
 
 ROWS, COLS = 50, 140
 LOW, HIGH = "-" * monitor.BAR_WIDTH, "#" * monitor.BAR_WIDTH
@@ -332,11 +332,11 @@ def fake_axis(slot: str, value: int) -> monitor.AxisRow:
 
 
 def fake_node(node_id: int, slots: int) -> monitor.NodeRow:
-    axes = [fake_axis(slot, 1000 * i) for i, slot in enumerate(AXIS_SLOTS[:slots])]
+    axes = [fake_axis(slot, 1000 * i) for i, slot in enumerate(AXIS_NAMES[:slots])]
     return monitor.NodeRow(node_id, node_id % 2 == 1, [], ["pedals"], axes, [1, 2], "UP")
 
 
-AXIS_SLOTS = ("x", "y", "z", "rx", "ry", "rz", "slider", "dial", "aux1", "aux2")
+AXIS_NAMES = ("x", "y", "z", "rx", "ry", "rz", "slider", "dial", "aux1", "aux2")
 
 
 def render_at(snap: monitor.Snapshot, logs: list[str], now: float, size=(80, 24)) -> list[str]:

@@ -6,7 +6,7 @@ import pytest
 
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.hotplug import sort_by_port_path
-from usb2rc.hid.node_ids import MAX_NODE_ID, NodeIdAllocator, NodeIdError
+from usb2rc.nodes.node_ids import MAX_NODE_ID, NodeIdAllocator, NodeIdError
 
 _plugs = iter(range(10**6))
 

@@ -1,4 +1,4 @@
-"""The node step (usb2rc.nodestep, docs/DESIGN.md "Node state: one step per period"): one
+"""The node step (usb2rc.nodes.step, docs/DESIGN.md "Node state: one step per period"): one
 step per base period publishes an immutable snapshot; reading it changes nothing, so the
 guard arms and the trims step whichever outputs read, and whether any does."""
 
@@ -27,16 +27,16 @@ from daemon_harness import (
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from usb2rc.binding import default_binding
-from usb2rc.config import Config, OutputConfig
+from usb2rc.config.load import Config, OutputConfig
 from usb2rc.daemon import Daemon
-from usb2rc.guard import REST_S
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.hid.replay import ReplayBackend
-from usb2rc.nodestep import BASE_PERIOD_S
-from usb2rc.state import NodeTable
+from usb2rc.nodes.binding import default_binding
+from usb2rc.nodes.guard import REST_S
+from usb2rc.nodes.step import BASE_PERIOD_S
+from usb2rc.nodes.table import NodeTable
 
 LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
 BINDING = default_binding(LAYOUT, "T.16000M")  # X, Y, Rz guarded at the centre

@@ -16,10 +16,10 @@ from typing import Any
 
 import serial
 
-from usb2rc.config import Config, OutputConfig
+from usb2rc.config.load import Config, OutputConfig
 from usb2rc.daemon import READ_AHEAD_S, Daemon
 from usb2rc.hid.replay import ReplayBackend
-from usb2rc.protocol import crsf
+from usb2rc.protocols.crsf import codec as crsf
 from usb2rc.scheduler import CrsfOutput, Pace
 from usb2rc.transport import LineEvent, SerialLink
 

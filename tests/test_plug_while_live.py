@@ -30,7 +30,7 @@ from daemon_harness import (
     service_frames,
 )
 
-from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 pytestmark = pytest.mark.slow
 

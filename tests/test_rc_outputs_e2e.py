@@ -32,7 +32,8 @@ from daemon_harness import (
 )
 from rc_reference import RefCrsfFrame, RefSbusFrame, crsf_frame, rc11
 
-from usb2rc.protocol import c2_16b, sumd
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.sumd import codec as sumd
 
 WAIT_S = 20.0
 STICK_A = [StickState(), StickState(x=0, y=16383, slider=40, buttons=1)]
@@ -230,7 +231,7 @@ def wait_log(daemon: Any, pattern: re.Pattern[str]) -> str:
 
 def test_monitor_with_outputs_shows_the_module_link_quality(tmp_path: Path, replay_dir):
     from usb2rc.commands import monitor
-    from usb2rc.config import load_config_text
+    from usb2rc.config.load import load_config_text
     from usb2rc.hid.replay import ReplayBackend
 
     module = FakeModule()

@@ -49,8 +49,8 @@ from umockdev_harness import (
     wait_until,
 )
 
-from usb2rc.known_devices import lookup
-from usb2rc.protocol import c2_16b
+from usb2rc.nodes.known_devices import lookup
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 ROOT = Path(__file__).resolve().parent.parent
 REAL_DEVICES = json.loads((ROOT / "tests" / "data" / "real-devices.json").read_text())

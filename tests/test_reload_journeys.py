@@ -32,7 +32,7 @@ from daemon_harness import (
     run_daemon,
 )
 
-from usb2rc.protocol.c2_16b import FAILSAFE, LIVE
+from usb2rc.protocols.c2_16b.codec import FAILSAFE, LIVE
 
 INVERTED, PLAIN = 32767, -32768  # node 4's X with and without `invert: true`
 DEADLINE_S = 15.0

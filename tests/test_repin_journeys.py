@@ -1,6 +1,6 @@
 """A reload (SIGHUP) while a stick is live, judged on the wire (docs/ICD.md "A reload and the
 live devices"): a subprocess daemon on a replayed T.16000M, a pty as the far end, C2-16B
-frames decoded with usb2rc.protocol.c2_16b.Decoder.
+frames decoded with usb2rc.protocols.c2_16b.codec.Decoder.
 
 - re-pinned (node 4 -> 5): node 4 says `2` and sends `!`, node 5 announces the device
   (`1`,`6`,`5`,`7`) and goes `>` once the stick rests;
@@ -30,12 +30,12 @@ from daemon_harness import (
 )
 from test_lifecycle import ScriptedBackend, make_reader, plug_stick
 
-from usb2rc.config import Config, load_config_text
+from usb2rc.config.load import Config, load_config_text
 from usb2rc.daemon import expected_nodes
-from usb2rc.lifecycle import DeviceLifecycle
-from usb2rc.mapping import compile_mapping
-from usb2rc.protocol import c2_16b
-from usb2rc.state import EventKind, NodeTable
+from usb2rc.nodes.lifecycle import DeviceLifecycle
+from usb2rc.nodes.mapping import compile_mapping
+from usb2rc.nodes.table import EventKind, NodeTable
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
 CONNECT = ["connected", "vid-pid", "device-string", "device-type"]

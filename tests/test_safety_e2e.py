@@ -31,7 +31,8 @@ from daemon_harness import (
     timed_recording,
 )
 
-from usb2rc.protocol import c2_16b, sumd
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.sumd import codec as sumd
 
 LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
 CENTRED = StickState()

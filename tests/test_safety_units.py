@@ -6,17 +6,18 @@ from __future__ import annotations
 import pytest
 from daemon_harness import T16000M_DESCRIPTOR, RecordSource, StickState, scale, stick_record
 
-from usb2rc.binding import DeviceBinding, default_binding
-from usb2rc.config import ConfigError, load_config_text
-from usb2rc.guard import default_arm
+from usb2rc.config.load import ConfigError, load_config_text
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.hid.usages import GD_GAMEPAD, GD_MULTI_AXIS, GD_RZ, GD_X, GD_Z, SIM_THROTTLE
-from usb2rc.mapping import compile_mapping
-from usb2rc.protocol import c2_16b, sumd
+from usb2rc.nodes.binding import DeviceBinding, default_binding
+from usb2rc.nodes.guard import default_arm
+from usb2rc.nodes.mapping import compile_mapping
+from usb2rc.nodes.table import EventKind, NodeFrame, NodeTable, ServiceEvent
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.sumd import codec as sumd
 from usb2rc.session import C2Session, C2Settings, SumdSession
-from usb2rc.state import EventKind, NodeFrame, NodeTable, ServiceEvent
 
 LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
 STICK = DeviceInfo(key="k", path="k", vid=0x044F, pid=0xB10A, product="T.16000M", port_path="1-1")
@@ -349,7 +350,7 @@ def test_a_hat_trim_steps_once_per_push() -> None:
 
 
 def test_sbus_and_crsf_stopping_send_their_failsafe() -> None:
-    from usb2rc.protocol import sbus
+    from usb2rc.protocols.sbus import codec as sbus
     from usb2rc.rc_sessions import CrsfSession, SbusSession
 
     sbus_line = SbusSession()
@@ -369,9 +370,9 @@ def test_sbus_and_crsf_stopping_send_their_failsafe() -> None:
 
 
 def test_mavlink_stopping_releases_the_override_in_one_tick() -> None:
-    from usb2rc.config_mavlink import MavlinkOptions
+    from usb2rc.config.mavlink import MavlinkOptions
     from usb2rc.outputs.mavlink import ControlValues, MavlinkSession
-    from usb2rc.protocol.mavlink import MavlinkDecoder
+    from usb2rc.protocols.mavlink.codec import MavlinkDecoder
 
     session = MavlinkSession(MavlinkOptions())
     session.line_opened()

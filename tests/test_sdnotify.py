@@ -15,7 +15,7 @@ from types import FrameType
 
 import pytest
 
-from usb2rc.sdnotify import Notifier
+from usb2rc.service.sdnotify import Notifier
 
 
 @pytest.fixture

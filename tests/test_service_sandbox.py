@@ -10,8 +10,8 @@ from cli_harness import usb2rc
 from daemon_harness import ROOT
 
 from usb2rc.cli import main
-from usb2rc.config import load_config_text
-from usb2rc.service_sandbox import (
+from usb2rc.config.load import load_config_text
+from usb2rc.service.sandbox import (
     DROP_IN,
     UNIT,
     Peers,
@@ -80,7 +80,7 @@ def install_unit(root: Path, config: Path = MAVLINK) -> None:
 def check_warnings(
     root: Path, config: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> str:
-    monkeypatch.setattr("usb2rc.service_sandbox.SYSTEM_ROOT", root)
+    monkeypatch.setattr("usb2rc.service.sandbox.SYSTEM_ROOT", root)
     assert main(["check", "--config", str(config)]) == 0
     return capsys.readouterr().err
 

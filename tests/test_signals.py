@@ -1,4 +1,5 @@
-"""usb2rc.signals and the main loop (commands/run.serve) in-process, handlers called directly.
+"""usb2rc.service.signals and the main loop (commands/run.serve) in-process, handlers called
+directly.
 
 Nothing here installs a handler in the test process: `DaemonSignals.handle` is what the
 kernel's signal would run, so the tests call it themselves, at the moments they pick.
@@ -17,7 +18,7 @@ import pytest
 
 from usb2rc.commands import run
 from usb2rc.daemon import ReloadResult
-from usb2rc.signals import DaemonSignals, Phase, ReloadAbandoned
+from usb2rc.service.signals import DaemonSignals, Phase, ReloadAbandoned
 
 
 def test_a_stop_while_starting_exits_0_at_once_and_ignores_the_rest():

@@ -21,7 +21,7 @@ import pytest
 from daemon_harness import DaemonProcess, StickState, install, recording
 from stress_harness import CheckedLine, env_int, figures, proc_stats, terminate
 
-from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 pytestmark = pytest.mark.slow
 

@@ -23,10 +23,11 @@ from test_stall_journeys import PTY_FAR_END_BUFFER, PTY_KERNEL_QUEUE
 from test_state_scheduler import BINDING, Source, info
 
 from usb2rc import __version__
-from usb2rc.outputs.sumd import SumdChannels
-from usb2rc.protocol import c2_16b, sumd
+from usb2rc.nodes.table import NodeTable
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.sumd import codec as sumd
+from usb2rc.protocols.sumd.channels import SumdChannels
 from usb2rc.scheduler import C2Output, C2Settings, SumdOutput, queue_cap
-from usb2rc.state import NodeTable
 from usb2rc.transport import SerialLink
 
 LIVE = c2_16b.LIVE

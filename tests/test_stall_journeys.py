@@ -31,7 +31,7 @@ from typing import Any
 
 from daemon_harness import DECODERS, PtyLine, StickState, install, run_daemon, timed_recording
 
-from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.transport import SOCKET_SEND_BUFFER
 
 REST_S = 0.5  # the stick rests first: the neutral guard arms on a stick at rest

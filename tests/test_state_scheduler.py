@@ -12,18 +12,18 @@ from dataclasses import dataclass, field
 import pytest
 from daemon_harness import T16000M_DESCRIPTOR, StickState
 
-from usb2rc.binding import default_binding, unsigned_slots
-from usb2rc.config import load_config_text
+from usb2rc.config.load import load_config_text
 from usb2rc.daemon import expected_nodes
-from usb2rc.guard import NO_GUARD
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
-from usb2rc.mapping import ChannelSource, compile_mapping
-from usb2rc.outputs.sumd import SumdChannels, sumd_channel
-from usb2rc.protocol import c2_16b
+from usb2rc.nodes.binding import default_binding, unsigned_slots
+from usb2rc.nodes.guard import NO_GUARD
+from usb2rc.nodes.mapping import ChannelSource, compile_mapping
+from usb2rc.nodes.table import NodeFrame, NodeTable
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.sumd.channels import SumdChannels, sumd_channel
 from usb2rc.scheduler import C2Output, C2Settings
-from usb2rc.state import NodeFrame, NodeTable
 from usb2rc.transport import LineEvent, Written
 
 LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)

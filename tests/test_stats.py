@@ -28,8 +28,9 @@ from daemon_harness import (
     services,
 )
 
-from usb2rc import stats_text
-from usb2rc.protocol import c2_16b, sumd
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.sumd import codec as sumd
+from usb2rc.service import stats_text
 
 STATES = [StickState(), StickState(x=0, buttons=1), StickState(x=16383, hat=4)]
 GARBAGE = b"\x00noise\xff\x7e" * 3  # no 'H' in it: every byte is skipped

@@ -12,14 +12,14 @@ import pytest
 from hid_encoder import decode as reference_decode
 from hid_encoder import encode, ref_reports
 
-from usb2rc.binding import MappingError, default_binding
-from usb2rc.config import load_config_text
+from usb2rc.config.load import load_config_text
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.hid.usages import GDC_BATTERY_STRENGTH, usage_from_name, usage_name
-from usb2rc.mapping import compile_mapping
-from usb2rc.state import NodeTable
+from usb2rc.nodes.binding import MappingError, default_binding
+from usb2rc.nodes.mapping import compile_mapping
+from usb2rc.nodes.table import NodeTable
 
 # A wireless pad, written by hand: 8 buttons, X and Y 0..255, Battery Strength 0..100
 # (Usage Page 0x06, Usage 0x20) in the input report; 4-byte reports, no report ID.

@@ -1,4 +1,4 @@
-"""The decoders on `usb2rc.protocol.stream.StreamDecoder` decode exactly as the four loops they
+"""The decoders on `usb2rc.protocols.stream.StreamDecoder` decode exactly as the four loops they
 replaced (kept in tests/legacy_decoders.py): the same frames from every chunk and the same
 counters after every chunk and after `flush()`, on random, mixed and mutated streams."""
 
@@ -13,7 +13,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from legacy_decoders import OldC2Decoder, OldCrsfDecoder, OldSbusDecoder, OldSumdDecoder
 
-from usb2rc.protocol import c2_16b, crsf, sbus, sumd
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.crsf import codec as crsf
+from usb2rc.protocols.sbus import codec as sbus
+from usb2rc.protocols.sumd import codec as sumd
 
 COUNTERS = ("frames", "bytes_in", "bytes_skipped", "crc_failures")
 

@@ -36,7 +36,7 @@ from stress_harness import (
     terminate,
 )
 
-from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 pytestmark = pytest.mark.slow
 

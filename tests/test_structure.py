@@ -88,7 +88,7 @@ def test_the_node_layout_is_defined_once() -> None:
     for name in ("AXIS_NAMES", "AXIS_COUNT", "NODE_BUTTONS", "GROUP1_BUTTONS", "HAT1_SHIFT"):
         assert len(definitions(rf"^{name}\s*[:=]")) == 1, definitions(rf"^{name}\s*[:=]")
     highest = definitions(r"^\s*[A-Z_]*NODE_ID[A-Z_]*\s*[:=]\s*(254|0xFE)\b")
-    assert highest == [], "the highest Node-ID is STARTUP_NODE_ID - 1, in protocol/c2_16b.py"
+    assert highest == [], "the highest Node-ID is STARTUP_NODE_ID - 1, in config/layout.py"
 
 
 def test_usage_numbers_live_in_usages_only() -> None:

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from usb2rc.protocol.sumd import (
+from usb2rc.protocols.sumd.codec import (
     SumdDecoder,
     SumdFrame,
     axis_to_sumd,

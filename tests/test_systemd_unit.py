@@ -251,7 +251,7 @@ import hid, pyudev, serial, yaml  # C extensions and ctypes users the daemon loa
 yaml.load("a: 1", Loader=yaml.CSafeLoader)
 callback = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_int)(lambda x: x + 1)
 assert callback(41) == 42  # libffi closures: static trampolines, no W+X page
-import usb2rc.cli, usb2rc.sdnotify
+import usb2rc.cli, usb2rc.service.sdnotify
 print("ok")
 """
     result = subprocess.run(

@@ -79,9 +79,9 @@ def test_a_port_opened_in_the_middle_of_a_tick_carries_nothing_before_the_startu
     from daemon_harness import StickState
     from test_state_scheduler import BINDING, Source, info
 
-    from usb2rc.protocol import c2_16b
+    from usb2rc.nodes.table import NodeTable
+    from usb2rc.protocols.c2_16b import codec as c2_16b
     from usb2rc.scheduler import C2Output, C2Settings
-    from usb2rc.state import NodeTable
 
     release_open = threading.Event()
     ports = []
@@ -125,9 +125,9 @@ def test_a_line_lost_and_reopened_starts_again_with_the_startup_frame(monkeypatc
     from daemon_harness import StickState
     from test_state_scheduler import BINDING, Source, info
 
-    from usb2rc.protocol import c2_16b
+    from usb2rc.nodes.table import NodeTable
+    from usb2rc.protocols.c2_16b import codec as c2_16b
     from usb2rc.scheduler import C2Output, C2Settings
-    from usb2rc.state import NodeTable
 
     ports = []
     real_open = serial.serial_for_url

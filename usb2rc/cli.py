@@ -15,7 +15,7 @@ import sys
 import threading
 
 from usb2rc import __version__
-from usb2rc.signals import install_command_signals, install_daemon_signals
+from usb2rc.service.signals import install_command_signals, install_daemon_signals
 
 # Subcommand name -> module in usb2rc.commands. `run` is the default when none is given.
 COMMANDS: dict[str, str] = {
@@ -97,7 +97,7 @@ def known_in_order(known: set[str]) -> list[str]:
 def _install_early_signals(args_list: list[str]) -> None:
     """Before anything slow (build_parser imports every command, then the config is read).
 
-    The daemon gets its handlers for good (usb2rc.signals); the other commands keep the
+    The daemon gets its handlers for good (usb2rc.service.signals); the other commands keep the
     usual Ctrl-C (KeyboardInterrupt) and SIGHUP, and only SIGTERM becomes a clean stop.
     """
     if threading.current_thread() is not threading.main_thread():

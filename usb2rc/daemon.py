@@ -7,7 +7,7 @@
 The outputs are one per config `outputs:` entry, in any of five protocols: C2-16B, SUMD,
 CRSF, SBUS and MAVLink (usb2rc.outputs has the registry).
 
-Devices come and go only on the lifecycle thread (usb2rc.lifecycle); readers publish records
+Devices come and go only on the lifecycle thread (usb2rc.nodes.lifecycle); readers publish records
 that the table reads without waiting; the scheduler threads never wait on a device.
 """
 
@@ -22,22 +22,23 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from usb2rc import __version__, stats_text
-from usb2rc.config import Config, OutputConfig
+from usb2rc import __version__
+from usb2rc.config.load import Config, OutputConfig
 from usb2rc.hid.backend import Backend, Device
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, OnExit
-from usb2rc.lifecycle import DeviceLifecycle
-from usb2rc.mapping import Mapping, compile_mapping, match_text
-from usb2rc.nodestep import NodeClock
+from usb2rc.nodes.lifecycle import DeviceLifecycle
+from usb2rc.nodes.mapping import Mapping, compile_mapping, match_text
+from usb2rc.nodes.step import NodeClock
+from usb2rc.nodes.table import Expected, ExpectedEntry, NodeTable
 from usb2rc.outputs import protocol
 from usb2rc.outputs.wiring import OutputContext
 from usb2rc.scheduler import C2Output, ReplyRx, RxThread, TickThread
-from usb2rc.state import Expected, ExpectedEntry, NodeTable
+from usb2rc.service import stats_text
+from usb2rc.service.worker import Worker
 from usb2rc.transport import SerialLink
 from usb2rc.transport_udp import UdpLink
-from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc")
 
@@ -290,7 +291,7 @@ class Daemon:
     def apply_reload(self, prepared: PreparedReload) -> ReloadResult:
         """Hand the lifecycle thread the whole new mapping: it applies it between two device
         events, so a device plugged meanwhile is bound with the new mapping either way. Logs
-        nothing: the main loop runs this where a stop may abandon it (usb2rc.signals)."""
+        nothing: the main loop runs this where a stop may abandon it (usb2rc.service.signals)."""
         taken = self.lifecycle.reload(prepared.mapping, prepared.expected)
         # Not taken within the timeout: it is queued and the thread applies it when free.
         self.mapping = prepared.mapping
@@ -308,7 +309,7 @@ class Daemon:
         return stats_text.stats_lines(self.stats_record())
 
     def stats_record(self) -> dict[str, Any]:
-        """Every counter, per output and per device (keys: usb2rc.stats_text); plain JSON
+        """Every counter, per output and per device (keys: usb2rc.service.stats_text); plain JSON
         values, so `run --stats-format json` prints it as it is."""
         now = time.monotonic()
         uptime = max(1e-9, now - self.started_at)

@@ -14,8 +14,8 @@ import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from usb2rc.protocol import c2_16b
-from usb2rc.state import NodeFrame
+from usb2rc.nodes.table import NodeFrame
+from usb2rc.protocols.c2_16b import codec as c2_16b
 
 log = logging.getLogger("usb2rc.session")
 

@@ -23,8 +23,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from usb2rc.protocol import crsf, ibus, rc11, sbus
-from usb2rc.scaling import RC11_CENTRE, RC11_LOW
+from usb2rc.nodes.scaling import RC11_CENTRE, RC11_LOW
+from usb2rc.protocols import rc11
+from usb2rc.protocols.crsf import codec as crsf
+from usb2rc.protocols.ibus import codec as ibus
+from usb2rc.protocols.sbus import codec as sbus
 from usb2rc.session import FrameLineSession
 
 # ELRS sends a timing correction every 200 ms while it hears the handset; after a second

@@ -22,9 +22,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
-from usb2rc.outputs.channels import OutputChannels
-from usb2rc.protocol import c2_16b
+from usb2rc.nodes.table import NodeTable
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.channels import OutputChannels
 from usb2rc.rc_sessions import CrsfSession
+from usb2rc.service.worker import Worker
 from usb2rc.session import (  # noqa: F401 - re-exported: their home used to be here
     BITS_PER_BYTE_ON_WIRE,
     C2Session,
@@ -36,10 +38,8 @@ from usb2rc.session import (  # noqa: F401 - re-exported: their home used to be 
     device_string_text,
     frames_per_tick,
 )
-from usb2rc.state import NodeTable
 from usb2rc.transport import LineEvent, SerialLink, Written
 from usb2rc.transport_udp import UdpLink
-from usb2rc.worker import Worker
 
 if TYPE_CHECKING:  # pymavlink's dialect is loaded only with a MAVLink output
     from usb2rc.outputs.mavlink import MavlinkChannels, MavlinkSession
@@ -203,7 +203,7 @@ class TickThread(Worker):
 
     def protocol_stats(self) -> dict[str, Any]:
         """What only this protocol counts, for the stats record (`Daemon.stats_record`; the
-        labels of its keys are in `usb2rc.stats_text`)."""
+        labels of its keys are in `usb2rc.service.stats_text`)."""
         return {}
 
     def note_write(self) -> None:
@@ -441,7 +441,7 @@ class C2Output(_LineThread):
 
 class ChannelOutput(_LineThread):
     """A channel output (SUMD, CRSF, SBUS): one frame of the configured channels per tick;
-    the values are the output's channels' (`usb2rc.outputs.channels.OutputChannels`), the
+    the values are the output's channels' (`usb2rc.protocols.channels.OutputChannels`), the
     frame the session's."""
 
     def __init__(

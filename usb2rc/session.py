@@ -50,8 +50,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from usb2rc.data_status import DataStatuses
-from usb2rc.protocol import c2_16b, sumd
-from usb2rc.state import EventKind, NodeFrame, ServiceEvent
+from usb2rc.nodes.table import EventKind, NodeFrame, ServiceEvent
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.sumd import codec as sumd
 
 log = logging.getLogger("usb2rc.session")
 

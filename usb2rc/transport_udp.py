@@ -33,8 +33,8 @@ import socket
 import time
 from collections.abc import Callable, Iterable
 
+from usb2rc.config.udp_url import is_udp_url, parse_udp_url
 from usb2rc.transport import LineEvent, LinkStats, Written
-from usb2rc.udp_url import is_udp_url, parse_udp_url
 
 __all__ = ["UdpLink", "is_udp_url", "parse_udp_url"]
 
@@ -256,7 +256,7 @@ class UdpLink:
             del self._received[: len(self._received) - KEEP_RECEIVED]
 
     def counters(self) -> dict[str, int | str]:
-        """The link's own counters for the stats record (labels: `usb2rc.stats_text`)."""
+        """The link's own counters for the stats record (labels: `usb2rc.service.stats_text`)."""
         record: dict[str, int | str] = {
             "datagrams_from_peer": self.datagrams_received,
             "datagrams_from_others": self.datagrams_from_others,

@@ -11,7 +11,7 @@ import sys
 import atheris
 
 with atheris.instrument_imports():
-    from usb2rc.protocol import c2_16b
+    from usb2rc.protocols.c2_16b import codec as c2_16b
 
 
 def test_one_input(data: bytes) -> None:

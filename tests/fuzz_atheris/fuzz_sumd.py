@@ -8,7 +8,7 @@ import sys
 import atheris
 
 with atheris.instrument_imports():
-    from usb2rc.protocol import sumd
+    from usb2rc.protocols.sumd import codec as sumd
 
 
 def test_one_input(data: bytes) -> None:

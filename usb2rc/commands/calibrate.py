@@ -25,24 +25,24 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from usb2rc.binding import MappingError, usage_label
-from usb2rc.calibration import (
+from usb2rc.commands.arguments import replay_dir
+from usb2rc.commands.list_devices import UnreadableDevice, read_layout
+from usb2rc.config.calibration import (
     AxisResult,
     AxisTarget,
     Step,
     Wizard,
 )
-from usb2rc.commands.arguments import replay_dir
-from usb2rc.commands.list_devices import UnreadableDevice, read_layout
-from usb2rc.config import Config, ConfigError, DeviceConfig, load_config
-from usb2rc.config_edit import AxisCalibration, EditError, set_calibrations
+from usb2rc.config.edit import AxisCalibration, EditError, set_calibrations
+from usb2rc.config.load import Config, ConfigError, DeviceConfig, load_config
 from usb2rc.hid.backend import Backend, DeviceInfo, ErrorCode
 from usb2rc.hid.choose import choose_backend
 from usb2rc.hid.descriptor import DeviceLayout, InputState, ReportDecoder
 from usb2rc.hid.hotplug import initial_devices
 from usb2rc.hid.reader import DeviceReader
-from usb2rc.mapping import compile_mapping
-from usb2rc.textfile import write_atomically
+from usb2rc.nodes.binding import MappingError, usage_label
+from usb2rc.nodes.mapping import compile_mapping
+from usb2rc.service.textfile import write_atomically
 
 REFRESH_S = 0.05  # the view and the samples: 20 Hz
 BAR_WIDTH = 40

@@ -28,9 +28,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from usb2rc.binding import DeviceBinding, MappingError
 from usb2rc.commands.arguments import replay_dir
-from usb2rc.config import (
+from usb2rc.config.load import (
     Config,
     ConfigError,
     DeviceConfig,
@@ -39,18 +38,19 @@ from usb2rc.config import (
     load_config,
     load_runnable,
 )
-from usb2rc.config_mavlink import MavlinkOptions, baud_needed
+from usb2rc.config.mavlink import MavlinkOptions, baud_needed
+from usb2rc.config.port_url import port_argument
+from usb2rc.config.udp_url import is_udp_url
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DescriptorError, parse_descriptor
-from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.hid.replay import ReplayBackend
-from usb2rc.mapping import Mapping, compile_mapping, match_text
+from usb2rc.nodes.binding import DeviceBinding, MappingError
+from usb2rc.nodes.mapping import Mapping, compile_mapping, match_text
+from usb2rc.nodes.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.outputs import protocol
-from usb2rc.outputs.crsf_checks import address_warnings
-from usb2rc.outputs.sumd_receivers import receiver_warnings
-from usb2rc.port_url import port_argument
-from usb2rc.service_sandbox import sandbox_warnings
-from usb2rc.udp_url import is_udp_url
+from usb2rc.protocols.crsf.checks import address_warnings
+from usb2rc.protocols.sumd.receivers import receiver_warnings
+from usb2rc.service.sandbox import sandbox_warnings
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

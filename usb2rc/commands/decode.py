@@ -29,18 +29,18 @@ from collections.abc import Callable, Generator, Iterable
 from contextlib import closing
 from typing import Any, BinaryIO, Protocol, TypeGuard, runtime_checkable
 
+from usb2rc.config.udp_url import is_udp_url, parse_udp_url
 from usb2rc.outputs import PROTOCOLS, protocol
-from usb2rc.protocol import crsf
-from usb2rc.protocol.c2_16b import (
+from usb2rc.protocols.c2_16b.codec import (
     DATA_STATUS_NAMES,
     HANDOVER,
     DataFrame,
     ServiceFrame,
 )
-from usb2rc.protocol.sbus import SbusFrame
-from usb2rc.protocol.stream import StreamDecoder
-from usb2rc.protocol.sumd import SumdFrame
-from usb2rc.udp_url import is_udp_url, parse_udp_url
+from usb2rc.protocols.crsf import codec as crsf
+from usb2rc.protocols.sbus.codec import SbusFrame
+from usb2rc.protocols.stream import StreamDecoder
+from usb2rc.protocols.sumd.codec import SumdFrame
 
 
 @runtime_checkable
@@ -143,7 +143,7 @@ def _shown(protocol: str) -> str:
 def _port_url_problem(source: str) -> str | None:
     if "://" not in source:
         return None
-    from usb2rc.port_url import url_problem  # pyserial only when a port is named
+    from usb2rc.config.port_url import url_problem  # pyserial only when a port is named
 
     return url_problem(source)
 
@@ -301,7 +301,7 @@ def _mavlink_header(message: Any) -> dict[str, Any]:
 
 
 def _mavlink_fields(message: Any) -> dict[str, Any]:
-    from usb2rc.protocol.mavlink import message_fields
+    from usb2rc.protocols.mavlink.codec import message_fields
 
     return message_fields(message)
 

@@ -22,12 +22,12 @@ from importlib import resources
 from pathlib import Path
 
 from usb2rc.commands.monitor import LogLines, captured_log
-from usb2rc.config import Config
+from usb2rc.config.layout import AXIS_NAMES
+from usb2rc.config.load import Config
 from usb2rc.daemon import Daemon
 from usb2rc.hid.replay import ReplayBackend, install_file
-from usb2rc.protocol.c2_16b import AXIS_NAMES
-from usb2rc.receiver import NodeView, ReceiverModel
-from usb2rc.worker import Worker
+from usb2rc.protocols.c2_16b.receiver import NodeView, ReceiverModel
+from usb2rc.service.worker import Worker
 
 log = logging.getLogger("usb2rc.demo")
 

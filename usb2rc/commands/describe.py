@@ -18,11 +18,11 @@ import json
 import sys
 from typing import Any
 
-from usb2rc.binding import default_binding
 from usb2rc.hid.descriptor import DescriptorError, DeviceLayout, parse_descriptor
 from usb2rc.hid.recording import Recording, RecordingError, read_recording
 from usb2rc.hid.usages import device_type_name, usage_name
-from usb2rc.known_devices import KnownDevice, all_devices, lookup
+from usb2rc.nodes.binding import default_binding
+from usb2rc.nodes.known_devices import KnownDevice, all_devices, lookup
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -15,10 +15,10 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from usb2rc.binding import shaping_text, usage_label
 from usb2rc.commands.arguments import replay_dir
 from usb2rc.commands.check import bind_replay, device_record, load_or_default, output_records
-from usb2rc.config import (
+from usb2rc.config.layout import GROUP1_BUTTONS, HAT1_SHIFT
+from usb2rc.config.load import (
     HAT_DIRECTIONS,
     AxisConfig,
     Config,
@@ -26,14 +26,14 @@ from usb2rc.config import (
     DeviceConfig,
     OutputConfig,
 )
-from usb2rc.config_mavlink import MANUAL_AXES, RC_CHANNELS_OVERRIDE, MavlinkOptions
-from usb2rc.guard import DEFAULT_TOLERANCE, default_arm, normalize_arm
+from usb2rc.config.mavlink import MANUAL_AXES, RC_CHANNELS_OVERRIDE, MavlinkOptions
+from usb2rc.config.udp_url import is_udp_url
 from usb2rc.hid.usages import GD_JOYSTICK
-from usb2rc.mapping import Mapping, compile_mapping
+from usb2rc.nodes.binding import shaping_text, usage_label
+from usb2rc.nodes.guard import DEFAULT_TOLERANCE, default_arm, normalize_arm
+from usb2rc.nodes.mapping import Mapping, compile_mapping
+from usb2rc.nodes.scaling import node_button_bit
 from usb2rc.outputs import protocol
-from usb2rc.protocol.c2_16b import GROUP1_BUTTONS, HAT1_SHIFT
-from usb2rc.scaling import node_button_bit
-from usb2rc.udp_url import is_udp_url
 
 FORMATS = ("markdown", "text")
 

@@ -11,7 +11,7 @@ kept, with a unified diff of what would change; `--force` replaces it.
 The config that ends up at /etc/usb2rc/usb2rc.yaml (the kept one, or the one installed) is
 read: when its outputs open IP sockets (`udpout:`, `udpin:`, `socket://`, `rfc2217://`),
 which the unit forbids, the drop-in usb2rc.service.d/network.conf allows IP to the hosts they
-name (`usb2rc/service_sandbox.py` says how). With `--root DIR` everything goes under DIR (a
+name (`usb2rc/service/sandbox.py` says how). With `--root DIR` everything goes under DIR (a
 scratch root, an image being built); with `--print NAME` one file is printed as it would be
 installed instead (network.conf: for --config FILE, default the starter default.yaml).
 
@@ -35,8 +35,8 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
-from usb2rc import service_sandbox
-from usb2rc.textfile import DanglingLink, resolved_target
+from usb2rc.service import sandbox as service_sandbox
+from usb2rc.service.textfile import DanglingLink, resolved_target
 
 # The shipped unit's ExecStart= program: what an install into /opt/usb2rc/venv gives.
 TEMPLATE_PROGRAM = "/opt/usb2rc/venv/bin/usb2rc"
@@ -161,7 +161,7 @@ def rendered(file: SystemFile, program: list[str]) -> str:
 
 def drop_in_for(config_text: str, source: str, root: Path) -> tuple[str | None, list[str]]:
     """network.conf for the config (None: it opens no IP socket) and the warnings to show."""
-    from usb2rc.config import load_config_text
+    from usb2rc.config.load import load_config_text
 
     peers = service_sandbox.network_peers(load_config_text(config_text, source), root)
     warnings = [p.warning for p in peers if p.warning]
@@ -291,7 +291,7 @@ def give_config_to_group(root: Path, path: Path) -> str:
 
 def checked_config(path: str) -> str:
     """The text of a config that passes `usb2rc check`; raises ConfigError / OSError."""
-    from usb2rc.config import load_config
+    from usb2rc.config.load import load_config
 
     load_config(path)
     return Path(path).read_text()
@@ -350,7 +350,7 @@ def _usage_problem(root: str, program: list[str]) -> str | None:
 def _config_text(path: str | None) -> str | None:
     if path is None:
         return packaged_text(BY_NAME["default.yaml"])
-    from usb2rc.config import ConfigError
+    from usb2rc.config.load import ConfigError
 
     try:
         return checked_config(path)
@@ -418,7 +418,7 @@ def installed_config(request: Request) -> tuple[str, str] | None:
 
 def install_drop_in(request: Request) -> list[str]:
     """network.conf for the installed config's IP outputs (service_sandbox)."""
-    from usb2rc.config import ConfigError
+    from usb2rc.config.load import ConfigError
 
     config = installed_config(request)
     if config is None:

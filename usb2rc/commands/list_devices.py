@@ -17,8 +17,8 @@ from usb2rc.commands.arguments import replay_dir
 from usb2rc.hid.backend import Backend, DeviceInfo, DevicePermissionError
 from usb2rc.hid.choose import choose_backend
 from usb2rc.hid.hotplug import sort_by_port_path
-from usb2rc.hid.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.hid.permissions import INSTALL_RULE
+from usb2rc.nodes.node_ids import NodeIdAllocator, NodeIdError
 
 if TYPE_CHECKING:
     from usb2rc.hid.descriptor import DeviceLayout
@@ -58,8 +58,8 @@ def load_mapping(path: str | None) -> Any:
     """The compiled mapping of --config, or None (raises ValueError on a bad config)."""
     if not path:
         return None
-    from usb2rc.config import load_config
-    from usb2rc.mapping import compile_mapping
+    from usb2rc.config.load import load_config
+    from usb2rc.nodes.mapping import compile_mapping
 
     return compile_mapping(load_config(path))
 

@@ -25,14 +25,14 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
-from usb2rc.binding import DeviceBinding, describe_button_runs
 from usb2rc.commands.run import add_common_input_args, load_or_report, make_backend
-from usb2rc.config import Config
+from usb2rc.config.layout import AXIS_NAMES
+from usb2rc.config.load import Config
 from usb2rc.daemon import Daemon, NoPortError
 from usb2rc.hid.backend import Backend, DeviceInfo, ErrorCode
-from usb2rc.protocol.c2_16b import AXIS_NAMES
-from usb2rc.receiver import NodeView
-from usb2rc.state import EventKind, NodeFrame, ServiceEvent
+from usb2rc.nodes.binding import DeviceBinding, describe_button_runs
+from usb2rc.nodes.table import EventKind, NodeFrame, ServiceEvent
+from usb2rc.protocols.c2_16b.receiver import NodeView
 
 REFRESH_S = 0.1  # the live view: ~10 Hz
 PLAIN_EVERY_S = 1.0  # --plain: one snapshot a second
@@ -72,7 +72,7 @@ def output_previews(config: Config, daemon: Daemon) -> list[tuple[str, Preview]]
     for i, out in enumerate(config.outputs):
         if out.protocol != "mavlink":
             continue
-        from usb2rc.config_mavlink import MavlinkOptions
+        from usb2rc.config.mavlink import MavlinkOptions
         from usb2rc.outputs.mavlink import MavlinkChannels, preview_text
 
         message = MavlinkOptions.of(out).message

@@ -14,15 +14,15 @@ import time
 from collections import Counter
 from collections.abc import Callable
 
-from usb2rc import log_escape
 from usb2rc.commands.arguments import replay_dir
-from usb2rc.config import Config, ConfigError, load_config, load_runnable
+from usb2rc.config.load import Config, ConfigError, load_config, load_runnable
+from usb2rc.config.port_url import port_argument
 from usb2rc.daemon import Daemon, NoPortError, ReloadResult, log_reload
 from usb2rc.hid.backend import Backend
 from usb2rc.hid.choose import choose_backend
-from usb2rc.port_url import port_argument
-from usb2rc.sdnotify import Notifier
-from usb2rc.signals import DaemonSignals, ReloadAbandoned, install_daemon_signals
+from usb2rc.service import log_escape
+from usb2rc.service.sdnotify import Notifier
+from usb2rc.service.signals import DaemonSignals, ReloadAbandoned, install_daemon_signals
 
 log = logging.getLogger("usb2rc")
 
@@ -151,7 +151,7 @@ def serve(
 ) -> int:
     """Run until SIGTERM/SIGINT; SIGHUP reloads the config, SIGUSR1 logs statistics.
 
-    Every stop returns 0. The handlers stay installed to the end (usb2rc.signals): a signal
+    Every stop returns 0. The handlers stay installed to the end (usb2rc.service.signals): a signal
     while stopping is logged and ignored, never the default action that kills the process.
     """
     if signals is None:
@@ -267,7 +267,7 @@ def reload(daemon: Daemon, config_path: str | None, signals: DaemonSignals | Non
 
 def _load_and_apply(daemon: Daemon, config_path: str) -> ReloadResult:
     """Read, check and compile the whole config, then hand it over: nothing logged here (a
-    stop may abandon it at any point, usb2rc.signals)."""
+    stop may abandon it at any point, usb2rc.service.signals)."""
     config = load_runnable(config_path, daemon.port_override)
     return daemon.apply_reload(daemon.prepare_reload(config))
 

@@ -2,11 +2,11 @@
 
 An output is three pieces, and every protocol has the same shape:
 
-- the sans-IO wire codec, `usb2rc.protocol.<name>` (values → bytes → values);
+- the sans-IO wire codec, `usb2rc.protocols.<name>` (values → bytes → values);
 - the sans-IO line session (`usb2rc.session.SumdSession`, `usb2rc.rc_sessions`), driven by
   the shared scheduler (`usb2rc.scheduler`: one thread per output, one frame per tick);
 - the output's channels, from the typed channel references of the config to wire values and
-  the frame's failsafe flag (`usb2rc.outputs.channels`, with each protocol's scale).
+  the frame's failsafe flag (`usb2rc.protocols.channels`, with each protocol's scale).
 
 `PROTOCOLS` below is the one place that lists them: what the config accepts for each
 (`config.py` reads its keys, defaults and channel limits from here), how many bytes a frame
@@ -23,17 +23,17 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 # Aliased: a submodule of this package of the same name (outputs.sumd) would shadow them.
-from usb2rc import config_mavlink
-from usb2rc.protocol import c2_16b as c2_16b_codec
-from usb2rc.protocol import crsf as crsf_codec
-from usb2rc.protocol import ibus as ibus_codec
-from usb2rc.protocol import sbus as sbus_codec
-from usb2rc.protocol import sumd as sumd_codec
+from usb2rc.config import mavlink as config_mavlink
+from usb2rc.protocols.c2_16b import codec as c2_16b_codec
+from usb2rc.protocols.crsf import codec as crsf_codec
+from usb2rc.protocols.ibus import codec as ibus_codec
+from usb2rc.protocols.sbus import codec as sbus_codec
+from usb2rc.protocols.sumd import codec as sumd_codec
 
 if TYPE_CHECKING:
     from yaml.nodes import Node
 
-    from usb2rc.yamlnodes import NodeReader
+    from usb2rc.config.yamlnodes import NodeReader
 
 OptionReader = Callable[["NodeReader", "Node", str], Any]
 
@@ -175,7 +175,7 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_baudrate=115200,
             default_rate_hz=50,
             frame_length=_c2_frame_length,
-            decoder_path="usb2rc.protocol.c2_16b:Decoder",
+            decoder_path="usb2rc.protocols.c2_16b.codec:Decoder",
             build_path="usb2rc.outputs.wiring:build_c2_16b",
             options={
                 "line_feed": Option(_boolean, True, "LF (0x0A) after each 35-byte frame"),
@@ -190,7 +190,7 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_baudrate=115200,
             default_rate_hz=100,
             frame_length=_sumd_frame_length,
-            decoder_path="usb2rc.protocol.sumd:SumdDecoder",
+            decoder_path="usb2rc.protocols.sumd.codec:SumdDecoder",
             build_path="usb2rc.outputs.wiring:build_sumd",
             channels=(sumd_codec.MIN_CHANNELS, sumd_codec.MAX_CHANNELS),
             options={
@@ -203,7 +203,7 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_baudrate=400000,
             default_rate_hz=250,
             frame_length=_crsf_frame_length,
-            decoder_path="usb2rc.protocol.crsf:CrsfDecoder",
+            decoder_path="usb2rc.protocols.crsf.codec:CrsfDecoder",
             build_path="usb2rc.outputs.wiring:build_crsf",
             channels=(1, 16),
             channels_required=True,
@@ -225,7 +225,7 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_baudrate=sbus_codec.BAUDRATE,
             default_rate_hz=100,
             frame_length=_sbus_frame_length,
-            decoder_path="usb2rc.protocol.sbus:SbusDecoder",
+            decoder_path="usb2rc.protocols.sbus.codec:SbusDecoder",
             build_path="usb2rc.outputs.wiring:build_sbus",
             bits_per_byte=sbus_codec.BITS_PER_BYTE,
             channels=(1, 18),
@@ -240,14 +240,14 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             # take any rate, and 32 bytes at 115200 baud fit up to 360 Hz.
             default_rate_hz=100,
             frame_length=_ibus_frame_length,
-            decoder_path="usb2rc.protocol.ibus:IbusDecoder",
+            decoder_path="usb2rc.protocols.ibus.codec:IbusDecoder",
             build_path="usb2rc.outputs.wiring:build_ibus",
             channels=(1, ibus_codec.CHANNELS),
             channels_required=True,
             note="32-byte frames, 14 channels, 115200 baud 8N1; channels past the list "
             "1000 µs. While a listed channel's node is in failsafe no frame is sent: the "
             'receiver\'s own failsafe takes over (docs/ICD.md, "iBus output").',
-            scale_path="usb2rc.outputs.channels:IBUS_SCALE",
+            scale_path="usb2rc.protocols.channels:IBUS_SCALE",
             display_name="iBus",
         ),
         OutputProtocol(
@@ -256,11 +256,11 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_baudrate=115200,
             default_rate_hz=50,
             frame_length=_mavlink_frame_length,
-            decoder_path="usb2rc.protocol.mavlink:MavlinkDecoder",
+            decoder_path="usb2rc.protocols.mavlink.codec:MavlinkDecoder",
             build_path="usb2rc.outputs.wiring:build_mavlink",
             channels=(1, config_mavlink.MOST_CHANNELS),
             options={k: Option(*spec) for k, spec in config_mavlink.OPTION_SPECS.items()},
-            check_path="usb2rc.config_mavlink_check:check_mavlink_output",
+            check_path="usb2rc.config.mavlink_check:check_mavlink_output",
         ),
     )
 }

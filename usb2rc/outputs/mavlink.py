@@ -5,7 +5,7 @@ Two pieces, both sans-IO (no thread, no socket, no clock: `now` is passed in):
 
 - `MavlinkChannels`: the configured channels (named as SUMD names them, `nodeN.<slot>` /
   `nodeN.buttonK`) evaluated once a tick from the NodeTable's frames into the message's
-  fields, with the scalings of `usb2rc.scaling` (`axis_to_pwm`, `button_to_pwm`,
+  fields, with the scalings of `usb2rc.nodes.scaling` (`axis_to_pwm`, `button_to_pwm`,
   `axis_to_manual`, `axis_to_manual_z`), and whether any channel's node is in failsafe.
 - `MavlinkSession`: what goes on the line each tick: a HEARTBEAT (MAV_TYPE_GCS,
   MAV_AUTOPILOT_INVALID) when one is due (the first tick of a line, then once a second), and
@@ -37,17 +37,16 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from usb2rc.config import ChannelRef
-from usb2rc.config_mavlink import (
+from usb2rc.config.load import ChannelRef
+from usb2rc.config.mavlink import (
     MANUAL_AXES,
     MESSAGES,
     OVERRIDE_MAX_CHANNELS,
     RC_CHANNELS_OVERRIDE,
     MavlinkOptions,
 )
-from usb2rc.mapping import ChannelSource
-from usb2rc.protocol.mavlink import MavlinkDecoder, set_up_signing, signing_timestamp
-from usb2rc.scaling import (
+from usb2rc.nodes.mapping import ChannelSource
+from usb2rc.nodes.scaling import (
     MANUAL_MAX,
     MANUAL_MIN,
     MANUAL_Z_MAX,
@@ -58,8 +57,9 @@ from usb2rc.scaling import (
     button_to_pwm,
     node_button_bit,
 )
+from usb2rc.nodes.table import NodeFrame
+from usb2rc.protocols.mavlink.codec import MavlinkDecoder, set_up_signing, signing_timestamp
 from usb2rc.session import Delivered
-from usb2rc.state import NodeFrame
 
 OVERRIDE_FIRST_CHANNELS = 8  # channels 1-8: 0 releases; 9-18 (MAVLink 2 extensions): 65534
 RELEASE_LOW, RELEASE_HIGH = 0, 65534  # common.xml: 0 / UINT16_MAX-1 "release to the RC radio"
@@ -349,7 +349,7 @@ class VehicleCall:
 
 
 def stats_record(session: MavlinkSession) -> dict[str, Any]:
-    """The output's MAVLink counters, for the stats record (labels: `usb2rc.stats_text`)."""
+    """The output's MAVLink counters, for the stats record (labels: `usb2rc.service.stats_text`)."""
     far = session.far_end
     record: dict[str, Any] = {
         "mavlink_message": session.settings.message,

@@ -13,13 +13,14 @@ from dataclasses import dataclass
 
 import serial
 
-from usb2rc.config import OutputConfig
-from usb2rc.config_mavlink import MavlinkOptions, read_signing_key
-from usb2rc.mapping import Mapping
+from usb2rc.config.load import OutputConfig
+from usb2rc.config.mavlink import MavlinkOptions, read_signing_key
+from usb2rc.nodes.mapping import Mapping
+from usb2rc.nodes.table import NodeTable
 from usb2rc.outputs import protocol
-from usb2rc.outputs.channels import IBUS_SCALE, RC11_SCALE, OutputChannels, WireScale
-from usb2rc.outputs.sumd import SumdChannels
-from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.channels import IBUS_SCALE, RC11_SCALE, OutputChannels, WireScale
+from usb2rc.protocols.sumd.channels import SumdChannels
 from usb2rc.rc_sessions import CrsfSession, IbusSession, SbusSession
 from usb2rc.scheduler import (
     C2Output,
@@ -32,11 +33,10 @@ from usb2rc.scheduler import (
     TickThread,
     queue_cap,
 )
+from usb2rc.service.worker import Worker
 from usb2rc.session import C2Settings, frames_per_tick
-from usb2rc.state import NodeTable
 from usb2rc.transport import SerialLink
 from usb2rc.transport_udp import UdpLink, is_udp_url
-from usb2rc.worker import Worker
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,1 @@
+"""The configuration: YAML nodes to checked, typed config records (file:line problems)."""

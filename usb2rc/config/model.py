@@ -1,0 +1,237 @@
+"""What a loaded config is: plain frozen dataclasses, and SUMD channel references.
+
+config.py reads YAML into these (its siblings config_devices.py and config_checks.py read
+the device entries and cross-check them); mapping.py compiles them. `usb2rc.config.load`
+re-exports every public name here, so code imports them from there.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+from usb2rc.config.layout import AXIS_NAMES, MAX_NODE_ID, NODE_BUTTONS
+from usb2rc.config.yamlnodes import Where
+from usb2rc.hid.usages import GDC_BATTERY_STRENGTH
+from usb2rc.outputs import PROTOCOLS as OUTPUT_PROTOCOLS
+
+MAX_HID_BUTTON = 65535
+HAT_DIRECTIONS = ("up", "up-right", "right", "down-right", "down", "down-left", "left", "up-left")
+PROTOCOLS = tuple(OUTPUT_PROTOCOLS)  # the registry in usb2rc/outputs/__init__.py
+DEFAULT_RATE_HZ = {name: entry.default_rate_hz for name, entry in OUTPUT_PROTOCOLS.items()}
+DEFAULT_BAUDRATE = 115200
+SUMD_MIN_CHANNELS, SUMD_MAX_CHANNELS = 2, 32
+SUMD_DEFAULT_SLOTS = ("x", "y", "z", "rz", "slider", "rx", "ry", "dial")
+
+CHANNEL_ALLOWED = "nodeN.x, .y, .z, .slider, .rx, .ry, .rz, .dial, .aux1, .aux2, nodeN.buttonK"
+_CHANNEL_RE = re.compile(r"^node(\d+)\.(?:(button)(\d+)|([a-z0-9]+))$")
+
+
+ARM_CHOICES = ("centre", "center", "low", "high", "any")  # an axis's `arm:` (docs/CONFIG.md)
+
+
+@dataclass(frozen=True)
+class ChannelRef:
+    """One SUMD channel as configured: a node's axis slot (index 0..9) or button (1..56).
+
+    Parsed from its name (`node1.x`, `node1.button5`) once, when the config is read;
+    nothing parses a channel name after that.
+    """
+
+    node_id: int
+    kind: Literal["axis", "button"]
+    index: int  # axis: slot index into AXIS_NAMES; button: node button 1..56
+    name: str  # as written in the config, for `check`, `icd` and messages
+
+    @property
+    def slot(self) -> str:
+        """The axis slot name ("x", "rz", ...); only for kind "axis"."""
+        return AXIS_NAMES[self.index]
+
+    @classmethod
+    def axis(cls, node_id: int, slot: str) -> ChannelRef:
+        return cls(node_id, "axis", AXIS_NAMES.index(slot), f"node{node_id}.{slot}")
+
+    @classmethod
+    def parse(cls, name: str) -> ChannelRef | None:
+        """`node1.x` -> axis x of node 1; `node1.button5` -> button 5 of node 1; else None."""
+        m = _CHANNEL_RE.match(name.strip().lower())
+        if m is None:
+            return None
+        node_id = int(m.group(1))
+        if node_id > MAX_NODE_ID:
+            return None
+        if m.group(2):
+            button = int(m.group(3))
+            return cls(node_id, "button", button, name) if 1 <= button <= NODE_BUTTONS else None
+        slot = m.group(4)
+        return cls(node_id, "axis", AXIS_NAMES.index(slot), name) if slot in AXIS_NAMES else None
+
+
+@dataclass(frozen=True)
+class Calibration:
+    min: int
+    center: int
+    max: int
+
+
+@dataclass(frozen=True)
+class TrimSwitchConfig:
+    """A hat axis or a button pair that steps an axis's trim (docs/CONFIG.md, "Trims").
+    Exactly one of hat / buttons is set."""
+
+    where: Where
+    hat: int | None = None  # a hat's usage, with hat_axis: -1 steps down, +1 up
+    hat_axis: str | None = None  # "x" (left -1 / right +1) or "y" (down -1 / up +1)
+    occurrence: int = 0
+    buttons: tuple[int, int] | None = None  # HID buttons: first steps down, second up
+    step: float = 0.01  # per press, a fraction of the half range
+    limit: float = 0.25  # the trim stays within ±limit
+
+
+@dataclass(frozen=True)
+class AxisConfig:
+    """One axis slot's source and pipeline. Exactly one of usage / hat / buttons is set."""
+
+    slot: str
+    where: Where
+    usage: int | None = None  # an InputField usage, (page << 16) | id
+    occurrence: int = 0  # 0: the first field with that usage, 1: the second ...
+    hat: int | None = None  # a hat's usage, with hat_axis
+    hat_axis: str | None = None  # "x" (left -1 / right +1) or "y" (down -1 / up +1)
+    buttons: tuple[int, int] | None = None  # HID buttons: first -> -1, second -> +1
+    calibration: Calibration | None = None
+    deadband: float = 0.0
+    expo: float = 0.0
+    invert: bool = False
+    trim: float = 0.0
+    unsigned: bool = False
+    failsafe: int | None = None  # None: hold the last value
+    arm: str | None = None  # neutral guard: centre, low, high, any; None: by usage (guard.py)
+    arm_tolerance: float | None = None  # None: guard.DEFAULT_TOLERANCE
+    trim_switch: TrimSwitchConfig | None = None
+
+
+@dataclass(frozen=True)
+class ButtonRoute:
+    """HID button `hid` (1-based) -> node button `node` (1..56)."""
+
+    hid: int
+    node: int
+    where: Where
+
+
+@dataclass(frozen=True)
+class HatConfig:
+    usage: int
+    occurrence: int
+    to: str | tuple[int | None, ...]  # "hat1" or 8 node buttons (None: direction unused)
+    where: Where
+
+
+@dataclass(frozen=True)
+class HandoverConfig:
+    """A HID button that makes the node send `&` (handover) frames to `destination`
+    (docs/ICD.md, "Handover"): while it is held (`frames` None), or `frames` frames a press."""
+
+    button: int  # HID button of the device, 1-based
+    destination: int  # 0..255: byte 4 of the `&` frames
+    frames: int | None = None
+    where: Where | None = field(default=None, compare=False)
+
+
+LOW_BATTERY_PERCENT = 20  # the default threshold: below 20 % of the field's range
+
+
+@dataclass(frozen=True)
+class LowBatteryConfig:
+    """A value that makes the node send `%` (low battery) frames while it is below `below`
+    percent of its logical range (docs/ICD.md, "Low battery"). `auto`: the default, used
+    only when the device has the usage (Battery Strength); a configured one must exist."""
+
+    usage: int = GDC_BATTERY_STRENGTH
+    occurrence: int = 0
+    below: float = LOW_BATTERY_PERCENT
+    auto: bool = True
+    where: Where | None = field(default=None, compare=False)
+
+
+AUTO_LOW_BATTERY = LowBatteryConfig()
+
+
+@dataclass(frozen=True)
+class MatchConfig:
+    vid: int | None = None
+    pid: int | None = None
+    serial: str | None = None
+    port: str | None = None
+    product: str | None = None  # a glob, case-insensitive
+
+
+@dataclass(frozen=True)
+class DeviceConfig:
+    name: str
+    match: MatchConfig
+    node_id: int | None
+    axes: tuple[AxisConfig, ...]
+    buttons: tuple[ButtonRoute, ...]
+    hats: tuple[HatConfig, ...]
+    default_layout: bool  # True when the entry lists none of axes / buttons / hats
+    where: Where
+    handover: HandoverConfig | None = None
+    low_battery: LowBatteryConfig | None = AUTO_LOW_BATTERY  # None: `low_battery: false`
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """One serial output. `channels` (SUMD) are typed references; a Config built in code
+    may give them as names (`("node0.x", "node0.y")`), parsed here once (ValueError when
+    one is not a channel name)."""
+
+    protocol: str = "c2-16b"
+    port: str | None = None
+    baudrate: int = DEFAULT_BAUDRATE
+    rate_hz: float = 50
+    line_feed: bool = True
+    service_status: str = "ascii"
+    channels: tuple[ChannelRef, ...] | None = None  # SUMD; None: the default channel list
+    extended: bool = False  # SUMD: axes onto 900-2100 µs instead of 1100-1900 µs
+    where: Where | None = None
+    channel_wheres: tuple[Where, ...] = field(default=(), compare=False)  # one per channel
+    # Protocol-only keys that are not fields above (the registry's `options`), as set.
+    options: tuple[tuple[str, Any], ...] = ()
+
+    def option(self, name: str) -> Any:
+        """A protocol-only key's value: as configured, else the registry's default."""
+        for key, value in self.options:
+            if key == name:
+                return value
+        return OUTPUT_PROTOCOLS[self.protocol].options[name].default
+
+    def __post_init__(self) -> None:
+        given: tuple[ChannelRef | str, ...] | None = self.channels
+        if given is not None:
+            object.__setattr__(self, "channels", tuple(_channel_ref(c) for c in given))
+
+
+def _channel_ref(channel: ChannelRef | str) -> ChannelRef:
+    if isinstance(channel, ChannelRef):
+        return channel
+    ref = ChannelRef.parse(channel)
+    if ref is None:
+        raise ValueError(f"bad SUMD channel name {channel!r}")
+    return ref
+
+
+@dataclass(frozen=True)
+class Config:
+    outputs: tuple[OutputConfig, ...]
+    devices: tuple[DeviceConfig, ...] = ()
+    defaults: bool = True
+    source: str = "<default>"
+
+    @classmethod
+    def default(cls) -> Config:
+        """Zero config: one C2-16B output (port from the command line), default layout."""
+        return cls(outputs=(OutputConfig(),))

@@ -1,0 +1,183 @@
+"""The node step's result and its readers: one immutable snapshot of every node per step.
+
+The node table (usb2rc.nodes.table) runs one *step* per base period of the master clock: it reads
+each reader's record once, arms the neutral guard, steps the trims, decides each node's
+failsafe and publishes a `TableSnapshot` with one assignment. Reading a snapshot changes
+nothing (docs/DESIGN.md, "Node state: one step per period").
+
+Decisions:
+- the base period is fixed, BASE_PERIOD_S (4 ms, 250 Hz): faster than every output's
+  default rate, and a step is cheap (a few dataclasses per device);
+- the step for a period runs exactly once, whoever triggers it: the `NodeClock` thread
+  every period (so arming and trims never wait for an output to tick), or an output whose
+  read finds the period (or a reader's record, or the table's devices) changed since the
+  last step, under the table lock, memoised;
+- "every tap since my last frame" is per output state, and lives with the output: its
+  `TapLatch` remembers, per device, the last press serial it showed, and shows the presses
+  the snapshot's records logged since. Whichever output reads first, each sees each tap in
+  exactly one of its frames (docs/ICD.md, "Taps").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+from usb2rc.config.model import HandoverConfig
+from usb2rc.hid.descriptor import InputState
+from usb2rc.hid.reader import ReaderRecord
+from usb2rc.nodes.binding import DeviceBinding, NodeInputs
+from usb2rc.nodes.scaling import add_trim
+from usb2rc.service.worker import Worker
+
+BASE_PERIOD_S = 0.004  # the master clock's period: one node step each
+
+
+@dataclass(frozen=True)
+class NodeFrame:
+    node_id: int
+    failsafe: bool
+    axes: tuple[int, ...]
+    group1: int
+    group2: int
+    unsigned_slots: int = 0  # bit k set: axis slot k is a uint16 (binding.unsigned_slots)
+    # the status a live node asks for (the session decides: docs/ICD.md, "Status priority")
+    handover: HandoverConfig | None = None  # a handover button is down: `&`, and where to
+    low_battery: bool = False  # a device's battery is low: `%`
+
+
+@dataclass(frozen=True)
+class DeviceView:
+    """One device feeding a node, as the step left it."""
+
+    device_id: int  # the table's number for this attachment (a re-plug is a new one)
+    binding: DeviceBinding
+    inputs: NodeInputs  # what it sends (trimmed; held or failsafe values unless live)
+    live: bool
+    known: bool  # its state is from a report (its taps count, live or not)
+    record: ReaderRecord  # the reader's record the step read (its press log)
+    trims: tuple[tuple[int, float], ...] = ()  # stepped trims of its trim-switch slots
+
+    def tapped_since(self, serial: int) -> int:
+        """HID buttons pressed after press `serial` and already released."""
+        return self.record.pressed_since(serial) & ~self.record.state.buttons
+
+    def with_taps(self, taps: int) -> NodeInputs:
+        """Its inputs with the buttons in `taps` shown pressed."""
+        state = self.record.state
+        inputs = self.binding.apply(InputState(state.values, state.buttons | taps))
+        return trimmed(inputs, dict(self.trims), self.binding) if self.trims else inputs
+
+
+@dataclass(frozen=True)
+class NodeView:
+    """One node after a step: its frame, and what it is made of (for a latch's taps)."""
+
+    frame: NodeFrame
+    devices: tuple[DeviceView, ...] = ()
+    base_axes: tuple[int, ...] = ()  # the expected entries' failsafe axes under the devices'
+    base_unsigned: int = 0
+    waiting_for: tuple[str, ...] = ()  # why it is `!` (`monitor`, stats)
+
+
+@dataclass(frozen=True)
+class TableSnapshot:
+    """Every node after step `period` (sorted by Node-ID)."""
+
+    period: int = -1
+    at: float = 0.0  # the clock's time of the step
+    nodes: tuple[NodeView, ...] = ()
+
+    @property
+    def frames(self) -> list[NodeFrame]:
+        return [node.frame for node in self.nodes]
+
+
+EMPTY = TableSnapshot()
+
+
+def compose(
+    node_id: int,
+    failsafe: bool,
+    base_axes: Sequence[int],
+    base_unsigned: int,
+    devices: Sequence[tuple[DeviceBinding, NodeInputs]],
+) -> NodeFrame:
+    """A node's frame from its devices' inputs, merged in order onto the base axes."""
+    axes = list(base_axes)
+    group1 = group2 = 0
+    unsigned = base_unsigned
+    handover: HandoverConfig | None = None
+    low_battery = False
+    for binding, inputs in devices:
+        merge_axes(axes, inputs)
+        group1 |= inputs.group1
+        group2 |= inputs.group2
+        unsigned |= binding.unsigned_slots  # computed once, with the binding
+        if inputs.handover:  # one handover button per node (config_status)
+            handover = binding.handover
+        low_battery = low_battery or inputs.low_battery
+    return NodeFrame(
+        node_id, failsafe, tuple(axes), group1, group2, unsigned, handover, low_battery
+    )
+
+
+def merge_axes(axes: list[int], inputs: NodeInputs) -> None:
+    for slot, value in enumerate(inputs.axes):
+        if value is not None:
+            axes[slot] = value
+
+
+def trimmed(inputs: NodeInputs, trims: dict[int, float], binding: DeviceBinding) -> NodeInputs:
+    axes = list(inputs.axes)
+    for slot, trim in trims.items():
+        value, info = axes[slot], binding.axis_info[slot]
+        if value is not None and info is not None:
+            axes[slot] = add_trim(value, trim, info.unsigned)
+    return replace(inputs, axes=tuple(axes))
+
+
+class TapLatch:
+    """One output's "buttons tapped since my last frame": owned by that output, advanced
+    only by its own reads. A tap over before the next step still shows: the record's press
+    log keeps it, and the latch shows every press after the serial it last showed."""
+
+    def __init__(self) -> None:
+        self._seen: dict[int, int] = {}  # device_id -> the press serial last shown
+
+    def frames(self, snapshot: TableSnapshot) -> list[NodeFrame]:
+        """The snapshot's frames, each live device's taps since this latch's last call
+        shown pressed."""
+        seen: dict[int, int] = {}
+        frames = [self._latched(node, seen) for node in snapshot.nodes]
+        self._seen = seen  # devices gone from the snapshot are forgotten
+        return frames
+
+    def _latched(self, node: NodeView, seen: dict[int, int]) -> NodeFrame:
+        inputs, tapped = [], False
+        for device in node.devices:
+            before = self._seen.get(device.device_id, 0)
+            seen[device.device_id] = device.record.press_serial if device.known else before
+            taps = device.tapped_since(before) if device.live else 0
+            tapped = tapped or bool(taps)
+            inputs.append((device.binding, device.with_taps(taps) if taps else device.inputs))
+        if not tapped:
+            return node.frame
+        frame = node.frame
+        return compose(frame.node_id, frame.failsafe, node.base_axes, node.base_unsigned, inputs)
+
+
+class NodeClock(Worker):
+    """The master clock: `step` (NodeTable.step_if_due) once per base period, aligned to
+    multiples of the period on the monotonic clock, whether or not an output reads."""
+
+    def __init__(self, step: Callable[[], object], clock: Callable[[], float]) -> None:
+        super().__init__("node-clock")
+        self._step = step
+        self._clock = clock
+
+    def run(self) -> None:
+        while not self.stopping:
+            self._step()
+            if self.sleep(BASE_PERIOD_S - self._clock() % BASE_PERIOD_S):
+                return

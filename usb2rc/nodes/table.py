@@ -1,0 +1,712 @@
+"""Node state: the one lock-guarded place where devices (hot-plug and reader threads) meet
+the outputs (scheduler threads).
+
+Devices are attached to Node-IDs. One step per base period (usb2rc.nodes.step) reads each
+reader's record once, runs the neutral guard and the trims, and publishes an immutable
+snapshot of every node; each output subscribes and gets, per tick and under one lock, the
+service events queued for it and the latest snapshot's frames through its own tap latch.
+Reading never changes the nodes: which outputs exist, or tick, does not change when a
+device arms. Readers never take this lock: each publishes one immutable `ReaderRecord` by a
+single assignment. Devices are added and removed only by the lifecycle thread
+(usb2rc.nodes.lifecycle); a device is removed by its reader, not by a path that the kernel may
+already have given to another device.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import Any, Protocol
+
+from usb2rc.config.layout import AXIS_COUNT, AXIS_NAMES
+from usb2rc.hid.backend import DeviceInfo
+from usb2rc.hid.reader import ReaderRecord
+from usb2rc.nodes.binding import DeviceBinding, NodeInputs
+from usb2rc.nodes.guard import RestWatch
+from usb2rc.nodes.step import (
+    BASE_PERIOD_S,
+    EMPTY,
+    DeviceView,
+    NodeView,
+    TableSnapshot,
+    TapLatch,
+    compose,
+    merge_axes,
+    trimmed,
+)
+from usb2rc.nodes.step import (
+    NodeFrame as NodeFrame,  # re-exported: the sessions speak in it
+)
+from usb2rc.nodes.trims import TrimStore
+
+log = logging.getLogger("usb2rc.nodes")
+
+
+class EventKind(Enum):
+    CONNECTED = "connected"  # -> service frames 1, 6, 5, 7
+    DISCONNECTED = "disconnected"  # -> 2
+    ERROR = "error"  # -> 3 with the error code
+
+
+@dataclass(frozen=True)
+class ServiceEvent:
+    kind: EventKind
+    node_id: int
+    info: DeviceInfo | None = None
+    device_type: str = ""
+    error_code: int = 0
+
+
+@dataclass(frozen=True)
+class ExpectedEntry:
+    """A config entry pinned to a node whose device has not come (yet)."""
+
+    inputs: NodeInputs  # what it sends meanwhile: its failsafe values
+    unsigned_slots: int = 0  # the entry's (mapping.CompiledEntry.unsigned_slots)
+    match: str = ""  # what its `match:` asks for, as the log and `monitor` say it
+    where: str = ""  # the entry in its config file ("usb2rc.yaml:55: devices[2]")
+
+
+@dataclass(frozen=True)
+class MissingEntry:
+    """A pinned config entry whose device has not come: its node sends `!` for it."""
+
+    node_id: int
+    name: str
+    match: str
+    where: str
+
+    def record(self) -> dict[str, Any]:
+        """For `stats` and the log (usb2rc.service.stats_text.missing_line), and JSON stats."""
+        return {
+            "node_id": self.node_id,
+            "entry": self.name,
+            "match": self.match,
+            "where": self.where,
+        }
+
+
+class SnapshotSource(Protocol):
+    """A DeviceReader, as the table sees it: its last published record, read once."""
+
+    @property
+    def record(self) -> ReaderRecord: ...
+
+
+@dataclass
+class _Attached:
+    """One device feeding a node; kept (not present) after an unplug, for failsafe."""
+
+    info: DeviceInfo
+    binding: DeviceBinding
+    source: SnapshotSource
+    device_type: str
+    present: bool = True
+    last_inputs: NodeInputs | None = None  # held values (from before an unplug / re-plug)
+    # Neutral guard (usb2rc.nodes.guard, docs/ICD.md "Neutral guard"): False from the plug until
+    # the guarded axes rest; `waiting` names those that did not, at the last frame.
+    armed: bool = False
+    waiting: tuple[str, ...] = ()
+    rest: RestWatch = field(default_factory=RestWatch)  # how long it has rested (guard.py)
+    device_id: int = 0  # the table's number for this attachment (TapLatch's key)
+    trim_serial: int = 0  # the press serial the trims have stepped on
+    bad_spells_seen: int = 0  # the reader's runs of bad reports this device has answered
+    trim_positions: dict[int, int] = field(default_factory=dict)  # hat switches: slot -> -1/0/1
+
+    @property
+    def live(self) -> bool:
+        """Present, its state known (at least one report decoded since it was plugged) and
+        its guarded axes at rest once since then (`armed`).
+
+        Decision: until then the node stays in failsafe with the held (or failsafe) values;
+        a re-plugged throttle must not jump to mid-scale before it has said where it is, nor
+        go live at full before it was pulled back."""
+        return self._known(self.source.record) and self.armed
+
+    def _known(self, record: ReaderRecord) -> bool:
+        """Present, with a state from a report, and not refusing its reports now."""
+        return self.present and record.reports > 0 and not record.in_error
+
+    def last_step(self, now: float) -> NodeInputs:
+        """What the device sends at its last step (under the table lock): the unplug, the
+        stop, or a reload that changed its axes steps it once more, on its reader's last
+        record, for the values it holds (trims aside, as a held value never had them)."""
+        return self.step(self.source.record, None, now).inputs
+
+    def step(self, record: ReaderRecord, trims: dict[int, float] | None, now: float) -> DeviceView:
+        """The device in this step (under the table lock): what it sends and whether that
+        is live, both from one reader record (a record published between two reads must
+        not give a frame marked live that carries the held values). `trims`: the node's
+        stepped trims of the slots this device has trim switches for; `now`: the step's
+        time (the neutral guard's rest has a time); `record`: its reader's, read once."""
+        if record.bad_spells != self.bad_spells_seen:
+            self._bad_reports_began(record)
+        if not self._known(record):
+            return self._view(record, self.binding.failsafe(self.last_inputs), False)
+        inputs = self.binding.apply(record.state)
+        if trims:
+            inputs = trimmed(inputs, trims, self.binding)
+        if not self.armed:
+            timed = (record, record.reports, record.at)
+            self.waiting = self.rest.check(self.binding.guard, inputs.axes, trims, timed, now)
+            if self.waiting:
+                return self._view(record, self.binding.failsafe(self.last_inputs), False)
+            self.armed = True
+        return self._view(record, inputs, True, trims)
+
+    def _view(
+        self,
+        record: ReaderRecord,
+        inputs: NodeInputs,
+        live: bool,
+        trims: dict[int, float] | None = None,
+    ) -> DeviceView:
+        known = self._known(record)
+        own_trims = tuple(sorted(trims.items())) if trims else ()
+        return DeviceView(self.device_id, self.binding, inputs, live, known, record, own_trims)
+
+    def _bad_reports_began(self, record: ReaderRecord) -> None:
+        """The device refused BAD_REPORTS_LIMIT reports in a row (docs/ICD.md "Device error
+        codes", 0x06): it holds its last good values, `!`, and when its reports are good
+        again it goes live through the neutral guard, as a re-plugged device. Decided on
+        the reader's count of such runs, not on what a frame happened to see: a run that
+        began and ended between two frames still re-arms the guard."""
+        self.bad_spells_seen = record.bad_spells
+        self.disarm()
+        if record.reports:
+            self.last_inputs = self.binding.apply(record.state)  # held; buttons cleared
+
+    def disarm(self) -> None:
+        """Through the neutral guard again, as a re-plugged device: a new rest from here (a
+        rest or a report run seen before, by the old binding or before the bad reports,
+        must not arm it)."""
+        self.armed = False
+        self.rest = RestWatch()
+
+    def step_trims(self, node_id: int, store: TrimStore, record: ReaderRecord) -> None:
+        """Step the node's trims from this device's trim switches: a button press steps once
+        (every press, from the reader's press log), a hat steps when pushed (sampled)."""
+        switches = self.binding.trim_switches
+        if not switches or not self._known(record):
+            return
+        rising = [mask for serial, mask in record.presses if serial > self.trim_serial]
+        self.trim_serial = record.press_serial
+        for switch in switches:
+            if switch.hat_index >= 0:
+                position = switch.position(record.state)
+                before = self.trim_positions.get(switch.slot, 0)
+                self.trim_positions[switch.slot] = position
+                steps = [position] if position and position != before else []
+            else:
+                steps = switch.presses(rising)  # one step per press, in order
+            if steps and self.armed:
+                for step in steps:  # each within the limit, as a transmitter's trim
+                    value = store.step(node_id, switch, step)
+                log.info("node %d: %s trim %+.3f", node_id, AXIS_NAMES[switch.slot], value)
+
+    def same_device(self, info: DeviceInfo, binding: DeviceBinding) -> bool:
+        """The same physical device come back: same model on the same port, or the same
+        non-empty serial number, or the same pinned config entry."""
+        same_model = (self.info.vid, self.info.pid) == (info.vid, info.pid)
+        return (
+            (same_model and bool(info.port_path) and self.info.port_path == info.port_path)
+            or (bool(info.serial) and self.info.identity == info.identity)
+            or (binding.node_id is not None and self.binding.name == binding.name)
+        )
+
+
+@dataclass
+class _Node:
+    node_id: int
+    attached: list[_Attached] = field(default_factory=list)
+    # config entries pinned here whose device has not come yet
+    expected: dict[str, ExpectedEntry] = field(default_factory=dict)
+    logged: tuple[bool, tuple[str, ...]] | None = None  # state and reasons last logged
+
+    @property
+    def failsafe(self) -> bool:
+        """`!` unless every device feeding the node is present and known. A node nothing
+        feeds any more (a reload removed its entry) is failsafe too, never `>` on nothing."""
+        if not self.attached and not self.expected:
+            return True
+        return bool(self.expected) or not all(a.live for a in self.attached)
+
+    def step(self, trims: TrimStore, now: float, records: Iterator[ReaderRecord]) -> NodeView:
+        """The node in this step: each device stepped once (trims, guard) on its next
+        record from `records`, then merged."""
+        base = [0] * AXIS_COUNT
+        base_unsigned = 0
+        for entry in self.expected.values():
+            merge_axes(base, entry.inputs)
+            base_unsigned |= entry.unsigned_slots
+        devices = []
+        for attached in self.attached:
+            own_trims = None
+            record = next(records)
+            if attached.binding.trim_switches:
+                attached.step_trims(self.node_id, trims, record)
+                own_trims = trims.of_switches(self.node_id, attached.binding.trim_switches)
+            devices.append(attached.step(record, own_trims, now))
+        # as `failsafe` says
+        failsafe = not self.attached or bool(self.expected) or not all(d.live for d in devices)
+        merged = [(d.binding, d.inputs) for d in devices]
+        frame = compose(self.node_id, failsafe, base, base_unsigned, merged)
+        waiting = tuple(text for _, text in self.reasons()) if failsafe else ()
+        return NodeView(frame, tuple(devices), tuple(base), base_unsigned, waiting)
+
+    def reasons(self) -> list[tuple[str, str]]:
+        """Why the node is `!`: (kind, text) per device or entry it waits for."""
+        why = []
+        for a in self.attached:
+            name = a.info.product or "device"
+            if not a.present:
+                why.append(("lost", name))
+            elif a.source.record.in_error:
+                bad = a.source.record.refused_in_a_row
+                why.append(
+                    ("bad reports", f"good reports from {name} (its last {bad} were refused)")
+                )
+            elif a.waiting:
+                kind = f"guard {name}" + (" fixed" if a.rest.fixed else "")
+                why.append((kind, f"{', '.join(a.waiting)} ({name})"))
+            elif not a.live:
+                why.append(("unknown", f"{name} (no report yet)"))
+        why += [("expected", _not_plugged(name, entry)) for name, entry in self.expected.items()]
+        if not self.attached and not self.expected:
+            why.append(("unfed", "a device or config entry (a reload moved or removed them)"))
+        return why
+
+    def failsafe_change(self, now: bool) -> str | None:
+        """A log line when the node entered or left failsafe (`now`: the state its frame
+        just gave), or waits for something else now (the neutral guard: what must rest),
+        since the last call."""
+        reasons = self.reasons() if now else []
+        key = (now, tuple(kind for kind, _ in reasons))
+        before, self.logged = self.logged, key
+        guarded = any(kind.startswith("guard") for kind, _ in reasons)
+        if before == key or (before is None and not guarded):
+            return None  # a new node says nothing until it waits for the pilot, or is live
+        texts = ", ".join(text for _, text in reasons) or "-"
+        if not now:
+            return f"node {self.node_id} leaves failsafe: all its devices are live"
+        if before is None or before[0]:  # still `!`, for another reason: it must rest
+            return f"node {self.node_id} waits for {texts}"
+        return f"node {self.node_id} enters failsafe: waiting for {texts}"
+
+
+def _not_plugged(name: str, entry: ExpectedEntry) -> str:
+    return f"{name} (not plugged: {entry.match})" if entry.match else f"{name} (not plugged)"
+
+
+Expected = dict[int, dict[str, ExpectedEntry]]
+
+
+class NodeTable:
+    """Node-IDs, the devices feeding them, and the service events each output still owes."""
+
+    def __init__(
+        self, expected: Expected | None = None, clock: Callable[[], float] = time.monotonic
+    ) -> None:
+        self._lock = threading.Lock()
+        self._clock = clock  # the frames' time: the neutral guard's rest (the readers' clock)
+        self._nodes: dict[int, _Node] = {}
+        self._by_key: dict[str, tuple[int, _Attached]] = {}
+        self._outbox: list[list[ServiceEvent] | None] = []  # None: frames only (SUMD)
+        self._latches: list[TapLatch | None] = []  # per subscriber (None: no taps shown)
+        self._trims = TrimStore()
+        self._stopping = False
+        # The step (docs/DESIGN.md, "Node state: one step per period"): the latest snapshot,
+        # and what it was made from: the period, the devices' layout, the readers' records.
+        self._snapshot = EMPTY
+        self._layout = 0  # bumped whenever devices, entries or bindings change
+        self._stepped: tuple[int, int, tuple[ReaderRecord, ...]] | None = None
+        # devices resting, not long enough yet at the last step: a step when one has
+        self._resting: list[RestWatch] = []
+        self._attachments = 0  # device ids handed out
+        for node_id, entries in (expected or {}).items():
+            self._nodes[node_id] = _Node(node_id, expected=dict(entries))
+
+    # --- outputs -------------------------------------------------------------------------
+
+    def subscribe(self, events: bool = True, taps: bool = True) -> int:
+        """An output's subscription: its service events (events=False: none, for a channel
+        output) and its own latch of the buttons tapped between two of its frames
+        (taps=False: the state as it is, for `monitor`'s view)."""
+        with self._lock:
+            self._outbox.append([] if events else None)
+            self._latches.append(TapLatch() if taps else None)
+            return len(self._outbox) - 1
+
+    def collect(self, subscriber: int) -> tuple[list[ServiceEvent], list[NodeFrame]]:
+        """The events owed to this output and every node's frame, taken together."""
+        with self._lock:
+            events = self._outbox[subscriber]
+            if events is None:
+                events = []
+            else:
+                self._outbox[subscriber] = []
+            changes = self._step_if_due_locked()
+            frames = self._frames_of(subscriber)
+        _log_changes(changes)
+        return events, frames
+
+    def frames(self, subscriber: int | None = None) -> list[NodeFrame]:
+        """Every node's frame in the latest step; with `subscriber`, buttons tapped since
+        its last frame show as pressed (no lost taps, docs/ICD.md "Taps")."""
+        with self._lock:
+            changes = self._step_if_due_locked()
+            frames = self._frames_of(subscriber)
+        _log_changes(changes)
+        return frames
+
+    def snapshot(self) -> TableSnapshot:
+        """The latest step's snapshot, as it is: reading it changes nothing."""
+        return self._snapshot
+
+    def step_if_due(self) -> TableSnapshot:
+        """Run the step unless it already ran for this period, these reader records and
+        these devices (the master clock's call, each base period); the latest snapshot."""
+        with self._lock:
+            changes = self._step_if_due_locked()
+            snapshot = self._snapshot
+        _log_changes(changes)
+        return snapshot
+
+    def stop(self) -> None:
+        """usb2rc stops: every device counts as gone from now on (no service events), so
+        every node sends `!` with its failsafe or held values (docs/ICD.md, "Stop")."""
+        with self._lock:
+            self._stopping = True
+            self._layout += 1
+            for node in self._nodes.values():
+                for attached in node.attached:
+                    if attached.present:
+                        attached.last_inputs = attached.last_step(self._clock())
+                        attached.present = False
+            self._by_key.clear()
+
+    def _frames_of(self, subscriber: int | None) -> list[NodeFrame]:
+        latch = None if subscriber is None else self._latches[subscriber]
+        return self._snapshot.frames if latch is None else latch.frames(self._snapshot)
+
+    def _step_if_due_locked(self) -> list[str]:
+        """The step, memoised: it runs once per (period, devices, records), whoever calls."""
+        now = self._clock()
+        # each reader's record read once: the step uses these (values and liveness agree)
+        nodes = [self._nodes[node_id] for node_id in sorted(self._nodes)]
+        records = tuple(a.source.record for node in nodes for a in node.attached)
+        period = int(now // BASE_PERIOD_S)
+        last = self._stepped
+        same = last is not None and last[:2] == (period, self._layout) and _same(last[2], records)
+        if same and not any(rest.rested_by(now) for rest in self._resting):
+            return []
+        self._stepped = (period, self._layout, records)
+        return self._step_locked(period, now, nodes, iter(records))
+
+    def _step_locked(
+        self, period: int, now: float, nodes: list[_Node], records: Iterator[ReaderRecord]
+    ) -> list[str]:
+        """One step: every node once, in Node-ID order, on the records read for it; the
+        snapshot published with one assignment; the lines to log (a node entered or left
+        failsafe)."""
+        views, changes = [], []
+        for node in nodes:
+            view = node.step(self._trims, now, records)
+            views.append(view)
+            change = None if self._stopping else node.failsafe_change(view.frame.failsafe)
+            if change:
+                changes.append(change)
+        self._snapshot = TableSnapshot(period, now, tuple(views))
+        self._resting = _resting(nodes, now)
+        return changes
+
+    def request_connect_sequences(self, subscriber: int, node_id: int | None = None) -> int:
+        """Answer a `<` (node_id None: every present node) or a `4` poll for one node.
+
+        A connect sequence already owed to this output is not queued twice, so a far end
+        that keeps asking cannot fill the line with service frames."""
+        with self._lock:
+            box = self._outbox[subscriber]
+            assert box is not None, "a C2-16B output subscribes to the events"
+            queued = 0
+            for nid in sorted(self._nodes):
+                if node_id is not None and nid != node_id:
+                    continue
+                for attached in self._nodes[nid].attached:
+                    event = _connected(nid, attached)
+                    if attached.present and event not in box:
+                        box.append(event)
+                        queued += 1
+            if node_id is not None and not any(
+                a.present for a in self._nodes.get(node_id, _Node(node_id)).attached
+            ):
+                box.append(ServiceEvent(EventKind.DISCONNECTED, node_id))
+            return queued
+
+    # --- devices -------------------------------------------------------------------------
+
+    def add_device(
+        self,
+        node_id: int,
+        info: DeviceInfo,
+        binding: DeviceBinding,
+        source: SnapshotSource,
+        device_type: str,
+    ) -> None:
+        attached = _Attached(info, binding, source, device_type)
+        with self._lock:
+            if self._stopping:
+                return  # its reader is stopped with the others
+            self._attach_locked(node_id, attached)
+        log.info(
+            "device plugged: %s (%04x:%04x, port %s) -> Node-ID %d",
+            info.product or "?",
+            info.vid,
+            info.pid,
+            info.port_path or "?",
+            node_id,
+        )
+
+    def _attach_locked(self, node_id: int, attached: _Attached) -> None:
+        """The device feeds node_id from now on; the node announces it (`1`,`6`,`5`,`7`)."""
+        info, binding = attached.info, attached.binding
+        self._attachments += 1
+        attached.device_id = self._attachments
+        self._layout += 1
+        node = self._nodes.setdefault(node_id, _Node(node_id))
+        kept = []
+        for old in node.attached:
+            if not old.present and old.same_device(info, binding):
+                attached.last_inputs = old.last_inputs  # held until it reports
+            else:
+                kept.append(old)
+        node.attached = [*kept, attached]
+        node.expected.pop(binding.name, None)
+        self._by_key[info.key] = (node_id, attached)
+        self._broadcast(_connected(node_id, attached))
+
+    def move_device(
+        self, key: str, node_id: int, binding: DeviceBinding, source: SnapshotSource
+    ) -> int | None:
+        """A reload pinned the live device to another node (docs/ICD.md "A reload and the
+        live devices"): it leaves its node (`2`; the node sends `!`, nothing feeds it) and
+        is announced on node_id as a new device there: connect sequence, its entry's
+        failsafe values until it is known, and the neutral guard from the start. Returns
+        the node it left (None: not the device `source` feeds)."""
+        with self._lock:
+            entry = self._by_key.get(key)
+            if self._stopping or entry is None or entry[1].source is not source:
+                return None
+            old_id, old = entry
+            self._nodes[old_id].attached.remove(old)
+            self._broadcast(ServiceEvent(EventKind.DISCONNECTED, old_id, old.info))
+            moved = _Attached(old.info, binding, source, old.device_type)
+            moved.bad_spells_seen = source.record.bad_spells  # a run before the move is old
+            self._attach_locked(node_id, moved)
+        log.warning(
+            "config reload: %s (%04x:%04x, port %s) moves from Node-ID %d to Node-ID %d "
+            "(config entry %r): node %d sends `!`, node %d announces it and goes live once its "
+            "guarded axes rest",
+            old.info.product or "?",
+            old.info.vid,
+            old.info.pid,
+            old.info.port_path or "?",
+            old_id,
+            node_id,
+            binding.name,
+            old_id,
+            node_id,
+        )
+        return old_id
+
+    def remove_device(
+        self, key: str, error_code: int | None = None, source: SnapshotSource | None = None
+    ) -> int | None:
+        """The device is gone (unplugged, or failed to read: error_code). With `source`, only
+        if the device under `key` is still the one that reader feeds: the kernel reuses
+        hidraw paths, and a late exit must not take a newer device off its node."""
+        with self._lock:
+            entry = self._by_key.get(key)
+            if entry is None or (source is not None and entry[1].source is not source):
+                return None
+            del self._by_key[key]
+            self._layout += 1
+            node_id, attached = entry
+            attached.last_inputs = attached.last_step(self._clock())
+            attached.present = False
+            if error_code:
+                event = ServiceEvent(EventKind.ERROR, node_id, attached.info, "", error_code)
+                self._broadcast(event)
+            self._broadcast(ServiceEvent(EventKind.DISCONNECTED, node_id, attached.info))
+        info = attached.info
+        how = f"failed (error code {error_code})" if error_code else "unplugged"
+        log.warning(
+            "device %s: %s (%04x:%04x, port %s, Node-ID %d)",
+            how,
+            info.product or "?",
+            info.vid,
+            info.pid,
+            info.port_path or "?",
+            node_id,
+        )
+        return node_id
+
+    def device_error(self, key: str, error_code: int, source: SnapshotSource) -> int | None:
+        """`3` with error_code on the node of the live device `source` feeds; its node."""
+        with self._lock:
+            entry = self._by_key.get(key)
+            if self._stopping or entry is None or entry[1].source is not source:
+                return None
+            node_id, attached = entry
+            self._broadcast(ServiceEvent(EventKind.ERROR, node_id, attached.info, "", error_code))
+            return node_id
+
+    def node_of(self, key: str) -> int | None:
+        """The node the present device under `key` feeds."""
+        with self._lock:
+            entry = self._by_key.get(key)
+            return entry[0] if entry else None
+
+    def missing_entries(self) -> list[MissingEntry]:
+        """Pinned config entries whose device has not come (their nodes send `!`)."""
+        with self._lock:
+            return [
+                MissingEntry(node_id, name, entry.match, entry.where)
+                for node_id, node in sorted(self._nodes.items())
+                for name, entry in node.expected.items()
+            ]
+
+    def report_error(self, node_id: int, info: DeviceInfo | None, error_code: int) -> None:
+        """A device that could not be used at all (open failed, descriptor unusable)."""
+        with self._lock:
+            self._broadcast(ServiceEvent(EventKind.ERROR, node_id, info, "", error_code))
+
+    def entry_in_use(self, node_id: int, entry_name: str) -> DeviceInfo | None:
+        """The present device that already feeds node_id through the config entry, if any."""
+        with self._lock:
+            node = self._nodes.get(node_id)
+            for attached in node.attached if node else ():
+                if attached.present and attached.binding.name == entry_name:
+                    return attached.info
+        return None
+
+    def automatic_device_on(self, node_id: int) -> DeviceInfo | None:
+        """A device without a pinned entry that feeds (or fed) node_id, if any."""
+        with self._lock:
+            node = self._nodes.get(node_id)
+            for attached in node.attached if node else ():
+                if attached.binding.node_id is None:
+                    return attached.info
+        return None
+
+    def lost_node_of(self, info: DeviceInfo, binding: DeviceBinding) -> int | None:
+        """The node a re-plugged device fed before it was lost (see `_Attached.same_device`)."""
+        with self._lock:
+            for node_id in sorted(self._nodes):
+                for attached in self._nodes[node_id].attached:
+                    if not attached.present and attached.same_device(info, binding):
+                        return node_id
+        return None
+
+    def attachments(self) -> list[tuple[int, DeviceInfo, DeviceBinding, bool, str]]:
+        """(node, device, binding, present, device type) for every device a node holds."""
+        with self._lock:
+            return [
+                (nid, a.info, a.binding, a.present, a.device_type)
+                for nid, node in sorted(self._nodes.items())
+                for a in node.attached
+            ]
+
+    def node_ids(self) -> list[int]:
+        with self._lock:
+            return sorted(self._nodes)
+
+    def describe(self) -> dict[str, Any]:
+        with self._lock:
+            return {
+                str(nid): {
+                    "failsafe": node.failsafe,
+                    "devices": [
+                        {"product": a.info.product, "present": a.present, "live": a.live}
+                        for a in node.attached
+                    ],
+                    "expected": sorted(node.expected),
+                    "waiting_for": [text for _, text in node.reasons()] if node.failsafe else [],
+                    "trims": {
+                        AXIS_NAMES[slot]: value
+                        for slot, value in sorted(self._trims.of_node(nid).items())
+                    },
+                }
+                for nid, node in sorted(self._nodes.items())
+            }
+
+    def rebind(self, rebind_one: Any, expected: Expected) -> None:
+        """After a config reload: give every attached device its new binding (same node)."""
+        with self._lock:
+            self._layout += 1
+            for node in self._nodes.values():
+                for attached in node.attached:
+                    new_binding = rebind_one(attached.info)
+                    if new_binding is not None:
+                        _rebind_attached(node.node_id, attached, new_binding, self._clock())
+                switches = [t for a in node.attached for t in a.binding.trim_switches]
+                for change in self._trims.keep(node.node_id, switches):
+                    log.warning("config reload: node %d: %s", node.node_id, change)
+                node.expected = {
+                    name: entry
+                    for name, entry in expected.get(node.node_id, {}).items()
+                    if not any(a.binding.name == name for a in node.attached)
+                }
+            for node_id, entries in expected.items():
+                if node_id not in self._nodes:
+                    self._nodes[node_id] = _Node(node_id, expected=dict(entries))
+
+    def _broadcast(self, event: ServiceEvent) -> None:
+        for box in self._outbox:
+            if box is not None:
+                box.append(event)
+
+
+def _same(before: tuple[ReaderRecord, ...], now: tuple[ReaderRecord, ...]) -> bool:
+    """The same reader records, one by one (each a new object when a reader publishes)."""
+    return len(before) == len(now) and all(a is b for a, b in zip(before, now, strict=True))
+
+
+def _rebind_attached(node_id: int, attached: _Attached, binding: DeviceBinding, now: float) -> None:
+    """A reload's new binding for a device that stays on its node (docs/ICD.md "A reload
+    and the live devices"): an armed device stays armed while its axes map as before; one
+    whose axis mapping changed is a new stick to the receiver (inverted, another usage, a
+    new calibration: a deflected stick would step), so it holds what it sent and waits for
+    its guarded axes to rest, as a re-plugged device. At rest, that is the next frame."""
+    if attached.present and not binding.same_axes(attached.binding):
+        attached.last_inputs = attached.last_step(now)  # what it sent under the old mapping
+        attached.disarm()
+        log.warning(
+            "config reload: node %d: %s's axes map differently now: the neutral guard "
+            "checks it again (%s) before it goes live",
+            node_id,
+            attached.info.product or "device",
+            binding.guard.describe(),
+        )
+    attached.binding = binding
+
+
+def _log_changes(changes: list[str]) -> None:
+    for change in changes:
+        level = logging.INFO if "leaves failsafe" in change else logging.WARNING
+        log.log(level, "%s", change)
+
+
+def _connected(node_id: int, attached: _Attached) -> ServiceEvent:
+    return ServiceEvent(EventKind.CONNECTED, node_id, attached.info, attached.device_type)
+
+
+def _resting(nodes: list[_Node], now: float) -> list[RestWatch]:
+    """The waiting devices' rests not long enough at `now`: a step is due once one is, even
+    inside a period that had its step (a rest long enough by now was seen by this step)."""
+    waiting = (a.rest for node in nodes for a in node.attached if not a.armed)
+    return [rest for rest in waiting if rest.since is not None and not rest.rested_by(now)]

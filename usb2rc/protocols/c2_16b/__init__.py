@@ -1,0 +1,1 @@
+"""The c2_16b package."""

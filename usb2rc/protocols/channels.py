@@ -1,0 +1,134 @@
+"""Channel outputs' channels: node frames → wire values and the failsafe flag, for any protocol.
+
+SUMD, CRSF, SBUS and iBus (and MAVLink's RC override) carry a list of channels named the same way in
+the config: `nodeN.<slot>` (an axis slot of node N) or `nodeN.buttonK` (node button K, 1..56);
+`config.ChannelRef` holds one, parsed once, and `Mapping.sumd_channels(output)` resolves an
+output's list (or the default one) into `ChannelSource`s. Here they are evaluated, once a tick,
+from the NodeTable's frames, through the protocol's `WireScale`:
+
+- an axis: the node's slot value; whether it is a uint16 comes from the frame
+  (`NodeFrame.unsigned_slots`: the bindings and pinned entries feeding the node, see
+  `binding.unsigned_slots`), not from a guess about the config; a uint16 is shifted to int16,
+  then `scale.axis` (an int16 onto the protocol's wire values);
+- a button: `scale.button(pressed)`;
+- a node that does not exist: the centre / released, and the channel is in failsafe; a frame
+  is failsafe when any channel it reads is.
+
+Nothing here raises on a tick.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+
+from usb2rc.config.load import ChannelRef
+from usb2rc.nodes.mapping import ChannelSource
+from usb2rc.nodes.scaling import axis_to_rc11, button_to_rc11, node_button_bit
+from usb2rc.nodes.table import NodeFrame
+from usb2rc.protocols.ibus.codec import axis_to_ibus, button_to_ibus
+
+Nodes = Mapping[int, NodeFrame]
+ChannelValue = Callable[[Nodes], tuple[int, bool]]  # the nodes' frames -> (wire, failsafe)
+Channel = ChannelRef | ChannelSource
+
+
+@dataclass(frozen=True)
+class WireScale:
+    """A protocol's channel scaling: an int16 axis and a button onto its wire values."""
+
+    axis: Callable[[int], int]
+    button: Callable[[bool], int]
+
+
+RC11_SCALE = WireScale(axis_to_rc11, button_to_rc11)  # CRSF and SBUS: 172..1811, centre 992
+IBUS_SCALE = WireScale(axis_to_ibus, button_to_ibus)  # iBus: 1000..2000 µs, centre 1500
+
+
+def _axis_wire(value: int | None, unsigned: bool, scale: WireScale) -> int:
+    if value is None:
+        value = 32768 if unsigned else 0
+    if unsigned:
+        value -= 32768
+    return scale.axis(min(32767, max(-32768, value)))  # never raise on a tick
+
+
+def _button_wire(button: int, group1: int, group2: int, scale: WireScale) -> int:
+    group, bit = node_button_bit(button)
+    return scale.button(bool(((group1, group2)[group] >> bit) & 1))
+
+
+def wire_value(
+    source: ChannelSource,
+    axes: Sequence[int | None],
+    group1: int,
+    group2: int,
+    scale: WireScale,
+) -> int:
+    """The wire value of one channel from a node's frame values; `source.unsigned` says
+    whether the axis value is a uint16 (None: this slot is not fed, the centre)."""
+    if source.kind == "button":
+        return _button_wire(source.index, group1, group2, scale)
+    return _axis_wire(axes[source.index], source.unsigned, scale)
+
+
+def channel_value(source: Channel, scale: WireScale) -> ChannelValue:
+    """A function from the nodes' frames to (wire value, in failsafe) for one channel.
+
+    Whether an axis is unsigned comes from the frame (the bindings feeding it); a node that
+    does not exist sends the centre / released, in failsafe."""
+    node_id, index = source.node_id, source.index
+    if source.kind == "button":
+        released = scale.button(False)
+
+        def button(nodes: Nodes) -> tuple[int, bool]:
+            frame = nodes.get(node_id)
+            if frame is None:
+                return released, True
+            return _button_wire(index, frame.group1, frame.group2, scale), frame.failsafe
+
+        return button
+    centre = _axis_wire(0, False, scale)
+
+    def axis(nodes: Nodes) -> tuple[int, bool]:
+        frame = nodes.get(node_id)
+        if frame is None:
+            return centre, True
+        unsigned = bool(frame.unsigned_slots >> index & 1)
+        return _axis_wire(frame.axes[index], unsigned, scale), frame.failsafe
+
+    return axis
+
+
+class OutputChannels:
+    """One output's channels, in frame order: `evaluate` once a tick (the output thread)."""
+
+    def __init__(self, channels: Sequence[ChannelValue], frame_length: int = 0) -> None:
+        self.channels = tuple(channels)
+        self._frame_length = frame_length
+
+    @classmethod
+    def scaled(
+        cls, sources: Iterable[Channel], scale: WireScale, frame_length: int = 0
+    ) -> OutputChannels:
+        """The channels of a config's output through a protocol's scale."""
+        return cls([channel_value(source, scale) for source in sources], frame_length)
+
+    def __len__(self) -> int:
+        return len(self.channels)
+
+    @property
+    def frame_length(self) -> int:
+        """Bytes of one frame on the wire (for the transmit queue cap)."""
+        return self._frame_length
+
+    def evaluate(self, frames: Iterable[NodeFrame]) -> tuple[list[int], bool]:
+        """The wire values of every channel, and whether the frame is a failsafe frame."""
+        nodes = {frame.node_id: frame for frame in frames}
+        values: list[int] = []
+        failsafe = False
+        for channel in self.channels:
+            value, channel_failsafe = channel(nodes)
+            values.append(value)
+            failsafe = failsafe or channel_failsafe
+        return values, failsafe

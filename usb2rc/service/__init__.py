@@ -1,0 +1,1 @@
+"""The process as a service: signals, systemd, log escaping, statistics text, threads."""
