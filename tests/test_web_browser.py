@@ -60,7 +60,9 @@ def wait_page(driver: Any, condition: Any, what: str, timeout: float = 20.0) -> 
 
 def plug_and_see_the_bar_move(driver: Any, stick: Path) -> None:
     install(stick, stick_moves())
-    wait_page(driver, lambda n: n["status"] == ">" and abs(n["value"]) < 1000, "node 4 live, X centred")
+    wait_page(
+        driver, lambda n: n["status"] == ">" and abs(n["value"]) < 1000, "node 4 live, X centred"
+    )
     moved = wait_page(driver, lambda n: n["value"] > 30000, "node 4's X bar to move right")
     assert moved["width"] > 45.0  # the bar's fill: half the track, from the centre
 
@@ -88,14 +90,18 @@ def test_page_follows_the_stick_an_unplug_and_a_daemon_restart(tmp_path: Path) -
             assert daemon.stop() == 0
             assert not sock.exists()  # SIGTERM removed the socket
             wait_until(
-                lambda: driver.execute_script(
-                    "return document.getElementById('connection').dataset.connected"
-                )
-                == "false",
+                lambda: (
+                    driver.execute_script(
+                        "return document.getElementById('connection').dataset.connected"
+                    )
+                    == "false"
+                ),
                 "the page to say the daemon is gone",
             )
             daemon = start_daemon(tmp_path, replay, sock, "daemon2.log")
-            wait_page(driver, lambda n: n["connected"] == "true" and n["connects"] == 2, "reconnect")
+            wait_page(
+                driver, lambda n: n["connected"] == "true" and n["connects"] == 2, "reconnect"
+            )
             plug_and_see_the_bar_move(driver, stick)
     finally:
         web.stop()

@@ -82,7 +82,9 @@ def _browser_or_skip() -> tuple[str, str]:
     driver = shutil.which("chromedriver")
     if binary and driver:
         return binary, driver
-    reason = "chromium and chromium-driver are not installed (apt-get install chromium chromium-driver)"
+    reason = (
+        "chromium and chromium-driver are not installed (apt-get install chromium chromium-driver)"
+    )
     if os.environ.get("CI"):
         pytest.fail(f"CI must run the browser test, but: {reason}", pytrace=False)
     pytest.skip(reason)

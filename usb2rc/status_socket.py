@@ -106,7 +106,11 @@ def device_record(node_id: int, info: DeviceInfo, entry: str, present: bool) -> 
 
 
 def event_record(event: ServiceEvent, at: float) -> dict[str, Any]:
-    record: dict[str, Any] = {"at": round(at, 3), "node_id": event.node_id, "kind": event.kind.value}
+    record: dict[str, Any] = {
+        "at": round(at, 3),
+        "node_id": event.node_id,
+        "kind": event.kind.value,
+    }
     if event.kind is EventKind.ERROR:
         record["error_code"] = event.error_code
     if event.info is not None:

@@ -70,7 +70,9 @@ EXAMPLES = tuple(
     SystemFile(name, "config", CONFIG_TARGET, 0o640, keep_existing=True)
     for name in ("hotas.yaml", "mavlink.yaml")
 )
-WEB_UNIT = SystemFile("usb2rc-web.service", "system", "/etc/systemd/system/usb2rc-web.service", 0o644)
+WEB_UNIT = SystemFile(
+    "usb2rc-web.service", "system", "/etc/systemd/system/usb2rc-web.service", 0o644
+)
 UNITS = ("usb2rc.service", WEB_UNIT.name)  # ExecStart= names the usb2rc that installs them
 # Written after the config, from it (service_sandbox): only when it opens IP sockets.
 DROP_IN = SystemFile("network.conf", "", service_sandbox.DROP_IN, 0o644, generated=True)

@@ -86,7 +86,7 @@ def read_token(path: str | None, host: str) -> str | None:
                 f"--listen {host}: other machines could see the page without a token: give "
                 "--token-file F as well (a file with a long random token, for example "
                 "`openssl rand -hex 16 > F`), or listen on 127.0.0.1 and use an SSH tunnel "
-                "(docs/PI.md, \"Phone access at the field\")"
+                '(docs/PI.md, "Phone access at the field")'
             )
         return None
     try:
@@ -120,9 +120,15 @@ def run(args: argparse.Namespace) -> int:
     from usb2rc.web.server import create_app
 
     app = create_app(StatusFeed(path), token)
-    log.info("usb2rc web: http://%s:%d/ (status socket %s)", args.listen.rpartition(":")[0], port, path)
+    log.info(
+        "usb2rc web: http://%s:%d/ (status socket %s)", args.listen.rpartition(":")[0], port, path
+    )
     config = uvicorn.Config(
-        app, host=host, port=port, log_level="warning", access_log=False,
+        app,
+        host=host,
+        port=port,
+        log_level="warning",
+        access_log=False,
         timeout_graceful_shutdown=1,  # the live streams never end by themselves
     )
     server = uvicorn.Server(config)

@@ -58,7 +58,9 @@ def create_app(feed: StatusFeed, token: str | None = None) -> Starlette:
 
     async def events(request: Request) -> Response:
         return StreamingResponse(
-            _stream(feed, request), media_type="text/event-stream", headers={"X-Accel-Buffering": "no"}
+            _stream(feed, request),
+            media_type="text/event-stream",
+            headers={"X-Accel-Buffering": "no"},
         )
 
     app = Starlette(
@@ -119,4 +121,3 @@ def _token_of(request: Request) -> str | None:
     if header.lower().startswith("bearer "):
         return header[7:].strip()
     return request.query_params.get("token") or request.cookies.get(TOKEN_COOKIE)
-
