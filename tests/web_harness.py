@@ -54,6 +54,8 @@ class WebProcess:
         assert self.proc.poll() is None, self.log()
         try:
             self.get("/api/status")
+        except urllib.error.HTTPError:
+            return True  # it answers (401: a token is needed)
         except (urllib.error.URLError, ConnectionError):
             return False
         return True
