@@ -127,9 +127,11 @@ def test_a_failing_status_is_counted_and_logged_once(
 
     server = StatusServer(str(tmp_path / "s.sock"), broken, period_s=0.01)
     server.start()
+    client = connect(server.path)  # lines are built only while a client is there
     try:
         wait_until(lambda: server.counters.line_errors >= 5, "several failed lines")
     finally:
+        client.close()
         server.stop()
     assert sum("cannot build a status line" in r.message for r in caplog.records) == 1
 

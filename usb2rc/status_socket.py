@@ -206,7 +206,8 @@ class StatusServer:
         while not self._stop.is_set():
             now = time.monotonic()
             if now >= next_line:
-                self._broadcast(self._line())
+                if self._clients:  # nobody connected: no line built, no cost
+                    self._broadcast(self._line())
                 next_line = max(next_line + self.period_s, now)  # late: no burst to catch up
             timeout = min(self.period_s, max(0.0, next_line - time.monotonic()))
             for key, mask in self._selector.select(timeout):
