@@ -32,7 +32,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_daemon import PERIOD_S, DaemonProcess, PtyReader, percentile, ramp_recording  # noqa: E402
+from bench_daemon import PERIOD_S, DaemonProcess, PtyReader, percentile, ramp_recording
 
 CLIENTS = 5
 KINDS = ("none", "reading", "stuck")
@@ -94,7 +94,9 @@ def run(seconds: float, rounds: int) -> dict[str, Any]:
         (replay / "stick.hid").write_text(ramp_recording(2000, 0.023))
         sock = str(workdir / "status.sock")
         reader = PtyReader(workdir)
-        daemon = DaemonProcess(replay, reader.path, workdir / "daemon.log", ["--status-socket", sock])
+        daemon = DaemonProcess(
+            replay, reader.path, workdir / "daemon.log", ["--status-socket", sock]
+        )
         try:
             reader.wait_for(lambda f: reader.data(), timeout=20, what="the first data frames")
             windows: list[tuple[str, float, float]] = []

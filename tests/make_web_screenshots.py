@@ -14,8 +14,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from daemon_harness import ROOT, DaemonProcess, wait_until  # noqa: E402
-from web_harness import WebProcess, browser  # noqa: E402
+from daemon_harness import ROOT, DaemonProcess, wait_until
+from web_harness import WebProcess, browser
 
 LIVE = "return document.querySelectorAll('article.node[data-status=\">\"]').length"
 SHOTS = {"web.png": (900, 760), "web-phone.png": (400, 1100)}
@@ -26,7 +26,15 @@ def main() -> None:
         workdir = Path(tmp)
         sock = workdir / "status.sock"
         daemon = DaemonProcess(
-            ["--port", "loop://", "--replay", "demo", "--replay-loop", "--status-socket", str(sock)],
+            [
+                "--port",
+                "loop://",
+                "--replay",
+                "demo",
+                "--replay-loop",
+                "--status-socket",
+                str(sock),
+            ],
             workdir / "daemon.log",
         )
         web = WebProcess(sock, workdir / "web.log")

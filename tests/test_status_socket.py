@@ -56,7 +56,7 @@ def served(tmp_path: Path) -> Iterator[StatusServer]:
     server = StatusServer(str(tmp_path / "run" / "status.sock"), status, period_s=0.01)
     server.start()
     yield server
-    server.stop()
+    server.shutdown()
 
 
 # --------------------------------------------------------------------------- in-process
@@ -97,7 +97,7 @@ def test_stop_removes_the_socket_file(tmp_path: Path) -> None:
     server = StatusServer(str(tmp_path / "s.sock"), dict)
     server.start()
     assert (tmp_path / "s.sock").exists()
-    server.stop()
+    server.shutdown()
     assert not (tmp_path / "s.sock").exists()
 
 
@@ -112,7 +112,7 @@ def test_a_stale_socket_is_replaced_a_live_one_and_a_file_are_not(tmp_path: Path
         with pytest.raises(SocketInUseError, match="another usb2rc answers there"):
             StatusServer(str(path), dict).start()
     finally:
-        first.stop()
+        first.shutdown()
     path.write_text("not a socket")
     with pytest.raises(OSError, match="is not a socket"):
         StatusServer(str(path), dict).start()
@@ -132,7 +132,7 @@ def test_a_failing_status_is_counted_and_logged_once(
         wait_until(lambda: server.counters.line_errors >= 5, "several failed lines")
     finally:
         client.close()
-        server.stop()
+        server.shutdown()
     assert sum("cannot build a status line" in r.message for r in caplog.records) == 1
 
 

@@ -40,8 +40,17 @@ class WebProcess:
         self.log_path = log_path
         self._log = open(log_path, "wb")  # noqa: SIM115 - closed in stop()
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "usb2rc", "web", "--socket", str(socket_path)]
-            + ["--listen", f"127.0.0.1:{self.port}", *extra],
+            [
+                sys.executable,
+                "-m",
+                "usb2rc",
+                "web",
+                "--socket",
+                str(socket_path),
+                "--listen",
+                f"127.0.0.1:{self.port}",
+                *extra,
+            ],
             stdout=self._log,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,

@@ -296,7 +296,7 @@ class Daemon:
         self.node_clock.stop()
         self.node_clock.join(JOIN_TIMEOUT_S)
         if self.status_server is not None:  # last: a page sees the nodes go `!`
-            self.status_server.stop(JOIN_TIMEOUT_S)
+            self.status_server.shutdown(JOIN_TIMEOUT_S)
         if self._switch_interval is not None:
             sys.setswitchinterval(self._switch_interval)
             self._switch_interval = None

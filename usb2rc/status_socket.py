@@ -24,7 +24,6 @@ import os
 import selectors
 import socket
 import stat
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -37,6 +36,7 @@ from usb2rc.nodestep import NodeView, TableSnapshot
 from usb2rc.protocol.c2_16b import AXIS_NAMES
 from usb2rc.receiver import NodeView as ReceivedNode
 from usb2rc.state import EventKind, NodeTable, ServiceEvent
+from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc.status")
 
@@ -153,8 +153,9 @@ class StatusCounters:
         return dict(vars(self))
 
 
-class StatusServer:
-    """Serves `status()` lines on a unix socket from its own thread; `start()`, `stop()`."""
+class StatusServer(Worker):
+    """Serves `status()` lines on a unix socket from its own thread: `start()`, then
+    `shutdown()` (stop, join, close the clients and remove the socket file)."""
 
     def __init__(
         self,
@@ -163,6 +164,7 @@ class StatusServer:
         period_s: float = PERIOD_S,
         client_cap: int = CLIENT_CAP_BYTES,
     ) -> None:
+        super().__init__("status-socket")
         self.path = path
         self._status = status
         self.period_s = period_s
@@ -171,8 +173,6 @@ class StatusServer:
         self._listener: socket.socket | None = None
         self._clients: dict[int, _Client] = {}  # by fileno; the server thread's own
         self._selector = selectors.DefaultSelector()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="status-socket")
         self._logged_errors: set[str] = set()
 
     def start(self) -> None:
@@ -181,14 +181,13 @@ class StatusServer:
         self._listener = bind_unix(self.path)
         self._listener.setblocking(False)
         self._selector.register(self._listener, selectors.EVENT_READ)
-        self._thread.start()
+        super().start()
         log.info("status socket: %s", self.path)
 
-    def stop(self, timeout: float = 0.5) -> None:
-        """Close every client and the socket, and remove its file."""
-        self._stop.set()
-        if self._thread.is_alive():
-            self._thread.join(timeout)
+    def shutdown(self, timeout: float = 0.5) -> None:
+        """Stop the thread, close every client and the socket, and remove its file."""
+        self.stop()
+        self.join(timeout)
         for client in list(self._clients.values()):
             self._close(client)
         if self._listener is not None:
@@ -201,9 +200,9 @@ class StatusServer:
 
     # --- the thread ----------------------------------------------------------------------
 
-    def _run(self) -> None:
+    def run(self) -> None:
         next_line = time.monotonic()
-        while not self._stop.is_set():
+        while not self.stopping:
             now = time.monotonic()
             if now >= next_line:
                 if self._clients:  # nobody connected: no line built, no cost
@@ -213,8 +212,8 @@ class StatusServer:
             for key, mask in self._selector.select(timeout):
                 if key.fileobj is self._listener:
                     self._accept()
-                else:
-                    self._serve(self._clients[key.fd], mask)
+                elif (client := self._clients.get(key.fd)) is not None:
+                    self._serve(client, mask)
 
     def _line(self) -> bytes | None:
         try:
