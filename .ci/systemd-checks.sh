@@ -47,13 +47,20 @@ done
 grep -qx 'RestartPreventExitStatus=2' "$web_unit" || { echo "web: no RestartPreventExitStatus=2" >&2; exit 1; }
 echo "present"
 
+# verify_copy UNIT: a copy of UNIT in $tmp whose ExecStart runs /bin/true (only that line
+# differs), verified clean.
+verify_copy() {
+    copy="$tmp/$(basename "$1")"
+    sed 's|^ExecStart=/opt/usb2rc/venv/bin/usb2rc |ExecStart=/bin/true |' "$1" >"$copy"
+    changed=$(diff "$1" "$copy" | grep -c '^>' || true)
+    [ "$changed" -eq 1 ] || { echo "$1: expected exactly the ExecStart line to change" >&2; exit 1; }
+    out=$(systemd-analyze verify "$copy" 2>&1) || { echo "$out" >&2; exit 1; }
+    [ -z "$out" ] || { echo "$out" >&2; echo "verify printed warnings" >&2; exit 1; }
+    echo "clean"
+}
+
 echo "== systemd-analyze verify"
-sed 's|^ExecStart=/opt/usb2rc/venv/bin/usb2rc |ExecStart=/bin/true |' "$unit" >"$tmp/usb2rc.service"
-changed=$(diff "$unit" "$tmp/usb2rc.service" | grep -c '^>' || true)
-[ "$changed" -eq 1 ] || { echo "expected exactly the ExecStart line to change" >&2; exit 1; }
-out=$(systemd-analyze verify "$tmp/usb2rc.service" 2>&1) || { echo "$out" >&2; exit 1; }
-[ -z "$out" ] || { echo "$out" >&2; echo "verify printed warnings" >&2; exit 1; }
-echo "clean"
+verify_copy "$unit"
 
 # exposure UNIT MAX: the unit's offline exposure (drop-ins beside it included), failing above MAX.
 exposure() {
@@ -82,12 +89,7 @@ echo "verify clean"
 exposure "$tmp/usb2rc.service" "$MAX_NETWORK_EXPOSURE"
 
 echo "== the web unit (install-system --web)"
-sed 's|^ExecStart=/opt/usb2rc/venv/bin/usb2rc |ExecStart=/bin/true |' "$web_unit" >"$tmp/usb2rc-web.service"
-changed=$(diff "$web_unit" "$tmp/usb2rc-web.service" | grep -c '^>' || true)
-[ "$changed" -eq 1 ] || { echo "expected exactly the web unit's ExecStart line to change" >&2; exit 1; }
-out=$(systemd-analyze verify "$tmp/usb2rc-web.service" 2>&1) || { echo "$out" >&2; exit 1; }
-[ -z "$out" ] || { echo "$out" >&2; echo "verify printed warnings" >&2; exit 1; }
-echo "verify clean"
+verify_copy "$web_unit"
 exposure "$web_unit" "$MAX_WEB_EXPOSURE"
 
 echo "== systemd-sysusers"
