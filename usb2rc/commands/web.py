@@ -113,28 +113,14 @@ def run(args: argparse.Namespace) -> int:
         level=getattr(logging, args.log_level.upper()), format="%(levelname)s %(message)s"
     )
     path = args.socket or status_socket.default_path() or SERVICE_SOCKET
+    # Here, not at the top: every usb2rc command imports this module (cli.build_parser), and
+    # only this one needs starlette and uvicorn (~0.1 s to import).
+    from usb2rc.web.server import serve
 
-    import uvicorn  # only here: every other command starts without the web stack
-
-    from usb2rc.web.feed import StatusFeed
-    from usb2rc.web.server import create_app
-
-    app = create_app(StatusFeed(path), token)
-    log.info(
-        "usb2rc web: http://%s:%d/ (status socket %s)", args.listen.rpartition(":")[0], port, path
-    )
-    config = uvicorn.Config(
-        app,
-        host=host,
-        port=port,
-        log_level="warning",
-        access_log=False,
-        timeout_graceful_shutdown=1,  # the live streams never end by themselves
-    )
-    server = uvicorn.Server(config)
+    log.info("usb2rc web: http://%s:%d/ (status socket %s)", host, port, path)
     try:
-        server.run()
+        started = serve(path, token, host, port)
     except OSError as exc:
         print(f"usb2rc web: {args.listen}: {exc.strerror or exc}", file=sys.stderr)
         return 1
-    return 0 if server.started else 1
+    return 0 if started else 1

@@ -31,6 +31,7 @@ class StatusFeed:
         self._changed = asyncio.Event()
         self._since = time.monotonic()  # of the last change of `connected`
         self._last_error = ""
+        self.closing = False  # set by close(): the live streams end
 
     def record(self) -> dict[str, Any]:
         """The latest status line, or what is known while the daemon is not there."""
@@ -43,6 +44,11 @@ class StatusFeed:
         if not self.connected:
             state["error"] = self._last_error
         return {**self._record, "web": state}
+
+    def close(self) -> None:
+        """The server is stopping: every live stream ends at its next wake-up (now)."""
+        self.closing = True
+        self._bump()
 
     async def wait_newer(self, seen: int, timeout: float) -> int:
         """The version after `seen`, or `seen` again when none came within `timeout`."""

@@ -13,7 +13,9 @@ import hmac
 import json
 from collections.abc import AsyncIterator, Awaitable, Callable
 from importlib import resources
+from types import FrameType
 
+import uvicorn
 from starlette.applications import Starlette
 from starlette.middleware import Middleware
 from starlette.middleware.base import BaseHTTPMiddleware
@@ -84,6 +86,8 @@ async def _stream(feed: StatusFeed, request: Request) -> AsyncIterator[str]:
     while not await request.is_disconnected():
         started = loop.time()
         version = await feed.wait_newer(seen, KEEPALIVE_S)
+        if feed.closing:
+            return
         if version == seen:
             yield ": keepalive\n\n"
             continue
@@ -121,3 +125,32 @@ def _token_of(request: Request) -> str | None:
     if header.lower().startswith("bearer "):
         return header[7:].strip()
     return request.query_params.get("token") or request.cookies.get(TOKEN_COOKIE)
+
+
+class _Server(uvicorn.Server):
+    """uvicorn's server, ending the live streams at SIGTERM/SIGINT: otherwise each open page
+    holds the stop until uvicorn's graceful timeout cancels it (with a traceback)."""
+
+    def __init__(self, config: uvicorn.Config, feed: StatusFeed) -> None:
+        super().__init__(config)
+        self.feed = feed
+
+    def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+        self.feed.close()
+        super().handle_exit(sig, frame)
+
+
+def serve(socket_path: str, token: str | None, host: str, port: int) -> bool:
+    """Serve until SIGTERM/SIGINT; False when the server could not start (address in use)."""
+    feed = StatusFeed(socket_path)
+    config = uvicorn.Config(
+        create_app(feed, token),
+        host=host,
+        port=port,
+        log_level="warning",
+        access_log=False,
+        timeout_graceful_shutdown=1,  # a stream that did not end by itself
+    )
+    server = _Server(config, feed)
+    server.run()
+    return bool(server.started)
