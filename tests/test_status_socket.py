@@ -29,7 +29,14 @@ from daemon_harness import (
     wait_until,
 )
 
-from usb2rc.status_socket import SocketInUseError, StatusServer, default_path
+from usb2rc.config_model import HandoverConfig
+from usb2rc.nodestep import NodeFrame, NodeView
+from usb2rc.status_socket import (
+    SocketInUseError,
+    StatusServer,
+    default_path,
+    node_record,
+)
 
 
 def connect(path: Path | str) -> socket.socket:
@@ -142,6 +149,23 @@ def test_default_path_under_the_service_and_for_a_user() -> None:
         "/run/user/1000/usb2rc/status.sock"
     )
     assert default_path({}) is None
+
+
+def test_a_node_record_names_its_status_axes_buttons_and_hat() -> None:
+    axes = (100, -200, 0, 0, 0, 0, 32767, 0, 0, 0)
+    group1 = 0b101 | 1 << 24  # node buttons 1 and 3, hat UP
+    live = NodeView(NodeFrame(4, False, axes, group1, 1))  # group 2 bit 0: node button 25
+    record = node_record(live, [])
+    assert record["status"] == ">" and record["failsafe"] is False
+    assert record["axes"]["x"] == 100 and record["axes"]["rz"] == 32767
+    assert record["buttons"] == [1, 3, 25] and record["hat"] == "UP"
+    waiting = NodeView(NodeFrame(4, True, axes, 0, 0), waiting_for=("X to rest",))
+    assert node_record(waiting, [])["status"] == "!"
+    assert node_record(waiting, [])["waiting_for"] == ["X to rest"]
+    handover = NodeView(NodeFrame(4, False, axes, 0, 0, handover=HandoverConfig(2, 7)))
+    assert node_record(handover, [])["status"] == "&"
+    low = NodeView(NodeFrame(4, False, axes, 0, 0, low_battery=True))
+    assert node_record(low, [])["status"] == "%"
 
 
 # --------------------------------------------------------------------------- journeys
