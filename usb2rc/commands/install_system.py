@@ -459,7 +459,7 @@ def install_drop_in(request: Request) -> list[str]:
     return [problem] if problem else []
 
 
-def _print_advice(root: Path, program: list[str], problems: list[str], web: bool) -> None:
+def _print_advice(root: Path, program: list[str], problems: list[str], web: bool = False) -> None:
     if program[0].startswith(HIDDEN_FROM_SERVICE):
         print(
             f"warning: ExecStart={shlex.join(program)} is under a home directory, which the "
