@@ -13,6 +13,12 @@ replayed T.16000M; a reader subprocess stamps the C2-16B frames at the far end o
 Per kind of window: p99 and max of |period - 20 ms| of node 0's data frames (frames at a
 window's edges left out), and the daemon's status counters at the end. Alternating the windows
 puts any drift of the machine's load into every kind alike.
+
+Then what one status line costs the daemon, in this process (a `Daemon` on the two demo
+recordings, input side only): the whole line (`StatusSource()` + `json.dumps`) and the
+`json.dumps` alone, median and max of --calls. The Python part gives the GIL up every
+switch interval (0.5 ms in the daemon); `json.dumps` is one C call that holds it throughout,
+so its max bounds how late one line can make a tick.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ import json
 import os
 import selectors
 import socket
+import statistics
 import sys
 import tempfile
 import threading
@@ -130,13 +137,50 @@ def run(seconds: float, rounds: int) -> dict[str, Any]:
     return figures
 
 
+def line_cost(calls: int) -> dict[str, float]:
+    """µs per status line and per json.dumps of it (median, max), on the demo recordings."""
+    from usb2rc.config import Config
+    from usb2rc.daemon import Daemon
+    from usb2rc.examples import data_dir
+    from usb2rc.hid.replay import ReplayBackend
+    from usb2rc.status_socket import StatusSource
+
+    daemon = Daemon(
+        Config.default(), ReplayBackend(str(data_dir("demo")), loop=True), outputs=False
+    )
+    daemon.start()
+    try:
+        source = StatusSource(daemon.table, daemon.stats_record, daemon.checked)
+        time.sleep(0.5)  # the devices plugged and reporting
+        whole, dumps = [], []
+        for _ in range(calls):
+            t0 = time.perf_counter()
+            record = source()
+            t1 = time.perf_counter()
+            json.dumps(record, separators=(",", ":"))
+            t2 = time.perf_counter()
+            whole.append(t2 - t0)
+            dumps.append(t2 - t1)
+            time.sleep(0.002)
+    finally:
+        daemon.stop()
+    return {
+        "line_us_median": round(statistics.median(whole) * 1e6, 1),
+        "line_us_max": round(max(whole) * 1e6, 1),
+        "json_dumps_us_median": round(statistics.median(dumps) * 1e6, 1),
+        "json_dumps_us_max": round(max(dumps) * 1e6, 1),
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0, help="each window (10)")
     parser.add_argument("--rounds", type=int, default=3, help="none/reading/stuck rounds (3)")
+    parser.add_argument("--calls", type=int, default=500, help="status lines timed (500)")
     parser.add_argument("--json", metavar="PATH", help="also write the JSON line here")
     args = parser.parse_args()
     figures = run(args.seconds, args.rounds)
+    figures.update(line_cost(args.calls))
     print(f"{'clients':10} {'frames':>7} {'p99 |err| ms':>13} {'max |err| ms':>13}")
     for kind in KINDS:
         print(
@@ -145,6 +189,12 @@ def main() -> None:
         )
     print(f"p99 with 5 reading clients - none: {figures['reading_minus_none_p99_ms']:+.3f} ms")
     print(f"p99 with 5 stuck clients - none:   {figures['stuck_minus_none_p99_ms']:+.3f} ms")
+    print(
+        f"one status line: {figures['line_us_median']:.0f} µs median, "
+        f"{figures['line_us_max']:.0f} µs max; its json.dumps (holds the GIL): "
+        f"{figures['json_dumps_us_median']:.0f} µs median, "
+        f"{figures['json_dumps_us_max']:.0f} µs max"
+    )
     line = json.dumps({"bench": "status_clients", "figures": figures})
     print(line)
     if args.json:
