@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import logging
 import os
 import selectors
 import socket
@@ -145,9 +146,9 @@ def line_cost(calls: int) -> dict[str, float]:
     from usb2rc.hid.replay import ReplayBackend
     from usb2rc.status_socket import StatusSource
 
-    daemon = Daemon(
-        Config.default(), ReplayBackend(str(data_dir("demo")), loop=True), outputs=False
-    )
+    logging.getLogger("usb2rc").setLevel(logging.ERROR)  # the plugs' lines: not figures
+    backend = ReplayBackend(str(data_dir("demo")), loop=True)
+    daemon = Daemon(Config.default(), backend, outputs=False)
     daemon.start()
     try:
         source = StatusSource(daemon.table, daemon.stats_record, daemon.checked)
