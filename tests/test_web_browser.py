@@ -106,3 +106,25 @@ def test_page_follows_the_stick_an_unplug_and_a_daemon_restart(tmp_path: Path) -
     finally:
         web.stop()
         daemon.stop()
+
+
+def test_with_a_token_the_page_goes_live_through_its_cookie(tmp_path: Path) -> None:
+    """`?token=` once: the page, its script and its live stream get in by the cookie (no
+    daemon here: the stream says so)."""
+    token = "0123456789abcdef0123"
+    (tmp_path / "token").write_text(token)
+    web = WebProcess(
+        tmp_path / "s.sock", tmp_path / "web.log", "--token-file", str(tmp_path / "token")
+    )
+    try:
+        with browser() as driver:
+            driver.get(f"{web.url}/?token={token}")
+            badge = "return document.getElementById('connection').textContent"
+            wait_until(
+                lambda: "daemon not running" in driver.execute_script(badge),
+                "the live stream's first record",
+            )
+            driver.get(web.url + "/")  # the cookie alone
+            wait_until(lambda: "daemon not running" in driver.execute_script(badge), "again")
+    finally:
+        web.stop()
