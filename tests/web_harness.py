@@ -57,7 +57,11 @@ class WebProcess:
             cwd=ROOT,
             env=dict(os.environ, PYTHONUNBUFFERED="1"),
         )
-        wait_until(self._answers, f"usb2rc web on {self.url}", timeout=20)
+        try:
+            wait_until(self._answers, f"usb2rc web on {self.url}", timeout=20)
+        except BaseException:
+            self.stop()  # no server left behind by a test that failed here
+            raise
 
     def _answers(self) -> bool:
         assert self.proc.poll() is None, self.log()
