@@ -10,16 +10,21 @@
 #   systemd-sysusers --root   (creates the user in a scratch root)
 #   udevadm verify            (systemd >= 254; skipped with a note on older udev)
 #   grep                      (RestartPreventExitStatus=2: a config error must not restart in a
-#                              loop; Documentation= names the notes install-system writes)
+#                              loop; Documentation= names the notes install-system writes;
+#                              RuntimeDirectory=usb2rc: the status socket's /run/usb2rc)
+#   the web unit              (usb2rc-web.service, `install-system --web`: verify clean,
+#                              exposure at most MAX_WEB_EXPOSURE)
 set -eu
 
 MAX_EXPOSURE=${MAX_EXPOSURE:-1.0}
 MAX_NETWORK_EXPOSURE=${MAX_NETWORK_EXPOSURE:-2.0}
+MAX_WEB_EXPOSURE=${MAX_WEB_EXPOSURE:-1.2}
 here=$(cd "$(dirname "$0")/.." && pwd)
 python=${PYTHON:-$here/.venv/bin/python}
 [ -x "$python" ] || python=python3
 system="$here/usb2rc/data/system"  # package data: the wheel ships these (usb2rc install-system)
 unit="$system/usb2rc.service"
+web_unit="$system/usb2rc-web.service"
 rules="$system/70-usb2rc.rules"
 sysusers="$system/usb2rc.sysusers"
 
@@ -35,15 +40,27 @@ echo "== unit directives"
 grep -qx 'RestartPreventExitStatus=2' "$unit" || { echo "no RestartPreventExitStatus=2" >&2; exit 1; }
 grep -qx 'Documentation=file:/usr/share/doc/usb2rc/SERVICE.md' "$unit" || {
     echo "no Documentation= naming the installed SERVICE.md" >&2; exit 1; }
+grep -qx 'RuntimeDirectory=usb2rc' "$unit" || { echo "no RuntimeDirectory=usb2rc" >&2; exit 1; }
+for u in "$unit" "$web_unit"; do
+    grep -q '^RestrictAddressFamilies=.*AF_UNIX' "$u" || { echo "$u: no AF_UNIX" >&2; exit 1; }
+done
+grep -qx 'RestartPreventExitStatus=2' "$web_unit" || { echo "web: no RestartPreventExitStatus=2" >&2; exit 1; }
 echo "present"
 
+# verify_copy UNIT: a copy of UNIT in $tmp whose ExecStart runs /bin/true (only that line
+# differs), verified clean.
+verify_copy() {
+    copy="$tmp/$(basename "$1")"
+    sed 's|^ExecStart=/opt/usb2rc/venv/bin/usb2rc |ExecStart=/bin/true |' "$1" >"$copy"
+    changed=$(diff "$1" "$copy" | grep -c '^>' || true)
+    [ "$changed" -eq 1 ] || { echo "$1: expected exactly the ExecStart line to change" >&2; exit 1; }
+    out=$(systemd-analyze verify "$copy" 2>&1) || { echo "$out" >&2; exit 1; }
+    [ -z "$out" ] || { echo "$out" >&2; echo "verify printed warnings" >&2; exit 1; }
+    echo "clean"
+}
+
 echo "== systemd-analyze verify"
-sed 's|^ExecStart=/opt/usb2rc/venv/bin/usb2rc |ExecStart=/bin/true |' "$unit" >"$tmp/usb2rc.service"
-changed=$(diff "$unit" "$tmp/usb2rc.service" | grep -c '^>' || true)
-[ "$changed" -eq 1 ] || { echo "expected exactly the ExecStart line to change" >&2; exit 1; }
-out=$(systemd-analyze verify "$tmp/usb2rc.service" 2>&1) || { echo "$out" >&2; exit 1; }
-[ -z "$out" ] || { echo "$out" >&2; echo "verify printed warnings" >&2; exit 1; }
-echo "clean"
+verify_copy "$unit"
 
 # exposure UNIT MAX: the unit's offline exposure (drop-ins beside it included), failing above MAX.
 exposure() {
@@ -70,6 +87,10 @@ out=$(systemd-analyze verify "$tmp/usb2rc.service" 2>&1) || { echo "$out" >&2; e
 [ -z "$out" ] || { echo "$out" >&2; echo "verify printed warnings" >&2; exit 1; }
 echo "verify clean"
 exposure "$tmp/usb2rc.service" "$MAX_NETWORK_EXPOSURE"
+
+echo "== the web unit (install-system --web)"
+verify_copy "$web_unit"
+exposure "$web_unit" "$MAX_WEB_EXPOSURE"
 
 echo "== systemd-sysusers"
 mkdir -p "$tmp/root/etc"

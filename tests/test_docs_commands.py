@@ -59,12 +59,14 @@ RUN = {
 # moves under it), and must exit 0.
 ROOTED = [
     "usb2rc install-system",
+    "usb2rc install-system --web",
     "usb2rc check --config /etc/usb2rc/usb2rc.yaml",
 ]
 
 HARDWARE = "needs a real joystick or serial port"
 PLACEHOLDER = "names the reader's own file"
 PARSE_ONLY = {
+    "usb2rc web": "serves until stopped (tests/test_web_cli.py and test_web_browser.py run it)",
     "usb2rc demo --seconds 30": "30 s is too slow here; `demo --seconds 2` runs",
     "usb2rc --port /dev/ttyUSB0": HARDWARE,
     "usb2rc --config hotas.yaml": HARDWARE + " (/dev/serial0, /dev/ttyUSB0)",

@@ -32,6 +32,7 @@ COMMANDS: dict[str, str] = {
     "calibrate": "calibrate",
     "install-system": "install_system",
     "example": "example",
+    "web": "web",
 }
 
 

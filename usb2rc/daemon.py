@@ -36,6 +36,7 @@ from usb2rc.outputs import protocol
 from usb2rc.outputs.wiring import OutputContext
 from usb2rc.scheduler import C2Output, ReplyRx, RxThread, TickThread
 from usb2rc.service import stats_text
+from usb2rc.service.status_socket import StatusServer, StatusSource, check_record
 from usb2rc.service.worker import Worker
 from usb2rc.transport import SerialLink
 from usb2rc.transport_udp import UdpLink
@@ -134,9 +135,11 @@ class Daemon:
         on_tick: Callable[[], None] | None = None,
         on_status: Callable[[str], object] | None = None,
         outputs: bool = True,
+        status_socket: str | None = None,
     ) -> None:
         """outputs=False: the input side only (hot-plug, readers, mapping, node table), as
-        `usb2rc monitor` runs it; no port is needed or opened."""
+        `usb2rc monitor` runs it; no port is needed or opened. status_socket: the path of
+        the read-only status socket (usb2rc.service.status_socket); None: none."""
         self.config = config
         self.backend = backend
         self.version = version
@@ -158,6 +161,12 @@ class Daemon:
         self.monitor = HotplugMonitor(backend, self.lifecycle.plugged, self.lifecycle.unplugged)
         self.started_at = 0.0
         self._switch_interval: float | None = None  # the GIL's, to restore on stop()
+        self._checked: tuple[Config, dict[str, Any]] | None = None  # config, its check
+        self.status_server = (
+            StatusServer(status_socket, StatusSource(self.table, self.stats_record, self.checked))
+            if status_socket
+            else None
+        )
 
     # --- outputs ---------------------------------------------------------------------------
 
@@ -257,6 +266,17 @@ class Daemon:
                 out.rx.start()
         self.lifecycle.start()
         self.monitor.start()
+        self._start_status_server()
+
+    def _start_status_server(self) -> None:
+        """The status socket is a view: without it the daemon runs on (the reason logged)."""
+        if self.status_server is None:
+            return
+        try:
+            self.status_server.start()
+        except OSError as exc:
+            log.error("status socket %s: %s; running without it", self.status_server.path, exc)
+            self.status_server = None
 
     def stop(self) -> None:
         self.monitor.stop()
@@ -276,6 +296,8 @@ class Daemon:
             out.link.close()
         self.node_clock.stop()
         self.node_clock.join(JOIN_TIMEOUT_S)
+        if self.status_server is not None:  # last: a page sees the nodes go `!`
+            self.status_server.shutdown(JOIN_TIMEOUT_S)
         if self._switch_interval is not None:
             sys.setswitchinterval(self._switch_interval)
             self._switch_interval = None
@@ -304,6 +326,13 @@ class Daemon:
         log_reload(self.apply_reload(self.prepare_reload(config)))
 
     # --- stats -----------------------------------------------------------------------------
+
+    def checked(self) -> dict[str, Any]:
+        """`check`'s verdict on the running config, worked out once per config."""
+        config = self.config
+        if self._checked is None or self._checked[0] is not config:
+            self._checked = (config, check_record(config))
+        return self._checked[1]
 
     def stats_lines(self) -> list[str]:
         return stats_text.stats_lines(self.stats_record())

@@ -1,4 +1,4 @@
-"""`usb2rc install-system [--root DIR] [--config FILE] [--force] [--print NAME]`: the service.
+"""`usb2rc install-system [--root DIR] [--config FILE] [--web] [--force] [--print NAME]`.
 
 The package carries the systemd unit, the udev rule, the sysusers file, the unit's notes and
 the starter configs (`usb2rc/data/system/`, `usb2rc/data/config/`), so `pip install usb2rc`
@@ -18,6 +18,9 @@ installed instead (network.conf: for --config FILE, default the starter default.
 The unit's ExecStart= names the usb2rc that runs this command: the entry-point script it was
 started as, else the `usb2rc` beside the running Python (a venv's bin/), else that Python
 with `-m usb2rc`. So the service runs the venv the command came from.
+
+`--web` installs usb2rc-web.service as well: `usb2rc web`, the read-only status page, on
+127.0.0.1:8080 (docs/PI.md, "Phone access at the field").
 """
 
 from __future__ import annotations
@@ -67,15 +70,20 @@ EXAMPLES = tuple(
     SystemFile(name, "config", CONFIG_TARGET, 0o640, keep_existing=True)
     for name in ("hotas.yaml", "mavlink.yaml")
 )
+WEB_UNIT = SystemFile(
+    "usb2rc-web.service", "system", "/etc/systemd/system/usb2rc-web.service", 0o644
+)
+UNITS = ("usb2rc.service", WEB_UNIT.name)  # ExecStart= names the usb2rc that installs them
 # Written after the config, from it (service_sandbox): only when it opens IP sockets.
 DROP_IN = SystemFile("network.conf", "", service_sandbox.DROP_IN, 0o644, generated=True)
-BY_NAME = {f.name: f for f in (*FILES, *EXAMPLES, DROP_IN)}
+BY_NAME = {f.name: f for f in (*FILES, *EXAMPLES, DROP_IN, WEB_UNIT)}
 
 NEXT_STEPS = (
     "sudo udevadm control --reload && sudo udevadm trigger --subsystem-match=hidraw",
     "sudo {program} check --config " + CONFIG_TARGET,
     "sudo systemctl daemon-reload && sudo systemctl enable --now usb2rc",
 )
+WEB_NEXT_STEP = "sudo systemctl enable --now usb2rc-web  # then http://127.0.0.1:8080/"
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -93,6 +101,11 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         metavar="FILE",
         help=f"install FILE as {CONFIG_TARGET} (default: the starter default.yaml); "
         "it must pass `usb2rc check`, and an existing one is still kept",
+    )
+    parser.add_argument(
+        "--web",
+        action="store_true",
+        help="also install usb2rc-web.service: the read-only status page on 127.0.0.1:8080",
     )
     parser.add_argument(
         "--force",
@@ -156,7 +169,7 @@ def unit_text(template: str, program: list[str]) -> str:
 
 def rendered(file: SystemFile, program: list[str]) -> str:
     text = packaged_text(file)
-    return unit_text(text, program) if file.name == "usb2rc.service" else text
+    return unit_text(text, program) if file.name in UNITS else text
 
 
 def drop_in_for(config_text: str, source: str, root: Path) -> tuple[str | None, list[str]]:
@@ -313,14 +326,14 @@ def run(args: argparse.Namespace) -> int:
         return 2
     root = Path(args.root)
     config_name = args.config or BY_NAME["default.yaml"].name
-    request = Request(root, program, config_text, config_name, args.force)
+    request = Request(root, program, config_text, config_name, args.force, args.web)
     try:
         problems = install(request)
     except OSError as exc:
         hint = " (run it with sudo)" if isinstance(exc, PermissionError) else ""
         print(f"usb2rc install-system: {exc}{hint}", file=sys.stderr)
         return 1
-    _print_advice(root, program, problems)
+    _print_advice(root, program, problems, args.web)
     return 1 if problems else 0
 
 
@@ -371,6 +384,7 @@ class Request:
     config_text: str
     config_name: str  # --config FILE as given, or the starter's name
     force: bool = False
+    web: bool = False  # usb2rc-web.service too
 
 
 def install(request: Request) -> list[str]:
@@ -387,6 +401,10 @@ def install(request: Request) -> list[str]:
         if file.name == "usb2rc.sysusers" and problem is None:
             problem = create_service_user(request.root, text)
             problems += [problem] if problem else []
+    if request.web:
+        path = under_root(request.root, WEB_UNIT.target)
+        problem = place(path, rendered(WEB_UNIT, request.program), WEB_UNIT, request.force)
+        problems += [problem] if problem else []
     return problems + install_drop_in(request)
 
 
@@ -441,7 +459,7 @@ def install_drop_in(request: Request) -> list[str]:
     return [problem] if problem else []
 
 
-def _print_advice(root: Path, program: list[str], problems: list[str]) -> None:
+def _print_advice(root: Path, program: list[str], problems: list[str], web: bool = False) -> None:
     if program[0].startswith(HIDDEN_FROM_SERVICE):
         print(
             f"warning: ExecStart={shlex.join(program)} is under a home directory, which the "
@@ -455,3 +473,5 @@ def _print_advice(root: Path, program: list[str], problems: list[str]) -> None:
         print(f"next: edit {CONFIG_TARGET} (the serial port: `port:` under `outputs:`), then")
         command = shlex.join(program)
         print("\n".join(f"  {step.format(program=command)}" for step in NEXT_STEPS))
+        if web:
+            print(f"  {WEB_NEXT_STEP}")

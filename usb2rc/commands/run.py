@@ -20,7 +20,7 @@ from usb2rc.config.port_url import port_argument
 from usb2rc.daemon import Daemon, NoPortError, ReloadResult, log_reload
 from usb2rc.hid.backend import Backend
 from usb2rc.hid.choose import choose_backend
-from usb2rc.service import log_escape
+from usb2rc.service import log_escape, status_socket
 from usb2rc.service.sdnotify import Notifier
 from usb2rc.service.signals import DaemonSignals, ReloadAbandoned, install_daemon_signals
 
@@ -73,7 +73,22 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         default="text",
         help="text: log lines (stderr); json: one JSON object per dump on stdout, for scripts",
     )
+    parser.add_argument(
+        "--status-socket",
+        metavar="PATH|off",
+        help="the read-only status socket `usb2rc web` reads (default: "
+        "$RUNTIME_DIRECTORY/status.sock under the service, i.e. /run/usb2rc/status.sock, "
+        "else $XDG_RUNTIME_DIR/usb2rc/status.sock; none when neither is set); off: none",
+    )
     parser.set_defaults(func=run)
+
+
+def status_socket_path(args: argparse.Namespace) -> str | None:
+    """--status-socket PATH, `off` (None), or the default (usb2rc.service.status_socket)."""
+    chosen: str | None = getattr(args, "status_socket", None)
+    if chosen == "off":
+        return None
+    return chosen or status_socket.default_path()
 
 
 def under_systemd() -> bool:
@@ -288,6 +303,7 @@ def run(args: argparse.Namespace) -> int:
             on_ready=notifier.ready,
             on_tick=_WatchdogFeeder(notifier),
             on_status=notifier.status,
+            status_socket=status_socket_path(args),
         )
     except NoPortError as exc:
         print(f"usb2rc: {exc}", file=sys.stderr)
