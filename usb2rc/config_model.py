@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from usb2rc.hid.usages import GDC_BATTERY_STRENGTH
 from usb2rc.outputs import PROTOCOLS as OUTPUT_PROTOCOLS
@@ -17,6 +17,9 @@ from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
 from usb2rc.protocol.c2_16b import MAX_NODE_ID as NODE_ID_MAX
 from usb2rc.protocol.c2_16b import NODE_BUTTONS
 from usb2rc.yamlnodes import Where
+
+if TYPE_CHECKING:  # usb2rc.controls.model imports this module
+    from usb2rc.controls.model import MixRef, SwitchConfig, ThrottleCut
 
 MAX_HID_BUTTON = 65535
 HAT_DIRECTIONS = ("up", "up-right", "right", "down-right", "down", "down-left", "left", "up-left")
@@ -28,18 +31,20 @@ SUMD_DEFAULT_SLOTS = ("x", "y", "z", "rz", "slider", "rx", "ry", "dial")
 
 CHANNEL_ALLOWED = "nodeN.x, .y, .z, .slider, .rx, .ry, .rz, .dial, .aux1, .aux2, nodeN.buttonK"
 _CHANNEL_RE = re.compile(r"^node(\d+)\.(?:(button)(\d+)|([a-z0-9]+))$")
+_SWITCH_RE = re.compile(r"^switch\.([a-z_][a-z0-9_]*)$")
 
 
 @dataclass(frozen=True)
 class ChannelRef:
-    """One SUMD channel as configured: a node's axis slot (index 0..9) or button (1..56).
+    """One SUMD channel as configured: a node's axis slot (index 0..9) or button (1..56),
+    or a switch (`switch.gear`: node_id and index -1, resolved by `Mapping.sumd_channels`).
 
     Parsed from its name (`node1.x`, `node1.button5`) once, when the config is read;
     nothing parses a channel name after that.
     """
 
     node_id: int
-    kind: Literal["axis", "button"]
+    kind: Literal["axis", "button", "switch"]
     index: int  # axis: slot index into AXIS_SLOTS; button: node button 1..56
     name: str  # as written in the config, for `check`, `icd` and messages
 
@@ -54,7 +59,10 @@ class ChannelRef:
 
     @classmethod
     def parse(cls, name: str) -> ChannelRef | None:
-        """`node1.x` -> axis x of node 1; `node1.button5` -> button 5 of node 1; else None."""
+        """`node1.x` -> axis x of node 1; `node1.button5` -> button 5 of node 1;
+        `switch.gear` -> the switch gear; else None."""
+        if _SWITCH_RE.match(name.strip().lower()):
+            return cls(-1, "switch", -1, name)
         m = _CHANNEL_RE.match(name.strip().lower())
         if m is None:
             return None
@@ -194,7 +202,7 @@ class OutputConfig:
     rate_hz: float = 50
     line_feed: bool = True
     service_status: str = "ascii"
-    channels: tuple[ChannelRef, ...] | None = None  # SUMD; None: the default channel list
+    channels: tuple[ChannelRef | MixRef, ...] | None = None  # None: the default channel list
     extended: bool = False  # SUMD: axes onto 900-2100 µs instead of 1100-1900 µs
     where: Where | None = None
     channel_wheres: tuple[Where, ...] = field(default=(), compare=False)  # one per channel
@@ -209,13 +217,13 @@ class OutputConfig:
         return OUTPUT_PROTOCOLS[self.protocol].options[name].default
 
     def __post_init__(self) -> None:
-        given: tuple[ChannelRef | str, ...] | None = self.channels
+        given: tuple[ChannelRef | MixRef | str, ...] | None = self.channels
         if given is not None:
             object.__setattr__(self, "channels", tuple(_channel_ref(c) for c in given))
 
 
-def _channel_ref(channel: ChannelRef | str) -> ChannelRef:
-    if isinstance(channel, ChannelRef):
+def _channel_ref(channel: ChannelRef | MixRef | str) -> ChannelRef | MixRef:
+    if not isinstance(channel, str):
         return channel
     ref = ChannelRef.parse(channel)
     if ref is None:
@@ -229,6 +237,8 @@ class Config:
     devices: tuple[DeviceConfig, ...] = ()
     defaults: bool = True
     source: str = "<default>"
+    switches: tuple[SwitchConfig, ...] = ()  # usb2rc.controls (docs/CONFIG.md, "Switches")
+    throttle_cuts: tuple[ThrottleCut, ...] = ()
 
     @classmethod
     def default(cls) -> Config:
