@@ -22,9 +22,7 @@ from usb2rc.state import NodeTable
 
 LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
 BINDING = default_binding(LAYOUT, "T.16000M")  # HID button k -> node button k
-INFO = DeviceInfo(
-    key="k0", path="k0", vid=0x044F, pid=0xB10A, product="T.16000M", port_path="1-1"
-)
+INFO = DeviceInfo(key="k0", path="k0", vid=0x044F, pid=0xB10A, product="T.16000M", port_path="1-1")
 LOW, MID, HIGH = position_value(0, 3), position_value(1, 3), position_value(2, 3)
 
 
@@ -46,7 +44,7 @@ class Pilot:
     """A T.16000M on node 0 of a table, pressed and released through its reader's record
     (with its press log, as DeviceReader publishes it)."""
 
-    def __init__(self, switches: list[SwitchConfig], cuts: list[ThrottleCut] = ()) -> None:
+    def __init__(self, switches: list[SwitchConfig], cuts: tuple[ThrottleCut, ...] = ()) -> None:
         self.clock = Clock()
         self.table = NodeTable(clock=self.clock)
         self.table.set_controls(switches, list(cuts))
