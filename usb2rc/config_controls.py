@@ -344,7 +344,11 @@ def check_controls(reader: NodeReader, config: Config) -> None:
     for where, name, positions in _switch_uses(config):
         _check_name(reader, where, name, names)
         switch = next((s for s in config.switches if s.name == name), None)
-        if switch is not None and positions is not None and positions != switch.positions:
+        if switch is not None and positions is not None and positions < 0:
+            if -positions - 1 >= switch.positions:  # an action's position
+                message = f"switch {name!r} has no position {-positions - 1}"
+                reader.report(where.problem(message, f"0..{switch.positions - 1}"))
+        elif switch is not None and positions is not None and positions != switch.positions:
             reader.report(
                 where.problem(
                     f"{positions} rates for switch {name!r} of {switch.positions} positions",
@@ -380,7 +384,8 @@ def _check_name(reader: NodeReader, where: Where, name: str, names: list[str]) -
 
 
 def _switch_uses(config: Config) -> Iterator[tuple[Where, str, int | None]]:
-    """(where, switch name, rates weights or None) of every use of a switch."""
+    """(where, switch name, n) of every use of a switch: n the count of a rates' weights,
+    -1 - position for an action's position, None for a plain use."""
     fallback = Where(config.source, 0, "")
     for output in config.outputs:
         wheres = output.channel_wheres or ()
@@ -395,8 +400,8 @@ def _switch_uses(config: Config) -> Iterator[tuple[Where, str, int | None]]:
             elif channel.kind == "switch":
                 yield where, switch_name(channel), None
         for action in output.option("actions") if output.protocol == "mavlink" else ():
-            if action.switch is not None:
-                yield action.where or fallback, action.switch, None
+            if action.switch is not None:  # its position, encoded as -1 - position
+                yield action.where or fallback, action.switch, -1 - action.position
     for cut in config.throttle_cuts:
         yield cut.where or fallback, cut.switch, None
 
