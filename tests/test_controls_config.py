@@ -83,3 +83,27 @@ def sumd(channels: str) -> str:
 )
 def test_a_problem_names_its_line_and_key(text: str, expected: str) -> None:
     assert problems(text) == [expected]
+
+
+def test_icd_lists_switches_mixes_and_actions() -> None:
+    from usb2rc.commands.icd import document, json_document
+
+    config = load_config_text(
+        HEAD
+        + "throttle_cut: {switch: gear, channel: node0.z}\n"
+        + "outputs:\n  - protocol: sumd\n    port: /dev/null\n"
+        + "    channels: [switch.mode, {mix: [{source: node0.x, curve: {expo: 0.3}}]}]\n"
+        + "  - protocol: mavlink\n    port: udpout:127.0.0.1:14550\n"
+        + "    actions:\n      - {switch: mode, position: 2, do: {mode: RTL}}\n",
+        "c.yaml",
+    )
+    doc = json_document(config)
+    assert doc["switches"][1]["int16"] == "-32768 / 0 / 32767"
+    assert doc["mixes"] == [{"output": 1, "channel": 2, "lines": "clamp(1 × expo 0.3(node0.x))"}]
+    assert doc["actions"] == [
+        {"output": 2, "trigger": "switch.mode at 2", "do": "mode RTL (DO_SET_MODE)", "hold_s": "0"}
+    ]
+    assert doc["throttle_cuts"] == [{"switch": "gear", "channel": "node0.z"}]
+    text = "\n".join(document(config, "text"))
+    assert "switch.mode  steps" in text and "Throttle cut: node0.z" in text
+    assert "| 1 | switch.mode | switch | 1100..1900 |" in "\n".join(document(config, "markdown"))
