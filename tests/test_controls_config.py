@@ -107,3 +107,19 @@ def test_icd_lists_switches_mixes_and_actions() -> None:
     text = "\n".join(document(config, "text"))
     assert "switch.mode  steps" in text and "Throttle cut: node0.z" in text
     assert "| 1 | switch.mode | switch | 1100..1900 |" in "\n".join(document(config, "markdown"))
+
+
+def test_init_writes_a_commented_switch_and_action_that_check_takes() -> None:
+    from usb2rc.starter_config import ACTIONS_EXAMPLE, SWITCHES_EXAMPLE, starter_config
+
+    text = starter_config([], "/dev/serial0")
+    example_lines = {*ACTIONS_EXAMPLE, *SWITCHES_EXAMPLE}
+    uncommented = [
+        line.replace("# ", "", 1) if line.strip().removeprefix("# ") in example_lines else line
+        for line in text.splitlines()
+    ]
+    assert uncommented != text.splitlines()
+    load_config_text(text, "init.yaml")  # as written: the examples are comments
+    config = load_config_text("\n".join(uncommented), "init.yaml")
+    assert [s.name for s in config.switches] == ["gear", "mode"]
+    assert [a.kind for a in config.outputs[1].option("actions")] == ["arm", "mode"]
