@@ -93,8 +93,9 @@ def test_nothing_before_the_vehicle_heartbeat_nor_in_failsafe() -> None:
     assert vehicle.commands(run(line, [(0.0, values(True))])) == []
     line.received(vehicle.heartbeat())
     assert vehicle.commands(run(line, [(0.1, values(True))])) == []  # held since: refused
-    failsafe = [(0.2, values(False)), (0.3, values(True, failsafe=True))]
-    assert vehicle.commands(run(line, failsafe)) == []
+    failsafe = [(0.2, values(False)), (0.3, values(True, failsafe=True)), (0.4, values(True))]
+    assert vehicle.commands(run(line, failsafe)) == []  # held through it: not after it either
+    assert len(vehicle.commands(run(line, [(0.5, values(False)), (0.6, values(True))]))) == 1
     assert line.actions is not None and line.actions.stats.refused == 1
 
 

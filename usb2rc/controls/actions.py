@@ -13,7 +13,7 @@ Decisions:
   (arm and disarm: 1 s by default); it fires again only after the trigger was released;
 - never in failsafe, never before the vehicle's heartbeat: a hold completed then is
   refused (counted, logged) and not sent later, even if the vehicle appears while it is
-  still held; failsafe also restarts a hold;
+  still held; a trigger active during a failsafe must be released and pressed again;
 - every action is a COMMAND_LONG, retried (confirmation 1, 2) every RETRY_S until a
   COMMAND_ACK for its command comes or TRIES were sent; a newer action with the same
   command replaces a pending one;
@@ -111,8 +111,8 @@ class ActionRunner:
         if not active:
             state.since, state.fired = None, False
             return
-        if failsafe:
-            state.since = None  # a hold restarts after the failsafe
+        if failsafe:  # held through a failsafe: it must be released before it fires again
+            state.since, state.fired = None, True
             return
         if state.fired:
             return
