@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import os
 import select
-import signal
 import time
 from pathlib import Path
 from typing import Any
@@ -106,8 +105,9 @@ def test_actions_arm_with_hold_mode_by_name_once_and_nothing_in_failsafe(
     vehicle, line = Vehicle(*ARDUCOPTER), PtyLine("sumd")
     config = tmp_path / "actions.yaml"
     config.write_text(ACTIONS.format(url=vehicle.url, pty=line.path, mode="LOITER"))
-    install(replay_dir / "a-stick.hid", presses((1.0, 2.6, 2), (3.0, 5.0, 6), (7.0, 7.6, 7),
-                                                until=9.0))
+    install(
+        replay_dir / "a-stick.hid", presses((1.0, 2.6, 2), (3.0, 5.0, 6), (7.0, 7.6, 7), until=9.0)
+    )
     install(replay_dir / "b-pedals.hid", presses(until=0.1))  # node 1, at rest
     daemon = run_daemon(tmp_path, vehicle.url, replay_dir, "--config", str(config))
     try:

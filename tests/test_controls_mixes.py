@@ -26,7 +26,9 @@ def ref(name: str) -> ChannelRef:
     return parsed
 
 
-def frame(failsafe: bool = False, switches: tuple[int, ...] = (), **axes: int) -> NodeFrame:
+def frame(
+    failsafe: bool = False, switches: tuple[tuple[str, int], ...] = (), **axes: int
+) -> NodeFrame:
     values = [0] * len(AXIS_NAMES)
     for slot, value in axes.items():
         values[AXIS_NAMES.index(slot)] = value
@@ -90,7 +92,7 @@ def test_expo_and_offset() -> None:
 @pytest.mark.parametrize(("position", "weight"), [(0, 1.0), (1, 0.7), (2, 0.4)])
 def test_three_rates_chosen_by_a_switch(position: int, weight: float) -> None:
     aileron = mix_of(MixInput(ref("node0.x"), rates=Rates("rate", (1.0, 0.7, 0.4))))
-    switches = (position_value(position, 3),)
+    switches = (("rate", position_value(position, 3)),)
     value, _ = aileron({0: frame(switches=switches, x=unit(0.8))})  # type: ignore[operator]
     assert value == pytest.approx(to_int16(0.8 * weight), abs=2)
 
@@ -134,7 +136,7 @@ def test_a_mix_is_always_within_the_output_range(
         int(pressed),
         0,
         0,
-        switches=(position_value(position, 3),),
+        switches=(("rate", position_value(position, 3)),),
     )
     value, _ = mix({0: node})  # type: ignore[operator]
     assert -32768 <= value <= 32767

@@ -87,7 +87,7 @@ class Pilot:
         return self.table.step_if_due()
 
     def switches(self) -> tuple[int, ...]:
-        return self.step().frames[0].switches
+        return tuple(value for _, value in self.step().frames[0].switches)
 
 
 def test_a_toggle_flips_once_per_tap_even_between_steps() -> None:
@@ -163,7 +163,7 @@ def test_failsafe_sends_the_failsafe_position_and_a_replug_keeps_the_state() -> 
     pilot.table.remove_device("k0")
     frame = pilot.step().frames[0]
     assert frame.failsafe
-    assert frame.switches == (position_value(1, 2), HIGH)  # gear: failsafe 1; mode: held
+    assert frame.switches == (("gear", position_value(1, 2)), ("mode", HIGH))  # failsafe 1; held
     pilot.tap(4)  # pressed while the node is in failsafe: never applied
     pilot.plug()
     assert pilot.switches() == (position_value(0, 2), HIGH)
@@ -191,7 +191,7 @@ def test_a_switch_slot_feeds_the_node_axis_and_survives_a_tap_latch() -> None:
     pilot.tap(1)  # a tap the output's latch recomposes the frame for
     frame = pilot.table.frames(output)[0]
     assert frame.axes[aux1] == 32767
-    assert frame.switches == (32767,)
+    assert frame.switches == (("gear", 32767),)
 
 
 def test_throttle_cut_holds_low_and_releases_only_at_low_throttle() -> None:

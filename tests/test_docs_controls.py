@@ -45,7 +45,7 @@ def test_the_switches_example() -> None:
     assert (lights.slot, lights.failsafe) == ("aux1", 0)
 
 
-def frame(node: int, switches: tuple[int, ...] = (), **axes: int) -> NodeFrame:
+def frame(node: int, switches: tuple[tuple[str, int], ...] = (), **axes: int) -> NodeFrame:
     values = [0] * len(AXIS_NAMES)
     for slot, value in axes.items():
         values[AXIS_NAMES.index(slot)] = value
@@ -57,7 +57,7 @@ def test_the_mixes_example_means_what_the_text_says() -> None:
     toe, throttle, aileron, _ = compile_mapping(config).sumd_channels(config.outputs[0])
     assert isinstance((config.outputs[0].channels or ())[0], MixRef)
     nodes = {
-        0: frame(0, (position_value(1, 3),), x=32767, z=-24575),
+        0: frame(0, (("rate", position_value(1, 3)),), x=32767, z=-24575),
         1: frame(1, rx=32767, ry=-32768),
     }
     assert int16_value(toe)(nodes)[0] == to_int16(-1.0)  # left brake full, right released

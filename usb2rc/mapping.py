@@ -45,7 +45,7 @@ from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
 @dataclass(frozen=True)
 class ChannelSource:
     """One SUMD channel: a node's axis slot (index 0..9) or node button (1..56), a switch
-    (index: its place in `NodeFrame.switches` of its node) or a mix (node_id -1)."""
+    (`switch.NAME`: read by name from its node's `NodeFrame.switches`) or a mix (node -1)."""
 
     node_id: int
     kind: str  # "axis", "button", "switch" or "mix"
@@ -206,10 +206,9 @@ class Mapping:
         """A switch's channel: its node, its place among that node's switches."""
         key = name.strip().lower().removeprefix("switch.")
         switch = next(s for s in self.config.switches if s.name == key)  # config checked
-        index = [s.name for s in self.config.switches if s.node_id == switch.node_id].index(key)
         shown = switch.initial if switch.failsafe is None else switch.failsafe
         fallback = position_value(shown, switch.positions)
-        return ChannelSource(switch.node_id, "switch", index, False, name, fallback)
+        return ChannelSource(switch.node_id, "switch", -1, False, f"switch.{key}", fallback)
 
     def action_triggers(
         self, actions: Sequence[ActionConfig]

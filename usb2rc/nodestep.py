@@ -44,7 +44,9 @@ class NodeFrame:
     # the status a live node asks for (the session decides: docs/ICD.md, "Status priority")
     handover: HandoverConfig | None = None  # a handover button is down: `&`, and where to
     low_battery: bool = False  # a device's battery is low: `%`
-    switches: tuple[int, ...] = ()  # the node's switches' int16 values (controls.switches)
+    # the node's switches: (name, int16 value), by name (outputs built before a reload
+    # read them by name, usb2rc.controls.switches)
+    switches: tuple[tuple[str, int], ...] = ()
 
 
 @dataclass(frozen=True)

@@ -164,14 +164,13 @@ class SwitchBank:
     def _applied(self, view: NodeView) -> NodeView:
         frame = view.frame
         own = [p for p in self._plans if p.config.node_id == frame.node_id]
-        values = tuple(
-            position_value(self.shown(p, frame.failsafe), p.config.positions) for p in own
-        )
+        values = [position_value(self.shown(p, frame.failsafe), p.config.positions) for p in own]
         overrides = [(p.slot, v) for p, v in zip(own, values, strict=True) if p.slot is not None]
         overrides += self._cut_overrides(frame, overrides)
         if not values and not overrides:
             return view
-        frame = with_overrides(replace(frame, switches=values), tuple(overrides))
+        named = tuple((p.config.name, v) for p, v in zip(own, values, strict=True))
+        frame = with_overrides(replace(frame, switches=named), tuple(overrides))
         return replace(view, frame=frame, overrides=tuple(overrides))
 
     def _cut_overrides(

@@ -122,13 +122,15 @@ def int16_value(source: ChannelSource) -> Int16Value:
     if source.kind == "mix":
         return _mix_value(source.mix)
     if source.kind == "switch":
-        fallback = source.fallback
+        fallback, name = source.fallback, source.name.removeprefix("switch.")
 
         def switch(nodes: Nodes) -> tuple[int, bool]:
             frame = nodes.get(node_id)
-            if frame is None or index >= len(frame.switches):
-                return fallback, True
-            return frame.switches[index], frame.failsafe
+            if frame is not None:
+                for key, value in frame.switches:
+                    if key == name:
+                        return value, frame.failsafe
+            return fallback, True  # no such node, or a reload removed the switch
 
         return switch
     if source.kind == "button":
