@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import select
+import signal
 import time
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,7 @@ from daemon_harness import (
     of_type,
     run_daemon,
     timed_recording,
+    wait_until,
 )
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -148,4 +150,63 @@ def test_a_px4_mode_by_name(tmp_path: Path, replay_dir: Path) -> None:
     finally:
         daemon.stop()
         vehicle.close()
+        line.close()
+
+
+SWITCHES = """
+switches:
+  gear: {{toggle: node0.button3, failsafe: 0}}
+  mode: {{steps: [node0.button4, node0.button5], positions: 3}}
+outputs:
+  - protocol: sumd
+    port: {pty}
+    rate_hz: {rate}
+    channels: [node0.x, switch.gear, switch.mode]
+"""
+LOW, MID, HIGH = (sumd.axis_to_sumd(v) for v in (-32768, 0, 32767))
+
+
+def switch_values(frames: list[Any]) -> list[tuple[bool, int, int]]:
+    """(failsafe, gear, mode) of each SUMD frame, runs of the same collapsed."""
+    runs: list[tuple[bool, int, int]] = []
+    for frame in frames:
+        now = (frame.failsafe, frame.channels[1], frame.channels[2])
+        if not runs or runs[-1] != now:
+            runs.append(now)
+    return runs
+
+
+def test_switches_on_sumd_flip_step_failsafe_and_survive_a_replug_and_a_reload(
+    tmp_path: Path, replay_dir: Path
+) -> None:
+    """One press flips the toggle (and only once), two presses step the 3-position switch
+    to the top; an unplug sends the failsafe values (gear's failsafe 0, mode held); the
+    replugged stick and a SIGHUP reload find both where the pilot left them."""
+    line = PtyLine("sumd")
+    config = tmp_path / "switches.yaml"
+    config.write_text(SWITCHES.format(pty=line.path, rate=100))
+    stick = replay_dir / "a-stick.hid"
+    install(stick, presses((0.5, 0.7, 3), (1.0, 1.2, 5), (1.5, 1.7, 5), until=2.0))
+    daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(config))
+    try:
+        line.wait_for(lambda fs: (False, HIGH, HIGH) in switch_values(fs))
+        assert switch_values(line.frames())[-3:] == [
+            (False, HIGH, LOW),
+            (False, HIGH, MID),
+            (False, HIGH, HIGH),
+        ]  # the toggle flipped once; the steps went up one a press
+        assert (False, LOW, LOW) in switch_values(line.frames())  # it started low
+        os.unlink(stick)
+        line.wait_for(lambda fs: switch_values(fs)[-1] == (True, LOW, HIGH))
+        install(stick, presses(until=0.5))  # replugged, at rest, no presses
+        line.wait_for(lambda fs: switch_values(fs)[-1] == (False, HIGH, HIGH))
+        config.write_text(SWITCHES.format(pty=line.path, rate=100) + "defaults: true\n")
+        reloaded_at = len(daemon.log())
+        daemon.signal(signal.SIGHUP)
+        wait_until(lambda: "reloaded" in daemon.log()[reloaded_at:], "the reload")
+        seen = len(line.frames())
+        line.wait_for(lambda fs: len(fs) > seen + 20)
+        assert set(switch_values(line.frames()[seen:])) == {(False, HIGH, HIGH)}
+    finally:
+        daemon.stop()
         line.close()
