@@ -143,3 +143,18 @@ outputs:
     assert (arm.kind, arm.hold) == ("arm", 1.0)
     assert (mode.switch, mode.position, mode.mode, mode.hold) == ("mode", 2, "LOITER", 0.0)
     assert (servo.command, servo.params) == (183, (9.0, 1500.0))
+
+
+def test_the_stats_line_shows_the_actions_and_the_last_result() -> None:
+    from usb2rc.outputs.mavlink import stats_record
+    from usb2rc.stats_text import output_line
+
+    vehicle = Vehicle(*COPTER)
+    line = session(ActionConfig("mode", BUTTON, mode="LOITER"))
+    line.received(vehicle.heartbeat())
+    run(line, [(0.0, values(True))])
+    line.received(vehicle.ack(mavlink2.MAV_CMD_DO_SET_MODE, mavlink2.MAV_RESULT_DENIED))
+    record = {"name": "output 1", "url": "udpout:x", **stats_record(line)}
+    text = output_line(record)
+    assert "actions: fired 1, commands sent 1, acked 1, unanswered 0, refused 0" in text
+    assert text.endswith("last: node0.button2: mode LOITER: MAV_RESULT_DENIED")
