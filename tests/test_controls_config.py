@@ -123,3 +123,17 @@ def test_init_writes_a_commented_switch_and_action_that_check_takes() -> None:
     config = load_config_text("\n".join(uncommented), "init.yaml")
     assert [s.name for s in config.switches] == ["gear", "mode"]
     assert [a.kind for a in config.outputs[1].option("actions")] == ["arm", "mode"]
+
+
+def test_a_switch_button_or_slot_the_pinned_entry_does_not_allow() -> None:
+    text = (
+        "switches:\n  lights: {toggle: node0.button9, slot: x}\n"
+        "devices:\n  - name: box\n    match: {vid: 0x1234}\n    node_id: 0\n"
+        "    axes: {x: {usage: X}}\n    buttons: {1: 1, 2: 2}\n"
+    )
+    with pytest.raises(ConfigError) as refused:
+        load_config_text(text, "c.yaml")
+    assert [str(p) for p in refused.value.problems] == [
+        "c.yaml:2: switches.lights: node0.button9: no device feeds button 9 of node 0",
+        "c.yaml:2: switches.lights.slot: slot x of node 0 is fed by 'box' too",
+    ]

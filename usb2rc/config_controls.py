@@ -13,6 +13,7 @@ from typing import Any
 
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
+from usb2rc.config_checks import channel_problem
 from usb2rc.config_model import CHANNEL_ALLOWED, ChannelRef, Config
 from usb2rc.controls.model import (
     MAX_POSITIONS,
@@ -355,6 +356,10 @@ def check_controls(reader: NodeReader, config: Config) -> None:
                     f"{switch.positions} weights",
                 )
             )
+    for where, ref in _node_refs(config):
+        problem = channel_problem(config, ref)
+        if problem:
+            reader.report(where.problem(problem))
     for switch in config.switches:
         if switch.slot is not None and switch.where is not None:
             fed = [
@@ -404,6 +409,21 @@ def _switch_uses(config: Config) -> Iterator[tuple[Where, str, int | None]]:
                 yield action.where or fallback, action.switch, -1 - action.position
     for cut in config.throttle_cuts:
         yield cut.where or fallback, cut.switch, None
+
+
+def _node_refs(config: Config) -> Iterator[tuple[Where, ChannelRef]]:
+    """The node buttons and axes the switches, cuts and actions read (the pinned entries
+    must feed them, as a channel's)."""
+    fallback = Where(config.source, 0, "")
+    for switch in config.switches:
+        for ref in (*switch.buttons, *((switch.reset,) if switch.reset else ())):
+            yield switch.where or fallback, ref
+    for cut in config.throttle_cuts:
+        yield cut.where or fallback, cut.channel
+    for output in config.outputs:
+        for action in output.option("actions") if output.protocol == "mavlink" else ():
+            if action.button is not None:
+                yield action.where or fallback, action.button
 
 
 def switch_name(ref: ChannelRef) -> str:
