@@ -56,13 +56,15 @@ class _Plan:
     masks: tuple[Groups, ...]
     reset: Groups | None
     slot: int | None
+    values: tuple[int, ...]  # each position's int16 value
 
     @classmethod
     def of(cls, switch: SwitchConfig) -> _Plan:
         masks = tuple(button_groups(ref.index) for ref in switch.buttons)
         reset = button_groups(switch.reset.index) if switch.reset else None
         slot = AXIS_NAMES.index(switch.slot) if switch.slot else None
-        return cls(switch, masks, reset, slot)
+        values = tuple(position_value(p, switch.positions) for p in range(switch.positions))
+        return cls(switch, masks, reset, slot, values)
 
     def step(self, position: int, presses: Sequence[Groups], held: Groups) -> int:
         """The position after this step's presses (in order) and what is held now."""
@@ -95,6 +97,7 @@ class SwitchBank:
 
     def __init__(self) -> None:
         self._plans: tuple[_Plan, ...] = ()
+        self._by_node: dict[int, list[_Plan]] = {}  # the plans of each node, in config order
         self._cuts: tuple[ThrottleCut, ...] = ()
         self.positions: dict[str, int] = {}
         self.cut_on: dict[str, bool] = {}  # by the cut channel's name
@@ -104,6 +107,9 @@ class SwitchBank:
         """The config's switches (start and reload): positions kept by name, within the new
         `positions`; a new switch starts at `initial`."""
         self._plans = tuple(_Plan.of(s) for s in switches)
+        self._by_node = {}
+        for plan in self._plans:
+            self._by_node.setdefault(plan.config.node_id, []).append(plan)
         self._cuts = tuple(cuts)
         kept = {}
         for switch in switches:
@@ -130,10 +136,9 @@ class SwitchBank:
         for view in views:
             presses = self._presses(view.devices, seen)
             held = (view.frame.group1, view.frame.group2)
-            for plan in self._plans:
-                if plan.config.node_id == view.frame.node_id:
-                    name = plan.config.name
-                    self.positions[name] = plan.step(self.positions[name], presses, held)
+            for plan in self._by_node.get(view.frame.node_id, ()):
+                name = plan.config.name
+                self.positions[name] = plan.step(self.positions[name], presses, held)
         self._seen = seen
         return tuple(self._applied(view) for view in views)
 
@@ -146,11 +151,14 @@ class SwitchBank:
             seen[device.device_id] = record.press_serial if device.known else before
             if not device.live:
                 continue  # presses while not live are consumed, never applied later
-            idle = device.binding.apply(InputState(record.state.values, 0))
-            for serial, mask in record.presses:
-                if serial > before:
-                    pressed = device.binding.apply(InputState(record.state.values, mask))
-                    presses.append((pressed.group1 & ~idle.group1, pressed.group2 & ~idle.group2))
+            new = [mask for serial, mask in record.presses if serial > before]
+            if not new:
+                continue  # the common step: no binding applied
+            values = record.state.values
+            idle = device.binding.apply(InputState(values, 0))  # hats: not presses
+            for mask in new:
+                pressed = device.binding.apply(InputState(values, mask))
+                presses.append((pressed.group1 & ~idle.group1, pressed.group2 & ~idle.group2))
         return presses
 
     def shown(self, plan: _Plan, failsafe: bool) -> int:
@@ -163,14 +171,23 @@ class SwitchBank:
 
     def _applied(self, view: NodeView) -> NodeView:
         frame = view.frame
-        own = [p for p in self._plans if p.config.node_id == frame.node_id]
-        values = [position_value(self.shown(p, frame.failsafe), p.config.positions) for p in own]
-        overrides = [(p.slot, v) for p, v in zip(own, values, strict=True) if p.slot is not None]
+        named, overrides = [], []
+        for plan in self._by_node.get(frame.node_id, ()):
+            value = plan.values[self.shown(plan, frame.failsafe)]
+            named.append((plan.config.name, value))
+            if plan.slot is not None:
+                overrides.append((plan.slot, value))
         overrides += self._cut_overrides(frame, overrides)
-        if not values and not overrides:
+        if not named and not overrides:
             return view
-        named = tuple((p.config.name, v) for p, v in zip(own, values, strict=True))
-        frame = with_overrides(replace(frame, switches=named), tuple(overrides))
+        axes = frame.axes
+        if overrides:
+            changed = list(axes)
+            for slot, value in overrides:
+                changed[slot] = value
+            axes = tuple(changed)
+        # `replace` (not a new NodeFrame): fields added to the frame later are kept
+        frame = replace(frame, axes=axes, switches=tuple(named))
         return replace(view, frame=frame, overrides=tuple(overrides))
 
     def _cut_overrides(
@@ -193,13 +210,3 @@ class SwitchBank:
             if self.cut_on.get(name):
                 result.append((slot, 0 if unsigned else -32768))
         return result
-
-
-def with_overrides(frame: NodeFrame, overrides: Sequence[tuple[int, int]]) -> NodeFrame:
-    """The frame with these axis slots set (switch slots, throttle cuts)."""
-    if not overrides:
-        return frame
-    axes = list(frame.axes)
-    for slot, value in overrides:
-        axes[slot] = value
-    return replace(frame, axes=tuple(axes))
