@@ -23,6 +23,7 @@ from typing import Any, Protocol
 
 from yaml.nodes import Node
 
+from usb2rc.controls.config_actions import read_actions
 from usb2rc.yamlnodes import NodeReader
 
 
@@ -166,8 +167,6 @@ def _options() -> dict[str, tuple[Any, Any, str]]:
 
 
 def _actions(reader: NodeReader, node: Node, path: str) -> Any:
-    from usb2rc.config_controls import read_actions  # it imports config_model: not at load
-
     return read_actions(reader, node, path)
 
 

@@ -1,4 +1,5 @@
-"""What a loaded config is: plain frozen dataclasses, and SUMD channel references.
+"""What a loaded config is: plain frozen dataclasses (channel references: channel_ref.py;
+the controls': controls/model.py).
 
 config.py reads YAML into these (its siblings config_devices.py and config_checks.py read
 the device entries and cross-check them); mapping.py compiles them. `usb2rc.config`
@@ -7,19 +8,15 @@ re-exports every public name here, so code imports them from there.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any
 
+from usb2rc.channel_ref import CHANNEL_ALLOWED as CHANNEL_ALLOWED  # re-exported
+from usb2rc.channel_ref import ChannelRef as ChannelRef
+from usb2rc.controls.model import MixRef, SwitchConfig, ThrottleCut
 from usb2rc.hid.usages import GDC_BATTERY_STRENGTH
 from usb2rc.outputs import PROTOCOLS as OUTPUT_PROTOCOLS
-from usb2rc.protocol.c2_16b import AXIS_NAMES as AXIS_SLOTS
-from usb2rc.protocol.c2_16b import MAX_NODE_ID as NODE_ID_MAX
-from usb2rc.protocol.c2_16b import NODE_BUTTONS
 from usb2rc.yamlnodes import Where
-
-if TYPE_CHECKING:  # usb2rc.controls.model imports this module
-    from usb2rc.controls.model import MixRef, SwitchConfig, ThrottleCut
 
 MAX_HID_BUTTON = 65535
 HAT_DIRECTIONS = ("up", "up-right", "right", "down-right", "down", "down-left", "left", "up-left")
@@ -28,52 +25,6 @@ DEFAULT_RATE_HZ = {name: entry.default_rate_hz for name, entry in OUTPUT_PROTOCO
 DEFAULT_BAUDRATE = 115200
 SUMD_MIN_CHANNELS, SUMD_MAX_CHANNELS = 2, 32
 SUMD_DEFAULT_SLOTS = ("x", "y", "z", "rz", "slider", "rx", "ry", "dial")
-
-CHANNEL_ALLOWED = "nodeN.x, .y, .z, .slider, .rx, .ry, .rz, .dial, .aux1, .aux2, nodeN.buttonK"
-_CHANNEL_RE = re.compile(r"^node(\d+)\.(?:(button)(\d+)|([a-z0-9]+))$")
-_SWITCH_RE = re.compile(r"^switch\.([a-z_][a-z0-9_]*)$")
-
-
-@dataclass(frozen=True)
-class ChannelRef:
-    """One SUMD channel as configured: a node's axis slot (index 0..9) or button (1..56),
-    or a switch (`switch.gear`: node_id and index -1, resolved by `Mapping.sumd_channels`).
-
-    Parsed from its name (`node1.x`, `node1.button5`) once, when the config is read;
-    nothing parses a channel name after that.
-    """
-
-    node_id: int
-    kind: Literal["axis", "button", "switch"]
-    index: int  # axis: slot index into AXIS_SLOTS; button: node button 1..56
-    name: str  # as written in the config, for `check`, `icd` and messages
-
-    @property
-    def slot(self) -> str:
-        """The axis slot name ("x", "rz", ...); only for kind "axis"."""
-        return AXIS_SLOTS[self.index]
-
-    @classmethod
-    def axis(cls, node_id: int, slot: str) -> ChannelRef:
-        return cls(node_id, "axis", AXIS_SLOTS.index(slot), f"node{node_id}.{slot}")
-
-    @classmethod
-    def parse(cls, name: str) -> ChannelRef | None:
-        """`node1.x` -> axis x of node 1; `node1.button5` -> button 5 of node 1;
-        `switch.gear` -> the switch gear; else None."""
-        if _SWITCH_RE.match(name.strip().lower()):
-            return cls(-1, "switch", -1, name)
-        m = _CHANNEL_RE.match(name.strip().lower())
-        if m is None:
-            return None
-        node_id = int(m.group(1))
-        if node_id > NODE_ID_MAX:
-            return None
-        if m.group(2):
-            button = int(m.group(3))
-            return cls(node_id, "button", button, name) if 1 <= button <= NODE_BUTTONS else None
-        slot = m.group(4)
-        return cls(node_id, "axis", AXIS_SLOTS.index(slot), name) if slot in AXIS_SLOTS else None
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-from usb2rc.config_model import ChannelRef
+from usb2rc.channel_ref import ChannelRef
 from usb2rc.yamlnodes import Where
 
 SWITCH_KINDS = ("toggle", "latch", "steps", "hat_switch")
