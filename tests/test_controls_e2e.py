@@ -101,14 +101,15 @@ outputs:
 def test_actions_arm_with_hold_mode_by_name_once_and_nothing_in_failsafe(
     tmp_path: Path, replay_dir: Path
 ) -> None:
-    """ArduPilot Copter: arm after button 2 was held 1 s; LOITER once though button 6 is
+    """ArduPilot Copter (buttons pressed from 1.5 s on, once the stick is live even on a
+    loaded machine): arm after button 2 was held 1 s; LOITER once though button 6 is
     held 2 s; then node 1 (a channel of the output) unplugs, and button 7 (rtl), pressed
     while it is in failsafe, sends nothing."""
     vehicle, line = Vehicle(*ARDUCOPTER), PtyLine("sumd")
     config = tmp_path / "actions.yaml"
     config.write_text(ACTIONS.format(url=vehicle.url, pty=line.path, mode="LOITER"))
     install(
-        replay_dir / "a-stick.hid", presses((1.0, 2.6, 2), (3.0, 5.0, 6), (7.0, 7.6, 7), until=9.0)
+        replay_dir / "a-stick.hid", presses((1.5, 3.1, 2), (3.5, 5.5, 6), (8.0, 8.6, 7), until=10.0)
     )
     install(replay_dir / "b-pedals.hid", presses(until=0.1))  # node 1, at rest
     daemon = run_daemon(tmp_path, vehicle.url, replay_dir, "--config", str(config))
@@ -186,7 +187,7 @@ def test_switches_on_sumd_flip_step_failsafe_and_survive_a_replug_and_a_reload(
     config = tmp_path / "switches.yaml"
     config.write_text(SWITCHES.format(pty=line.path, rate=100))
     stick = replay_dir / "a-stick.hid"
-    install(stick, presses((0.5, 0.7, 3), (1.0, 1.2, 5), (1.5, 1.7, 5), until=2.0))
+    install(stick, presses((1.5, 1.7, 3), (2.0, 2.2, 5), (2.5, 2.7, 5), until=3.0))
     daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(config))
     try:
         line.wait_for(lambda fs: (False, HIGH, HIGH) in switch_values(fs))
