@@ -140,11 +140,11 @@ def run(seconds: float, rounds: int) -> dict[str, Any]:
 
 def line_cost(calls: int) -> dict[str, float]:
     """µs per status line and per json.dumps of it (median, max), on the demo recordings."""
-    from usb2rc.config import Config
+    from usb2rc.config.load import Config
     from usb2rc.daemon import Daemon
     from usb2rc.examples import data_dir
     from usb2rc.hid.replay import ReplayBackend
-    from usb2rc.status_socket import StatusSource
+    from usb2rc.service.status_socket import StatusSource
 
     logging.getLogger("usb2rc").setLevel(logging.ERROR)  # the plugs' lines: not figures
     backend = ReplayBackend(str(data_dir("demo")), loop=True)

@@ -83,7 +83,7 @@ devices:
         "c.yaml:3: outputs[0].rate: unknown key 'rate'; did you mean 'rate_hz'? (allowed: "
         "protocol, port, baudrate, rate_hz, channels, line_feed, service_status, extended, "
         "follow_module, address, message, system_id, component_id, target_system, "
-        "target_component, allow, signing_key_file)",
+        "target_component, allow, signing_key_file, actions)",
         "c.yaml:7: devices[0].axes.x.expo: 1.5 is out of range (allowed: 0.0..1.0)",
         "c.yaml:7: devices[0].axes.y.invert: expected true or false, got 'yes please' "
         "(allowed: true, false)",

@@ -29,9 +29,9 @@ from daemon_harness import (
     wait_until,
 )
 
-from usb2rc.config_model import HandoverConfig
-from usb2rc.nodestep import NodeFrame, NodeView
-from usb2rc.status_socket import (
+from usb2rc.config.model import HandoverConfig
+from usb2rc.nodes.step import NodeFrame, NodeView
+from usb2rc.service.status_socket import (
     SocketInUseError,
     StatusServer,
     default_path,

@@ -28,10 +28,11 @@ from usb2rc.config.load import (
 )
 from usb2rc.config.mavlink import MANUAL_AXES, RC_CHANNELS_OVERRIDE, MavlinkOptions
 from usb2rc.config.udp_url import is_udp_url
+from usb2rc.controls import describe
 from usb2rc.hid.usages import GD_JOYSTICK
 from usb2rc.nodes.binding import shaping_text, usage_label
 from usb2rc.nodes.guard import DEFAULT_TOLERANCE, default_arm, normalize_arm
-from usb2rc.nodes.mapping import Mapping, compile_mapping
+from usb2rc.nodes.mapping import ChannelSource, Mapping, compile_mapping
 from usb2rc.nodes.scaling import node_button_bit
 from usb2rc.outputs import protocol
 
@@ -161,7 +162,7 @@ def rc11_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
             wire = "flag off / on" if digital else "172 / 1811 (988 / 2012 µs)"
             rows.append([i, source.name, "button", wire])
         else:
-            kind = "axis, unsigned" if source.unsigned else "axis, signed"
+            kind = axis_kind(source)
             wire = "flag on above 992" if digital else "172..1811, centre 992 (988..2012 µs)"
             rows.append([i, source.name, kind, wire])
     if len(sources) < 16:
@@ -176,9 +177,37 @@ def sumd_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
         if source.kind == "button":
             rows.append([i, source.name, "button", "1100 / 1900"])
         else:
-            kind = "axis, unsigned" if source.unsigned else "axis, signed"
+            kind = axis_kind(source)
             rows.append([i, source.name, kind, f"{lo}..{hi}"])
     return rows
+
+
+def axis_kind(source: ChannelSource) -> str:
+    """An axis-like channel's kind: a switch, a mix (usb2rc.controls), a signed or unsigned axis."""
+    if source.kind in ("switch", "mix"):
+        return source.kind
+    return "axis, unsigned" if source.unsigned else "axis, signed"
+
+
+def controls_section(config: Config, fmt: str) -> list[str]:
+    """Switches, throttle cuts, mixes and MAVLink actions (docs/CONFIG.md, "Switches")."""
+    if not (
+        config.switches
+        or config.throttle_cuts
+        or describe.mix_rows(config)
+        or describe.action_rows(config)
+    ):
+        return []
+    lines = heading("Switches, mixes and actions", 2, fmt)
+    if config.switches:
+        rows = [describe.switch_row(s) for s in config.switches]
+        lines += table(list(describe.SWITCH_KEYS), rows, fmt)
+    lines += [*describe.cut_lines(config), ""] if config.throttle_cuts else []
+    if mixes := describe.mix_rows(config):
+        lines += table(list(describe.MIX_KEYS), mixes, fmt)
+    if actions := describe.action_rows(config):
+        lines += table(list(describe.ACTION_KEYS), actions, fmt)
+    return lines
 
 
 def mavlink_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
@@ -361,7 +390,7 @@ def document(config: Config, fmt: str) -> list[str]:
             lines += heading(f"{entry.title} output {i + 1} ({output.port or '--port'})", 2, fmt)
             lines += [entry.note, ""]
             lines += table(["channel", "source", "kind", "wire"], scaled_rows(mapping, output), fmt)
-    return lines
+    return lines + controls_section(config, fmt)
 
 
 def scaled_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
@@ -377,7 +406,7 @@ def scaled_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
         if source.kind == "button":
             rows.append([i, source.name, "button", button])
         else:
-            kind = "axis, unsigned" if source.unsigned else "axis, signed"
+            kind = axis_kind(source)
             rows.append([i, source.name, kind, axis])
     assert entry.channels is not None  # a channel output: its row says how many
     most = entry.channels[1]
@@ -440,6 +469,10 @@ def run(args: argparse.Namespace) -> int:
 #                 "hats": [{"switch", "bit", "direction", "device", "hat"}]}],
 #      "devices_without_entry": "default layout, automatic node" | "ignored",
 #      "sumd": [{"output", "port", "channels": [{"channel", "source", "kind", "us"}]}],
+#      "switches": [{"switch", "kind", "buttons", "positions", "int16", "initial",
+#                    "failsafe", "slot"}], "throttle_cuts": [{"switch", "channel"}],
+#      "mixes": [{"output", "channel", "lines"}],
+#      "actions": [{"output", "trigger", "do", "hold_s"}],
 #      "replay": [...]}                                   # with --replay DIR only
 
 AXIS_KEYS = ("slot", "device", "source", "kind", "range", "failsafe", "shaping")
@@ -487,6 +520,7 @@ def json_document(config: Config) -> dict[str, Any]:
             for i, out in enumerate(config.outputs)
             if out.protocol == "sumd"
         ],
+        **describe.controls_record(config),
     }
 
 

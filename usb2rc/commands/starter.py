@@ -194,6 +194,34 @@ def output_lines(port: str | None) -> list[str]:
     ]
 
 
+# A switch and a MAVLink action, commented out (docs/CONFIG.md, "Switches", "MAVLink
+# actions"): each line's first "# " removed gives keys `check` takes (tests hold it).
+SWITCHES_EXAMPLE = (
+    "switches:",
+    _line("  gear: {toggle: node0.button3}", "each press flips: low / high"),
+    "  mode: {steps: [node0.button4, node0.button5], positions: 3, failsafe: 0}",
+)
+ACTIONS_EXAMPLE = (
+    "- protocol: mavlink",
+    "  port: udpout:127.0.0.1:14550",
+    "  actions:",
+    _line("    - {button: node0.button2, do: arm}", "held 1 s"),
+    "    - {switch: mode, position: 2, do: {mode: RTL}}",
+)
+
+
+def switches_example() -> list[str]:
+    return ['# Switches (docs/CONFIG.md, "Switches"): uncomment to use'] + [
+        f"# {line}" for line in SWITCHES_EXAMPLE
+    ]
+
+
+def actions_example() -> list[str]:
+    return ['  # MAVLink button actions (docs/CONFIG.md, "MAVLink actions"): uncomment to use'] + [
+        f"  # {line}" for line in ACTIONS_EXAMPLE
+    ]
+
+
 def starter_config(
     devices: Sequence[PluggedDevice], port: str | None, skipped: Sequence[SkippedDevice] = ()
 ) -> str:
@@ -204,8 +232,11 @@ def starter_config(
         "# `usb2rc check --config FILE`. Every key is in docs/CONFIG.md.",
         "",
         *output_lines(port),
+        *actions_example(),
         "",
         _line("defaults: true", "devices not listed: default layout, automatic Node-ID"),
+        "",
+        *switches_example(),
         "",
         "devices:" if devices else "devices: []",
     ]

@@ -92,14 +92,19 @@ def check_channels(reader: NodeReader, config: Config) -> None:
     for output in config.outputs:
         if output.channels is None:
             continue
-        for ref, where in zip(output.channels, output.channel_wheres, strict=False):
-            problem = channel_problem(config, ref)
-            if problem:
-                reader.report(where.problem(problem))
+        for channel, where in zip(output.channels, output.channel_wheres, strict=False):
+            refs = [i.source for i in channel.inputs] if channel.kind == "mix" else [channel]
+            for ref in refs:
+                problem = channel_problem(config, ref)
+                if problem:
+                    reader.report(where.problem(problem))
 
 
 def channel_problem(config: Config, ref: ChannelRef) -> str | None:
-    """Why a SUMD channel cannot be fed, or None. Bad names never become a ChannelRef."""
+    """Why a SUMD channel cannot be fed, or None. Bad names never become a ChannelRef.
+    Switches and mixes are config_controls' to check."""
+    if ref.kind not in ("axis", "button"):
+        return None
     node_id, name = ref.node_id, ref.name
     pinned = [d for d in config.devices if d.node_id == node_id]
     if not pinned:

@@ -31,7 +31,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from yaml.nodes import Node, SequenceNode
+from yaml.nodes import MappingNode, Node, SequenceNode
 
 from usb2rc.config.checks import (
     channel_problem,
@@ -40,6 +40,7 @@ from usb2rc.config.checks import (
     device_claims,
     port_problems,
 )
+from usb2rc.config.controls import check_controls, read_mix, read_switches, read_throttle_cuts
 from usb2rc.config.devices import read_devices
 from usb2rc.config.model import (
     CHANNEL_ALLOWED,
@@ -74,6 +75,7 @@ from usb2rc.config.yamlnodes import (
     decode,
     reject_recording,
 )
+from usb2rc.controls.model import MixRef
 from usb2rc.outputs import OutputProtocol, option_keys
 from usb2rc.outputs import protocol as output_protocol
 
@@ -107,7 +109,7 @@ __all__ = [
     "load_runnable",
 ]
 
-TOP_KEYS = ("outputs", "devices", "defaults")
+TOP_KEYS = ("outputs", "devices", "defaults", "switches", "throttle_cut")
 COMMON_OUTPUT_KEYS = ("protocol", "port", "baudrate", "rate_hz")
 OUTPUT_KEYS = (*COMMON_OUTPUT_KEYS, "channels", *option_keys())
 _CONFIG_FIELDS = {f.name for f in dataclasses.fields(OutputConfig)}
@@ -165,6 +167,7 @@ def load_config_text(text: str, source: str = "<config>") -> Config:
         check_clashes(reader, config)
         check_channels(reader, config)
         check_handovers(reader, config)
+        check_controls(reader, config)
     if reader.problems:
         raise ConfigError(sorted(reader.problems, key=lambda p: p.line or 0))
     assert config is not None
@@ -184,7 +187,9 @@ def _read_config(reader: NodeReader, root: Node) -> Config | None:
     defaults = True
     if "defaults" in items:
         defaults = reader.boolean(items["defaults"][1], "defaults") is not False
-    return Config(outputs=outputs, devices=devices, defaults=defaults, source=reader.source)
+    switches = read_switches(reader, items["switches"][1]) if "switches" in items else ()
+    cuts = read_throttle_cuts(reader, items["throttle_cut"][1]) if "throttle_cut" in items else ()
+    return Config(outputs, devices, defaults, reader.source, switches, cuts)
 
 
 def _entries_within_limit(reader: NodeReader, node: Node) -> bool:
@@ -285,7 +290,7 @@ def _read_port(reader: NodeReader, node: Node, path: str) -> str | None:
 
 def _read_channels(
     reader: NodeReader, node: Node, path: str, output: OutputProtocol, counted: bool = True
-) -> tuple[tuple[ChannelRef, ...], tuple[Where, ...]] | None:
+) -> tuple[tuple[ChannelRef | MixRef, ...], tuple[Where, ...]] | None:
     """The channel references (parsed here, once) and where each is; bad names reported."""
     entries = reader.sequence(node, path)
     if entries is None:
@@ -294,15 +299,22 @@ def _read_channels(
     low, high = output.channels
     if counted and not low <= len(entries) <= high:
         reader.error(node, path, f"{len(entries)} channels", f"{low}..{high}")
-    refs: list[ChannelRef] = []
+    refs: list[ChannelRef | MixRef] = []
     wheres: list[Where] = []
     for i, entry in enumerate(entries):
+        if isinstance(entry, MappingNode):  # {mix: [...]} (usb2rc.config.controls)
+            mix = read_mix(reader, entry, f"{path}[{i}]")
+            if mix is not None:
+                refs.append(mix)
+                wheres.append(reader.where(entry, f"{path}[{i}]"))
+            continue
         name = reader.string(entry, f"{path}[{i}]")
         if name is None:
             continue
         ref = ChannelRef.parse(name)
         if ref is None:
-            reader.error(entry, f"{path}[{i}]", f"bad channel {name!r}", CHANNEL_ALLOWED)
+            allowed = f"{CHANNEL_ALLOWED}, switch.NAME, {{mix: [...]}}"
+            reader.error(entry, f"{path}[{i}]", f"bad channel {name!r}", allowed)
             continue
         refs.append(ref)
         wheres.append(reader.where(entry, f"{path}[{i}]"))

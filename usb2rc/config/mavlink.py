@@ -24,6 +24,7 @@ from typing import Any, Protocol
 from yaml.nodes import Node
 
 from usb2rc.config.yamlnodes import NodeReader
+from usb2rc.controls.config_actions import read_actions
 
 
 class _Configured(Protocol):  # config_model.OutputConfig (which imports the registry)
@@ -160,7 +161,13 @@ def _options() -> dict[str, tuple[Any, Any, str]]:
     key_doc = "MAVLink 2 signing: a file (mode 600) whose first line is the passphrase"
     options["allow"] = (_allow, MavlinkOptions.allow, allow_doc)
     options["signing_key_file"] = (_key_file, MavlinkOptions.signing_key_file, key_doc)
+    actions_doc = "buttons and switches that arm, disarm, change mode ... (docs/CONFIG.md)"
+    options["actions"] = (_actions, (), actions_doc)
     return options
+
+
+def _actions(reader: NodeReader, node: Node, path: str) -> Any:
+    return read_actions(reader, node, path)
 
 
 def baud_needed(message: str, rate_hz: float, signed: bool = False) -> int:

@@ -1,4 +1,5 @@
-"""What a loaded config is: plain frozen dataclasses, and SUMD channel references.
+"""What a loaded config is: plain frozen dataclasses (channel references: channel_ref.py;
+the controls': controls/model.py).
 
 config.py reads YAML into these (its siblings config_devices.py and config_checks.py read
 the device entries and cross-check them); mapping.py compiles them. `usb2rc.config.load`
@@ -7,12 +8,13 @@ re-exports every public name here, so code imports them from there.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
-from usb2rc.config.layout import AXIS_NAMES, MAX_NODE_ID, NODE_BUTTONS
+from usb2rc.config.channel_ref import CHANNEL_ALLOWED as CHANNEL_ALLOWED  # re-exported
+from usb2rc.config.channel_ref import ChannelRef as ChannelRef
 from usb2rc.config.yamlnodes import Where
+from usb2rc.controls.model import MixRef, SwitchConfig, ThrottleCut
 from usb2rc.hid.usages import GDC_BATTERY_STRENGTH
 from usb2rc.outputs import PROTOCOLS as OUTPUT_PROTOCOLS
 
@@ -24,49 +26,7 @@ DEFAULT_BAUDRATE = 115200
 SUMD_MIN_CHANNELS, SUMD_MAX_CHANNELS = 2, 32
 SUMD_DEFAULT_SLOTS = ("x", "y", "z", "rz", "slider", "rx", "ry", "dial")
 
-CHANNEL_ALLOWED = "nodeN.x, .y, .z, .slider, .rx, .ry, .rz, .dial, .aux1, .aux2, nodeN.buttonK"
-_CHANNEL_RE = re.compile(r"^node(\d+)\.(?:(button)(\d+)|([a-z0-9]+))$")
-
-
 ARM_CHOICES = ("centre", "center", "low", "high", "any")  # an axis's `arm:` (docs/CONFIG.md)
-
-
-@dataclass(frozen=True)
-class ChannelRef:
-    """One SUMD channel as configured: a node's axis slot (index 0..9) or button (1..56).
-
-    Parsed from its name (`node1.x`, `node1.button5`) once, when the config is read;
-    nothing parses a channel name after that.
-    """
-
-    node_id: int
-    kind: Literal["axis", "button"]
-    index: int  # axis: slot index into AXIS_NAMES; button: node button 1..56
-    name: str  # as written in the config, for `check`, `icd` and messages
-
-    @property
-    def slot(self) -> str:
-        """The axis slot name ("x", "rz", ...); only for kind "axis"."""
-        return AXIS_NAMES[self.index]
-
-    @classmethod
-    def axis(cls, node_id: int, slot: str) -> ChannelRef:
-        return cls(node_id, "axis", AXIS_NAMES.index(slot), f"node{node_id}.{slot}")
-
-    @classmethod
-    def parse(cls, name: str) -> ChannelRef | None:
-        """`node1.x` -> axis x of node 1; `node1.button5` -> button 5 of node 1; else None."""
-        m = _CHANNEL_RE.match(name.strip().lower())
-        if m is None:
-            return None
-        node_id = int(m.group(1))
-        if node_id > MAX_NODE_ID:
-            return None
-        if m.group(2):
-            button = int(m.group(3))
-            return cls(node_id, "button", button, name) if 1 <= button <= NODE_BUTTONS else None
-        slot = m.group(4)
-        return cls(node_id, "axis", AXIS_NAMES.index(slot), name) if slot in AXIS_NAMES else None
 
 
 @dataclass(frozen=True)
@@ -195,7 +155,7 @@ class OutputConfig:
     rate_hz: float = 50
     line_feed: bool = True
     service_status: str = "ascii"
-    channels: tuple[ChannelRef, ...] | None = None  # SUMD; None: the default channel list
+    channels: tuple[ChannelRef | MixRef, ...] | None = None  # None: the default channel list
     extended: bool = False  # SUMD: axes onto 900-2100 µs instead of 1100-1900 µs
     where: Where | None = None
     channel_wheres: tuple[Where, ...] = field(default=(), compare=False)  # one per channel
@@ -210,13 +170,13 @@ class OutputConfig:
         return OUTPUT_PROTOCOLS[self.protocol].options[name].default
 
     def __post_init__(self) -> None:
-        given: tuple[ChannelRef | str, ...] | None = self.channels
+        given: tuple[ChannelRef | MixRef | str, ...] | None = self.channels
         if given is not None:
             object.__setattr__(self, "channels", tuple(_channel_ref(c) for c in given))
 
 
-def _channel_ref(channel: ChannelRef | str) -> ChannelRef:
-    if isinstance(channel, ChannelRef):
+def _channel_ref(channel: ChannelRef | MixRef | str) -> ChannelRef | MixRef:
+    if not isinstance(channel, str):
         return channel
     ref = ChannelRef.parse(channel)
     if ref is None:
@@ -230,6 +190,8 @@ class Config:
     devices: tuple[DeviceConfig, ...] = ()
     defaults: bool = True
     source: str = "<default>"
+    switches: tuple[SwitchConfig, ...] = ()  # usb2rc.controls (docs/CONFIG.md, "Switches")
+    throttle_cuts: tuple[ThrottleCut, ...] = ()
 
     @classmethod
     def default(cls) -> Config:

@@ -463,6 +463,8 @@ class DeviceLifecycle(Worker):
             moving = {key: b for key, b in bindings.items() if self._moves(key, b)}
             staying = {key: b for key, b in bindings.items() if key not in moving}
             self.table.rebind(lambda info: staying.get(info.key), event.expected)
+            config = event.mapping.config  # switches keep their positions (by name)
+            self.table.set_controls(config.switches, config.throttle_cuts)
             self.mapping = event.mapping
             for key, binding in moving.items():
                 self._move(key, binding)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import fnmatch
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from usb2rc.config.layout import AXIS_NAMES
@@ -25,6 +25,8 @@ from usb2rc.config.load import (
     MatchConfig,
     OutputConfig,
 )
+from usb2rc.controls.curves import position_value
+from usb2rc.controls.model import ActionConfig, Curve, MixInput, MixRef
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.nodes.binding import (
@@ -42,13 +44,27 @@ from usb2rc.nodes.known_devices import KnownDevice, lookup
 
 @dataclass(frozen=True)
 class ChannelSource:
-    """One SUMD channel: a node's axis slot (index 0..9) or node button (1..56)."""
+    """One SUMD channel: a node's axis slot (index 0..9) or node button (1..56), a switch
+    (`switch.NAME`: read by name from its node's `NodeFrame.switches`) or a mix (node -1)."""
 
     node_id: int
-    kind: str  # "axis" or "button"
+    kind: str  # "axis", "button", "switch" or "mix"
     index: int
     unsigned: bool = False
     name: str = ""
+    fallback: int = 0  # a switch: its int16 value while its node does not exist
+    mix: tuple[MixLine, ...] = ()
+
+
+@dataclass(frozen=True)
+class MixLine:
+    """One line of a mix, its source and its rates' switch resolved (usb2rc.controls)."""
+
+    source: ChannelSource
+    weight: float
+    offset: float
+    curve: Curve | None
+    rates: tuple[ChannelSource, tuple[float, ...]] | None = None
 
 
 # --------------------------------------------------------------------------- Mapping
@@ -173,13 +189,48 @@ class Mapping:
             refs = tuple(ChannelRef.axis(node, slot) for slot in SUMD_DEFAULT_SLOTS)
         return [self._channel(ref) for ref in refs]
 
-    def _channel(self, ref: ChannelRef) -> ChannelSource:
+    def _channel(self, ref: ChannelRef | MixRef) -> ChannelSource:
+        if isinstance(ref, MixRef):
+            lines = tuple(self._mix_line(line) for line in ref.inputs)
+            return ChannelSource(-1, "mix", -1, False, ref.name, mix=lines)
+        if ref.kind == "switch":
+            return self._switch(ref.name)
         if ref.kind == "button":
             return ChannelSource(ref.node_id, "button", ref.index, False, ref.name)
         unsigned = any(
             e.unsigned_slots >> ref.index & 1 for e in self.entries if e.node_id == ref.node_id
         )
         return ChannelSource(ref.node_id, "axis", ref.index, unsigned, ref.name)
+
+    def _switch(self, name: str) -> ChannelSource:
+        """A switch's channel: its node, its place among that node's switches."""
+        key = name.strip().lower().removeprefix("switch.")
+        switch = next(s for s in self.config.switches if s.name == key)  # config checked
+        shown = switch.initial if switch.failsafe is None else switch.failsafe
+        fallback = position_value(shown, switch.positions)
+        return ChannelSource(switch.node_id, "switch", -1, False, f"switch.{key}", fallback)
+
+    def action_triggers(
+        self, actions: Sequence[ActionConfig]
+    ) -> list[tuple[ChannelSource, int | None]]:
+        """Each MAVLink action's trigger: its node button (None: active while down), or its
+        switch and the int16 value of its position (usb2rc.controls.actions)."""
+        triggers: list[tuple[ChannelSource, int | None]] = []
+        for action in actions:
+            if action.button is not None:
+                triggers.append((self._channel(action.button), None))
+                continue
+            assert action.switch is not None
+            switch = next(s for s in self.config.switches if s.name == action.switch)
+            value = position_value(action.position, switch.positions)
+            triggers.append((self._switch(action.switch), value))
+        return triggers
+
+    def _mix_line(self, line: MixInput) -> MixLine:
+        rates = None
+        if line.rates is not None:
+            rates = (self._switch(line.rates.switch), line.rates.weights)
+        return MixLine(self._channel(line.source), line.weight, line.offset, line.curve, rates)
 
 
 def compile_mapping(config: Config) -> Mapping:
@@ -191,5 +242,6 @@ __all__ = [
     "ChannelSource",
     "CompiledEntry",
     "Mapping",
+    "MixLine",
     "compile_mapping",
 ]

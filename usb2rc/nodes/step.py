@@ -44,6 +44,9 @@ class NodeFrame:
     # the status a live node asks for (the session decides: docs/ICD.md, "Status priority")
     handover: HandoverConfig | None = None  # a handover button is down: `&`, and where to
     low_battery: bool = False  # a device's battery is low: `%`
+    # the node's switches: (name, int16 value), by name (outputs built before a reload
+    # read them by name, usb2rc.controls.switches)
+    switches: tuple[tuple[str, int], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -78,6 +81,7 @@ class NodeView:
     base_axes: tuple[int, ...] = ()  # the expected entries' failsafe axes under the devices'
     base_unsigned: int = 0
     waiting_for: tuple[str, ...] = ()  # why it is `!` (`monitor`, stats)
+    overrides: tuple[tuple[int, int], ...] = ()  # (slot, value): switch slots, throttle cuts
 
 
 @dataclass(frozen=True)
@@ -87,6 +91,7 @@ class TableSnapshot:
     period: int = -1
     at: float = 0.0  # the clock's time of the step
     nodes: tuple[NodeView, ...] = ()
+    switches: tuple[tuple[str, int], ...] = ()  # every switch's position, by name
 
     @property
     def frames(self) -> list[NodeFrame]:
@@ -164,7 +169,13 @@ class TapLatch:
         if not tapped:
             return node.frame
         frame = node.frame
-        return compose(frame.node_id, frame.failsafe, node.base_axes, node.base_unsigned, inputs)
+        latched = compose(frame.node_id, frame.failsafe, node.base_axes, node.base_unsigned, inputs)
+        if not node.overrides and not frame.switches:
+            return latched
+        axes = list(latched.axes)
+        for slot, value in node.overrides:  # the step's switches and cuts win over the taps
+            axes[slot] = value
+        return replace(latched, axes=tuple(axes), switches=frame.switches)
 
 
 class NodeClock(Worker):

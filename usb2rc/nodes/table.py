@@ -17,12 +17,14 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Protocol
 
 from usb2rc.config.layout import AXIS_COUNT, AXIS_NAMES
+from usb2rc.controls.model import SwitchConfig, ThrottleCut
+from usb2rc.controls.switches import SwitchBank
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.nodes.binding import DeviceBinding, NodeInputs
@@ -318,6 +320,7 @@ class NodeTable:
         self._outbox: list[list[ServiceEvent] | None] = []  # None: frames only (SUMD)
         self._latches: list[TapLatch | None] = []  # per subscriber (None: no taps shown)
         self._trims = TrimStore()
+        self._switches = SwitchBank()  # switches and throttle cuts (usb2rc.controls)
         self._stopping = False
         # The step (docs/DESIGN.md, "Node state: one step per period"): the latest snapshot,
         # and what it was made from: the period, the devices' layout, the readers' records.
@@ -420,7 +423,9 @@ class NodeTable:
             change = None if self._stopping else node.failsafe_change(view.frame.failsafe)
             if change:
                 changes.append(change)
-        self._snapshot = TableSnapshot(period, now, tuple(views))
+        stepped = self._switches.step(views)
+        positions = tuple(sorted(self._switches.positions.items()))
+        self._snapshot = TableSnapshot(period, now, stepped, positions)
         self._resting = _resting(nodes, now)
         return changes
 
@@ -643,6 +648,13 @@ class NodeTable:
                 }
                 for nid, node in sorted(self._nodes.items())
             }
+
+    def set_controls(self, switches: Sequence[SwitchConfig], cuts: Sequence[ThrottleCut]) -> None:
+        """The config's switches and throttle cuts (at start and on a reload): positions
+        are kept by switch name (usb2rc.controls.switches)."""
+        with self._lock:
+            self._switches.configure(switches, cuts)
+            self._layout += 1
 
     def rebind(self, rebind_one: Any, expected: Expected) -> None:
         """After a config reload: give every attached device its new binding (same node)."""

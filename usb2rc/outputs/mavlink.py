@@ -45,6 +45,8 @@ from usb2rc.config.mavlink import (
     RC_CHANNELS_OVERRIDE,
     MavlinkOptions,
 )
+from usb2rc.controls.actions import ActionRunner
+from usb2rc.controls.model import ActionConfig
 from usb2rc.nodes.mapping import ChannelSource
 from usb2rc.nodes.scaling import (
     MANUAL_MAX,
@@ -58,6 +60,7 @@ from usb2rc.nodes.scaling import (
     node_button_bit,
 )
 from usb2rc.nodes.table import NodeFrame
+from usb2rc.protocols.channels import int16_value
 from usb2rc.protocols.mavlink.codec import MavlinkDecoder, set_up_signing, signing_timestamp
 from usb2rc.session import Delivered
 
@@ -70,6 +73,7 @@ RELEASE_S = 1.0  # how long the release is repeated (datagrams get lost) before 
 Nodes = Mapping[int, NodeFrame]
 Channel = ChannelRef | ChannelSource
 Reading = Callable[[Nodes], tuple[int | bool, bool]]  # -> (int16 axis or pressed, failsafe)
+Trigger = tuple[ChannelSource, int | None]  # an action's button (None) or switch and its value
 
 
 def channel_reading(source: Channel) -> Reading:
@@ -78,6 +82,8 @@ def channel_reading(source: Channel) -> Reading:
     button as pressed or not; and whether its node is failsafe (or absent: centre /
     released, failsafe). Never raises on a tick."""
     node_id, index = source.node_id, source.index
+    if isinstance(source, ChannelSource) and source.kind in ("switch", "mix"):
+        return int16_value(source)  # usb2rc.controls: an int16, as an axis
     if source.kind == "button":
         group, bit = node_button_bit(index)
 
@@ -127,23 +133,48 @@ class ControlValues:
     channels: tuple[int, ...] = ()
     axes: tuple[int, int, int, int] = (0, 0, 0, 0)
     buttons: int = 0
+    # MAVLink actions (usb2rc.controls.actions): each action's trigger active in this frame,
+    # and whether a trigger's node is in failsafe
+    triggers: tuple[bool, ...] = ()
+    triggers_failsafe: bool = False
 
 
 class MavlinkChannels:
     """One MAVLink output's channels: `evaluate(frames)` once a tick."""
 
-    def __init__(self, sources: Iterable[Channel], message: str = RC_CHANNELS_OVERRIDE) -> None:
+    def __init__(
+        self,
+        sources: Iterable[Channel],
+        message: str = RC_CHANNELS_OVERRIDE,
+        triggers: Sequence[Trigger] = (),
+    ) -> None:
         if message not in MESSAGES:
             raise ValueError(f"unknown MAVLink message {message!r}")
         self.sources = tuple(sources)
         self.message = message
         self.readings = tuple(channel_reading(source) for source in self.sources)
+        self.triggers = tuple((int16_value(source), target) for source, target in triggers)
 
     def __len__(self) -> int:
         return len(self.readings)
 
     def evaluate(self, frames: Iterable[NodeFrame]) -> ControlValues:
         nodes = {frame.node_id: frame for frame in frames}
+        if self.triggers:
+            return replace(self._values(nodes), **self._triggers(nodes))
+        return self._values(nodes)
+
+    def _triggers(self, nodes: Nodes) -> dict[str, Any]:
+        """Each action's trigger (usb2rc.controls.actions): a button down (target None), or
+        a switch at its position's value."""
+        active, failsafe = [], False
+        for value, target in self.triggers:
+            int16, node_failsafe = value(nodes)
+            active.append(int16 > 0 if target is None else int16 == target)
+            failsafe = failsafe or node_failsafe
+        return {"triggers": tuple(active), "triggers_failsafe": failsafe}
+
+    def _values(self, nodes: Nodes) -> ControlValues:
         values: list[int | bool] = []
         failsafe = False
         for reading in self.readings:
@@ -182,7 +213,11 @@ class MavlinkSession:
     key (`config_mavlink.read_signing_key`), `wall_time`: the wall clock at the start."""
 
     def __init__(
-        self, settings: MavlinkOptions, key: bytes | None = None, wall_time: float = 0.0
+        self,
+        settings: MavlinkOptions,
+        key: bytes | None = None,
+        wall_time: float = 0.0,
+        actions: Sequence[ActionConfig] = (),
     ) -> None:
         self.settings = settings
         self.signed = key is not None
@@ -204,6 +239,9 @@ class MavlinkSession:
         self._pending: deque[int] = deque()
         self._stopping = False  # usb2rc stops: every tick is a failsafe one
         self._stop_ticked = False
+        # --- MAVLink actions (usb2rc.controls.actions): the runner, fed in tick/received
+        target = (settings.target_system, settings.target_component)
+        self.actions = ActionRunner(actions, self.mav, target) if actions else None
 
     def stopping(self) -> None:
         """usb2rc stops (docs/ICD.md, "Stop"): from the next tick on, the values count as
@@ -258,6 +296,10 @@ class MavlinkSession:
         control = self._control(now, values)
         if control is not None:
             messages.append(self._pack(control))
+        if self.actions is not None:  # --- MAVLink actions: after the control message
+            failsafe = values.failsafe or values.triggers_failsafe
+            commands = self.actions.tick(now, values.triggers, failsafe)
+            messages += [self._pack(command) for command in commands]
         self._pending.extend(len(m) for m in messages)
         return messages
 
@@ -324,6 +366,8 @@ class MavlinkSession:
             return
         far = self.far_end
         for message in far.decoder.feed(data):
+            if self.actions is not None:  # --- MAVLink actions: the vehicle, its acks
+                self.actions.received(message)
             if message.get_type() == "HEARTBEAT":
                 far.heartbeats += 1
                 far.last_heartbeat_from = (message.get_srcSystem(), message.get_srcComponent())
@@ -365,6 +409,8 @@ def stats_record(session: MavlinkSession) -> dict[str, Any]:
     record["far_end_skipped"] = far.decoder.bytes_skipped
     if session.signed:
         record["far_end_bad_signatures"] = far.decoder.bad_signatures
+    if session.actions is not None:
+        record.update(session.actions.record())
     return record
 
 

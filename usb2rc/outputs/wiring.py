@@ -169,7 +169,9 @@ def build_mavlink(ctx: OutputContext) -> BuiltOutput:
     out = ctx.config
     assert out.port
     options = MavlinkOptions.of(out)
-    channels = mavlink.MavlinkChannels(ctx.mapping.sumd_channels(out), options.message)
+    actions = out.option("actions")  # usb2rc.controls.actions
+    triggers = ctx.mapping.action_triggers(actions)
+    channels = mavlink.MavlinkChannels(ctx.mapping.sumd_channels(out), options.message, triggers)
     key = read_signing_key(options.signing_key_file) if options.signing_key_file else None
     link: SerialLink | UdpLink
     if is_udp_url(out.port):
@@ -183,7 +185,7 @@ def build_mavlink(ctx: OutputContext) -> BuiltOutput:
         link,
         ctx.table,
         channels,
-        mavlink.MavlinkSession(options, key, time.time()),
+        mavlink.MavlinkSession(options, key, time.time(), actions),
         out.rate_hz,
         ctx.on_tick,
         ctx.on_first_write,

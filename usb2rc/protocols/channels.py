@@ -11,6 +11,10 @@ from the NodeTable's frames, through the protocol's `WireScale`:
   `binding.unsigned_slots`), not from a guess about the config; a uint16 is shifted to int16,
   then `scale.axis` (an int16 onto the protocol's wire values);
 - a button: `scale.button(pressed)`;
+- a switch (`switch.<name>`): its int16 value on its node's frame (`NodeFrame.switches`,
+  usb2rc.controls.switches), then `scale.axis`: its positions spread over the range;
+- a mix: each line's source as -1..1, `weight × rate × curve(x) + offset` summed and
+  clamped (usb2rc.controls.curves), then `scale.axis`: never out of range;
 - a node that does not exist: the centre / released, and the channel is in failsafe; a frame
   is failsafe when any channel it reads is.
 
@@ -23,7 +27,8 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from usb2rc.config.load import ChannelRef
-from usb2rc.nodes.mapping import ChannelSource
+from usb2rc.controls.curves import clamp, mix_line, normalised, position_value, to_int16
+from usb2rc.nodes.mapping import ChannelSource, MixLine
 from usb2rc.nodes.scaling import axis_to_rc11, button_to_rc11, node_button_bit
 from usb2rc.nodes.table import NodeFrame
 from usb2rc.protocols.ibus.codec import axis_to_ibus, button_to_ibus
@@ -78,6 +83,9 @@ def channel_value(source: Channel, scale: WireScale) -> ChannelValue:
     Whether an axis is unsigned comes from the frame (the bindings feeding it); a node that
     does not exist sends the centre / released, in failsafe."""
     node_id, index = source.node_id, source.index
+    if isinstance(source, ChannelSource) and source.kind in ("switch", "mix"):
+        int16 = int16_value(source)
+        return lambda nodes: _scaled(int16(nodes), scale)
     if source.kind == "button":
         released = scale.button(False)
 
@@ -98,6 +106,84 @@ def channel_value(source: Channel, scale: WireScale) -> ChannelValue:
         return _axis_wire(frame.axes[index], unsigned, scale), frame.failsafe
 
     return axis
+
+
+Int16Value = Callable[[Nodes], tuple[int, bool]]  # the nodes' frames -> (int16, failsafe)
+
+
+def _scaled(value: tuple[int, bool], scale: WireScale) -> tuple[int, bool]:
+    return scale.axis(value[0]), value[1]
+
+
+def int16_value(source: ChannelSource) -> Int16Value:
+    """A channel as an int16 (an axis's value, a button low / high, a switch's position, a
+    mix), and whether its node is in failsafe (or absent): what a mix adds up."""
+    node_id, index = source.node_id, source.index
+    if source.kind == "mix":
+        return _mix_value(source.mix)
+    if source.kind == "switch":
+        fallback, name = source.fallback, source.name.removeprefix("switch.")
+
+        def switch(nodes: Nodes) -> tuple[int, bool]:
+            frame = nodes.get(node_id)
+            if frame is not None:
+                for key, value in frame.switches:
+                    if key == name:
+                        return value, frame.failsafe
+            return fallback, True  # no such node, or a reload removed the switch
+
+        return switch
+    if source.kind == "button":
+        group, bit = node_button_bit(index)
+
+        def button(nodes: Nodes) -> tuple[int, bool]:
+            frame = nodes.get(node_id)
+            if frame is None:
+                return -32768, True
+            pressed = ((frame.group1, frame.group2)[group] >> bit) & 1
+            return (32767 if pressed else -32768), frame.failsafe
+
+        return button
+
+    def axis(nodes: Nodes) -> tuple[int, bool]:
+        frame = nodes.get(node_id)
+        if frame is None:
+            return 0, True
+        value = frame.axes[index]
+        if frame.unsigned_slots >> index & 1:
+            value -= 32768
+        return min(32767, max(-32768, value)), frame.failsafe
+
+    return axis
+
+
+def _mix_value(lines: Sequence[MixLine]) -> Int16Value:
+    """docs/CONFIG.md "Mixes and curves": y = clamp(Σ weight·rate·curve(x) + offset)."""
+    compiled = [
+        (int16_value(line.source), line, None if line.rates is None else int16_value(line.rates[0]))
+        for line in lines
+    ]
+
+    def mix(nodes: Nodes) -> tuple[int, bool]:
+        total, failsafe = 0.0, False
+        for value, line, rate_switch in compiled:
+            raw, line_failsafe = value(nodes)
+            weight = line.weight * _rate(line, rate_switch, nodes)
+            total += mix_line(normalised(raw), weight, line.offset, line.curve)
+            failsafe = failsafe or line_failsafe
+        return to_int16(clamp(total)), failsafe
+
+    return mix
+
+
+def _rate(line: MixLine, switch: Int16Value | None, nodes: Nodes) -> float:
+    """The rates' weight at the switch's position (1 without rates)."""
+    if line.rates is None or switch is None:
+        return 1.0
+    weights = line.rates[1]
+    value, _ = switch(nodes)
+    position = min(range(len(weights)), key=lambda k: abs(position_value(k, len(weights)) - value))
+    return weights[position]
 
 
 class OutputChannels:

@@ -30,13 +30,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from usb2rc.commands.check import judge, problem_record
-from usb2rc.config import Config
+from usb2rc.config.layout import AXIS_NAMES
+from usb2rc.config.load import Config
 from usb2rc.hid.backend import DeviceInfo
-from usb2rc.nodestep import NodeView, TableSnapshot
-from usb2rc.protocol.c2_16b import AXIS_NAMES
-from usb2rc.receiver import NodeView as ReceivedNode
-from usb2rc.state import EventKind, NodeTable, ServiceEvent
-from usb2rc.worker import Worker
+from usb2rc.nodes.step import NodeView, TableSnapshot
+from usb2rc.nodes.table import EventKind, NodeTable, ServiceEvent
+from usb2rc.protocols.c2_16b.receiver import NodeView as ReceivedNode
+from usb2rc.service.worker import Worker
 
 log = logging.getLogger("usb2rc.status")
 

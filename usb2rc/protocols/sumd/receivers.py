@@ -88,7 +88,7 @@ def _unpinned(
     return [
         w.problem(_unpinned_text(c.node_id, c.name))
         for c, w in zip(channels, output.channel_wheres, strict=False)
-        if c.node_id not in pinned
+        if c.node_id not in pinned and c.kind != "mix"  # a mix: no node of its own
     ]
 
 

@@ -1,0 +1,74 @@
+"""docs/CONFIG.md's controls examples ("Switches", "Mixes and curves", "Throttle cut",
+"MAVLink actions") load as written, and mean what the text says."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from usb2rc.config.layout import AXIS_NAMES
+from usb2rc.config.load import Config, load_config_text
+from usb2rc.controls.curves import position_value, to_int16
+from usb2rc.controls.model import MixRef
+from usb2rc.nodes.mapping import compile_mapping
+from usb2rc.nodes.table import NodeFrame
+from usb2rc.protocols.channels import int16_value
+
+CONFIG_MD = Path(__file__).resolve().parent.parent / "docs" / "CONFIG.md"
+SECTIONS = ("Switches", "Mixes and curves", "Throttle cut", "MAVLink actions")
+
+
+def examples(section: str) -> list[str]:
+    text = CONFIG_MD.read_text(encoding="utf-8")
+    body = text.split(f"\n## {section}\n", 1)[1].split("\n## ", 1)[0]
+    return re.findall(r"```yaml\n(.*?)```", body, re.DOTALL)
+
+
+def loaded(section: str) -> Config:
+    (example,) = examples(section)
+    return load_config_text(example, f"CONFIG.md {section}")
+
+
+@pytest.mark.parametrize("section", SECTIONS)
+def test_each_example_loads(section: str) -> None:
+    assert loaded(section).outputs
+
+
+def test_the_switches_example() -> None:
+    config = loaded("Switches")
+    kinds = {s.name: (s.kind, s.positions) for s in config.switches}
+    assert kinds["mode"] == ("steps", 3) and kinds["view"] == ("hat_switch", 4)
+    assert kinds["gear"] == ("toggle", 2) and kinds["horn"] == ("latch", 2)
+    lights = next(s for s in config.switches if s.name == "lights")
+    assert (lights.slot, lights.failsafe) == ("aux1", 0)
+
+
+def frame(node: int, switches: tuple[tuple[str, int], ...] = (), **axes: int) -> NodeFrame:
+    values = [0] * len(AXIS_NAMES)
+    for slot, value in axes.items():
+        values[AXIS_NAMES.index(slot)] = value
+    return NodeFrame(node, False, tuple(values), 0, 0, 0, switches=switches)
+
+
+def test_the_mixes_example_means_what_the_text_says() -> None:
+    config = loaded("Mixes and curves")
+    toe, throttle, aileron, _ = compile_mapping(config).sumd_channels(config.outputs[0])
+    assert isinstance((config.outputs[0].channels or ())[0], MixRef)
+    nodes = {
+        0: frame(0, (("rate", position_value(1, 3)),), x=32767, z=-24575),
+        1: frame(1, rx=32767, ry=-32768),
+    }
+    assert int16_value(toe)(nodes)[0] == to_int16(-1.0)  # left brake full, right released
+    # z at -0.75: halfway between the points -1 and -0.2
+    assert int16_value(throttle)(nodes)[0] == pytest.approx(to_int16(-0.6), abs=2)
+    assert int16_value(aileron)(nodes)[0] == to_int16(0.7)  # full stick at the 70 % rate
+
+
+def test_the_throttle_cut_and_actions_examples() -> None:
+    (cut,) = loaded("Throttle cut").throttle_cuts
+    assert (cut.switch, cut.channel.name) == ("cut", "node0.z")
+    actions = loaded("MAVLink actions").outputs[0].option("actions")
+    assert [a.kind for a in actions] == ["arm", "disarm", "mode", "rtl", "land", "command_long"]
+    assert [a.hold for a in actions] == [1.0, 1.0, 0.0, 0.0, 0.0, 0.0]
