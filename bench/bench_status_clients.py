@@ -144,7 +144,7 @@ def line_cost(calls: int) -> dict[str, float]:
     from usb2rc.daemon import Daemon
     from usb2rc.examples import data_dir
     from usb2rc.hid.replay import ReplayBackend
-    from usb2rc.service.status_socket import StatusSource
+    from usb2rc.status_socket import StatusSource
 
     logging.getLogger("usb2rc").setLevel(logging.ERROR)  # the plugs' lines: not figures
     backend = ReplayBackend(str(data_dir("demo")), loop=True)

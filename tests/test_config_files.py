@@ -22,7 +22,7 @@ from daemon_harness import ROOT
 from usb2rc.commands.calibrate import write_results
 from usb2rc.config.calibration import AxisResult, AxisTarget
 from usb2rc.config.model import Calibration
-from usb2rc.service.textfile import DanglingLink, write_atomically
+from usb2rc.runtime.textfile import DanglingLink, write_atomically
 
 SERVICE_GID = 65534  # nogroup: a group root is not in, as usb2rc on a Pi
 CONFIG = """\
@@ -95,7 +95,7 @@ def test_a_dangling_symlink_is_refused_naming_link_and_target(tmp_path: Path) ->
 def test_a_file_this_user_cannot_give_back_is_not_replaced() -> None:
     """Not root and not its owner: a copy would change hands, so nothing is written."""
     code = (
-        "import os, sys; from usb2rc.service.textfile import write_atomically; "
+        "import os, sys; from usb2rc.runtime.textfile import write_atomically; "
         "os.setgid(65534); os.setuid(65534); write_atomically(sys.argv[1], 'x')"
     )
     with tempfile.TemporaryDirectory(dir="/tmp") as scratch:  # reachable by uid 65534

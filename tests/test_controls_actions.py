@@ -1,4 +1,4 @@
-"""MAVLink button actions (usb2rc.controls.actions, in usb2rc.outputs.mavlink.MavlinkSession;
+"""MAVLink button actions (usb2rc.protocols.mavlink.actions, in the MAVLink session;
 docs/CONFIG.md "MAVLink actions"): hold, edge, no vehicle, failsafe, retries and acks, and
 mode names for ArduPilot Copter and PX4, decoded with pymavlink."""
 
@@ -9,11 +9,11 @@ from typing import Any
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
+from usb2rc.config.controls_model import ActionConfig
 from usb2rc.config.load import ChannelRef, load_config_text
 from usb2rc.config.mavlink import MavlinkOptions
-from usb2rc.controls.actions import TRIES
-from usb2rc.controls.model import ActionConfig
 from usb2rc.outputs.mavlink import ControlValues, MavlinkSession
+from usb2rc.protocols.mavlink.actions import TRIES
 
 BUTTON = ChannelRef(0, "button", 2, "node0.button2")
 COPTER = (mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, mavlink2.MAV_TYPE_QUADROTOR)
@@ -147,7 +147,7 @@ outputs:
 
 def test_the_stats_line_shows_the_actions_and_the_last_result() -> None:
     from usb2rc.outputs.mavlink import stats_record
-    from usb2rc.service.stats_text import output_line
+    from usb2rc.runtime.stats_text import output_line
 
     vehicle = Vehicle(*COPTER)
     line = session(ActionConfig("mode", BUTTON, mode="LOITER"))

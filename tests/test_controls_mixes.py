@@ -1,4 +1,4 @@
-"""Mixes and curves (usb2rc.controls.curves, usb2rc.protocols.channels; docs/CONFIG.md "Mixes
+"""Mixes and curves (usb2rc.nodes.curves, usb2rc.protocols.channels; docs/CONFIG.md "Mixes
 and curves"): hand-computed tables, rates chosen by a switch, failsafe through a mix, and
 a property: a mix is always within the output's range."""
 
@@ -8,10 +8,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from usb2rc.config.controls_model import Curve, MixInput, MixRef, Rates, SwitchConfig
 from usb2rc.config.layout import AXIS_NAMES
 from usb2rc.config.load import ChannelRef, Config, OutputConfig
-from usb2rc.controls.curves import normalised, points_curve, position_value, to_int16
-from usb2rc.controls.model import Curve, MixInput, MixRef, Rates, SwitchConfig
+from usb2rc.nodes.curves import normalised, points_curve, position_value, to_int16
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import NodeFrame
 from usb2rc.protocols.channels import IBUS_SCALE, RC11_SCALE, int16_value

@@ -1,4 +1,4 @@
-"""Switches and throttle cuts in the node step (usb2rc.controls.switches, docs/CONFIG.md
+"""Switches and throttle cuts in the node step (usb2rc.nodes.switches, docs/CONFIG.md
 "Switches", "Throttle cut"): each kind from the readers' press logs, failsafe values, the
 state kept across a replug and a reload, and the cut that releases only at low throttle."""
 
@@ -8,14 +8,14 @@ from dataclasses import dataclass
 
 from daemon_harness import T16000M_DESCRIPTOR, RecordSource, StickState
 
+from usb2rc.config.controls_model import SwitchConfig, ThrottleCut
 from usb2rc.config.layout import AXIS_NAMES
 from usb2rc.config.load import ChannelRef
-from usb2rc.controls.curves import position_value
-from usb2rc.controls.model import SwitchConfig, ThrottleCut
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.nodes.binding import default_binding
+from usb2rc.nodes.curves import position_value
 from usb2rc.nodes.guard import REST_S
 from usb2rc.nodes.step import BASE_PERIOD_S, TableSnapshot
 from usb2rc.nodes.table import NodeTable

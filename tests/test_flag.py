@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 
-from usb2rc.service.flag import WakeFlag
+from usb2rc.runtime.flag import WakeFlag
 
 
 def test_wait_times_out_while_not_set() -> None:

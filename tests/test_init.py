@@ -184,7 +184,7 @@ def test_buttons_follow_the_default_runs_up_to_the_devices_last(count):
 
 
 def test_a_replaced_file_keeps_its_mode_and_leaves_no_temporary(tmp_path):
-    from usb2rc.service.textfile import write_atomically
+    from usb2rc.runtime.textfile import write_atomically
 
     target = tmp_path / "usb2rc.yaml"
     target.write_text("old\n")

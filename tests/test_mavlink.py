@@ -33,8 +33,8 @@ from usb2rc.outputs.mavlink import (
     MavlinkChannels,
     MavlinkSession,
 )
+from usb2rc.runtime.stats_text import output_line
 from usb2rc.scheduler import MavlinkOutput
-from usb2rc.service.stats_text import output_line
 from usb2rc.transport import LineEvent, SerialLink
 from usb2rc.transport_udp import UdpLink, parse_udp_url
 

@@ -1,5 +1,5 @@
 """Issue 19 point 12, through the real daemon: a device-chosen name with ESC/BEL is escaped
-in the daemon's log (usb2rc/service/log_escape.py), and a large replayed recording is streamed
+in the daemon's log (usb2rc/runtime/log_escape.py), and a large replayed recording is streamed
 from its file, not held (usb2rc/hid/replay.py): the daemon's peak RSS replaying a 20 MB
 recording stays within the file's size of the RSS replaying a small one."""
 
@@ -87,7 +87,7 @@ def test_a_20_mb_recording_is_streamed_not_held(tmp_path: Path) -> None:
 def test_the_filter_escapes_values_and_messages_but_keeps_the_messages_own_layout() -> None:
     import logging
 
-    from usb2rc.service.log_escape import EscapeFilter
+    from usb2rc.runtime.log_escape import EscapeFilter
 
     def formatted(msg: str, *args: Any) -> str:
         record = logging.LogRecord("t", logging.INFO, __file__, 1, msg, args or None, None)

@@ -30,7 +30,7 @@ from daemon_harness import (
 
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.sumd import codec as sumd
-from usb2rc.service import stats_text
+from usb2rc.runtime import stats_text
 
 STATES = [StickState(), StickState(x=0, buttons=1), StickState(x=16383, hat=4)]
 GARBAGE = b"\x00noise\xff\x7e" * 3  # no 'H' in it: every byte is skipped

@@ -31,7 +31,7 @@ from daemon_harness import (
 
 from usb2rc.config.model import HandoverConfig
 from usb2rc.nodes.step import NodeFrame, NodeView
-from usb2rc.service.status_socket import (
+from usb2rc.status_socket import (
     SocketInUseError,
     StatusServer,
     default_path,

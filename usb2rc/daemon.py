@@ -34,10 +34,10 @@ from usb2rc.nodes.step import NodeClock
 from usb2rc.nodes.table import Expected, ExpectedEntry, NodeTable
 from usb2rc.outputs import protocol
 from usb2rc.outputs.wiring import OutputContext
+from usb2rc.runtime import stats_text
+from usb2rc.runtime.worker import Worker
 from usb2rc.scheduler import C2Output, ReplyRx, RxThread, TickThread
-from usb2rc.service import stats_text
-from usb2rc.service.status_socket import StatusServer, StatusSource, check_record
-from usb2rc.service.worker import Worker
+from usb2rc.status_socket import StatusServer, StatusSource
 from usb2rc.transport import SerialLink
 from usb2rc.transport_udp import UdpLink
 
@@ -136,10 +136,13 @@ class Daemon:
         on_status: Callable[[str], object] | None = None,
         outputs: bool = True,
         status_socket: str | None = None,
+        judge: Callable[[Config], dict[str, Any]] | None = None,
     ) -> None:
         """outputs=False: the input side only (hot-plug, readers, mapping, node table), as
         `usb2rc monitor` runs it; no port is needed or opened. status_socket: the path of
-        the read-only status socket (usb2rc.service.status_socket); None: none."""
+        the read-only status socket (usb2rc.status_socket); None: none. judge: `check`'s
+        verdict on a config as a record, for the status socket (the command that runs the
+        daemon gives it: usb2rc.commands.check.check_record)."""
         self.config = config
         self.backend = backend
         self.version = version
@@ -147,7 +150,9 @@ class Daemon:
         self.output_configs = outputs_with_port(config, port_override) if outputs else ()
         self.mapping: Mapping = compile_mapping(config)
         self.table = NodeTable(expected_nodes(self.mapping))
-        self.table.set_controls(config.switches, config.throttle_cuts)  # usb2rc.controls
+        self.table.set_controls(
+            config.switches, config.throttle_cuts
+        )  # nodes/switches.py
         # the master clock: one node step per base period, whether or not an output reads
         self.node_clock = NodeClock(self.table.step_if_due, time.monotonic)
         self._on_ready = on_ready
@@ -162,6 +167,7 @@ class Daemon:
         self.monitor = HotplugMonitor(backend, self.lifecycle.plugged, self.lifecycle.unplugged)
         self.started_at = 0.0
         self._switch_interval: float | None = None  # the GIL's, to restore on stop()
+        self._judge = judge
         self._checked: tuple[Config, dict[str, Any]] | None = None  # config, its check
         self.status_server = (
             StatusServer(status_socket, StatusSource(self.table, self.stats_record, self.checked))
@@ -332,14 +338,14 @@ class Daemon:
         """`check`'s verdict on the running config, worked out once per config."""
         config = self.config
         if self._checked is None or self._checked[0] is not config:
-            self._checked = (config, check_record(config))
+            self._checked = (config, self._judge(config) if self._judge else {})
         return self._checked[1]
 
     def stats_lines(self) -> list[str]:
         return stats_text.stats_lines(self.stats_record())
 
     def stats_record(self) -> dict[str, Any]:
-        """Every counter, per output and per device (keys: usb2rc.service.stats_text); plain JSON
+        """Every counter, per output and per device (keys: usb2rc.runtime.stats_text); plain JSON
         values, so `run --stats-format json` prints it as it is."""
         now = time.monotonic()
         uptime = max(1e-9, now - self.started_at)

@@ -26,7 +26,7 @@ from usb2rc.nodes.table import NodeTable
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.channels import OutputChannels
 from usb2rc.rc_sessions import CrsfSession
-from usb2rc.service.worker import Worker
+from usb2rc.runtime.worker import Worker
 from usb2rc.session import (  # noqa: F401 - re-exported: their home used to be here
     BITS_PER_BYTE_ON_WIRE,
     C2Session,
@@ -203,7 +203,7 @@ class TickThread(Worker):
 
     def protocol_stats(self) -> dict[str, Any]:
         """What only this protocol counts, for the stats record (`Daemon.stats_record`; the
-        labels of its keys are in `usb2rc.service.stats_text`)."""
+        labels of its keys are in `usb2rc.runtime.stats_text`)."""
         return {}
 
     def note_write(self) -> None:

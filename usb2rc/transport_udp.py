@@ -256,7 +256,7 @@ class UdpLink:
             del self._received[: len(self._received) - KEEP_RECEIVED]
 
     def counters(self) -> dict[str, int | str]:
-        """The link's own counters for the stats record (labels: `usb2rc.service.stats_text`)."""
+        """The link's own counters for the stats record (labels: `usb2rc.runtime.stats_text`)."""
         record: dict[str, int | str] = {
             "datagrams_from_peer": self.datagrams_received,
             "datagrams_from_others": self.datagrams_from_others,

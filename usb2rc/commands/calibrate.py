@@ -42,7 +42,7 @@ from usb2rc.hid.hotplug import initial_devices
 from usb2rc.hid.reader import DeviceReader
 from usb2rc.nodes.binding import MappingError, usage_label
 from usb2rc.nodes.mapping import compile_mapping
-from usb2rc.service.textfile import write_atomically
+from usb2rc.runtime.textfile import write_atomically
 
 REFRESH_S = 0.05  # the view and the samples: 20 Hz
 BAR_WIDTH = 40

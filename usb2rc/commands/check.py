@@ -409,3 +409,15 @@ def json_document(args: argparse.Namespace) -> dict[str, Any]:
         )
         document["ok"] = not any(d.error for d in devices)
     return document
+
+
+def check_record(config: Config) -> dict[str, Any]:
+    """`usb2rc check`'s verdict on the running config: its summary and warnings (it has no
+    errors: a config with errors is refused at start and on a reload)."""
+    verdict = judge(config, None)
+    return {
+        "source": config.source,
+        "ok": not verdict.errors,
+        "summary": verdict.out,
+        "warnings": [problem_record(p, "warning") for p in verdict.warnings],
+    }

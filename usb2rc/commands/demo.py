@@ -27,7 +27,7 @@ from usb2rc.config.load import Config
 from usb2rc.daemon import Daemon
 from usb2rc.hid.replay import ReplayBackend, install_file
 from usb2rc.protocols.c2_16b.receiver import NodeView, ReceiverModel
-from usb2rc.service.worker import Worker
+from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger("usb2rc.demo")
 

@@ -15,6 +15,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from usb2rc.commands import controls_describe as describe
 from usb2rc.commands.arguments import replay_dir
 from usb2rc.commands.check import bind_replay, device_record, load_or_default, output_records
 from usb2rc.config.layout import GROUP1_BUTTONS, HAT1_SHIFT
@@ -28,7 +29,6 @@ from usb2rc.config.load import (
 )
 from usb2rc.config.mavlink import MANUAL_AXES, RC_CHANNELS_OVERRIDE, MavlinkOptions
 from usb2rc.config.udp_url import is_udp_url
-from usb2rc.controls import describe
 from usb2rc.hid.usages import GD_JOYSTICK
 from usb2rc.nodes.binding import shaping_text, usage_label
 from usb2rc.nodes.guard import DEFAULT_TOLERANCE, default_arm, normalize_arm

@@ -27,7 +27,7 @@ from usb2rc.config.load import ConfigError, load_config_text
 from usb2rc.config.port_url import port_argument
 from usb2rc.hid.choose import choose_backend
 from usb2rc.hid.hotplug import initial_devices
-from usb2rc.service.textfile import write_atomically
+from usb2rc.runtime.textfile import write_atomically
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

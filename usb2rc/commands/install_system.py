@@ -38,8 +38,8 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
+from usb2rc.runtime.textfile import DanglingLink, resolved_target
 from usb2rc.service import sandbox as service_sandbox
-from usb2rc.service.textfile import DanglingLink, resolved_target
 
 # The shipped unit's ExecStart= program: what an install into /opt/usb2rc/venv gives.
 TEMPLATE_PROGRAM = "/opt/usb2rc/venv/bin/usb2rc"

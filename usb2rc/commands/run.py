@@ -14,13 +14,15 @@ import time
 from collections import Counter
 from collections.abc import Callable
 
+from usb2rc import status_socket
 from usb2rc.commands.arguments import replay_dir
+from usb2rc.commands.check import check_record
 from usb2rc.config.load import Config, ConfigError, load_config, load_runnable
 from usb2rc.config.port_url import port_argument
 from usb2rc.daemon import Daemon, NoPortError, ReloadResult, log_reload
 from usb2rc.hid.backend import Backend
 from usb2rc.hid.choose import choose_backend
-from usb2rc.service import log_escape, status_socket
+from usb2rc.runtime import log_escape
 from usb2rc.service.sdnotify import Notifier
 from usb2rc.service.signals import DaemonSignals, ReloadAbandoned, install_daemon_signals
 
@@ -84,7 +86,7 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
 
 
 def status_socket_path(args: argparse.Namespace) -> str | None:
-    """--status-socket PATH, `off` (None), or the default (usb2rc.service.status_socket)."""
+    """--status-socket PATH, `off` (None), or the default (usb2rc.status_socket)."""
     chosen: str | None = getattr(args, "status_socket", None)
     if chosen == "off":
         return None
@@ -304,6 +306,7 @@ def run(args: argparse.Namespace) -> int:
             on_tick=_WatchdogFeeder(notifier),
             on_status=notifier.status,
             status_socket=status_socket_path(args),
+            judge=check_record,
         )
     except NoPortError as exc:
         print(f"usb2rc: {exc}", file=sys.stderr)

@@ -17,7 +17,7 @@ import ipaddress
 import logging
 import sys
 
-from usb2rc.service import status_socket
+from usb2rc import status_socket
 
 log = logging.getLogger("usb2rc.web")
 

@@ -1,6 +1,6 @@
 """The controls' keys in the config (docs/CONFIG.md, "Switches", "Mixes and curves",
 "Throttle cut", "MAVLink actions"): top-level `switches:` and `throttle_cut:`, a channel item
-`{mix: [...]}`, and a MAVLink output's `actions:`, read into `usb2rc.controls.model`; then
+`{mix: [...]}`, and a MAVLink output's `actions:`, read into `usb2rc.config.controls_model`; then
 `check_controls` cross-checks the names (a switch that does not exist, with a did-you-mean).
 """
 
@@ -13,12 +13,9 @@ from typing import Any
 
 from yaml.nodes import MappingNode, Node, SequenceNode
 
+from usb2rc.config.actions import button_ref
 from usb2rc.config.checks import channel_problem
-from usb2rc.config.layout import AXIS_NAMES
-from usb2rc.config.model import CHANNEL_ALLOWED, ChannelRef, Config
-from usb2rc.config.yamlnodes import NodeReader, Where
-from usb2rc.controls.config_actions import button_ref
-from usb2rc.controls.model import (
+from usb2rc.config.controls_model import (
     MAX_POSITIONS,
     SWITCH_KINDS,
     Curve,
@@ -28,6 +25,9 @@ from usb2rc.controls.model import (
     SwitchConfig,
     ThrottleCut,
 )
+from usb2rc.config.layout import AXIS_NAMES
+from usb2rc.config.model import CHANNEL_ALLOWED, ChannelRef, Config
+from usb2rc.config.yamlnodes import NodeReader, Where
 
 SWITCH_KEYS = (*SWITCH_KINDS, "positions", "initial", "failsafe", "reset", "slot")
 MIX_KEYS = ("source", "weight", "offset", "curve", "rates")

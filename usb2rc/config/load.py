@@ -41,6 +41,7 @@ from usb2rc.config.checks import (
     port_problems,
 )
 from usb2rc.config.controls import check_controls, read_mix, read_switches, read_throttle_cuts
+from usb2rc.config.controls_model import MixRef
 from usb2rc.config.devices import read_devices
 from usb2rc.config.model import (
     CHANNEL_ALLOWED,
@@ -75,7 +76,6 @@ from usb2rc.config.yamlnodes import (
     decode,
     reject_recording,
 )
-from usb2rc.controls.model import MixRef
 from usb2rc.outputs import OutputProtocol, option_keys
 from usb2rc.outputs import protocol as output_protocol
 

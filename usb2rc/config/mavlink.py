@@ -23,8 +23,8 @@ from typing import Any, Protocol
 
 from yaml.nodes import Node
 
+from usb2rc.config.actions import read_actions
 from usb2rc.config.yamlnodes import NodeReader
-from usb2rc.controls.config_actions import read_actions
 
 
 class _Configured(Protocol):  # config_model.OutputConfig (which imports the registry)

@@ -13,8 +13,8 @@ from typing import Any
 
 from usb2rc.config.channel_ref import CHANNEL_ALLOWED as CHANNEL_ALLOWED  # re-exported
 from usb2rc.config.channel_ref import ChannelRef as ChannelRef
+from usb2rc.config.controls_model import MixRef, SwitchConfig, ThrottleCut
 from usb2rc.config.yamlnodes import Where
-from usb2rc.controls.model import MixRef, SwitchConfig, ThrottleCut
 from usb2rc.hid.usages import GDC_BATTERY_STRENGTH
 from usb2rc.outputs import PROTOCOLS as OUTPUT_PROTOCOLS
 
@@ -190,7 +190,7 @@ class Config:
     devices: tuple[DeviceConfig, ...] = ()
     defaults: bool = True
     source: str = "<default>"
-    switches: tuple[SwitchConfig, ...] = ()  # usb2rc.controls (docs/CONFIG.md, "Switches")
+    switches: tuple[SwitchConfig, ...] = ()  # docs/CONFIG.md, "Switches"
     throttle_cuts: tuple[ThrottleCut, ...] = ()
 
     @classmethod

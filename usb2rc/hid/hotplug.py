@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from usb2rc.hid.backend import Backend, DeviceInfo
-from usb2rc.service.worker import Worker
+from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger(__name__)
 

@@ -33,7 +33,7 @@ from typing import Protocol, runtime_checkable
 
 from usb2rc.hid.backend import Device, DeviceGone, ErrorCode
 from usb2rc.hid.descriptor import InputState
-from usb2rc.service.worker import Worker
+from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger(__name__)
 

@@ -39,7 +39,7 @@ from pathlib import Path
 from usb2rc.hid.backend import DeviceGone, DeviceInfo, DeviceOpenError
 from usb2rc.hid.descriptor import top_level_usage
 from usb2rc.hid.recording import RecordedEvent, Recording, RecordingError, open_recording
-from usb2rc.service.flag import WakeFlag
+from usb2rc.runtime.flag import WakeFlag
 
 log = logging.getLogger(__name__)
 

@@ -49,8 +49,8 @@ from usb2rc.nodes.mapping import Mapping
 from usb2rc.nodes.missing import MissingWarnings
 from usb2rc.nodes.node_ids import NodeIdAllocator, NodeIdError
 from usb2rc.nodes.table import Expected, NodeTable
-from usb2rc.service import stats_text
-from usb2rc.service.worker import Worker
+from usb2rc.runtime import stats_text
+from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger("usb2rc")
 

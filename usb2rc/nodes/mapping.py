@@ -16,6 +16,7 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from usb2rc.config.controls_model import ActionConfig, Curve, MixInput, MixRef
 from usb2rc.config.layout import AXIS_NAMES
 from usb2rc.config.load import (
     SUMD_DEFAULT_SLOTS,
@@ -25,8 +26,6 @@ from usb2rc.config.load import (
     MatchConfig,
     OutputConfig,
 )
-from usb2rc.controls.curves import position_value
-from usb2rc.controls.model import ActionConfig, Curve, MixInput, MixRef
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.nodes.binding import (
@@ -39,6 +38,7 @@ from usb2rc.nodes.binding import (
     default_binding,
     unsigned_slots,
 )
+from usb2rc.nodes.curves import position_value
 from usb2rc.nodes.known_devices import KnownDevice, lookup
 
 
@@ -58,7 +58,7 @@ class ChannelSource:
 
 @dataclass(frozen=True)
 class MixLine:
-    """One line of a mix, its source and its rates' switch resolved (usb2rc.controls)."""
+    """One line of a mix: its source, its rates' switch resolved (CONFIG.md "Mixes and curves")."""
 
     source: ChannelSource
     weight: float
@@ -214,7 +214,7 @@ class Mapping:
         self, actions: Sequence[ActionConfig]
     ) -> list[tuple[ChannelSource, int | None]]:
         """Each MAVLink action's trigger: its node button (None: active while down), or its
-        switch and the int16 value of its position (usb2rc.controls.actions)."""
+        switch and the int16 value of its position (usb2rc.protocols.mavlink.actions)."""
         triggers: list[tuple[ChannelSource, int | None]] = []
         for action in actions:
             if action.button is not None:

@@ -28,7 +28,7 @@ from usb2rc.hid.descriptor import InputState
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.nodes.binding import DeviceBinding, NodeInputs
 from usb2rc.nodes.scaling import add_trim
-from usb2rc.service.worker import Worker
+from usb2rc.runtime.worker import Worker
 
 BASE_PERIOD_S = 0.004  # the master clock's period: one node step each
 
@@ -45,7 +45,7 @@ class NodeFrame:
     handover: HandoverConfig | None = None  # a handover button is down: `&`, and where to
     low_battery: bool = False  # a device's battery is low: `%`
     # the node's switches: (name, int16 value), by name (outputs built before a reload
-    # read them by name, usb2rc.controls.switches)
+    # read them by name, usb2rc.nodes.switches)
     switches: tuple[tuple[str, int], ...] = ()
 
 

@@ -22,9 +22,8 @@ from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Protocol
 
+from usb2rc.config.controls_model import SwitchConfig, ThrottleCut
 from usb2rc.config.layout import AXIS_COUNT, AXIS_NAMES
-from usb2rc.controls.model import SwitchConfig, ThrottleCut
-from usb2rc.controls.switches import SwitchBank
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.nodes.binding import DeviceBinding, NodeInputs
@@ -43,6 +42,7 @@ from usb2rc.nodes.step import (
 from usb2rc.nodes.step import (
     NodeFrame as NodeFrame,  # re-exported: the sessions speak in it
 )
+from usb2rc.nodes.switches import SwitchBank
 from usb2rc.nodes.trims import TrimStore
 
 log = logging.getLogger("usb2rc.nodes")
@@ -83,7 +83,7 @@ class MissingEntry:
     where: str
 
     def record(self) -> dict[str, Any]:
-        """For `stats` and the log (usb2rc.service.stats_text.missing_line), and JSON stats."""
+        """For `stats` and the log (usb2rc.runtime.stats_text.missing_line), and JSON stats."""
         return {
             "node_id": self.node_id,
             "entry": self.name,
@@ -320,7 +320,7 @@ class NodeTable:
         self._outbox: list[list[ServiceEvent] | None] = []  # None: frames only (SUMD)
         self._latches: list[TapLatch | None] = []  # per subscriber (None: no taps shown)
         self._trims = TrimStore()
-        self._switches = SwitchBank()  # switches and throttle cuts (usb2rc.controls)
+        self._switches = SwitchBank()  # switches and throttle cuts (nodes/switches.py)
         self._stopping = False
         # The step (docs/DESIGN.md, "Node state: one step per period"): the latest snapshot,
         # and what it was made from: the period, the devices' layout, the readers' records.
@@ -651,7 +651,7 @@ class NodeTable:
 
     def set_controls(self, switches: Sequence[SwitchConfig], cuts: Sequence[ThrottleCut]) -> None:
         """The config's switches and throttle cuts (at start and on a reload): positions
-        are kept by switch name (usb2rc.controls.switches)."""
+        are kept by switch name (usb2rc.nodes.switches)."""
         with self._lock:
             self._switches.configure(switches, cuts)
             self._layout += 1

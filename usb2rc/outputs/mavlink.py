@@ -37,6 +37,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from usb2rc.config.controls_model import ActionConfig
 from usb2rc.config.load import ChannelRef
 from usb2rc.config.mavlink import (
     MANUAL_AXES,
@@ -45,8 +46,6 @@ from usb2rc.config.mavlink import (
     RC_CHANNELS_OVERRIDE,
     MavlinkOptions,
 )
-from usb2rc.controls.actions import ActionRunner
-from usb2rc.controls.model import ActionConfig
 from usb2rc.nodes.mapping import ChannelSource
 from usb2rc.nodes.scaling import (
     MANUAL_MAX,
@@ -61,6 +60,7 @@ from usb2rc.nodes.scaling import (
 )
 from usb2rc.nodes.table import NodeFrame
 from usb2rc.protocols.channels import int16_value
+from usb2rc.protocols.mavlink.actions import ActionRunner
 from usb2rc.protocols.mavlink.codec import MavlinkDecoder, set_up_signing, signing_timestamp
 from usb2rc.session import Delivered
 
@@ -83,7 +83,7 @@ def channel_reading(source: Channel) -> Reading:
     released, failsafe). Never raises on a tick."""
     node_id, index = source.node_id, source.index
     if isinstance(source, ChannelSource) and source.kind in ("switch", "mix"):
-        return int16_value(source)  # usb2rc.controls: an int16, as an axis
+        return int16_value(source)  # a switch or mix (nodes/curves.py): an int16, as an axis
     if source.kind == "button":
         group, bit = node_button_bit(index)
 
@@ -133,7 +133,7 @@ class ControlValues:
     channels: tuple[int, ...] = ()
     axes: tuple[int, int, int, int] = (0, 0, 0, 0)
     buttons: int = 0
-    # MAVLink actions (usb2rc.controls.actions): each action's trigger active in this frame,
+    # MAVLink actions (protocols/mavlink/actions.py): each trigger active in this frame,
     # and whether a trigger's node is in failsafe
     triggers: tuple[bool, ...] = ()
     triggers_failsafe: bool = False
@@ -165,7 +165,7 @@ class MavlinkChannels:
         return self._values(nodes)
 
     def _triggers(self, nodes: Nodes) -> dict[str, Any]:
-        """Each action's trigger (usb2rc.controls.actions): a button down (target None), or
+        """Each action's trigger (usb2rc.protocols.mavlink.actions): a button down (target None), or
         a switch at its position's value."""
         active, failsafe = [], False
         for value, target in self.triggers:
@@ -239,7 +239,7 @@ class MavlinkSession:
         self._pending: deque[int] = deque()
         self._stopping = False  # usb2rc stops: every tick is a failsafe one
         self._stop_ticked = False
-        # --- MAVLink actions (usb2rc.controls.actions): the runner, fed in tick/received
+        # --- MAVLink actions (usb2rc.protocols.mavlink.actions): the runner, fed in tick/received
         target = (settings.target_system, settings.target_component)
         self.actions = ActionRunner(actions, self.mav, target) if actions else None
 
@@ -393,7 +393,7 @@ class VehicleCall:
 
 
 def stats_record(session: MavlinkSession) -> dict[str, Any]:
-    """The output's MAVLink counters, for the stats record (labels: `usb2rc.service.stats_text`)."""
+    """The output's MAVLink counters, for the stats record (labels: `usb2rc.runtime.stats_text`)."""
     far = session.far_end
     record: dict[str, Any] = {
         "mavlink_message": session.settings.message,

@@ -22,6 +22,7 @@ from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.channels import IBUS_SCALE, RC11_SCALE, OutputChannels, WireScale
 from usb2rc.protocols.sumd.channels import SumdChannels
 from usb2rc.rc_sessions import CrsfSession, IbusSession, SbusSession
+from usb2rc.runtime.worker import Worker
 from usb2rc.scheduler import (
     C2Output,
     ChannelOutput,
@@ -33,7 +34,6 @@ from usb2rc.scheduler import (
     TickThread,
     queue_cap,
 )
-from usb2rc.service.worker import Worker
 from usb2rc.session import C2Settings, frames_per_tick
 from usb2rc.transport import SerialLink
 from usb2rc.transport_udp import UdpLink, is_udp_url
@@ -169,7 +169,7 @@ def build_mavlink(ctx: OutputContext) -> BuiltOutput:
     out = ctx.config
     assert out.port
     options = MavlinkOptions.of(out)
-    actions = out.option("actions")  # usb2rc.controls.actions
+    actions = out.option("actions")  # usb2rc.protocols.mavlink.actions
     triggers = ctx.mapping.action_triggers(actions)
     channels = mavlink.MavlinkChannels(ctx.mapping.sumd_channels(out), options.message, triggers)
     key = read_signing_key(options.signing_key_file) if options.signing_key_file else None

@@ -12,9 +12,9 @@ from the NodeTable's frames, through the protocol's `WireScale`:
   then `scale.axis` (an int16 onto the protocol's wire values);
 - a button: `scale.button(pressed)`;
 - a switch (`switch.<name>`): its int16 value on its node's frame (`NodeFrame.switches`,
-  usb2rc.controls.switches), then `scale.axis`: its positions spread over the range;
+  usb2rc.nodes.switches), then `scale.axis`: its positions spread over the range;
 - a mix: each line's source as -1..1, `weight × rate × curve(x) + offset` summed and
-  clamped (usb2rc.controls.curves), then `scale.axis`: never out of range;
+  clamped (usb2rc.nodes.curves), then `scale.axis`: never out of range;
 - a node that does not exist: the centre / released, and the channel is in failsafe; a frame
   is failsafe when any channel it reads is.
 
@@ -27,7 +27,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from usb2rc.config.load import ChannelRef
-from usb2rc.controls.curves import clamp, mix_line, normalised, position_value, to_int16
+from usb2rc.nodes.curves import clamp, mix_line, normalised, position_value, to_int16
 from usb2rc.nodes.mapping import ChannelSource, MixLine
 from usb2rc.nodes.scaling import axis_to_rc11, button_to_rc11, node_button_bit
 from usb2rc.nodes.table import NodeFrame

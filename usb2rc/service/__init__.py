@@ -1,1 +1,1 @@
-"""The process as a service: signals, systemd, log escaping, statistics text, threads."""
+"""The process as a systemd service: signals, readiness and watchdog, the sandbox."""

@@ -10,8 +10,8 @@ from typing import Any
 from yaml.nodes import Node, ScalarNode
 
 from usb2rc.config.channel_ref import ChannelRef
+from usb2rc.config.controls_model import MAX_POSITIONS, ActionConfig
 from usb2rc.config.yamlnodes import NodeReader
-from usb2rc.controls.model import MAX_POSITIONS, ActionConfig
 
 ACTION_KEYS = ("button", "switch", "position", "do", "hold")
 SIMPLE_ACTIONS = ("arm", "disarm", "rtl", "land")

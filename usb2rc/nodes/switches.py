@@ -26,10 +26,10 @@ import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
+from usb2rc.config.controls_model import SwitchConfig, ThrottleCut
 from usb2rc.config.layout import AXIS_NAMES
-from usb2rc.controls.curves import position_value
-from usb2rc.controls.model import SwitchConfig, ThrottleCut
 from usb2rc.hid.descriptor import InputState
+from usb2rc.nodes.curves import position_value
 from usb2rc.nodes.guard import DEFAULT_TOLERANCE, GuardedAxis
 from usb2rc.nodes.scaling import node_button_bit
 from usb2rc.nodes.step import DeviceView, NodeFrame, NodeView

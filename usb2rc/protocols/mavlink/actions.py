@@ -35,7 +35,7 @@ from typing import Any
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
-from usb2rc.controls.model import ActionConfig
+from usb2rc.config.controls_model import ActionConfig
 
 log = logging.getLogger(__name__)
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 
-from usb2rc.service.flag import WakeFlag
+from usb2rc.runtime.flag import WakeFlag
 
 log = logging.getLogger("usb2rc")
 

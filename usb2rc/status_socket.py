@@ -29,14 +29,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from usb2rc.commands.check import judge, problem_record
 from usb2rc.config.layout import AXIS_NAMES
-from usb2rc.config.load import Config
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.nodes.step import NodeView, TableSnapshot
 from usb2rc.nodes.table import EventKind, NodeTable, ServiceEvent
 from usb2rc.protocols.c2_16b.receiver import NodeView as ReceivedNode
-from usb2rc.service.worker import Worker
+from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger("usb2rc.status")
 
@@ -375,15 +373,3 @@ class StatusSource:
         record["events"] = self._events
         record["check"] = self._check()
         return record
-
-
-def check_record(config: Config) -> dict[str, Any]:
-    """`usb2rc check`'s verdict on the running config: its summary and warnings (it has no
-    errors: a config with errors is refused at start and on a reload)."""
-    verdict = judge(config, None)
-    return {
-        "source": config.source,
-        "ok": not verdict.errors,
-        "summary": verdict.out,
-        "warnings": [problem_record(p, "warning") for p in verdict.warnings],
-    }

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from typing import Any
 
+from usb2rc.config.controls_model import ActionConfig, MixInput, MixRef, SwitchConfig
 from usb2rc.config.load import Config
-from usb2rc.controls.curves import position_value
-from usb2rc.controls.model import ActionConfig, MixInput, MixRef, SwitchConfig
+from usb2rc.nodes.curves import position_value
 
 SWITCH_KEYS = ("switch", "kind", "buttons", "positions", "int16", "initial", "failsafe", "slot")
 MIX_KEYS = ("output", "channel", "lines")

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from usb2rc.controls.model import Curve
+from usb2rc.config.controls_model import Curve
 from usb2rc.nodes.scaling import apply_expo
 
 INT16_MIN, INT16_MAX = -32768, 32767
