@@ -150,9 +150,7 @@ class Daemon:
         self.output_configs = outputs_with_port(config, port_override) if outputs else ()
         self.mapping: Mapping = compile_mapping(config)
         self.table = NodeTable(expected_nodes(self.mapping))
-        self.table.set_controls(
-            config.switches, config.throttle_cuts
-        )  # nodes/switches.py
+        self.table.set_controls(config.switches, config.throttle_cuts)  # nodes/switches.py
         # the master clock: one node step per base period, whether or not an output reads
         self.node_clock = NodeClock(self.table.step_if_due, time.monotonic)
         self._on_ready = on_ready
