@@ -711,6 +711,7 @@ ROWS = [
     ("reports_per_s_min", "reports/s consumed (slowest dev)", "/s", 1),
     ("load_period_p99_error_ms", "p99 |period error| at 4 x 1 kHz", "ms", 3),
     ("load_missed_ticks", "missed ticks at 4 x 1 kHz", "", 0),
+    ("cpu_idle_pct", "CPU, idle (no device)", "%", 2),
     ("cpu_real_pct", "CPU, 4 real descriptors x 1 kHz", "%", 2),
     ("cpu_real_replay_pct", "  of which the replay backend", "%", 2),
     ("cpu_real_without_replay_pct", "  without the replay backend", "%", 2),
@@ -760,10 +761,30 @@ def combine(runs: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-PARTS = ("period", "cpu", "cpu_real", "plug", "starts")
+PARTS = ("period", "cpu", "cpu_real", "idle", "plug", "starts")
 # Issue 22's second CPU figure: four real descriptors (BENCH_MODELS), random reports of every
 # input report ID at 1 kHz each, 12 s looped (12,000 events per file, as the issue measured).
 REAL_SECONDS = 12.0
+
+
+def run_idle(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
+    """The daemon with no device (C2-16B only): what it costs to wait (`cpu_idle_pct`)."""
+    idle_dir = workdir / "idle"
+    idle_dir.mkdir()
+    reader = PtyReader(workdir)
+    daemon = DaemonProcess(idle_dir, reader.path, workdir / "idle.log")
+    try:
+        reader.wait_for(lambda f: next((x for x in f if x.get("svc") == "startup"), None), 20,
+                        "the startup frame")  # fmt: skip
+        time.sleep(warmup)
+        cpu0 = daemon.cpu_s()
+        time.sleep(window)
+        cpu1 = daemon.cpu_s()
+        memory = daemon.memory_kb()
+    finally:
+        daemon.terminate()
+        reader.close()
+    return {"cpu_idle_pct": (cpu1 - cpu0) / window * 100, "rss_idle_mb": memory["VmRSS"] / 1024}
 
 
 def run_cpu_real(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
@@ -797,6 +818,8 @@ def one_run(args: argparse.Namespace) -> dict[str, Any]:
         cpu_stop = result.pop("stop_s", 0.0)
         if "cpu_real" in parts:
             result.update(run_cpu_real(workdir, args.warmup, args.cpu_seconds))
+        if "idle" in parts:
+            result.update(run_idle(workdir, args.warmup, args.cpu_seconds))
         if "plug" in parts:
             result.update(run_plug_while_live(workdir, args.plug_seconds, args.plug_rounds))
         if "starts" in parts:

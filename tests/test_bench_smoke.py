@@ -135,6 +135,7 @@ def test_daemon(tmp_path: Path) -> None:
         "plug_live_excess_ms",
         "cpu_real_pct",
         "cpu_real_replay_pct",
+        "cpu_idle_pct",
         "rss_real_mb",
     ):
         assert isinstance(figures[key], float | int), key
