@@ -33,6 +33,7 @@ backend's own `busy_s`, per wake-up) and `reader_cpu_pct` (the same as % of one 
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import random
@@ -57,7 +58,6 @@ from usb2rc.hid.replay import ReplayBackend, ReplayDevice, install_file
 from usb2rc.nodestep import NodeFrame
 from usb2rc.outputs.mavlink import ControlValues, MavlinkSession
 from usb2rc.protocol import c2_16b, sbus
-from usb2rc.protocol.last_frame import LastFrame
 from usb2rc.rc_sessions import CrsfSession, IbusSession, SbusSession
 from usb2rc.scheduler import Pace
 from usb2rc.session import C2Session, C2Settings, SumdSession
@@ -150,6 +150,8 @@ def node_unchanged_case(inputs: int, rng: random.Random) -> Tick:
 
 
 def last_frame_case(inputs: int, rng: random.Random) -> Tick:
+    from usb2rc.protocol.last_frame import LastFrame
+
     memo = LastFrame(sbus.encode_sbus)
     still = channel_lists(16, 172, 1811, 1, rng)[0]
 
@@ -169,8 +171,15 @@ def cases(inputs: int) -> dict[str, Tick]:
         "ibus_14": channel_case(IbusSession(), channel_lists(14, 1000, 2000, inputs, rng)),
         "mavlink_override": mavlink_case(inputs, rng),
         "c2_encode_data_4": encode_data_case(inputs, rng),
-        "c2_node_unchanged_4": node_unchanged_case(inputs, rng),
-        "sbus_last_frame": last_frame_case(inputs, rng),
+        # the codecs' caches (issue 22): not in older commits, for an A/B against one
+        **(
+            {
+                "c2_node_unchanged_4": node_unchanged_case(inputs, rng),
+                "sbus_last_frame": last_frame_case(inputs, rng),
+            }
+            if hasattr(c2_16b, "NodeEncoder")
+            else {}
+        ),
     }
 
 
@@ -227,8 +236,10 @@ def thread_cpu_s(native_id: int) -> float:
 
 def reader_figures(models: int, seconds: float, rate_hz: float) -> dict[str, float]:
     started = time.monotonic()
+    drains = [0]  # the readers ask for the next tick once per drain: once per wake-up
 
     def next_tick() -> Pace:  # a 20 ms grid, as one clock for every output would give
+        drains[0] += 1
         ticks = (time.monotonic() - started) // GRID_S + 1
         return Pace(started + ticks * GRID_S, GRID_S)
 
@@ -238,19 +249,14 @@ def reader_figures(models: int, seconds: float, rate_hz: float) -> dict[str, flo
         for k, text in enumerate(recordings):
             install_file(Path(tmp) / f"device{k}.hid", text)
         backend = ReplayBackend(tmp, loop=True)
-        readers: list[DeviceReader] = []
-        for info in backend.enumerate():
-            device = backend.open(info)
-            layout = parse_descriptor(device.report_descriptor())
-            readers.append(DeviceReader(device, layout.make_decoder(), lambda r, c: None,
-                                        next_tick=next_tick))  # fmt: skip
+        readers = [paced_reader(backend, info, next_tick) for info in backend.enumerate()]
         for reader in readers:
             reader.start()
         time.sleep(1.0)  # started, first batches drained
         ids = [r._thread.native_id for r in readers if r._thread.native_id is not None]
-        before = _reader_counts(readers, ids)
+        before = _reader_counts(readers, ids, drains[0])
         time.sleep(seconds)
-        after = _reader_counts(readers, ids)
+        after = _reader_counts(readers, ids, drains[0])
         for reader in readers:
             reader.stop()
         for reader in readers:
@@ -267,12 +273,30 @@ def reader_figures(models: int, seconds: float, rate_hz: float) -> dict[str, flo
     }
 
 
-def _reader_counts(readers: list[DeviceReader], ids: list[int]) -> tuple[float, ...]:
-    wakes = sum(reader.wakes for reader in readers)
+def paced_reader(backend: ReplayBackend, info: Any, next_tick: Callable[[], Pace]) -> Any:
+    """A reader paced on `next_tick`; before issue 22 (an A/B against an older commit) the
+    reader took the pause itself (`pause=`), computed as the daemon did."""
+    device = backend.open(info)
+    decoder = parse_descriptor(device.report_descriptor()).make_decoder()
+    if "next_tick" in inspect.signature(DeviceReader).parameters:
+        return DeviceReader(device, decoder, lambda r, c: None, next_tick=next_tick)
+
+    def pause() -> float:  # daemon.Daemon._reader_pause of those commits
+        tick, now = next_tick(), time.monotonic()
+        due = tick.deadline
+        for wake in (due - 0.002, due - 0.00025, due + tick.period_s - 0.002):
+            if wake > now:
+                return wake - now
+        return 0.0
+
+    return DeviceReader(device, decoder, lambda r, c: None, pause=pause)  # type: ignore[call-arg]
+
+
+def _reader_counts(readers: list[Any], ids: list[int], drains: int) -> tuple[float, ...]:
     reports = sum(reader.reports for reader in readers)
     cpu = sum(thread_cpu_s(native_id) for native_id in ids)
     replay = sum(r.device.busy_s for r in readers if isinstance(r.device, ReplayDevice))
-    return float(wakes), float(reports), cpu, replay, time.monotonic()
+    return float(drains), float(reports), cpu, replay, time.monotonic()
 
 
 def main() -> None:

@@ -160,7 +160,6 @@ class DeviceReader(Worker):
         self._press_serial = 0
         self.exit_code: ErrorCode | None = None
         self.error: BaseException | None = None  # what ended it, if not stop()
-        self.wakes = 0  # times it woke to work (a read returned reports): a bench figure
         self._on_exit = on_exit
         self._read_timeout_s = read_timeout_s
         self._next_tick = next_tick
@@ -262,7 +261,6 @@ class DeviceReader(Worker):
             report = self.device.read(self._read_timeout_s)
             if report is None:
                 continue
-            self.wakes += 1
             if self._next_tick is None:
                 self._handle(report)
                 self._publish()
