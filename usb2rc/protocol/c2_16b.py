@@ -271,6 +271,14 @@ def encode_data(
 
     A session that sends one node a frame every tick: `NodeEncoder` (the node's body packed
     once per change)."""
+    body = _checked_body(status, node_id, code, axes, group1, group2)
+    return _frame(status, node_id, code, body, line_feed)
+
+
+def _checked_body(
+    status: int, node_id: int, code: int, axes: Sequence[int], group1: int, group2: int
+) -> bytes:
+    """Bytes 5-32 of a data frame, after every argument's check (ValueError)."""
     if not (_data_checks_pass(status, node_id, code) and _groups_pass(group1, group2)):
         # the named checks, in their order, to say what is wrong
         _check_data_status(status)
@@ -279,8 +287,7 @@ def encode_data(
         _wire_axes(axes)  # its error comes before the groups', as it always did
         _check_int("group1", group1, 0, 0xFFFFFFFF)
         _check_int("group2", group2, 0, 0xFFFFFFFF)
-    body = _DATA_BODY.pack(*_wire_axes(axes), group1, group2)
-    return _frame(status, node_id, code, body, line_feed)
+    return _DATA_BODY.pack(*_wire_axes(axes), group1, group2)
 
 
 class NodeEncoder:
@@ -322,14 +329,8 @@ class NodeEncoder:
     def _pack(
         self, status: int, code: int, axes: tuple[int, ...], group1: int, group2: int
     ) -> None:
-        """New values: checked (in encode_data's order), packed, their CRC computed."""
-        if not (_data_checks_pass(status, self.node_id, code) and _groups_pass(group1, group2)):
-            _check_data_status(status)
-            _check_int("code", code, 0, 255)
-            _wire_axes(axes)
-            _check_int("group1", group1, 0, 0xFFFFFFFF)
-            _check_int("group2", group2, 0, 0xFFFFFFFF)
-        body = _DATA_BODY.pack(*_wire_axes(axes), group1, group2)
+        """New values: checked (as encode_data checks them), packed, their CRC computed."""
+        body = _checked_body(status, self.node_id, code, axes, group1, group2)
         self._body, self._body_crc = body, crc16_arc(body)
         self._axes, self._group1, self._group2 = axes, group1, group2
         self.bodies_packed += 1
