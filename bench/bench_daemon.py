@@ -56,7 +56,14 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-from daemon_harness import StickState, real_device_recordings, recording, scale  # noqa: E402
+from daemon_harness import (  # noqa: E402
+    BENCH_MODELS,
+    StickState,
+    named_device_recordings,
+    real_device_recordings,
+    recording,
+    scale,
+)
 
 from usb2rc.protocols.c2_16b import codec as c2_16b  # noqa: E402
 
@@ -440,12 +447,18 @@ def extra_outputs_config(workdir: Path, protocols: Sequence[str], ports: Sequenc
 
 
 def run_cpu(
-    workdir: Path, warmup: float, window: float, extra_outputs: Sequence[str] = ()
+    workdir: Path,
+    warmup: float,
+    window: float,
+    extra_outputs: Sequence[str] = (),
+    recordings: Sequence[str] = (),
 ) -> dict[str, Any]:
+    """The daemon at 4 x 1 kHz: 4 T.16000M ramps, or `recordings` (each looped)."""
     replay_dir = workdir / "khz"
     replay_dir.mkdir()
-    for i in range(4):
-        (replay_dir / f"stick{i}.hid").write_text(khz_recording(4.0, f"Thrustmaster T.16000M {i}"))
+    texts = recordings or [khz_recording(4.0, f"Thrustmaster T.16000M {i}") for i in range(4)]
+    for i, text in enumerate(texts):
+        (replay_dir / f"device{i}.hid").write_text(text)
     reader = PtyReader(workdir)
     drain = OutputDrain(extra_outputs)
     extra: list[str] = []
@@ -453,8 +466,9 @@ def run_cpu(
         extra = ["--config", str(extra_outputs_config(workdir, extra_outputs, drain.ports))]
     daemon = DaemonProcess(replay_dir, reader.path, workdir / "cpu.log", extra)
     try:
-        reader.wait_for(lambda f: {x["n"] for x in f if x["k"] == "d"} >= {0, 1, 2, 3}, 20,
-                        "data frames of 4 nodes")  # fmt: skip
+        nodes = set(range(len(texts)))
+        reader.wait_for(lambda f: {x["n"] for x in f if x["k"] == "d"} >= nodes, 20,
+                        f"data frames of {len(texts)} nodes")  # fmt: skip
         time.sleep(warmup)
         t0, s0 = daemon.stats()
         cpu0 = daemon.cpu_s()
@@ -697,6 +711,12 @@ ROWS = [
     ("reports_per_s_min", "reports/s consumed (slowest dev)", "/s", 1),
     ("load_period_p99_error_ms", "p99 |period error| at 4 x 1 kHz", "ms", 3),
     ("load_missed_ticks", "missed ticks at 4 x 1 kHz", "", 0),
+    ("cpu_idle_pct", "CPU, idle (no device)", "%", 2),
+    ("cpu_real_pct", "CPU, 4 real descriptors x 1 kHz", "%", 2),
+    ("cpu_real_replay_pct", "  of which the replay backend", "%", 2),
+    ("cpu_real_without_replay_pct", "  without the replay backend", "%", 2),
+    ("rss_real_mb", "  RSS", "MB", 1),
+    ("real_reports_per_s_min", "  reports/s consumed (slowest dev)", "/s", 1),
     ("plug_quiet_max_interval_ms", "stick frames: max interval, quiet", "ms", 2),
     ("plug_live_max_interval_ms", "  ... while 5 devices are plugged", "ms", 2),
     ("plug_live_excess_ms", "  plugging - quiet", "ms", 2),
@@ -741,7 +761,49 @@ def combine(runs: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-PARTS = ("period", "cpu", "plug", "starts")
+PARTS = ("period", "cpu", "cpu_real", "idle", "plug", "starts")
+# Issue 22's second CPU figure: four real descriptors (BENCH_MODELS), random reports of every
+# input report ID at 1 kHz each, 12 s looped (12,000 events per file, as the issue measured).
+REAL_SECONDS = 12.0
+
+
+def run_idle(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
+    """The daemon with no device (C2-16B only): what it costs to wait (`cpu_idle_pct`)."""
+    idle_dir = workdir / "idle"
+    idle_dir.mkdir()
+    reader = PtyReader(workdir)
+    daemon = DaemonProcess(idle_dir, reader.path, workdir / "idle.log")
+    try:
+        reader.wait_for(lambda f: next((x for x in f if x.get("svc") == "startup"), None), 20,
+                        "the startup frame")  # fmt: skip
+        time.sleep(warmup)
+        cpu0 = daemon.cpu_s()
+        time.sleep(window)
+        cpu1 = daemon.cpu_s()
+        memory = daemon.memory_kb()
+    finally:
+        daemon.terminate()
+        reader.close()
+    return {"cpu_idle_pct": (cpu1 - cpu0) / window * 100, "rss_idle_mb": memory["VmRSS"] / 1024}
+
+
+def run_cpu_real(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
+    """`run_cpu` on the real descriptors; its figures renamed `cpu_real_*`, `rss_real_*`,
+    `real_*`."""
+    real_dir = workdir / "real"
+    real_dir.mkdir()
+    texts = named_device_recordings(BENCH_MODELS, REAL_SECONDS, 1000.0)
+    figures = run_cpu(real_dir, warmup, window, recordings=texts)
+    figures.pop("stop_s", None)
+    renamed = {}
+    for key, value in figures.items():
+        if key.startswith("cpu_"):
+            renamed["cpu_real_" + key.removeprefix("cpu_")] = value
+        elif key.startswith("rss_"):
+            renamed["rss_real_" + key.removeprefix("rss_")] = value
+        else:
+            renamed["real_" + key] = value
+    return renamed
 
 
 def one_run(args: argparse.Namespace) -> dict[str, Any]:
@@ -754,6 +816,10 @@ def one_run(args: argparse.Namespace) -> dict[str, Any]:
         if "cpu" in parts:
             result.update(run_cpu(workdir, args.warmup, args.cpu_seconds, args.extra_outputs))
         cpu_stop = result.pop("stop_s", 0.0)
+        if "cpu_real" in parts:
+            result.update(run_cpu_real(workdir, args.warmup, args.cpu_seconds))
+        if "idle" in parts:
+            result.update(run_idle(workdir, args.warmup, args.cpu_seconds))
         if "plug" in parts:
             result.update(run_plug_while_live(workdir, args.plug_seconds, args.plug_rounds))
         if "starts" in parts:

@@ -45,7 +45,7 @@ from usb2rc.hid.reader import DeviceReader, ReaderRecord
 from usb2rc.hid.replay import ReplayBackend, install_file
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import NodeTable
-from usb2rc.scheduler import C2Output
+from usb2rc.scheduler import C2Output, Pace
 from usb2rc.session import C2Settings
 from usb2rc.transport import SerialLink
 
@@ -169,7 +169,9 @@ def reader_figures(batch: int, wakes: int, runs: int, paced_wakes: int) -> dict[
         replayed = backend.open(backend.enumerate()[0])
         layout = parse_descriptor(replayed.report_descriptor())
         replayed.close()
-    reader = DeviceReader(device, layout.make_decoder(), lambda r, c: None, pause=lambda: 0.0)
+    reader = DeviceReader(
+        device, layout.make_decoder(), lambda r, c: None, next_tick=lambda: Pace(0.0, 0.02)
+    )
 
     def wake(k: int) -> float:
         device.queue.extend(reports[(k + i) % len(reports)] for i in range(batch))

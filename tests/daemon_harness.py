@@ -145,32 +145,76 @@ def timed_recording(
 def real_device_recordings(count: int, seconds: float, rate_hz: float) -> list[str]:
     """`count` recordings of real descriptors (tests/data/real-devices.json; no T.16000M, so
     each is another model), each with random reports of every input report ID at `rate_hz`."""
-    import json
     import random
 
     from usb2rc.hid.descriptor import parse_descriptor
-    from usb2rc.hid.recording import RecordedEvent, Recording, format_recording
 
     rng = random.Random(11)
-    devices = json.loads((ROOT / "tests" / "data" / "real-devices.json").read_text())
     texts = []
-    for device in devices:
-        descriptor = bytes.fromhex(device["hex"])
-        layout = parse_descriptor(descriptor)
+    for device in _real_devices():
+        layout = parse_descriptor(bytes.fromhex(device["hex"]))
         if not layout.inputs or device["name"].startswith("Thrustmaster T.16000M"):
             continue
-        ids = sorted(layout.input_report_lengths.items())
-        events = []
-        for i in range(int(seconds * rate_hz)):
-            rid, length = ids[i % len(ids)]
-            head = bytes([rid]) if layout.uses_report_ids else b""
-            events.append(RecordedEvent(i / rate_hz, head + rng.randbytes(length)))
-        vid, pid = int(device["vid"], 16), int(device["pid"], 16)
-        rec = Recording(descriptor, device["name"], "", 3, vid, pid, tuple(events))
-        texts.append(format_recording(rec))
+        texts.append(random_report_recording(device, seconds, rate_hz, rng))
         if len(texts) == count:
             break
     return texts
+
+
+# The four models of issue 22's bench of real descriptors (names as in real-devices.json).
+BENCH_MODELS = (
+    "Saitek/Logitech X52",
+    "Thrustmaster T.16000M",
+    "Thrustmaster TWCS",
+    "Logitech WingMan",
+)
+
+
+def named_device_recordings(
+    names: Sequence[str], seconds: float, rate_hz: float, seed: int = 22
+) -> list[str]:
+    """A recording of each real descriptor whose name starts with one of `names`, with
+    random reports of every input report ID (in turn) at `rate_hz`."""
+    import random
+
+    rng = random.Random(seed)
+    devices = _real_devices()
+    return [
+        random_report_recording(
+            next(d for d in devices if d["name"].startswith(name)), seconds, rate_hz, rng
+        )
+        for name in names
+    ]
+
+
+def _real_devices() -> list[dict[str, str]]:
+    import json
+
+    devices: list[dict[str, str]] = json.loads(
+        (ROOT / "tests" / "data" / "real-devices.json").read_text()
+    )
+    return devices
+
+
+def random_report_recording(
+    device: dict[str, str], seconds: float, rate_hz: float, rng: Any
+) -> str:
+    """A recording of one real-devices.json entry: random reports, `rate_hz` of them a
+    second, of its input report IDs in turn."""
+    from usb2rc.hid.descriptor import parse_descriptor
+    from usb2rc.hid.recording import RecordedEvent, Recording, format_recording
+
+    descriptor = bytes.fromhex(device["hex"])
+    layout = parse_descriptor(descriptor)
+    ids = sorted(layout.input_report_lengths.items())
+    events = []
+    for i in range(int(seconds * rate_hz)):
+        rid, length = ids[i % len(ids)]
+        head = bytes([rid]) if layout.uses_report_ids else b""
+        events.append(RecordedEvent(i / rate_hz, head + rng.randbytes(length)))
+    vid, pid = int(device["vid"], 16), int(device["pid"], 16)
+    rec = Recording(descriptor, device["name"], "", 3, vid, pid, tuple(events))
+    return format_recording(rec)
 
 
 def install(path: Path, text: str) -> None:

@@ -72,6 +72,26 @@ def test_hot_paths() -> None:
     assert re.search(r"^tick_hot_us\s+[0-9.]+ µs$", out, re.MULTILINE)
 
 
+def test_tick_budget() -> None:
+    """Every protocol's tick, the codecs' cached paths, their allocations, the readers."""
+    out = run(
+        sys.executable, "bench/bench_tick_budget.py", "--ticks", "20", "--runs", "1",
+        "--devices", "2", "--seconds", "0.5",
+    )  # fmt: skip
+    result = last_json(out)
+    assert result["bench"] == "tick_budget"
+    figures = result["figures"]
+    cases = ("c2_4_nodes", "sumd_16", "crsf_16", "sbus_16", "ibus_14", "mavlink_override",
+             "c2_encode_data_4", "c2_node_unchanged_4", "sbus_last_frame")  # fmt: skip
+    for case in cases:
+        for figure in ("tick_us", "alloc_peak_b", "retained_b"):
+            assert isinstance(figures[f"{figure}_{case}"], float | int), (figure, case)
+    assert figures["reader_devices"] == 2
+    for key in ("reader_wakes_per_s", "reader_reports_per_s", "reader_us_per_wake"):
+        assert isinstance(figures[key], float), key
+    assert re.search(r"^tick_us_c2_4_nodes\s+[0-9.]+ µs$", out, re.MULTILINE)
+
+
 def test_plug_cost() -> None:
     out = run(
         sys.executable, "bench/bench_plug_cost.py", "--devices", "2", "--seconds", "0.2",
@@ -113,8 +133,13 @@ def test_daemon(tmp_path: Path) -> None:
         "plug_quiet_max_interval_ms",
         "plug_live_max_interval_ms",
         "plug_live_excess_ms",
+        "cpu_real_pct",
+        "cpu_real_replay_pct",
+        "cpu_idle_pct",
+        "rss_real_mb",
     ):
         assert isinstance(figures[key], float | int), key
+    assert figures["real_devices"] == 4  # the four real descriptors, each read
     assert 15 < figures["period_mean_ms"] < 25
     assert figures["latency_reports"] > 10
     assert figures["devices"] == 4
@@ -154,9 +179,11 @@ def test_umockdev() -> None:
 def test_run_show_and_compare(tmp_path: Path) -> None:
     """bench/run: a quick run of the fast scripts, then --show with --compare."""
     out_path = tmp_path / "latest.json"
-    run(str(BENCH / "run"), "--quick", "--only", "codecs", "hotplug", "--out", str(out_path))
+    run(str(BENCH / "run"), "--quick", "--only", "codecs", "hotplug", "tick_budget", "--out",
+        str(out_path), timeout=120)  # fmt: skip
     result = json.loads(out_path.read_text())
     assert result["runs"] == 1 and "encode_c2_us" in result["figures"]
+    assert "tick_us_crsf_16" in result["figures"]
     assert "hotplug_plug_ms" in result["figures"]
     baseline = json.loads(json.dumps(result))
     baseline["figures"]["encode_c2_us"] *= 2
@@ -166,6 +193,7 @@ def test_run_show_and_compare(tmp_path: Path) -> None:
     )
     line = next(ln for ln in shown.splitlines() if ln.startswith("encode_data"))
     assert "-50.0" in line
+    assert any(ln.startswith("tick CRSF, 16 ch") for ln in shown.splitlines())
 
 
 def test_baseline_is_well_formed() -> None:

@@ -17,7 +17,8 @@ from typing import Any
 import serial
 
 from usb2rc.config.load import Config, OutputConfig
-from usb2rc.daemon import READ_AHEAD_S, Daemon
+from usb2rc.daemon import Daemon
+from usb2rc.hid.reader import READ_AHEAD_S, reader_pause
 from usb2rc.hid.replay import ReplayBackend
 from usb2rc.protocols.crsf import codec as crsf
 from usb2rc.scheduler import CrsfOutput, Pace
@@ -91,7 +92,7 @@ def test_two_outputs_becoming_ready_together_send_ready_once(tmp_path: Path) -> 
 
 
 def test_the_readers_pace_on_one_deadline_and_period(tmp_path: Path) -> None:
-    """`_reader_pause` reads an output's pace once: an output that replaces it between two
+    """`_next_tick` reads an output's pace once: an output that replaces it between two
     reads (here: at every read) cannot pair one tick's deadline with another's period."""
     daemon = _daemon(tmp_path)
     now = time.monotonic()
@@ -103,7 +104,7 @@ def test_the_readers_pace_on_one_deadline_and_period(tmp_path: Path) -> None:
             return next(paces)
 
     daemon.outputs[0].thread = Replacing()  # type: ignore[assignment]
-    pause = daemon._reader_pause()
+    pause = reader_pause(daemon._next_tick(), time.monotonic())
     assert 0 < pause <= 0.010 - READ_AHEAD_S  # the first value's wake-up, whole
 
 

@@ -6,13 +6,15 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 from daemon_harness import StickState, recording
 from test_replay import numbered, recording_text
 
 from usb2rc.hid.backend import DeviceInfo, ErrorCode
 from usb2rc.hid.descriptor import InputState, parse_descriptor
-from usb2rc.hid.reader import DeviceReader
+from usb2rc.hid.reader import LAST_CALL_S, READ_AHEAD_S, DeviceReader, reader_pause
 from usb2rc.hid.replay import ReplayBackend, install_file
+from usb2rc.scheduler import Pace
 
 WAIT_S = 10.0
 
@@ -208,14 +210,21 @@ def test_the_count_and_the_state_are_published_together() -> None:
 
 
 def test_a_paced_reader_counts_every_report_and_shows_the_last(tmp_path: Path) -> None:
-    """With `pause` the reader drains what is queued as one batch (decoding only what shows
-    in the state): every report is counted, and the state is the last report's."""
+    """With `next_tick` the reader drains what is queued as one batch (decoding only what
+    shows in the state): every report is counted, and the state is the last report's."""
     states = [StickState(x=i * 50, y=16383 - i * 50, buttons=i) for i in range(200)]
     install_file(tmp_path / "s.hid", recording(states, hold_s=0.0002))  # 200 in 40 ms
     backend = ReplayBackend(tmp_path)
     device = backend.open(backend.enumerate()[0])
     layout = parse_descriptor(device.report_descriptor())
-    reader = DeviceReader(device, layout.make_decoder(), Exits(), pause=lambda: 0.01)
+    asked: list[float] = []
+
+    def next_tick() -> Pace:  # a grid of 10 ms ticks
+        now = time.monotonic()
+        asked.append(now)
+        return Pace((now // 0.01 + 1) * 0.01, 0.01)
+
+    reader = DeviceReader(device, layout.make_decoder(), Exits(), next_tick=next_tick)
     reader.start()
     try:
         deadline = time.monotonic() + WAIT_S
@@ -229,3 +238,18 @@ def test_a_paced_reader_counts_every_report_and_shows_the_last(tmp_path: Path) -
         expected.feed(state.report())
     assert (reader.record.reports, reader.record.bad_reports) == (len(states), 0)
     assert reader.record.state == expected.state()
+    # paced on the grid: asked once per drain, and drained far fewer times than reports came
+    assert 0 < len(asked) < len(states)
+
+
+@pytest.mark.parametrize(
+    ("now", "expected"),
+    [
+        (0.000, 0.020 - READ_AHEAD_S),  # asleep until the read-ahead before the tick
+        (0.019, 0.020 - LAST_CALL_S - 0.019),  # then until the last call
+        (0.01990, 0.040 - READ_AHEAD_S - 0.01990),  # then until the next tick's read-ahead
+        (0.050, 0.0),  # the tick is long past (no clock yet, or it stopped): no pause
+    ],
+)
+def test_reader_pause_wakes_before_the_grid_tick(now: float, expected: float) -> None:
+    assert reader_pause(Pace(0.020, 0.020), now) == pytest.approx(expected)

@@ -36,7 +36,7 @@ from usb2rc.outputs import protocol
 from usb2rc.outputs.wiring import OutputContext
 from usb2rc.runtime import stats_text
 from usb2rc.runtime.worker import Worker
-from usb2rc.scheduler import C2Output, ReplyRx, RxThread, TickThread
+from usb2rc.scheduler import C2Output, Pace, ReplyRx, RxThread, TickThread
 from usb2rc.status_socket import StatusServer, StatusSource
 from usb2rc.transport import SerialLink
 from usb2rc.transport_udp import UdpLink
@@ -44,8 +44,6 @@ from usb2rc.transport_udp import UdpLink
 log = logging.getLogger("usb2rc")
 
 JOIN_TIMEOUT_S = 0.5
-READ_AHEAD_S = 0.002  # readers wake this long before a tick to drain the device's queue
-LAST_CALL_S = 0.00025  # and once more this long before it, for what came in meanwhile
 # A thread that wants the GIL asks the running one to drop it after this long (Python's
 # default: 5 ms). Plugging a device runs Python for milliseconds on the lifecycle and hot-plug
 # threads (descriptor parse, decoder plan, a replayed recording); the scheduler thread needs
@@ -219,20 +217,11 @@ class Daemon:
     def _forget(self, key: str) -> None:
         self.monitor.forget(key)
 
-    def _reader_pause(self) -> float:
-        """How long a busy reader may sleep: until READ_AHEAD_S before the next tick of any
-        output (the bulk of a tick's reports), then until LAST_CALL_S before it (the one or
-        two since), then until READ_AHEAD_S before the tick after. Two wake-ups per tick
-        instead of one per report in the last READ_AHEAD_S; a report in the last LAST_CALL_S
-        goes with the next tick (the tick's own wake-up is not more precise than that)."""
-        # One read of each output's pace: its deadline and period are one value (the
-        # output thread may replace it meanwhile; never half of it).
-        pace = min((o.thread.pace for o in self.outputs), key=lambda p: p.deadline)
-        due, now = pace.deadline, time.monotonic()
-        for wake in (due - READ_AHEAD_S, due - LAST_CALL_S, due + pace.period_s - READ_AHEAD_S):
-            if wake > now:
-                return wake - now
-        return 0.0  # the outputs have not started, or stopped ticking: read as reports come
+    def _next_tick(self) -> Pace:
+        """The next tick of any output: the busy readers sleep until just before it
+        (`hid/reader.py: reader_pause`). One read of each output's pace: its deadline and
+        period are one value (the output thread may replace it meanwhile; never half of it)."""
+        return min((o.thread.pace for o in self.outputs), key=lambda p: p.deadline)
 
     def all_outputs_ticking(self, within_s: float = 1.0) -> bool:
         """True while every output thread has ticked in the last `within_s` seconds: one hung
@@ -243,8 +232,8 @@ class Daemon:
     # --- devices ---------------------------------------------------------------------------
 
     def _make_reader(self, device: Device, layout: DeviceLayout, on_exit: OnExit) -> DeviceReader:
-        pause = self._reader_pause if self.outputs else None
-        return DeviceReader(device, layout.make_decoder(), on_exit, pause=pause)
+        next_tick = self._next_tick if self.outputs else None
+        return DeviceReader(device, layout.make_decoder(), on_exit, next_tick=next_tick)
 
     # --- life cycle ------------------------------------------------------------------------
 

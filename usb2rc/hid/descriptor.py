@@ -697,6 +697,9 @@ def _button_expr(b: ButtonField, id_bits: int) -> str:
     return f"(v << {target - offset} & {mask:#x})"
 
 
+_ScanFn = Callable[[Sequence[bytes], int, Callable[[int], None]], tuple["bytes | None", int]]
+
+
 @dataclass(frozen=True)
 class _ReportPlan:
     length: int  # bytes the report must have, ID byte included
@@ -704,6 +707,9 @@ class _ReportPlan:
     keep_buttons: int  # ~ the buttons this report owns
     source: str  # the generated code, for debugging
     buttons: Callable[[bytes], int]  # the buttons it presses, without decoding its values
+    # A device without report IDs: a batch's button masks in one loop (`ReportDecoder.
+    # feed_batch`), the buttons' expression inline, no call per report but on a change.
+    scan: _ScanFn
 
 
 def _compile_report(layout: DeviceLayout, rid: int) -> _ReportPlan:
@@ -711,6 +717,10 @@ def _compile_report(layout: DeviceLayout, rid: int) -> _ReportPlan:
     fields = [f for f in layout.inputs if f.report_id == rid]
     buttons = [b for b in layout.buttons if b.report_id == rid]
     arrays = [a for a in layout.button_arrays if a.report_id == rid]
+    owned = 0
+    for mask in [b.mask for b in buttons] + [a.mask for a in arrays]:
+        owned |= mask
+    length = layout.input_report_lengths[rid] + id_bits // 8
     lines = ["def decode(r, vals):", "    v = int.from_bytes(r, 'little')"]
     for run in _runs(fields, id_bits):
         lines += _run_lines(run, id_bits)
@@ -718,26 +728,52 @@ def _compile_report(layout: DeviceLayout, rid: int) -> _ReportPlan:
     terms += [
         f"_array_buttons(v, arrays[{i}], {a.bit_offset + id_bits})" for i, a in enumerate(arrays)
     ]
-    if len(terms) <= 8:
-        pressed = [f"    return {' | '.join(terms) or '0'}"]
-    else:  # one statement per term: a long `a | b | ...` would nest too deep to compile
-        pressed = ["    b = 0", *(f"    b |= {t}" for t in terms), "    return b"]
-    lines += pressed
-    lines += ["def buttons(r):", "    v = int.from_bytes(r, 'little')", *pressed]
+    pressed = _pressed_lines(terms, "    ")
+    lines += [*pressed, "    return b"]
+    lines += ["def buttons(r):", "    v = int.from_bytes(r, 'little')", *pressed, "    return b"]
+    lines += _scan_lines(terms, length)
     source = "\n".join(lines) + "\n"
     namespace: dict[str, object] = {
         "_array_buttons": _array_buttons,
         "arrays": tuple(arrays),
         "unpack_from": struct.unpack_from,
+        "keep": ~owned,
     }
     exec(compile(source, f"<usb2rc decode plan, report {rid}>", "exec"), namespace)
-    owned = 0
-    for mask in [b.mask for b in buttons] + [a.mask for a in arrays]:
-        owned |= mask
-    length = layout.input_report_lengths[rid] + id_bits // 8
     decode: _DecodeFn = namespace["decode"]  # type: ignore[assignment]
     pressed_fn: Callable[[bytes], int] = namespace["buttons"]  # type: ignore[assignment]
-    return _ReportPlan(length, decode, ~owned, source, pressed_fn)
+    scan: _ScanFn = namespace["scan"]  # type: ignore[assignment]
+    return _ReportPlan(length, decode, ~owned, source, pressed_fn, scan)
+
+
+def _pressed_lines(terms: list[str], indent: str) -> list[str]:
+    """`b = ` the buttons a report presses (from its integer `v`)."""
+    if len(terms) <= 8:
+        return [f"{indent}b = {' | '.join(terms) or '0'}"]
+    # one statement per term: a long `a | b | ...` would nest too deep to compile
+    return [f"{indent}b = 0", *(f"{indent}b |= {t}" for t in terms)]
+
+
+def _scan_lines(terms: list[str], length: int) -> list[str]:
+    """`scan(reports, mask, on_buttons) -> (last valid report, refused)`: the mask
+    after every report, `on_buttons(mask)` where it changed (a press within a batch)."""
+    return [
+        "def scan(reports, mask, on_buttons):",
+        "    last = None",
+        "    refused = 0",
+        "    for r in reports:",
+        f"        if len(r) < {length}:",
+        "            refused += 1",
+        "            continue",
+        "        last = r",
+        "        v = int.from_bytes(r, 'little')",
+        *_pressed_lines(terms, "        "),
+        "        b |= mask & keep",  # the other reports' buttons (a namespace constant)
+        "        if b != mask:",
+        "            mask = b",
+        "            on_buttons(b)",
+        "    return last, refused",
+    ]
 
 
 class ReportDecoder:
@@ -785,27 +821,28 @@ class ReportDecoder:
         share ends as the latest report says. A reader drains ~20 reports a tick from a
         1 kHz device: this decodes one. Returns (accepted, refused).
 
-        `on_buttons(mask)`: called after each accepted report, in order, with the button mask
-        `feed` would have left (its button bits only are computed, not its values), for a
-        caller that must see every press, even one released within the batch."""
+        `on_buttons(mask)`: called with the button mask `feed` would have left after each
+        accepted report that changed it, in order (its button bits only are computed, not
+        its values), for a caller that must see every press, even one released within the
+        batch."""
         single = self._plan
         refused = 0
-        mask = self._buttons
         if single is not None:
-            need = single.length
-            last = None
-            for report in reports:
-                if len(report) < need:
-                    refused += 1
-                    continue
-                last = report
-                if on_buttons is not None:
-                    mask = (mask & single.keep_buttons) | single.buttons(report)
-                    on_buttons(mask)
+            if on_buttons is not None:
+                last, refused = single.scan(reports, self._buttons, on_buttons)
+            else:
+                need = single.length
+                last = None
+                for report in reports:
+                    if len(report) < need:
+                        refused += 1
+                    else:
+                        last = report
             survivors = [last] if last is not None else []
         else:
             plans = self._plans
             latest: dict[int, bytes] = {}
+            mask = self._buttons
             for report in reports:
                 plan = plans.get(report[0]) if report else None
                 if plan is None or len(report) < plan.length:
@@ -814,8 +851,10 @@ class ReportDecoder:
                 latest.pop(report[0], None)  # re-inserted: dict order = last occurrence
                 latest[report[0]] = report
                 if on_buttons is not None:
-                    mask = (mask & plan.keep_buttons) | plan.buttons(report)
-                    on_buttons(mask)
+                    pressed = (mask & plan.keep_buttons) | plan.buttons(report)
+                    if pressed != mask:
+                        mask = pressed
+                        on_buttons(mask)
             survivors = list(latest.values())
         for report in survivors:
             self.feed(report)

@@ -14,12 +14,15 @@ error (`ReaderRecord.in_error`: its node sends `!`, docs/ICD.md "Device error co
 until it sends a good report again; the reader calls `on_bad_reports(reader, record)` after
 it published a record that entered or left error (or began a new run of bad reports).
 
-Pacing (optional): the outputs only sample the snapshot once per tick, so with a `pause`
-callable the reader, after a report, drains what is queued without blocking and then sleeps
-until just before the next tick (`pause()` says how long). A 1 kHz device then wakes its
-thread a few times per tick instead of twenty; the kernel queues the reports meanwhile and
-the drain takes every one of them, in order, before the tick reads the snapshot (it counts
-each and decodes the ones the state shows: `ReportDecoder.feed_batch`).
+Pacing (optional): the outputs only sample the snapshot once per tick, so with a
+`next_tick` callable (when the next tick of the grid is due, and the grid's period) the
+reader, after a report, drains what is queued without blocking and then sleeps until just
+before that tick (`reader_pause`: READ_AHEAD_S before it, then LAST_CALL_S before it). A
+1 kHz device then wakes its thread twice per tick instead of twenty times; the kernel queues
+the reports meanwhile and the drain takes every one of them, in order, before the tick reads
+the snapshot (it counts each and decodes the ones the state shows:
+`ReportDecoder.feed_batch`). Whose ticks they are is the caller's: the daemon gives the next
+tick of any output (`Daemon._next_tick`).
 """
 
 from __future__ import annotations
@@ -44,6 +47,36 @@ MAX_BATCH = 1000  # reports decoded as one batch (a paced reader's drain)
 # bus truncates one report, not twenty; a device that refuses twenty in a row and none
 # good between them is not understood (wrong descriptor, unknown report IDs).
 BAD_REPORTS_LIMIT = 20
+READ_AHEAD_S = 0.002  # a paced reader wakes this long before a tick to drain its device
+LAST_CALL_S = 0.00025  # and once more this long before it, for what came in meanwhile
+
+
+class GridTick(Protocol):
+    """When the next tick is due (monotonic) and the period after it, as one value (a
+    reader never pairs one tick's deadline with another's period): `scheduler.Pace`."""
+
+    @property
+    def deadline(self) -> float: ...
+
+    @property
+    def period_s(self) -> float: ...
+
+
+NextTick = Callable[[], GridTick]
+
+
+def reader_pause(tick: GridTick, now: float) -> float:
+    """How long a busy reader may sleep at `now`: until READ_AHEAD_S before the next tick
+    (the bulk of a tick's reports), then until LAST_CALL_S before it (the one or two since),
+    then until READ_AHEAD_S before the tick after. Two wake-ups per tick instead of one per
+    report in the last READ_AHEAD_S; a report in the last LAST_CALL_S goes with the next
+    tick (the tick's own wake-up is not more precise than that). 0 when the tick is past
+    (the clock has not started, or stopped ticking): read as reports come."""
+    due = tick.deadline
+    for wake in (due - READ_AHEAD_S, due - LAST_CALL_S, due + tick.period_s - READ_AHEAD_S):
+        if wake > now:
+            return wake - now
+    return 0.0
 
 
 class Decoder(Protocol):
@@ -108,7 +141,7 @@ class DeviceReader(Worker):
         decoder: Decoder,
         on_exit: OnExit,
         read_timeout_s: float = READ_TIMEOUT_S,
-        pause: Callable[[], float] | None = None,
+        next_tick: NextTick | None = None,
     ) -> None:
         self.device = device
         self.info = device.info
@@ -129,7 +162,7 @@ class DeviceReader(Worker):
         self.error: BaseException | None = None  # what ended it, if not stop()
         self._on_exit = on_exit
         self._read_timeout_s = read_timeout_s
-        self._pause = pause
+        self._next_tick = next_tick
         super().__init__(f"hid-reader {self.info.port_path or self.info.path}")
 
     # Views of the record, for statistics and tests.
@@ -228,13 +261,13 @@ class DeviceReader(Worker):
             report = self.device.read(self._read_timeout_s)
             if report is None:
                 continue
-            if self._pause is None:
+            if self._next_tick is None:
                 self._handle(report)
                 self._publish()
                 continue
             self._drain(report)
             self._publish()  # once for the whole batch: the tick samples the latest
-            pause = self._pause()
+            pause = reader_pause(self._next_tick(), time.monotonic())
             if pause > 0:
                 self.sleep(pause)  # stop() ends it at once
 

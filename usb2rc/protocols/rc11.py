@@ -14,20 +14,49 @@ BITS = 11
 BLOCK_LEN = CHANNELS * BITS // 8  # 22 bytes
 VALUE_MAX = (1 << BITS) - 1  # 2047
 _SHIFTS = tuple(BITS * n for n in range(CHANNELS))
+_INT_ONLY = {int}
 
 
 def pack(channels: Sequence[int]) -> bytes:
     """16 channel values 0..2047 as the 22-byte block; raises ValueError otherwise."""
+    return block(channels).to_bytes(BLOCK_LEN, "little")
+
+
+def block(channels: Sequence[int]) -> int:
+    """16 channel values 0..2047 as the block's one integer (channel n at bit 11·n), for a
+    frame that packs it with its other fields in one `int.to_bytes`; ValueError otherwise."""
     if len(channels) != CHANNELS:
         raise ValueError(f"the 11-bit block holds {CHANNELS} channels, got {len(channels)}")
-    block = 0
-    for shift, value in zip(_SHIFTS, channels, strict=True):
+    # Fast path with C-level builtins (`type(x) is int` excludes bool); the per-channel
+    # checks only run to name the bad channel (or to accept an int subclass, as they did).
+    if set(map(type, channels)) != _INT_ONLY or min(channels) < 0 or max(channels) > VALUE_MAX:
+        _check_channels(channels)
+    # One expression, no loop: 15 shifts and ORs of the channels in place.
+    c0, c1, c2, c3, c4, c5, c6, c7, c8, c9, c10, c11, c12, c13, c14, c15 = channels
+    return (
+        c0
+        | c1 << 11
+        | c2 << 22
+        | c3 << 33
+        | c4 << 44
+        | c5 << 55
+        | c6 << 66
+        | c7 << 77
+        | c8 << 88
+        | c9 << 99
+        | c10 << 110
+        | c11 << 121
+        | c12 << 132
+        | c13 << 143
+        | c14 << 154
+        | c15 << 165
+    )
+
+
+def _check_channels(channels: Sequence[int]) -> None:
+    for number, value in enumerate(channels, start=1):
         if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= VALUE_MAX:
-            raise ValueError(
-                f"channel {shift // BITS + 1} must be an int in 0..2047, got {value!r}"
-            )
-        block |= value << shift
-    return block.to_bytes(BLOCK_LEN, "little")
+            raise ValueError(f"channel {number} must be an int in 0..2047, got {value!r}")
 
 
 def unpack(data: bytes | bytearray | memoryview) -> tuple[int, ...]:

@@ -25,7 +25,7 @@ from enum import IntEnum
 from typing import TypeAlias
 
 from usb2rc.config.layout import AXIS_COUNT, AXIS_NAMES, STARTUP_NODE_ID
-from usb2rc.protocols.crc import crc16_arc
+from usb2rc.protocols.crc import arc_position_table, crc16_arc
 from usb2rc.protocols.stream import Rejected, StreamDecoder, header_tail
 
 FRAME_LEN = 35
@@ -53,12 +53,21 @@ TEXT_LEN = 12  # device string, device type and startup text: at most 12 ASCII b
 ASCII_SERVICE_OFFSET = 0x30  # service n is sent as the character '0' + n by default
 
 _CRC_OFFSET = FRAME_LEN - 2
-_DATA_BODY = struct.Struct("<2sBBB10HII")  # bytes 0-32 with the axes as uint16 (encoding)
+_DATA_BODY = struct.Struct("<10HII")  # bytes 5-32 of a data frame, the axes as uint16
+_FRAME = struct.Struct(f"<2sBBB{PAYLOAD_LEN}sH")  # a whole frame from its parts
+_FRAME_LF = struct.Struct(f"<2sBBB{PAYLOAD_LEN}sHB")  # ... and its LF
 _DATA_FIELDS = struct.Struct("<BBB10hII")  # bytes 2-32 with the axes as int16 (decoding)
-_SERVICE_BODY = struct.Struct(f"<2sBBB{PAYLOAD_LEN}s")
 _CRC = struct.Struct("<H")
 _VID_PID = struct.Struct("<HH")
 _UINT16_MASK = 0xFFFF
+
+# The CRC is linear (usb2rc.protocols.crc): a frame's is the XOR of the header's share, each
+# header byte's share at its position and the CRC of bytes 5-32 (5 leading zero bytes do not
+# change a CRC that starts at 0). A frame is then one CRC over the bytes that changed.
+_HEADER_CRC = crc16_arc(HEADER + bytes(_CRC_OFFSET - len(HEADER)))
+_STATUS_CRC = arc_position_table(2, _CRC_OFFSET)
+_NODE_CRC = arc_position_table(3, _CRC_OFFSET)
+_CODE_CRC = arc_position_table(4, _CRC_OFFSET)
 
 
 class Service(IntEnum):
@@ -210,9 +219,36 @@ def _wire_axes(axes: Sequence[int]) -> list[int]:
     return list(map(_UINT16_MASK.__and__, axes))
 
 
-def _with_crc(body: bytes, line_feed: bool) -> bytes:
-    frame = body + _CRC.pack(crc16_arc(body))
-    return frame + b"\n" if line_feed else frame
+def _frame(status: int, node_id: int, code: int, body: bytes, line_feed: bool) -> bytes:
+    """A frame from its checked parts: the CRC from the header bytes' shares (one lookup
+    each) and the CRC of the 28-byte body."""
+    crc = _HEADER_CRC ^ _STATUS_CRC[status] ^ _NODE_CRC[node_id] ^ _CODE_CRC[code]
+    crc ^= crc16_arc(body)
+    if line_feed:
+        return _FRAME_LF.pack(HEADER, status, node_id, code, body, crc, LF)
+    return _FRAME.pack(HEADER, status, node_id, code, body, crc)
+
+
+def _data_checks_pass(status: object, node_id: object, code: object) -> bool:
+    """The checks of the usual, valid case in one expression (`type(x) is int` excludes
+    bool as the named checks do)."""
+    return (
+        type(status) is int
+        and status in DATA_STATUSES
+        and type(node_id) is int
+        and 0 <= node_id <= 255
+        and type(code) is int
+        and 0 <= code <= 255
+    )
+
+
+def _groups_pass(group1: object, group2: object) -> bool:
+    return (
+        type(group1) is int
+        and 0 <= group1 <= 0xFFFFFFFF
+        and type(group2) is int
+        and 0 <= group2 <= 0xFFFFFFFF
+    )
 
 
 def encode_data(
@@ -225,31 +261,73 @@ def encode_data(
     *,
     line_feed: bool = True,
 ) -> bytes:
-    """A data frame. Axes take int16 or uint16 values (-32768..65535), packed little-endian."""
-    # Every tick encodes one of these per node: the checks of the usual, valid case in one
-    # expression (`type(x) is int` excludes bool as the named checks do); when it fails the
-    # named checks run in their order to say what is wrong.
-    if not (
-        type(status) is int
-        and status in DATA_STATUSES
-        and type(node_id) is int
-        and 0 <= node_id <= 255
-        and type(code) is int
-        and 0 <= code <= 255
-        and type(group1) is int
-        and 0 <= group1 <= 0xFFFFFFFF
-        and type(group2) is int
-        and 0 <= group2 <= 0xFFFFFFFF
-    ):
+    """A data frame. Axes take int16 or uint16 values (-32768..65535), packed little-endian.
+
+    A session that sends one node a frame every tick: `NodeEncoder` (the node's body packed
+    once per change)."""
+    body = _checked_body(status, node_id, code, axes, group1, group2)
+    return _frame(status, node_id, code, body, line_feed)
+
+
+def _checked_body(
+    status: int, node_id: int, code: int, axes: Sequence[int], group1: int, group2: int
+) -> bytes:
+    """Bytes 5-32 of a data frame, after every argument's check (ValueError)."""
+    if not (_data_checks_pass(status, node_id, code) and _groups_pass(group1, group2)):
+        # the named checks, in their order, to say what is wrong
         _check_data_status(status)
         _check_int("node_id", node_id, 0, 255)
         _check_int("code", code, 0, 255)
         _wire_axes(axes)  # its error comes before the groups', as it always did
         _check_int("group1", group1, 0, 0xFFFFFFFF)
         _check_int("group2", group2, 0, 0xFFFFFFFF)
-    wire_axes = _wire_axes(axes)
-    body = _DATA_BODY.pack(HEADER, status, node_id, code, *wire_axes, group1, group2)
-    return _with_crc(body, line_feed)
+    return _DATA_BODY.pack(*_wire_axes(axes), group1, group2)
+
+
+class NodeEncoder:
+    """One node's data frames, for a session that sends the node a frame every tick.
+
+    Bytes 5-32 (the axes and button groups) and their CRC are packed when the node's values
+    change; an unchanged node's frame is that cached body with this tick's status and
+    message code, and a CRC from three table lookups. Its frames are `encode_data`'s, byte
+    for byte (tests/test_codec_packing.py). Values are checked when they change: axes equal
+    (==) to the last ones checked are those. Not thread-safe: one session owns it.
+    """
+
+    def __init__(self, node_id: int, *, line_feed: bool = True) -> None:
+        self.node_id = _check_int("node_id", node_id, 0, 255)
+        self.line_feed = line_feed
+        self.bodies_packed = 0  # times the values changed (a figure for the bench and tests)
+        self._axes: tuple[int, ...] | None = None
+        self._group1 = self._group2 = -1
+        self._body = bytes(PAYLOAD_LEN)
+        self._body_crc = 0
+
+    def encode(
+        self, status: int, code: int, axes: Sequence[int], group1: int, group2: int
+    ) -> bytes:
+        """The node's data frame (`encode_data`'s arguments but the node ID)."""
+        axes = tuple(axes)
+        if axes != self._axes or group1 != self._group1 or group2 != self._group2:
+            self._pack(status, code, axes, group1, group2)
+        elif not _data_checks_pass(status, self.node_id, code):
+            _check_data_status(status)
+            _check_int("code", code, 0, 255)
+        node_id = self.node_id
+        crc = _HEADER_CRC ^ _STATUS_CRC[status] ^ _NODE_CRC[node_id] ^ _CODE_CRC[code]
+        crc ^= self._body_crc
+        if self.line_feed:
+            return _FRAME_LF.pack(HEADER, status, node_id, code, self._body, crc, LF)
+        return _FRAME.pack(HEADER, status, node_id, code, self._body, crc)
+
+    def _pack(
+        self, status: int, code: int, axes: tuple[int, ...], group1: int, group2: int
+    ) -> None:
+        """New values: checked (as encode_data checks them), packed, their CRC computed."""
+        body = _checked_body(status, self.node_id, code, axes, group1, group2)
+        self._body, self._body_crc = body, crc16_arc(body)
+        self._axes, self._group1, self._group2 = axes, group1, group2
+        self.bodies_packed += 1
 
 
 def encode_service(
@@ -268,8 +346,7 @@ def encode_service(
     _check_int("service code", code, 0, 255)
     wire_payload = _padded_payload(payload)
     status = kind.value if binary_status else ASCII_SERVICE_OFFSET + kind.value
-    body = _SERVICE_BODY.pack(HEADER, status, node_id, code, wire_payload)
-    return _with_crc(body, line_feed)
+    return _frame(status, node_id, code, wire_payload, line_feed)
 
 
 def ascii_field(text: str, limit: int = TEXT_LEN) -> bytes:

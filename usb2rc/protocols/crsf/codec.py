@@ -53,6 +53,10 @@ MAX_FRAME_LEN = MAX_LENGTH + 2
 RC_FRAME_LEN = 2 + 1 + rc11.BLOCK_LEN + 1  # 26
 LINK_STATISTICS_LEN = 10
 
+# an RC frame's length and type bytes (little-endian), and the CRC so far after its type
+_RC_LENGTH_AND_TYPE = (rc11.BLOCK_LEN + 2) | TYPE_RC_CHANNELS_PACKED << 8
+_RC_TYPE_CRC = crc8_dvb_s2(bytes((TYPE_RC_CHANNELS_PACKED,)))
+
 _LINK = struct.Struct(">BBBbBBBBBb")
 _TIMING = struct.Struct(">BBBIi")
 
@@ -125,8 +129,15 @@ def encode_frame(address: int, frame_type: int, payload: bytes = b"") -> bytes:
 
 
 def encode_rc_channels(channels: Sequence[int], address: int = ADDRESS_MODULE) -> bytes:
-    """RC_CHANNELS_PACKED of 16 values 0..2047 (26 bytes)."""
-    return encode_frame(address, TYPE_RC_CHANNELS_PACKED, rc11.pack(channels))
+    """RC_CHANNELS_PACKED of 16 values 0..2047 (26 bytes): `encode_frame`'s bytes, from the
+    block's integer with the frame's other fields in one `int.to_bytes`."""
+    block = rc11.block(channels)
+    if not 0 <= address <= 0xFF:
+        raise ValueError(f"address must be a byte, got {address!r}")
+    payload = block.to_bytes(rc11.BLOCK_LEN, "little")
+    crc = crc8_dvb_s2(payload, _RC_TYPE_CRC)
+    frame = address | _RC_LENGTH_AND_TYPE << 8 | block << 24 | crc << (8 * (RC_FRAME_LEN - 1))
+    return frame.to_bytes(RC_FRAME_LEN, "little")
 
 
 def encode_link_statistics(stats: LinkStatistics, address: int = ADDRESS_RADIO) -> bytes:

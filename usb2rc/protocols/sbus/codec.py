@@ -59,7 +59,9 @@ def encode_sbus(
         | (FLAG_FRAME_LOST if frame_lost else 0)
         | (FLAG_FAILSAFE if failsafe else 0)
     )
-    return bytes((HEADER,)) + rc11.pack(channels) + bytes((flags, FOOTER))
+    # the whole frame as one little-endian integer: header, block, flags, footer (0)
+    frame = HEADER | rc11.block(channels) << 8 | flags << (8 * FLAGS_AT)
+    return frame.to_bytes(FRAME_LEN, "little")
 
 
 def parse_frame(data: bytes | bytearray | memoryview) -> SbusFrame:

@@ -1,0 +1,263 @@
+"""Issue 22's precompiled packing, held to the encoders it replaced (tests/legacy_encoders.py)
+byte for byte and error for error, and to the shared vectors in tests/data/vectors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import legacy_encoders as legacy
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from usb2rc.protocols import crc, rc11
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.crsf import codec as crsf
+from usb2rc.protocols.last_frame import LastFrame
+from usb2rc.protocols.sbus import codec as sbus
+from usb2rc.protocols.sumd import codec as sumd
+
+VECTORS = Path(__file__).parent / "data" / "vectors"
+
+statuses = st.sampled_from(sorted(c2_16b.DATA_STATUSES))
+bytes_ = st.integers(0, 255)
+axes = st.lists(st.integers(-32768, 65535), min_size=10, max_size=10)
+groups = st.integers(0, 0xFFFFFFFF)
+channels11 = st.lists(st.integers(0, rc11.VALUE_MAX), min_size=16, max_size=16)
+# Values a caller might get wrong: each check's message must be the old one.
+odd_values = st.one_of(
+    st.integers(-70000, 70000),
+    st.booleans(),
+    st.floats(allow_nan=False, allow_infinity=False),
+    st.none(),
+    st.text(max_size=2),
+)
+
+
+def outcome(call: Any, *args: Any, **kwargs: Any) -> tuple[str, object]:
+    """What a call did: its bytes, or its ValueError's message, or the other error's type."""
+    try:
+        return ("bytes", call(*args, **kwargs))
+    except ValueError as exc:
+        return ("ValueError", str(exc))
+    except Exception as exc:  # the old code's TypeError must stay one too
+        return ("error", type(exc).__name__)
+
+
+# --- CRCs ----------------------------------------------------------------------------------
+
+
+@given(st.binary(max_size=80), st.binary(max_size=40))
+def test_crcs_match_the_old_ones_and_continue(first: bytes, second: bytes) -> None:
+    whole = first + second
+    assert crc.crc16_arc(whole) == legacy.crc16_arc(whole)
+    assert crc.crc16_arc(second, crc.crc16_arc(first)) == legacy.crc16_arc(whole)
+    assert crc.crc8_dvb_s2(whole) == legacy.crc8_dvb_s2(whole)
+    assert crc.crc8_dvb_s2(second, crc.crc8_dvb_s2(first)) == legacy.crc8_dvb_s2(whole)
+
+
+@given(st.integers(1, 40).flatmap(lambda n: st.tuples(st.binary(min_size=n, max_size=n))))
+def test_a_messages_crc_is_the_xor_of_its_bytes_positions(message: tuple[bytes]) -> None:
+    data = message[0]
+    combined = 0
+    for position, value in enumerate(data):
+        combined ^= crc.arc_position_table(position, len(data))[value]
+    assert combined == legacy.crc16_arc(data)
+
+
+def test_position_table_refuses_a_position_outside_the_message() -> None:
+    with pytest.raises(ValueError, match="position 5"):
+        crc.arc_position_table(5, 5)
+
+
+# --- C2-16B --------------------------------------------------------------------------------
+
+
+@settings(max_examples=300)
+@given(statuses, bytes_, bytes_, axes, groups, groups, st.booleans())
+def test_encode_data_is_the_old_encoder(
+    status: int, node: int, code: int, axes_: list[int], g1: int, g2: int, lf: bool
+) -> None:
+    new = c2_16b.encode_data(status, node, code, axes_, g1, g2, line_feed=lf)
+    assert new == legacy.encode_data(status, node, code, axes_, g1, g2, line_feed=lf)
+
+
+@settings(max_examples=300)
+@given(
+    st.one_of(statuses, odd_values),
+    st.one_of(bytes_, odd_values),
+    st.one_of(bytes_, odd_values),
+    st.one_of(axes, st.lists(st.one_of(st.integers(-32768, 65535), odd_values), max_size=11)),
+    st.one_of(groups, odd_values),
+    st.one_of(groups, odd_values),
+)
+def test_encode_data_fails_as_the_old_encoder(
+    status: Any, node: Any, code: Any, axes_: Any, g1: Any, g2: Any
+) -> None:
+    args = (status, node, code, axes_, g1, g2)
+    assert outcome(c2_16b.encode_data, *args) == outcome(legacy.encode_data, *args)
+
+
+# One tick of a node: its values, or the last tick's (unchanged), with a new status and code.
+ticks = st.lists(
+    st.tuples(statuses, bytes_, st.one_of(st.none(), st.tuples(axes, groups, groups))),
+    min_size=1,
+    max_size=12,
+)
+
+
+@settings(max_examples=300)
+@given(bytes_, st.booleans(), st.tuples(axes, groups, groups), ticks)
+def test_node_encoder_sends_the_old_encoders_frames_tick_after_tick(
+    node: int, lf: bool, first: tuple[list[int], int, int], steps: list[Any]
+) -> None:
+    encoder = c2_16b.NodeEncoder(node, line_feed=lf)
+    values, changes = first, 1
+    for status, code, new_values in [(c2_16b.LIVE, 0, first), *steps]:
+        if new_values is not None and new_values != values:
+            values, changes = new_values, changes + 1
+        axes_, g1, g2 = values
+        frame = encoder.encode(status, code, axes_, g1, g2)
+        assert frame == legacy.encode_data(status, node, code, axes_, g1, g2, line_feed=lf)
+    assert encoder.bodies_packed == changes  # an unchanged node is not packed again
+
+
+def test_node_encoder_reproduces_the_shared_data_vectors() -> None:
+    for vector in json.loads((VECTORS / "c2-16b-data.json").read_text()):
+        encoder = c2_16b.NodeEncoder(vector["node_id"])
+        values = (vector["axes"], vector["group1"], vector["group2"])
+        for _ in range(2):  # packed, then from its cached body
+            frame = encoder.encode(vector["status"], vector["message_code"], *values)
+            assert frame.hex() == vector["hex"], vector["name"]
+
+
+@given(
+    st.one_of(statuses, odd_values),
+    st.one_of(bytes_, odd_values),
+    st.one_of(axes, st.lists(st.one_of(st.integers(-32768, 65535), odd_values), max_size=11)),
+    st.one_of(groups, odd_values),
+)
+def test_node_encoder_fails_as_the_old_encoder_and_keeps_its_last_body(
+    status: Any, code: Any, axes_: Any, g1: Any
+) -> None:
+    good = ([1, 2, 3, 4, 5, 6, 7, 8, 9, 10], 5, 6)
+    encoder = c2_16b.NodeEncoder(7)
+    encoder.encode(c2_16b.LIVE, 0, *good)
+    args = (status, 7, code, axes_, g1, 0)
+    new = outcome(encoder.encode, status, code, axes_, g1, 0)
+    old = outcome(legacy.encode_data, *args)
+    if old[0] == "bytes":
+        assert new == old
+    else:
+        assert new[0] == old[0] and (new[0] != "ValueError" or new[1] == old[1])
+    # whatever it refused, the next frame is right (a refused body is not cached)
+    assert encoder.encode(c2_16b.FAILSAFE, 1, *good) == legacy.encode_data(
+        c2_16b.FAILSAFE, 7, 1, *good
+    )
+
+
+def test_node_encoder_refuses_a_bad_node_id() -> None:
+    with pytest.raises(ValueError, match=r"node_id must be an int in 0\.\.255"):
+        c2_16b.NodeEncoder(256)
+
+
+@given(
+    st.sampled_from(list(c2_16b.Service)),
+    bytes_,
+    st.binary(max_size=28),
+    st.booleans(),
+    st.booleans(),
+)
+def test_service_frames_keep_their_crc(
+    service: c2_16b.Service, node: int, payload: bytes, binary: bool, lf: bool
+) -> None:
+    frame = c2_16b.encode_service(service, node, payload, binary_status=binary, line_feed=lf)
+    assert int.from_bytes(frame[33:35], "little") == legacy.crc16_arc(frame[:33])
+    assert frame[:2] == b"H-" and len(frame) == 35 + lf
+
+
+# --- the 11-bit block: SBUS and CRSF -------------------------------------------------------
+
+
+@settings(max_examples=300)
+@given(
+    channels11,
+    st.booleans(),
+    st.booleans(),
+    st.booleans(),
+    st.booleans(),
+    st.integers(0, 255),
+)
+def test_sbus_and_crsf_are_the_old_encoders(
+    values: list[int], ch17: bool, ch18: bool, lost: bool, failsafe: bool, address: int
+) -> None:
+    flags = {"ch17": ch17, "ch18": ch18, "frame_lost": lost, "failsafe": failsafe}
+    assert rc11.pack(values) == legacy.rc11_pack(values)
+    assert sbus.encode_sbus(values, **flags) == legacy.encode_sbus(values, **flags)
+    assert crsf.encode_rc_channels(values, address) == legacy.encode_rc_channels(values, address)
+
+
+@given(
+    st.lists(st.one_of(st.integers(0, rc11.VALUE_MAX), odd_values), min_size=14, max_size=18),
+    st.one_of(st.integers(-2, 300), odd_values),
+)
+def test_sbus_and_crsf_fail_as_the_old_encoders(values: list[Any], address: Any) -> None:
+    assert outcome(rc11.pack, values) == outcome(legacy.rc11_pack, values)
+    assert outcome(sbus.encode_sbus, values) == outcome(legacy.encode_sbus, values)
+    new = outcome(crsf.encode_rc_channels, values, address)
+    assert new == outcome(legacy.encode_rc_channels, values, address)
+
+
+def test_sbus_and_crsf_reproduce_the_published_frames() -> None:
+    """Each published frame, decoded, encodes to its own bytes again."""
+    published = json.loads((VECTORS / "crsf-sbus-published.json").read_text())
+    for entry in published["sbus"]:
+        wire = _wire(entry)
+        [frame] = sbus.SbusDecoder().feed(wire)
+        flags = {"ch17": frame.ch17, "ch18": frame.ch18}
+        flags |= {"frame_lost": frame.frame_lost, "failsafe": frame.failsafe}
+        published_frame = bytearray(wire[wire.index(sbus.HEADER) :][: sbus.FRAME_LEN])
+        published_frame[sbus.FLAGS_AT] &= 0x0F  # some set the unused bits; usb2rc does not
+        encoded = sbus.encode_sbus(frame.channels, **flags)
+        assert encoded == published_frame, entry["source"]
+    for entry in published["crsf"]:
+        wire = _wire(entry)
+        for rc in crsf.CrsfDecoder().feed(wire):
+            if isinstance(rc, crsf.RcChannels):
+                assert crsf.encode_rc_channels(rc.channels, rc.address) in wire, entry["source"]
+
+
+def _wire(entry: dict[str, Any]) -> bytes:
+    if "hex" in entry:
+        return bytes.fromhex(entry["hex"].replace(" ", ""))
+    return bytes(entry["bytes"])
+
+
+# --- a line's last frame -------------------------------------------------------------------
+
+
+@given(
+    st.lists(st.tuples(st.one_of(st.none(), channels11), st.booleans()), min_size=1, max_size=10)
+)
+def test_last_frame_sends_the_encoders_bytes_and_packs_only_changes(steps: list[Any]) -> None:
+    memo = LastFrame(sbus.encode_sbus)
+    values: list[int] = [992] * 16
+    last: tuple[tuple[int, ...], bool] | None = None
+    packs = 0
+    for new_values, failsafe in steps:
+        values = new_values if new_values is not None else values
+        packs += (tuple(values), failsafe) != last
+        last = (tuple(values), failsafe)
+        frame = memo(values, frame_lost=failsafe, failsafe=failsafe)
+        assert frame == legacy.encode_sbus(values, frame_lost=failsafe, failsafe=failsafe)
+    assert memo.encoded == packs
+
+
+def test_last_frame_does_not_remember_a_refused_call() -> None:
+    memo = LastFrame(sumd.encode_sumd)
+    with pytest.raises(ValueError, match="channel 2"):
+        memo([0x2EE0, 70000])
+    assert memo([0x2EE0, 0x2EE0]) == legacy.encode_sumd([0x2EE0, 0x2EE0])
+    assert memo.encoded == 1
