@@ -28,7 +28,6 @@ from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.nodestep import (
     BASE_PERIOD_S,
-    EMPTY,
     DeviceView,
     NodeView,
     TableSnapshot,
@@ -45,6 +44,8 @@ from usb2rc.trims import TrimStore
 
 log = logging.getLogger("usb2rc.nodes")
 
+EVENTS_KEPT = 1024  # the service event log's bound: a line further behind announces again
+
 
 class EventKind(Enum):
     CONNECTED = "connected"  # -> service frames 1, 6, 5, 7
@@ -59,6 +60,48 @@ class ServiceEvent:
     info: DeviceInfo | None = None
     device_type: str = ""
     error_code: int = 0
+
+
+@dataclass(frozen=True)
+class EventLog:
+    """The table's service events, append-only and bounded, as one immutable value: event
+    number `start + i` is `events[i]`. A line session keeps its own cursor (the number of
+    the next event it has not seen); a cursor before `start` fell behind (`since` says
+    None) and must announce everything again from `present`: the CONNECTED event of every
+    device present, in Node-ID order (what a line that opens announces)."""
+
+    start: int = 0
+    events: tuple[ServiceEvent, ...] = ()
+    present: tuple[ServiceEvent, ...] = ()
+
+    @property
+    def end(self) -> int:
+        """The number the next event will get: a cursor here has seen everything."""
+        return self.start + len(self.events)
+
+    def since(self, cursor: int) -> tuple[ServiceEvent, ...] | None:
+        """The events from number `cursor` on; None if some of them were dropped already."""
+        if cursor < self.start:
+            return None
+        return self.events[cursor - self.start :]
+
+    def appended(self, event: ServiceEvent, present: tuple[ServiceEvent, ...]) -> EventLog:
+        """This log with `event` added (the oldest dropped past EVENTS_KEPT)."""
+        events = (*self.events, event)
+        drop = max(0, len(events) - EVENTS_KEPT)
+        return EventLog(self.start + drop, events[drop:], present)
+
+
+EMPTY_LOG = EventLog()
+
+
+@dataclass(frozen=True)
+class NodeSnapshot(TableSnapshot):
+    """A step's snapshot (`nodestep.TableSnapshot`) with the service event log as it was
+    when the step ran: a line session reads both from one value, so a device's `2` is in
+    the same snapshot as the first frame that has it gone."""
+
+    log: EventLog = EMPTY_LOG
 
 
 @dataclass(frozen=True)
@@ -321,7 +364,8 @@ class NodeTable:
         self._stopping = False
         # The step (docs/DESIGN.md, "Node state: one step per period"): the latest snapshot,
         # and what it was made from: the period, the devices' layout, the readers' records.
-        self._snapshot = EMPTY
+        self._snapshot: NodeSnapshot = NodeSnapshot()
+        self._log = EMPTY_LOG  # replaced whole by `_broadcast`, published by each step
         self._layout = 0  # bumped whenever devices, entries or bindings change
         self._stepped: tuple[int, int, tuple[ReaderRecord, ...]] | None = None
         # devices resting, not long enough yet at the last step: a step when one has
@@ -363,11 +407,11 @@ class NodeTable:
         _log_changes(changes)
         return frames
 
-    def snapshot(self) -> TableSnapshot:
+    def snapshot(self) -> NodeSnapshot:
         """The latest step's snapshot, as it is: reading it changes nothing."""
         return self._snapshot
 
-    def step_if_due(self) -> TableSnapshot:
+    def step_if_due(self) -> NodeSnapshot:
         """Run the step unless it already ran for this period, these reader records and
         these devices (the master clock's call, each base period); the latest snapshot."""
         with self._lock:
@@ -420,7 +464,7 @@ class NodeTable:
             change = None if self._stopping else node.failsafe_change(view.frame.failsafe)
             if change:
                 changes.append(change)
-        self._snapshot = TableSnapshot(period, now, tuple(views))
+        self._snapshot = NodeSnapshot(period, now, tuple(views), self._log)
         self._resting = _resting(nodes, now)
         return changes
 
@@ -666,9 +710,19 @@ class NodeTable:
                     self._nodes[node_id] = _Node(node_id, expected=dict(entries))
 
     def _broadcast(self, event: ServiceEvent) -> None:
+        """Queue `event` for every subscriber, and append it to the log the next step
+        publishes (the layout changed: a step is due even within this period)."""
         for box in self._outbox:
             if box is not None:
                 box.append(event)
+        present = tuple(
+            _connected(node_id, attached)
+            for node_id in sorted(self._nodes)
+            for attached in self._nodes[node_id].attached
+            if attached.present
+        )
+        self._log = self._log.appended(event, present)
+        self._layout += 1
 
 
 def _same(before: tuple[ReaderRecord, ...], now: tuple[ReaderRecord, ...]) -> bool:

@@ -1,0 +1,1 @@
+"""The C2-16B output protocol: its line session."""

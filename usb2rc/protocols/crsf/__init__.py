@@ -1,0 +1,1 @@
+"""The CRSF output protocol: its line session."""

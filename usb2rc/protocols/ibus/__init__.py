@@ -1,0 +1,1 @@
+"""The iBus output protocol: its line session."""

@@ -1,0 +1,1 @@
+"""The MAVLink output protocol: its line session."""

@@ -1,0 +1,1 @@
+"""The SBUS output protocol: its line session."""

@@ -1,0 +1,1 @@
+"""The HoTT SUMD output protocol: its line session."""
