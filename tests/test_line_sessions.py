@@ -357,7 +357,7 @@ def test_every_session_keeps_its_protocol_whatever_the_line_does(
 
 def test_each_session_reports_its_stats_as_a_record() -> None:
     for name, make in sessions().items():
-        record = make().stats()
+        record = make().stats(0.0)
         assert isinstance(record, dict) and "queue_full_ticks" in record, name
 
 
@@ -376,7 +376,7 @@ def test_a_c2_line_that_fell_behind_the_event_log_starts_over_from_the_startup_f
     out = line.tick([True] * NODES, 0, ("all", 0, 0))
     names = [f.service for f in c2_16b.Decoder().feed(out) if isinstance(f, c2_16b.ServiceFrame)]
     assert names[:2] == [c2_16b.Service.STARTUP, c2_16b.Service.CONNECTED]
-    assert line.session.stats()["event_log_gaps"] == 1
+    assert line.session.stats(0.0)["event_log_gaps"] == 1
 
 
 def test_the_event_log_keeps_its_bound_and_says_when_a_cursor_fell_behind() -> None:

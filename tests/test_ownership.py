@@ -2,7 +2,7 @@
 race explicitly through a seam, or checks which thread writes a field; none relies on luck.
 
 - `Daemon._become_ready`: the check and the set are one step (READY=1 goes out once);
-- `TickThread.pace`: the deadline and the period are one value, written by the output thread;
+- `Driver.pace`: the deadline and the period are one value, written by the driver thread;
 - `CrsfSession.link`: the module's figures with their time, one value (tests/test_crsf_sbus.py).
 """
 
@@ -19,9 +19,11 @@ import serial
 from usb2rc.config import Config, OutputConfig
 from usb2rc.daemon import READ_AHEAD_S, Daemon
 from usb2rc.hid.replay import ReplayBackend
+from usb2rc.lines.driver import Driver, Pace
+from usb2rc.lines.link import LineEvent
+from usb2rc.lines.serial_link import SerialLink
 from usb2rc.protocol import crsf
-from usb2rc.scheduler import CrsfOutput, Pace
-from usb2rc.transport import LineEvent, SerialLink
+from usb2rc.protocols.crsf.session import CrsfLine
 
 REAL_SERIAL_FOR_URL = serial.serial_for_url
 WAIT_S = 5.0  # a safety net only: every wait below ends on its condition
@@ -115,7 +117,7 @@ class _PaceWrites:
         self.loose: list[str] = []
 
 
-def _watch_pace(thread: CrsfOutput, writes: _PaceWrites) -> None:
+def _watch_pace(thread: Driver, writes: _PaceWrites) -> None:
     def setattr_watched(obj: Any, name: str, value: Any) -> None:
         if name == "pace":
             writes.writers.add(threading.current_thread().name)
@@ -131,11 +133,11 @@ def test_only_the_output_thread_writes_its_pace_and_follows_the_module(
 ) -> None:
     daemon = _daemon(tmp_path, protocol="crsf")
     thread = daemon.outputs[0].thread
-    assert isinstance(thread, CrsfOutput)
+    assert isinstance(thread, Driver) and isinstance(thread.session, CrsfLine)
     writes = _PaceWrites()
     _watch_pace(thread, writes)
     # the module asks for 10 ms (0.1 µs units): next_due follows it from the first tick
-    thread.crsf.received(crsf.encode_timing_sync(100_000, 0), time.monotonic())
+    thread.session.received(crsf.encode_timing_sync(100_000, 0), time.monotonic())
     thread.start()
     try:
         for _ in range(int(WAIT_S / 0.01)):
@@ -245,7 +247,7 @@ def test_each_link_field_has_one_writer_thread(monkeypatch: Any) -> None:
         raise AssertionError("never")
 
     def follow() -> LineEvent | None:
-        """What `_LineThread.follow_link` does with the link each tick."""
+        """What `Driver._follow_link` does with the link each tick."""
         if not link.is_open:
             link.try_open()
         return link.line_event()

@@ -29,15 +29,14 @@ from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.lifecycle import DeviceLifecycle
+from usb2rc.lines.driver import Driver, earliest
+from usb2rc.lines.link import Link
+from usb2rc.lines.rx import LinkReader
 from usb2rc.mapping import Mapping, compile_mapping, match_text
 from usb2rc.nodestep import NodeClock
 from usb2rc.outputs import protocol
 from usb2rc.outputs.wiring import OutputContext
-from usb2rc.scheduler import C2Output, ReplyRx, RxThread, TickThread
 from usb2rc.state import Expected, ExpectedEntry, NodeTable
-from usb2rc.transport import SerialLink
-from usb2rc.transport_udp import UdpLink
-from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc")
 
@@ -60,9 +59,9 @@ class NoPortError(ValueError):
 @dataclass
 class _Output:
     config: OutputConfig
-    link: SerialLink | UdpLink
-    thread: TickThread
-    rx: Worker | None = None
+    link: Link
+    thread: Driver
+    rx: LinkReader | None = None
 
 
 @dataclass(frozen=True)
@@ -211,8 +210,10 @@ class Daemon:
         instead of one per report in the last READ_AHEAD_S; a report in the last LAST_CALL_S
         goes with the next tick (the tick's own wake-up is not more precise than that)."""
         # One read of each output's pace: its deadline and period are one value (the
-        # output thread may replace it meanwhile; never half of it).
-        pace = min((o.thread.pace for o in self.outputs), key=lambda p: p.deadline)
+        # driver may replace it meanwhile; never half of it). The drivers wake on one grid.
+        pace = earliest(o.thread.pace for o in self.outputs)
+        if pace is None:
+            return 0.0  # the outputs have not started: read as reports come
         due, now = pace.deadline, time.monotonic()
         for wake in (due - READ_AHEAD_S, due - LAST_CALL_S, due + pace.period_s - READ_AHEAD_S):
             if wake > now:
@@ -334,7 +335,7 @@ class Daemon:
             "missed_ticks": st.missed_ticks,
             "period_p99_error_ms": st.period_p99_error_ms(out.thread.period_s),
             "bytes_written": link.bytes_written,
-            "queue_full_skips": link.writes_skipped_queue_full,
+            "queue_full_skips": link.writes_skipped_queue_full,  # UDP: refused datagrams
             "write_timeouts": link.write_timeouts,
             "short_writes": link.short_writes,
             "stalls": st.stalls,
@@ -342,22 +343,10 @@ class Daemon:
             "line_losses": link.losses,
             "tick_errors": st.tick_errors,
         }
-        if isinstance(out.thread, C2Output):
-            record["data_frames"] = st.data_frames
-            record["service_frames"] = st.service_frames
-            record["round_robin_deferrals"] = st.deferred_nodes
-            record["handover_frames"] = st.handover_frames
-            record["handovers_cut"] = st.handovers_cut
-            record["low_battery_frames"] = st.low_battery_frames
         record.update(out.thread.protocol_stats())
-        if isinstance(out.rx, ReplyRx):  # a far end faster than its line loses the excess
+        record["queue_full_skips"] += record.pop("queue_full_ticks", 0)
+        if out.rx is not None:  # a far end faster than its line loses the excess
             record["rx_dropped_bytes"] = out.rx.budget.dropped_bytes
-        if isinstance(out.rx, RxThread):
-            record["rx_bytes"] = link.bytes_read
-            record["rx_skipped"] = out.rx.decoder.bytes_skipped
-            record["rx_crc_failures"] = out.rx.decoder.crc_failures
-            record["rx_requests"] = out.rx.requests
-            record["rx_requests_dropped"] = out.rx.requests_dropped
         return record
 
     @staticmethod

@@ -49,8 +49,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from usb2rc.data_status import DataStatuses
 from usb2rc.protocol import c2_16b, sumd
+from usb2rc.protocols.c2_16b.data_status import DataStatuses
 from usb2rc.state import EventKind, NodeFrame, ServiceEvent
 
 log = logging.getLogger("usb2rc.session")

@@ -19,7 +19,8 @@ only moves events and bytes:
     wrote(sent, unsure)                   how much of the tick's bytes went out
     stopping() / stop_done                usb2rc stops: the protocol's failsafe, then done
     next_due(due, now)                    when the tick after the one due at `due` is due
-    stats() -> dict                       what only this protocol counts (stats record)
+    period(now)                           the period now (a CRSF module may set it)
+    stats(now) -> dict                    what only this protocol counts (stats record)
 
 Back-pressure is decided here, by `Backpressure`, once for every protocol (docs/ICD.md,
 "A stalled line"): no tick adds bytes while the line is stalled; a serial port's queue is
@@ -115,9 +116,11 @@ class LineSession(Protocol):
     """What the driver knows of any output's session (see the module docstring)."""
 
     name: str
-    line_open: bool
-    stalled: bool
 
+    @property
+    def line_open(self) -> bool: ...
+    @property
+    def stalled(self) -> bool: ...
     def line_opened(self) -> None: ...
     def line_lost(self) -> None: ...
     def link_state(self, state: LinkState) -> Ask: ...
@@ -129,7 +132,8 @@ class LineSession(Protocol):
     @property
     def stop_done(self) -> bool: ...
     def next_due(self, due: float, now: float) -> float: ...
-    def stats(self) -> dict[str, Any]: ...
+    def period(self, now: float) -> float: ...
+    def stats(self, now: float) -> dict[str, Any]: ...
 
 
 class ChannelValues(Protocol):
@@ -215,7 +219,10 @@ class LineBase:
     def next_due(self, due: float, now: float) -> float:
         return due + self.period_s
 
-    def stats(self) -> dict[str, Any]:
+    def period(self, now: float) -> float:
+        return self.period_s
+
+    def stats(self, now: float) -> dict[str, Any]:
         return {"queue_full_ticks": self.backpressure.held_queue_full}
 
 

@@ -1,8 +1,9 @@
-"""How each output protocol's running pieces are built: link, output thread, RX thread.
+"""How each output protocol's running pieces are built: link, session, driver, reader thread.
 
 The registry (`usb2rc.outputs.PROTOCOLS`) names one `build_<protocol>(context)` here per
-protocol; `usb2rc.daemon` calls it for each configured output and only starts and stops
-what comes back.
+protocol; each makes the protocol's session (`usb2rc.protocols.<name>.session`) and its link
+and hands both to the one generic driver (`usb2rc.lines.driver.Driver`). `usb2rc.daemon`
+calls it for each configured output and only starts and stops what comes back.
 """
 
 from __future__ import annotations
@@ -15,28 +16,24 @@ import serial
 
 from usb2rc.config import OutputConfig
 from usb2rc.config_mavlink import MavlinkOptions, read_signing_key
+from usb2rc.lines.driver import Driver
+from usb2rc.lines.link import Link
+from usb2rc.lines.rx import LinkReader
+from usb2rc.lines.serial_link import SerialLink
+from usb2rc.lines.session import LineSession
+from usb2rc.lines.udp_link import UdpLink, is_udp_url
 from usb2rc.mapping import Mapping
 from usb2rc.outputs import protocol
 from usb2rc.outputs.channels import IBUS_SCALE, RC11_SCALE, OutputChannels, WireScale
 from usb2rc.outputs.sumd import SumdChannels
-from usb2rc.protocol import c2_16b
-from usb2rc.rc_sessions import CrsfSession, IbusSession, SbusSession
-from usb2rc.scheduler import (
-    C2Output,
-    ChannelOutput,
-    CrsfOutput,
-    MavlinkOutput,
-    ReplyRx,
-    RxThread,
-    SumdOutput,
-    TickThread,
-    queue_cap,
-)
-from usb2rc.session import C2Settings, frames_per_tick
+from usb2rc.protocols.c2_16b.session import C2Line
+from usb2rc.protocols.crsf.session import CrsfLine
+from usb2rc.protocols.ibus.session import IbusLine
+from usb2rc.protocols.sbus.session import SbusLine
+from usb2rc.protocols.sumd.session import SumdLine
+from usb2rc.rc_sessions import CrsfSession
+from usb2rc.session import C2Settings
 from usb2rc.state import NodeTable
-from usb2rc.transport import SerialLink
-from usb2rc.transport_udp import UdpLink, is_udp_url
-from usb2rc.worker import Worker
 
 
 @dataclass(frozen=True)
@@ -55,16 +52,30 @@ class OutputContext:
 
 @dataclass
 class BuiltOutput:
-    """A running output's pieces: its link, its thread and, when it reads, its RX thread.
+    """A running output's pieces: its link, its driver and, when the link is read on its
+    own thread (a serial link), the reader. The daemon uses of `link` its `Link` side
+    (`open_now()`, `is_open`, `url`, `last_error`, `stats`, `close()`), of `thread` a
+    `Driver`'s `start`, `stop`, `join`, `stats`, `period_s`, `pace`, `last_tick_monotonic`
+    and `protocol_stats()`."""
 
-    The daemon uses of `link` what `SerialLink` (and MAVLink's `UdpLink`) offers:
-    `open_now()`, `is_open`, `url`, `last_error`, `stats` (`LinkStats`) and `close()`; of
-    `thread` a `TickThread`'s `start`, `stop`, `join`, `stats`, `period_s`, `pace`,
-    `last_tick_monotonic` and `protocol_stats()`."""
+    link: Link
+    thread: Driver
+    rx: LinkReader | None = None
 
-    link: SerialLink | UdpLink
-    thread: TickThread
-    rx: Worker | None = None
+
+def _running(ctx: OutputContext, link: Link, session: LineSession, period_s: float) -> BuiltOutput:
+    """The driver of `session` over `link`; a serial link gets its reader thread."""
+    driver = Driver(
+        ctx.name,
+        link,
+        session,
+        ctx.table.step_if_due,
+        period_s,
+        ctx.on_tick,
+        ctx.on_first_write,
+    )
+    rx = LinkReader(f"{ctx.name}-rx", link) if isinstance(link, SerialLink) else None
+    return BuiltOutput(link, driver, rx)
 
 
 def build_c2_16b(ctx: OutputContext) -> BuiltOutput:
@@ -77,22 +88,16 @@ def build_c2_16b(ctx: OutputContext) -> BuiltOutput:
         binary_status=out.service_status == "binary",
         version=ctx.version,
     )
-    frame_len = c2_16b.FRAME_LEN + (1 if out.line_feed else 0)
-    tick_bytes = frames_per_tick(out.baudrate, out.rate_hz, frame_len) * frame_len
-    link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(tick_bytes))
-    c2 = C2Output(ctx.name, link, ctx.table, settings, ctx.on_tick, ctx.on_first_write)
-    return BuiltOutput(link, c2, RxThread(f"{ctx.name}-rx", link, c2.received))
+    session = C2Line(out.port, settings)
+    return _running(ctx, SerialLink(out.port, out.baudrate), session, 1.0 / out.rate_hz)
 
 
 def build_sumd(ctx: OutputContext) -> BuiltOutput:
     out = ctx.config
     assert out.port
     channels = SumdChannels.of(ctx.mapping.sumd_channels(out), out.extended)
-    link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(channels.frame_length))
-    thread = SumdOutput(
-        ctx.name, link, ctx.table, channels, out.rate_hz, ctx.on_tick, ctx.on_first_write
-    )
-    return BuiltOutput(link, thread)
+    session = SumdLine(out.port, channels, channels.frame_length, out.rate_hz)
+    return _running(ctx, SerialLink(out.port, out.baudrate), session, 1.0 / out.rate_hz)
 
 
 def _scaled_channels(ctx: OutputContext, scale: WireScale) -> OutputChannels:
@@ -106,88 +111,51 @@ def build_crsf(ctx: OutputContext) -> BuiltOutput:
     assert out.port
     channels = _scaled_channels(ctx, RC11_SCALE)
     entry = protocol("crsf")
-    session = CrsfSession(
+    engine = CrsfSession(
         1.0 / out.rate_hz,
         follow_module=bool(out.option("follow_module")),
         address=int(out.option("address")),
         min_interval_s=entry.bits_per_second(1.0, len(channels)) / out.baudrate,
     )
-    link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(channels.frame_length))
-    thread = CrsfOutput(
-        ctx.name, link, ctx.table, channels, session, ctx.on_tick, ctx.on_first_write
-    )
-    return BuiltOutput(link, thread, ReplyRx(f"{ctx.name}-rx", link, thread.received.put))
+    session = CrsfLine(out.port, channels, engine)
+    return _running(ctx, SerialLink(out.port, out.baudrate), session, 1.0 / out.rate_hz)
 
 
 def build_sbus(ctx: OutputContext) -> BuiltOutput:
     out = ctx.config
     assert out.port
-    channels = _scaled_channels(ctx, RC11_SCALE)
+    session = SbusLine(out.port, _scaled_channels(ctx, RC11_SCALE), out.rate_hz)
     link = SerialLink(
-        out.port,
-        out.baudrate,
-        max_queued_bytes=queue_cap(channels.frame_length),
-        parity=serial.PARITY_EVEN,
-        stopbits=serial.STOPBITS_TWO,
+        out.port, out.baudrate, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_TWO
     )
-    thread = ChannelOutput(
-        ctx.name,
-        link,
-        ctx.table,
-        channels,
-        SbusSession(),
-        out.rate_hz,
-        ctx.on_tick,
-        ctx.on_first_write,
-    )
-    return BuiltOutput(link, thread)
+    return _running(ctx, link, session, 1.0 / out.rate_hz)
 
 
 def build_ibus(ctx: OutputContext) -> BuiltOutput:
     out = ctx.config
     assert out.port
-    channels = _scaled_channels(ctx, IBUS_SCALE)
-    link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(channels.frame_length))
-    thread = ChannelOutput(
-        ctx.name,
-        link,
-        ctx.table,
-        channels,
-        IbusSession(),
-        out.rate_hz,
-        ctx.on_tick,
-        ctx.on_first_write,
-    )
-    return BuiltOutput(link, thread)
+    session = IbusLine(out.port, _scaled_channels(ctx, IBUS_SCALE), out.rate_hz)
+    return _running(ctx, SerialLink(out.port, out.baudrate), session, 1.0 / out.rate_hz)
 
 
 def build_mavlink(ctx: OutputContext) -> BuiltOutput:
-    """The registry's build function: a MAVLink output on UDP (`udpout:` / `udpin:`, read
-    by the output thread) or on a serial port / URL (read by an RX thread)."""
+    """The registry's build function: a MAVLink output on UDP (`udpout:` / `udpin:`, polled
+    by the driver) or on a serial port / URL (read by a reader thread)."""
     from usb2rc.outputs import mavlink  # pymavlink's dialect: only with a MAVLink output
+    from usb2rc.protocols.mavlink.session import MavlinkLine
 
     out = ctx.config
     assert out.port
     options = MavlinkOptions.of(out)
     channels = mavlink.MavlinkChannels(ctx.mapping.sumd_channels(out), options.message)
     key = read_signing_key(options.signing_key_file) if options.signing_key_file else None
-    link: SerialLink | UdpLink
+    link: Link
     if is_udp_url(out.port):
         call = mavlink.VehicleCall(options.target_system, key, time.time())
         link = UdpLink(out.port, call, options.allow)
     else:
-        tick_bytes = mavlink.heartbeat_bytes() + mavlink.max_message_bytes(options.message)
-        link = SerialLink(out.port, out.baudrate, max_queued_bytes=queue_cap(tick_bytes))
-    thread = MavlinkOutput(
-        ctx.name,
-        link,
-        ctx.table,
-        channels,
-        mavlink.MavlinkSession(options, key, time.time()),
-        out.rate_hz,
-        ctx.on_tick,
-        ctx.on_first_write,
-    )
-    if isinstance(link, UdpLink):
-        return BuiltOutput(link, thread)
-    return BuiltOutput(link, thread, ReplyRx(f"{ctx.name}-rx", link, thread.received.put))
+        link = SerialLink(out.port, out.baudrate)
+    tick_bytes = mavlink.heartbeat_bytes() + mavlink.max_message_bytes(options.message)
+    engine = mavlink.MavlinkSession(options, key, time.time())
+    session = MavlinkLine(out.port, channels, engine, tick_bytes, out.rate_hz)
+    return _running(ctx, link, session, 1.0 / out.rate_hz)

@@ -47,6 +47,8 @@ class C2Line(LineBase):
         self.decoder = c2_16b.Decoder()
         self.requests = 0
         self.requests_dropped = 0
+        self.data_frames = 0  # frames that went out whole (counted once)
+        self.service_frames = 0
         self.log_gaps = 0  # times the event log had dropped what this line had not seen
         self._cursor = 0  # the next event number this line has not seen
         self._announce_present = False  # a line opened: announce the devices present
@@ -96,17 +98,24 @@ class C2Line(LineBase):
         return (*fresh, *log.present)
 
     def wrote(self, sent: int, unsure: int = 0) -> Delivered:
-        return self.engine.wrote(sent, unsure)
+        delivered = self.engine.wrote(sent, unsure)
+        self.data_frames += delivered.data_frames
+        self.service_frames += delivered.service_frames
+        return delivered
 
-    def stats(self) -> dict[str, Any]:
+    def stats(self, now: float) -> dict[str, Any]:
         statuses = self.engine.statuses
         return {
-            **super().stats(),
-            "deferred_nodes": self.engine.deferred_nodes,
+            **super().stats(now),
+            "data_frames": self.data_frames,
+            "service_frames": self.service_frames,
+            "round_robin_deferrals": self.engine.deferred_nodes,
             "handover_frames": statuses.handover_frames,
             "handovers_cut": statuses.handovers_cut,
             "low_battery_frames": statuses.low_battery_frames,
-            "requests": self.requests,
-            "requests_dropped": self.requests_dropped,
+            "rx_skipped": self.decoder.bytes_skipped,
+            "rx_crc_failures": self.decoder.crc_failures,
+            "rx_requests": self.requests,
+            "rx_requests_dropped": self.requests_dropped,
             "event_log_gaps": self.log_gaps,
         }

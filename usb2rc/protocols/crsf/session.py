@@ -23,13 +23,17 @@ class CrsfLine(FrameSession):
         """The module's interval and phase while it sends timing corrections."""
         return self.engine.next_send(due, now)
 
-    def stats(self) -> dict[str, Any]:
+    def period(self, now: float) -> float:
+        return self.engine.interval_s(now)
+
+    def stats(self, now: float) -> dict[str, Any]:
         """The module's link quality, timing and what was withheld."""
         session, decoder = self.engine, self.engine.decoder
         module_link = session.link  # one read: one report's figures
         link = None if module_link is None else module_link.stats
         return {
-            **super().stats(),
+            **super().stats(now),
+            "module": session.link_text(now),
             "link_quality_up": None if link is None else link.uplink_link_quality,
             "link_quality_down": None if link is None else link.downlink_link_quality,
             "frames_withheld": session.withheld,

@@ -16,5 +16,5 @@ class IbusLine(FrameSession):
     def __init__(self, name: str, channels: ChannelValues, rate_hz: float) -> None:
         super().__init__(name, IbusSession(), channels, ibus.FRAME_LEN, 1.0 / rate_hz)
 
-    def stats(self) -> dict[str, Any]:
-        return {**super().stats(), "frames_withheld": self.engine.withheld}
+    def stats(self, now: float) -> dict[str, Any]:
+        return {**super().stats(now), "frames_withheld": self.engine.withheld}

@@ -59,5 +59,5 @@ class MavlinkLine(LineBase):
     def received(self, data: bytes, now: float) -> None:
         self.engine.received(data)
 
-    def stats(self) -> dict[str, Any]:
-        return {**super().stats(), **stats_record(self.engine)}
+    def stats(self, now: float) -> dict[str, Any]:
+        return {**super().stats(now), **stats_record(self.engine)}
