@@ -19,12 +19,12 @@ from usb2rc.guard import NO_GUARD
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
-from usb2rc.mapping import ChannelSource, compile_mapping
-from usb2rc.outputs.sumd import SumdChannels, sumd_channel
-from usb2rc.protocol import c2_16b
 from usb2rc.lines.driver import Driver
 from usb2rc.lines.link import LineEvent, LinkStats, Written
 from usb2rc.lines.session import LinkState
+from usb2rc.mapping import ChannelSource, compile_mapping
+from usb2rc.outputs.sumd import SumdChannels, sumd_channel
+from usb2rc.protocol import c2_16b
 from usb2rc.protocols.c2_16b.session import C2Line
 from usb2rc.session import C2Settings
 from usb2rc.state import NodeFrame, NodeTable
