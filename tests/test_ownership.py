@@ -280,3 +280,53 @@ def test_each_link_field_has_one_writer_thread(monkeypatch: Any) -> None:
     assert writers.pop("_broken") == {"rx"}
     assert all(who == {"writer"} for who in writers.values()), writers
     assert link.stats.bytes_read == 0 and link.stats.losses == 1 and link.stats.opens == 2
+
+
+# --- a line session: the driver thread is its one writer -------------------------------------
+
+
+def test_a_session_and_its_engine_are_written_by_the_driver_thread_only() -> None:
+    """What a far end sends reaches the session on the driver's thread (the reader thread only
+    queues bytes): every field of the session and its protocol engine has that one writer,
+    however the module's telemetry and the ticks interleave."""
+    from usb2rc.lines.rx import LinkReader
+    from usb2rc.outputs.channels import OutputChannels
+    from usb2rc.rc_sessions import CrsfSession
+
+    writers: dict[str, set[str]] = {}
+
+    def record(obj: Any, name: str, value: Any) -> None:
+        object.__setattr__(obj, name, value)
+        who = threading.current_thread().name
+        if who != "MainThread":  # the constructors
+            writers.setdefault(f"{type(obj).__name__}.{name}", set()).add(who)
+
+    engine_type = type("Watched", (CrsfSession,), {"__setattr__": record})
+    line_type = type("WatchedLine", (CrsfLine,), {"__setattr__": record})
+    channels = OutputChannels([lambda nodes: (992, False)], crsf.RC_FRAME_LEN)  # live
+    session = line_type("crsf", channels, engine_type(0.004))
+    link = SerialLink("loop://", 400000)
+    from usb2rc.state import NodeTable
+
+    driver = Driver("driver", link, session, NodeTable().step_if_due, 0.004)
+    reader = LinkReader("reader", link)
+    assert link.open_now()
+    driver.start()
+    reader.start()
+    try:
+        for _ in range(int(WAIT_S / 0.01)):  # loop:// echoes the frames: the module "talks"
+            if session.engine.decoder.frames >= 20:
+                break
+            threading.Event().wait(0.01)
+        link.received.put((crsf.encode_timing_sync(100_000, 0), time.monotonic()))
+        for _ in range(int(WAIT_S / 0.01)):
+            if session.engine.timing_frames:
+                break
+            threading.Event().wait(0.01)
+    finally:
+        driver.stop()
+        reader.stop()
+        driver.join(WAIT_S)
+        reader.join(WAIT_S)
+    assert session.engine.decoder.frames >= 20 and session.engine.timing_frames == 1
+    assert writers and all(who == {"driver"} for who in writers.values()), writers
