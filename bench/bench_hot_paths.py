@@ -47,8 +47,8 @@ from usb2rc.hid.replay import ReplayBackend, install_file
 from usb2rc.lines.driver import Driver
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.mapping import compile_mapping
+from usb2rc.protocols.c2_16b.engine import C2Settings
 from usb2rc.protocols.c2_16b.session import C2Line
-from usb2rc.session import C2Settings
 from usb2rc.state import NodeTable
 
 PERIOD_S = 0.020

@@ -25,7 +25,8 @@ from usb2rc.config import load_config_text
 from usb2rc.protocol import crsf, sbus
 from usb2rc.protocol import rc11 as block
 from usb2rc.protocol.crc import crc8_dvb_s2
-from usb2rc.rc_sessions import SYNC_STALE_S, CrsfSession, ModuleLink, SbusSession
+from usb2rc.protocols.crsf.session import SYNC_STALE_S, CrsfSession, ModuleLink
+from usb2rc.protocols.sbus.session import SbusSession
 from usb2rc.scaling import axis_to_rc11, button_to_rc11
 
 VECTORS = json.loads(

@@ -19,10 +19,9 @@ from usb2rc.lines.serial_link import SerialLink
 from usb2rc.mapping import ChannelSource
 from usb2rc.outputs.channels import RC11_SCALE, OutputChannels
 from usb2rc.protocol import c2_16b, crsf
+from usb2rc.protocols.c2_16b.engine import C2Settings
 from usb2rc.protocols.c2_16b.session import C2Line
-from usb2rc.protocols.crsf.session import CrsfLine
-from usb2rc.rc_sessions import CrsfSession
-from usb2rc.session import C2Settings
+from usb2rc.protocols.crsf.session import CrsfLine, CrsfSession
 from usb2rc.state import NodeTable
 
 WAIT_S = 10.0  # a safety net: every wait ends on its condition

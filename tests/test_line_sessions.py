@@ -33,19 +33,22 @@ from usb2rc.lines.session import Ask, LineSession, LinkState
 from usb2rc.mapping import ChannelSource
 from usb2rc.nodestep import NodeView
 from usb2rc.outputs.channels import IBUS_SCALE, RC11_SCALE, OutputChannels
-from usb2rc.outputs.mavlink import MavlinkChannels, MavlinkSession, heartbeat_bytes
-from usb2rc.outputs.mavlink import max_message_bytes as mavlink_bytes
 from usb2rc.outputs.sumd import SumdChannels
 from usb2rc.protocol import c2_16b, crsf, ibus, sbus, sumd
 from usb2rc.protocol.mavlink import MavlinkDecoder
+from usb2rc.protocols.c2_16b.engine import C2Settings
 from usb2rc.protocols.c2_16b.session import C2Line
-from usb2rc.protocols.crsf.session import CrsfLine
+from usb2rc.protocols.crsf.session import CrsfLine, CrsfSession
 from usb2rc.protocols.ibus.session import IbusLine
-from usb2rc.protocols.mavlink.session import MavlinkLine
+from usb2rc.protocols.mavlink.session import (
+    MavlinkChannels,
+    MavlinkLine,
+    MavlinkSession,
+    heartbeat_bytes,
+)
+from usb2rc.protocols.mavlink.session import max_message_bytes as mavlink_bytes
 from usb2rc.protocols.sbus.session import SbusLine
 from usb2rc.protocols.sumd.session import SumdLine
-from usb2rc.rc_sessions import CrsfSession
-from usb2rc.session import C2Settings
 from usb2rc.state import (
     EVENTS_KEPT,
     EventKind,

@@ -27,17 +27,17 @@ from usb2rc.lines.driver import Driver
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.lines.udp_link import UdpLink, parse_udp_url
-from usb2rc.outputs import mavlink
-from usb2rc.outputs.mavlink import (
+from usb2rc.protocols.mavlink import session as mavlink
+from usb2rc.protocols.mavlink.session import (
     HEARTBEAT_S,
     RELEASE_S,
     ControlValues,
     MavlinkChannels,
+    MavlinkLine,
     MavlinkSession,
     heartbeat_bytes,
     max_message_bytes,
 )
-from usb2rc.protocols.mavlink.session import MavlinkLine
 from usb2rc.scaling import axis_to_manual, axis_to_manual_z, axis_to_pwm
 from usb2rc.state import NodeFrame, NodeTable
 from usb2rc.stats_text import output_line
@@ -509,15 +509,14 @@ def test_the_registry_builds_a_serial_output_whose_far_end_is_read() -> None:
     sent to the session (loop:// echoes usb2rc's own heartbeats back, so it sees them)."""
     from usb2rc.lines.rx import LinkReader
     from usb2rc.mapping import compile_mapping
-    from usb2rc.outputs import protocol
-    from usb2rc.outputs.wiring import OutputContext
+    from usb2rc.wiring import OutputContext, build
 
     config = load_config_text(
         "outputs:\n  - {protocol: mavlink, port: 'loop://', channels: [node0.x]}\n"
     )
     (out,) = config.outputs
     context = OutputContext("mav", out, compile_mapping(config), NodeTable())
-    built = protocol("mavlink").build(context)
+    built = build(context)
     assert isinstance(built.thread, Driver) and isinstance(built.rx, LinkReader)
     assert built.link.open_now()
     built.thread.start()

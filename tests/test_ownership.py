@@ -291,7 +291,7 @@ def test_a_session_and_its_engine_are_written_by_the_driver_thread_only() -> Non
     however the module's telemetry and the ticks interleave."""
     from usb2rc.lines.rx import LinkReader
     from usb2rc.outputs.channels import OutputChannels
-    from usb2rc.rc_sessions import CrsfSession
+    from usb2rc.protocols.crsf.session import CrsfSession
 
     writers: dict[str, set[str]] = {}
 

@@ -7,9 +7,9 @@ import pytest
 
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
 from usb2rc.protocols.c2_16b.session import is_request
 from usb2rc.receiver import ReceiverModel
-from usb2rc.session import C2Session, C2Settings
 from usb2rc.state import EventKind, NodeFrame, ServiceEvent
 
 AXES = (0,) * 10

@@ -15,7 +15,8 @@ from usb2rc.hid.reader import ReaderRecord
 from usb2rc.hid.usages import GD_GAMEPAD, GD_MULTI_AXIS, GD_RZ, GD_X, GD_Z, SIM_THROTTLE
 from usb2rc.mapping import compile_mapping
 from usb2rc.protocol import c2_16b, sumd
-from usb2rc.session import C2Session, C2Settings, SumdSession
+from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
+from usb2rc.protocols.sumd.session import SumdSession
 from usb2rc.state import EventKind, NodeFrame, NodeTable, ServiceEvent
 
 LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
@@ -350,7 +351,8 @@ def test_a_hat_trim_steps_once_per_push() -> None:
 
 def test_sbus_and_crsf_stopping_send_their_failsafe() -> None:
     from usb2rc.protocol import sbus
-    from usb2rc.rc_sessions import CrsfSession, SbusSession
+    from usb2rc.protocols.crsf.session import CrsfSession
+    from usb2rc.protocols.sbus.session import SbusSession
 
     sbus_line = SbusSession()
     sbus_line.line_opened()
@@ -370,8 +372,8 @@ def test_sbus_and_crsf_stopping_send_their_failsafe() -> None:
 
 def test_mavlink_stopping_releases_the_override_in_one_tick() -> None:
     from usb2rc.config_mavlink import MavlinkOptions
-    from usb2rc.outputs.mavlink import ControlValues, MavlinkSession
     from usb2rc.protocol.mavlink import MavlinkDecoder
+    from usb2rc.protocols.mavlink.session import ControlValues, MavlinkSession
 
     session = MavlinkSession(MavlinkOptions())
     session.line_opened()

@@ -20,8 +20,9 @@ from hypothesis import strategies as st
 from test_session import NODES, Receiver, World, actions, run
 
 from usb2rc.config_model import HandoverConfig
+from usb2rc.lines.session import Delivered
 from usb2rc.protocol import c2_16b
-from usb2rc.session import C2Session, C2Settings, Delivered
+from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
 from usb2rc.state import NodeFrame
 
 HOLD = HandoverConfig(button=5, destination=9)

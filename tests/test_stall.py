@@ -27,9 +27,9 @@ from usb2rc.lines.driver import Driver
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.outputs.sumd import SumdChannels
 from usb2rc.protocol import c2_16b, sumd
+from usb2rc.protocols.c2_16b.engine import C2Settings
 from usb2rc.protocols.c2_16b.session import C2Line
 from usb2rc.protocols.sumd.session import SumdLine
-from usb2rc.session import C2Settings
 from usb2rc.state import NodeTable
 
 LIVE = c2_16b.LIVE

@@ -25,8 +25,8 @@ from usb2rc.lines.session import LinkState
 from usb2rc.mapping import ChannelSource, compile_mapping
 from usb2rc.outputs.sumd import SumdChannels, sumd_channel
 from usb2rc.protocol import c2_16b
+from usb2rc.protocols.c2_16b.engine import C2Settings
 from usb2rc.protocols.c2_16b.session import C2Line
-from usb2rc.session import C2Settings
 from usb2rc.state import NodeFrame, NodeTable
 
 LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)

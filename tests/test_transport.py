@@ -12,8 +12,8 @@ from usb2rc.lines import serial_link as transport
 from usb2rc.lines.driver import Driver
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.serial_link import SOCKET_SEND_BUFFER, SerialLink
+from usb2rc.protocols.c2_16b.engine import C2Settings
 from usb2rc.protocols.c2_16b.session import C2Line
-from usb2rc.session import C2Settings
 
 
 def c2_driver(link: SerialLink, table) -> Driver:

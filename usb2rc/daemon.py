@@ -34,9 +34,8 @@ from usb2rc.lines.link import Link
 from usb2rc.lines.rx import LinkReader
 from usb2rc.mapping import Mapping, compile_mapping, match_text
 from usb2rc.nodestep import NodeClock
-from usb2rc.outputs import protocol
-from usb2rc.outputs.wiring import OutputContext
 from usb2rc.state import Expected, ExpectedEntry, NodeTable
+from usb2rc.wiring import OutputContext, build
 
 log = logging.getLogger("usb2rc")
 
@@ -160,13 +159,13 @@ class Daemon:
     # --- outputs ---------------------------------------------------------------------------
 
     def _make_output(self, index: int, out: OutputConfig) -> _Output:
-        """The protocol's build function (the registry in usb2rc/outputs) makes its pieces."""
+        """The protocol's build function (`usb2rc.wiring`) makes its pieces."""
         assert out.port
         name = f"output{index + 1}-{out.protocol}"
         context = OutputContext(
             name, out, self.mapping, self.table, self._tick, self._first_write, self.version
         )
-        built = protocol(out.protocol).build(context)
+        built = build(context)
         return _Output(out, built.link, built.thread, built.rx)
 
     def _first_write(self) -> None:

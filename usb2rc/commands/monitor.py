@@ -73,7 +73,7 @@ def output_previews(config: Config, daemon: Daemon) -> list[tuple[str, Preview]]
         if out.protocol != "mavlink":
             continue
         from usb2rc.config_mavlink import MavlinkOptions
-        from usb2rc.outputs.mavlink import MavlinkChannels, preview_text
+        from usb2rc.protocols.mavlink.session import MavlinkChannels, preview_text
 
         message = MavlinkOptions.of(out).message
         channels = MavlinkChannels(daemon.mapping.sumd_channels(out), message)

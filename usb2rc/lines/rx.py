@@ -10,7 +10,7 @@ import queue
 import time
 from typing import Generic, Protocol, TypeVar
 
-from usb2rc.session import BITS_PER_BYTE_ON_WIRE
+from usb2rc.protocol import BITS_PER_BYTE_ON_WIRE
 from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc.lines")

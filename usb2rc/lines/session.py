@@ -32,12 +32,11 @@ or UDP is never flushed.
 from __future__ import annotations
 
 import enum
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 from usb2rc.nodestep import NodeFrame, TapLatch
-from usb2rc.session import Delivered, FrameLineSession
 from usb2rc.state import NodeSnapshot
 
 QUEUE_TICKS = 2  # at most this many ticks of bytes wait in a queue the link reports
@@ -110,6 +109,79 @@ class Backpressure:
             return True
         self.held_queue_full += 1
         return False
+
+
+@dataclass(frozen=True)
+class Delivered:
+    """What `wrote()` found went out: frames counted once, as the stats want them."""
+
+    service_frames: int = 0
+    data_frames: int = 0
+    stalled: bool = False
+
+
+class FrameLineSession:
+    """A channel output's line: one frame a tick while the line is open and not stalled.
+
+    Such a protocol has no service state, so a stall only stops the frames (the values would
+    be stale); a frame cut short fails the receiver's check and is not sent again. A
+    subclass says what the frame is (`frame`); SUMD, CRSF, SBUS, iBus in
+    `usb2rc.protocols`."""
+
+    def __init__(self) -> None:
+        self.line_open = False
+        self.stalled = False
+        self.stalls = 0
+        self._last_len = 0
+        self._stopping = False
+        self._stop_sent = False
+
+    def stopping(self) -> None:
+        """usb2rc stops: every frame from now on is the protocol's failsafe frame (SUMD
+        0x81, SBUS the failsafe and frame-lost flags, CRSF none: its failsafe is silence)."""
+        self._stopping = True
+
+    @property
+    def stop_done(self) -> bool:
+        """Stopping, and a failsafe frame went out whole (or the line cannot take one)."""
+        return self._stopping and (self._stop_sent or not self.line_open or self.stalled)
+
+    def line_opened(self) -> None:
+        self.line_open, self.stalled = True, False
+
+    def line_lost(self) -> None:
+        self.line_open, self.stalled = False, False
+
+    def line_drained(self) -> None:
+        self.stalled = False
+
+    def line_flushed(self) -> None:
+        """The stale frames were dropped: nothing to announce, the next frame is fresh."""
+        self.stalled = False
+
+    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        """This tick's frame of the channels' wire values (b"": nothing this tick)."""
+        raise NotImplementedError
+
+    def tick(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        self._last_len = 0
+        if not self.line_open or self.stalled:
+            return b""
+        frame = self.frame(channels, failsafe or self._stopping)
+        if self._stopping and not frame:
+            self._stop_sent = True  # its failsafe is silence (CRSF): nothing more to send
+        self._last_len = len(frame)
+        return frame
+
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
+        whole = self._last_len > 0 and sent >= self._last_len
+        self._stop_sent = self._stop_sent or (whole and self._stopping)
+        stalled = self.line_open and sent < self._last_len
+        if stalled and not self.stalled:
+            self.stalls += 1
+        self.stalled = self.stalled or stalled
+        self._last_len = 0
+        return Delivered(0, 1 if whole else 0, stalled)
 
 
 class LineSession(Protocol):

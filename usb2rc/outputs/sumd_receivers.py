@@ -20,8 +20,7 @@ from collections.abc import Collection, Sequence
 
 from usb2rc.config_model import OutputConfig
 from usb2rc.mapping import ChannelSource
-from usb2rc.protocol import sumd
-from usb2rc.session import BITS_PER_BYTE_ON_WIRE
+from usb2rc.protocol import BITS_PER_BYTE_ON_WIRE, sumd
 from usb2rc.yamlnodes import Problem, Where
 
 FEWEST_CHANNELS_READ = 4  # PX4, ArduPilot: fewer are misread

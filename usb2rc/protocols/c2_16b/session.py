@@ -16,9 +16,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from usb2rc.lines.session import Backpressure, LineBase
+from usb2rc.lines.session import Backpressure, Delivered, LineBase
 from usb2rc.protocol import c2_16b
-from usb2rc.session import C2Session, C2Settings, Delivered
+from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
 from usb2rc.state import NodeSnapshot, ServiceEvent
 
 REQUESTS_PER_TICK = 512  # 2 per Node-ID: more in one tick only repeat what is asked

@@ -3,11 +3,26 @@ while one is in failsafe (docs/ICD.md, "iBus output")."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
-from usb2rc.lines.session import ChannelValues, FrameSession
+from usb2rc.lines.session import ChannelValues, FrameLineSession, FrameSession
 from usb2rc.protocol import ibus
-from usb2rc.rc_sessions import IbusSession
+
+
+class IbusSession(FrameLineSession):
+    """iBus: channels 1..14 in µs; channels past the list at 1000 µs ("off" for a switch)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.withheld = 0  # ticks without a frame because a channel is in failsafe
+
+    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        if failsafe:
+            self.withheld += 1
+            return b""
+        unlisted = [ibus.PULSE_LOW] * (ibus.CHANNELS - len(channels))
+        return ibus.encode_ibus([*channels[: ibus.CHANNELS], *unlisted])
 
 
 class IbusLine(FrameSession):

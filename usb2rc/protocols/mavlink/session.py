@@ -1,17 +1,407 @@
-"""The MAVLink line session: a heartbeat a second and the control message each tick, as one
-write (one datagram on UDP: MAVLink receivers parse the packets of a datagram back to back,
-docs/ICD.md "MAVLink output"); the failsafe is what is (not) sent (`outputs.mavlink`)."""
+"""The MAVLink output: node frames → RC_CHANNELS_OVERRIDE or MANUAL_CONTROL, and a GCS
+HEARTBEAT, through pymavlink (docs/ICD.md, "MAVLink output").
+
+Two pieces, both sans-IO (no thread, no socket, no clock: `now` is passed in):
+
+- `MavlinkChannels`: the configured channels (named as SUMD names them, `nodeN.<slot>` /
+  `nodeN.buttonK`) evaluated once a tick from the NodeTable's frames into the message's
+  fields, with the scalings of `usb2rc.scaling` (`axis_to_pwm`, `button_to_pwm`,
+  `axis_to_manual`, `axis_to_manual_z`), and whether any channel's node is in failsafe.
+- `MavlinkSession`: what goes on the line each tick: a HEARTBEAT (MAV_TYPE_GCS,
+  MAV_AUTOPILOT_INVALID) when one is due (the first tick of a line, then once a second), and
+  the control message. MAVLink has no failsafe flag, so a failsafe is told by what is
+  (not) sent:
+  - rc_channels_override: every channel is released back to the vehicle's RC radio (0 on
+    channels 1-8, UINT16_MAX-1 on 9-18) for `RELEASE_S`, then nothing but heartbeats until
+    every node is live again: the vehicle's radio, or its own radio failsafe, has it;
+  - manual_control: no MANUAL_CONTROL at all, so the autopilot's manual-control-lost
+    failsafe fires (PX4 COM_RC_LOSS_T; ArduPilot's RC_OVERRIDE_TIME).
+  What the far end sends is parsed with a second pymavlink instance
+  (`protocol.mavlink.MavlinkDecoder`, `received`): its heartbeats are counted for the stats.
+- With a signing key (`signing_key_file`) every message is signed (MAVLink 2 signing, link
+  id 0, timestamps from the wall clock passed to `tick`), and only messages signed with the
+  key count from the far end.
+- `VehicleCall`: whether a datagram to a udpin port is the vehicle calling (a HEARTBEAT
+  from `target_system`, signed when signing is on): `transport_udp.UdpLink` locks to the
+  first sender that calls.
+
+- `MavlinkLine`: the session on the one interface (`usb2rc.lines.session`): a tick's messages
+  in one write (one datagram on UDP: MAVLink receivers parse the packets of a datagram back to
+  back, docs/ICD.md "MAVLink output").
+
+pymavlink packs every byte (`message.pack(mav)`); nothing here writes MAVLink by hand.
+"""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections import deque
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, replace
 from typing import Any
 
-from usb2rc.lines.session import Backpressure, LineBase
-from usb2rc.outputs.mavlink import MavlinkChannels, MavlinkSession, stats_record
-from usb2rc.session import Delivered
-from usb2rc.state import NodeSnapshot
+from pymavlink.dialects.v20 import common as mavlink2
+
+from usb2rc.config import ChannelRef
+from usb2rc.config_mavlink import (
+    MANUAL_AXES,
+    MESSAGES,
+    OVERRIDE_MAX_CHANNELS,
+    RC_CHANNELS_OVERRIDE,
+    MavlinkOptions,
+)
+from usb2rc.lines.session import Backpressure, Delivered, LineBase
+from usb2rc.mapping import ChannelSource
+from usb2rc.protocol.mavlink import MavlinkDecoder, set_up_signing, signing_timestamp
+from usb2rc.scaling import (
+    MANUAL_MAX,
+    MANUAL_MIN,
+    MANUAL_Z_MAX,
+    MANUAL_Z_MIN,
+    axis_to_manual,
+    axis_to_manual_z,
+    axis_to_pwm,
+    button_to_pwm,
+    node_button_bit,
+)
+from usb2rc.state import NodeFrame, NodeSnapshot
+
+OVERRIDE_FIRST_CHANNELS = 8  # channels 1-8: 0 releases; 9-18 (MAVLink 2 extensions): 65534
+RELEASE_LOW, RELEASE_HIGH = 0, 65534  # common.xml: 0 / UINT16_MAX-1 "release to the RC radio"
+IGNORE = 65535  # common.xml: UINT16_MAX "ignore this field" (channels not configured)
+HEARTBEAT_S = 1.0  # MAVLink's heartbeat rate: 1 Hz
+RELEASE_S = 1.0  # how long the release is repeated (datagrams get lost) before silence
+
+Nodes = Mapping[int, NodeFrame]
+Channel = ChannelRef | ChannelSource
+Reading = Callable[[Nodes], tuple[int | bool, bool]]  # -> (int16 axis or pressed, failsafe)
+
+
+def channel_reading(source: Channel) -> Reading:
+    """One channel's node value each tick: an axis as int16 (a uint16 slot, as the frame's
+    `unsigned_slots` says, shifted down by 32768; a slot nobody feeds is the centre), a
+    button as pressed or not; and whether its node is failsafe (or absent: centre /
+    released, failsafe). Never raises on a tick."""
+    node_id, index = source.node_id, source.index
+    if source.kind == "button":
+        group, bit = node_button_bit(index)
+
+        def button(nodes: Nodes) -> tuple[int | bool, bool]:
+            frame = nodes.get(node_id)
+            if frame is None:
+                return False, True
+            word = frame.group2 if group else frame.group1
+            return bool(word >> bit & 1), frame.failsafe
+
+        return button
+
+    def axis(nodes: Nodes) -> tuple[int | bool, bool]:
+        frame = nodes.get(node_id)
+        if frame is None:
+            return 0, True
+        value = frame.axes[index]
+        unsigned = frame.unsigned_slots >> index & 1
+        if value is None:
+            return 0, frame.failsafe
+        return (value - 32768 if unsigned else value), frame.failsafe
+
+    return axis
+
+
+def _pwm(value: int | bool) -> int:
+    return button_to_pwm(value) if isinstance(value, bool) else axis_to_pwm(value)
+
+
+def _manual(value: int | bool, field_name: str) -> int:
+    """A MANUAL_CONTROL axis field; a button there is the field's ends."""
+    if field_name == "z":
+        if isinstance(value, bool):
+            return MANUAL_Z_MAX if value else MANUAL_Z_MIN
+        return axis_to_manual_z(value)
+    if isinstance(value, bool):
+        return MANUAL_MAX if value else MANUAL_MIN
+    return axis_to_manual(value)
+
+
+@dataclass(frozen=True)
+class ControlValues:
+    """One tick's message fields: `channels` (µs, RC_CHANNELS_OVERRIDE) or `axes`
+    (x, y, z, r) and `buttons` (32 bits, MANUAL_CONTROL); `failsafe`: a channel's node is."""
+
+    failsafe: bool
+    channels: tuple[int, ...] = ()
+    axes: tuple[int, int, int, int] = (0, 0, 0, 0)
+    buttons: int = 0
+
+
+class MavlinkChannels:
+    """One MAVLink output's channels: `evaluate(frames)` once a tick."""
+
+    def __init__(self, sources: Iterable[Channel], message: str = RC_CHANNELS_OVERRIDE) -> None:
+        if message not in MESSAGES:
+            raise ValueError(f"unknown MAVLink message {message!r}")
+        self.sources = tuple(sources)
+        self.message = message
+        self.readings = tuple(channel_reading(source) for source in self.sources)
+
+    def __len__(self) -> int:
+        return len(self.readings)
+
+    def evaluate(self, frames: Iterable[NodeFrame]) -> ControlValues:
+        nodes = {frame.node_id: frame for frame in frames}
+        values: list[int | bool] = []
+        failsafe = False
+        for reading in self.readings:
+            value, channel_failsafe = reading(nodes)
+            values.append(value)
+            failsafe = failsafe or channel_failsafe
+        if self.message == RC_CHANNELS_OVERRIDE:
+            return ControlValues(failsafe, channels=tuple(_pwm(v) for v in values))
+        axes = [_manual(v, name) for v, name in zip(values, MANUAL_AXES, strict=False)]
+        axes += [0] * (len(MANUAL_AXES) - len(axes))
+        buttons = 0
+        for bit, value in enumerate(values[len(MANUAL_AXES) :]):
+            pressed = value if isinstance(value, bool) else value > 0  # an axis: past centre
+            buttons |= int(pressed) << bit
+        return ControlValues(failsafe, axes=(axes[0], axes[1], axes[2], axes[3]), buttons=buttons)
+
+
+def release_channels(count: int = OVERRIDE_MAX_CHANNELS) -> list[int]:
+    """RC_CHANNELS_OVERRIDE values that hand every channel back to the RC radio."""
+    return [RELEASE_LOW if i < OVERRIDE_FIRST_CHANNELS else RELEASE_HIGH for i in range(count)]
+
+
+@dataclass
+class FarEnd:
+    """What the far end sent, as pymavlink parsed it (for the stats line)."""
+
+    decoder: MavlinkDecoder
+    heartbeats: int = 0
+    last_heartbeat_from: tuple[int, int] | None = None  # (system, component)
+
+
+class MavlinkSession:
+    """The MAVLink line of one output, sans-IO: `tick(now, values)` → the messages to send,
+    one `bytes` each (one datagram each on UDP), and `wrote(sent)` for each of them in
+    order. The line events are those of `lines.session.FrameLineSession`. `key`: the signing
+    key (`config_mavlink.read_signing_key`), `wall_time`: the wall clock at the start."""
+
+    def __init__(
+        self, settings: MavlinkOptions, key: bytes | None = None, wall_time: float = 0.0
+    ) -> None:
+        self.settings = settings
+        self.signed = key is not None
+        self.mav = mavlink2.MAVLink(
+            None, srcSystem=settings.system_id, srcComponent=settings.component_id
+        )
+        if key is not None:
+            set_up_signing(self.mav, key, wall_time, sign_outgoing=True)
+        self.line_open = False
+        self.stalled = False
+        self.stalls = 0
+        self.heartbeats = 0
+        self.controls = 0  # override / manual_control messages sent (live values)
+        self.releases = 0  # override messages releasing every channel (failsafe)
+        self.silent_ticks = 0  # ticks without a control message (failsafe)
+        self.far_end = FarEnd(MavlinkDecoder(key, wall_time))
+        self._next_heartbeat: float | None = None
+        self._failsafe_since: float | None = None
+        self._pending: deque[int] = deque()
+        self._stopping = False  # usb2rc stops: every tick is a failsafe one
+        self._stop_ticked = False
+
+    def stopping(self) -> None:
+        """usb2rc stops (docs/ICD.md, "Stop"): from the next tick on, the values count as
+        failsafe (the release of every channel, or silence)."""
+        self._stopping = True
+
+    @property
+    def stop_done(self) -> bool:
+        """Stopping, and a failsafe tick's messages went out (or the line cannot take them)."""
+        sent = self._stop_ticked and not self._pending
+        return self._stopping and (sent or not self.line_open or self.stalled)
+
+    # --- line events (as SumdSession) ---------------------------------------------------
+
+    def line_opened(self) -> None:
+        self.line_open, self.stalled = True, False
+        self._next_heartbeat = None  # a new line starts with a heartbeat
+
+    def line_lost(self) -> None:
+        self.line_open, self.stalled = False, False
+        self._pending.clear()
+
+    def line_drained(self) -> None:
+        self.stalled = False
+
+    def line_flushed(self) -> None:
+        self.stalled = False
+
+    # --- ticks -------------------------------------------------------------------------------
+
+    def tick(self, now: float, values: ControlValues, wall_time: float = 0.0) -> list[bytes]:
+        """This tick's messages: a heartbeat when due, then the control message (or the
+        release, or nothing, in failsafe). `wall_time` keeps signing timestamps on the wall
+        clock (each message's is one more than the last's: they fall behind otherwise, and
+        a vehicle that restarts refuses a stream more than a minute old)."""
+        self._pending.clear()
+        if not self.line_open or self.stalled:
+            return []
+        if self.signed:
+            signing = self.mav.signing
+            signing.timestamp = max(signing.timestamp, signing_timestamp(wall_time))
+        if self._stopping:
+            values = replace(values, failsafe=True)
+            self._stop_ticked = True
+        messages: list[bytes] = []
+        if self._next_heartbeat is None or now >= self._next_heartbeat:
+            messages.append(self._pack(self._heartbeat()))
+            self.heartbeats += 1
+            due = HEARTBEAT_S + (now if self._next_heartbeat is None else self._next_heartbeat)
+            # on time: every HEARTBEAT_S; after a pause, a second from now (no burst)
+            self._next_heartbeat = due if due > now else now + HEARTBEAT_S
+        control = self._control(now, values)
+        if control is not None:
+            messages.append(self._pack(control))
+        self._pending.extend(len(m) for m in messages)
+        return messages
+
+    def _control(self, now: float, values: ControlValues) -> mavlink2.MAVLink_message | None:
+        if not values.failsafe:
+            self._failsafe_since = None
+            self.controls += 1
+            return self._message(values)
+        if self._failsafe_since is None:
+            self._failsafe_since = now
+        if self.settings.message == RC_CHANNELS_OVERRIDE and now - self._failsafe_since < RELEASE_S:
+            self.releases += 1
+            return self._override(release_channels())
+        self.silent_ticks += 1
+        return None
+
+    def _message(self, values: ControlValues) -> mavlink2.MAVLink_message:
+        if self.settings.message == RC_CHANNELS_OVERRIDE:
+            channels = list(values.channels)
+            return self._override(channels + [IGNORE] * (OVERRIDE_MAX_CHANNELS - len(channels)))
+        x, y, z, r = values.axes
+        return self.mav.manual_control_encode(
+            self.settings.target_system,
+            x,
+            y,
+            z,
+            r,
+            values.buttons & 0xFFFF,
+            buttons2=values.buttons >> 16 & 0xFFFF,
+        )
+
+    def _override(self, channels: Sequence[int]) -> mavlink2.MAVLink_message:
+        s = self.settings
+        return self.mav.rc_channels_override_encode(s.target_system, s.target_component, *channels)
+
+    def _heartbeat(self) -> mavlink2.MAVLink_message:
+        return self.mav.heartbeat_encode(
+            mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, mavlink2.MAV_STATE_ACTIVE
+        )
+
+    def _pack(self, message: mavlink2.MAVLink_message) -> bytes:
+        data: bytes = message.pack(self.mav)
+        self.mav.seq = (self.mav.seq + 1) % 256  # what MAVLink.send does after packing
+        return data
+
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
+        """One message of the last tick went out (`sent` bytes): a datagram or a message cut
+        short stalls the line until it drains (the rest of the tick is not sent)."""
+        length = self._pending.popleft() if self._pending else 0
+        whole = length > 0 and sent >= length
+        stalled = self.line_open and length > 0 and sent < length
+        if stalled:
+            self._pending.clear()
+            if not self.stalled:
+                self.stalls += 1
+        self.stalled = self.stalled or stalled
+        return Delivered(0, 1 if whole else 0, stalled)
+
+    # --- the far end ---------------------------------------------------------------------
+
+    def received(self, data: bytes) -> None:
+        """Bytes from the far end: parsed, heartbeats counted."""
+        if not data:
+            return
+        far = self.far_end
+        for message in far.decoder.feed(data):
+            if message.get_type() == "HEARTBEAT":
+                far.heartbeats += 1
+                far.last_heartbeat_from = (message.get_srcSystem(), message.get_srcComponent())
+
+
+class VehicleCall:
+    """Whether one datagram to a udpin port is the vehicle calling: a valid HEARTBEAT from
+    `target_system` (any system when 0) that is not a ground station's, signed with the
+    key when signing is on. Each datagram is parsed on its own (no bytes of one sender
+    joined to another's); signing timestamps seen are kept, so a replayed one is refused."""
+
+    def __init__(self, target_system: int, key: bytes | None = None, wall_time: float = 0.0):
+        self.target_system = target_system
+        self.decoder = MavlinkDecoder(key, wall_time)
+
+    def __call__(self, datagram: bytes) -> bool:
+        return any(map(self._calls, self.decoder.feed_alone(datagram)))
+
+    def _calls(self, message: Any) -> bool:
+        if message.get_type() != "HEARTBEAT" or message.type == mavlink2.MAV_TYPE_GCS:
+            return False
+        return self.target_system in (0, message.get_srcSystem())
+
+
+def stats_record(session: MavlinkSession) -> dict[str, Any]:
+    """The output's MAVLink counters, for the stats record (labels: `usb2rc.stats_text`)."""
+    far = session.far_end
+    record: dict[str, Any] = {
+        "mavlink_message": session.settings.message,
+        "control_messages": session.controls,
+        "releases": session.releases,
+        "silent_failsafe_ticks": session.silent_ticks,
+        "heartbeats_sent": session.heartbeats,
+        "far_end_messages": far.decoder.frames,
+        "far_end_heartbeats": far.heartbeats,
+    }
+    if far.last_heartbeat_from is not None:
+        record["far_end_heartbeat_from"] = "{}/{}".format(*far.last_heartbeat_from)
+    record["far_end_skipped"] = far.decoder.bytes_skipped
+    if session.signed:
+        record["far_end_bad_signatures"] = far.decoder.bad_signatures
+    return record
+
+
+def preview_text(channels: MavlinkChannels, values: ControlValues) -> str:
+    """What the output sends for these values, in words (`usb2rc monitor`)."""
+    if values.failsafe:
+        if channels.message == RC_CHANNELS_OVERRIDE:
+            return "FAILSAFE: releases every channel to the RC radio for 1 s, then heartbeats only"
+        return "FAILSAFE: no MANUAL_CONTROL (manual control lost), heartbeats only"
+    if channels.message == RC_CHANNELS_OVERRIDE:
+        return "RC_CHANNELS_OVERRIDE µs " + " ".join(map(str, values.channels))
+    x, y, z, r = values.axes
+    return f"MANUAL_CONTROL x {x} y {y} z {z} r {r} buttons 0x{values.buttons:08X}"
+
+
+def max_message_bytes(message: str) -> int:
+    """Bytes of one control message on the wire at most (MAVLink 2, unsigned; pymavlink cuts
+    the payload's trailing zeros): for `check`'s bandwidth sum."""
+    mav = mavlink2.MAVLink(None)
+    if message == RC_CHANNELS_OVERRIDE:
+        full = mav.rc_channels_override_encode(1, 1, *([2000] * OVERRIDE_MAX_CHANNELS))
+    else:
+        full = mav.manual_control_encode(1, 1000, 1000, 1000, 1000, 0xFFFF, buttons2=0xFFFF)
+    return len(full.pack(mav))
+
+
+def heartbeat_bytes() -> int:
+    mav = mavlink2.MAVLink(None)
+    heartbeat = mav.heartbeat_encode(
+        mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, mavlink2.MAV_STATE_ACTIVE
+    )
+    return len(heartbeat.pack(mav))
 
 
 class MavlinkLine(LineBase):

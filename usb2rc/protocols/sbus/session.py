@@ -3,9 +3,26 @@ a listed channel's node is in failsafe (docs/ICD.md, "SBUS output")."""
 
 from __future__ import annotations
 
-from usb2rc.lines.session import ChannelValues, FrameSession
-from usb2rc.protocol import sbus
-from usb2rc.rc_sessions import SbusSession
+from collections.abc import Sequence
+
+from usb2rc.lines.session import ChannelValues, FrameLineSession, FrameSession
+from usb2rc.protocol import rc11, sbus
+from usb2rc.protocols.rc11 import padded
+from usb2rc.scaling import RC11_CENTRE
+
+
+class SbusSession(FrameLineSession):
+    """SBUS: channels 1..16 analogue, 17 and 18 digital (on above the centre)."""
+
+    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        digital = channels[rc11.CHANNELS :]
+        return sbus.encode_sbus(
+            padded(channels),
+            ch17=len(digital) > 0 and digital[0] > RC11_CENTRE,
+            ch18=len(digital) > 1 and digital[1] > RC11_CENTRE,
+            frame_lost=failsafe,
+            failsafe=failsafe,
+        )
 
 
 class SbusLine(FrameSession):

@@ -2,8 +2,17 @@
 
 from __future__ import annotations
 
-from usb2rc.lines.session import ChannelValues, FrameSession
-from usb2rc.session import SumdSession
+from collections.abc import Sequence
+
+from usb2rc.lines.session import ChannelValues, FrameLineSession, FrameSession
+from usb2rc.protocol import sumd
+
+
+class SumdSession(FrameLineSession):
+    """The SUMD line: one frame a tick (status 0x81 while failsafe)."""
+
+    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        return sumd.encode_sumd(channels, failsafe=failsafe)
 
 
 class SumdLine(FrameSession):

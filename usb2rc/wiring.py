@@ -1,9 +1,11 @@
 """How each output protocol's running pieces are built: link, session, driver, reader thread.
 
-The registry (`usb2rc.outputs.PROTOCOLS`) names one `build_<protocol>(context)` here per
-protocol; each makes the protocol's session (`usb2rc.protocols.<name>.session`) and its link
-and hands both to the one generic driver (`usb2rc.lines.driver.Driver`). `usb2rc.daemon`
-calls it for each configured output and only starts and stops what comes back.
+One `build_<protocol>(context)` per protocol of the registry (`usb2rc.outputs.PROTOCOLS`),
+found by name in `BUILDERS` (tests/test_structure.py holds the two lists equal): each makes
+the protocol's session (`usb2rc.protocols.<name>.session`) and its link and hands both to
+the one generic driver (`usb2rc.lines.driver.Driver`). `usb2rc.daemon` calls `build` for
+each configured output and only starts and stops what comes back. It lives here, above the
+registry, which the config model reads and which therefore imports no session or driver.
 """
 
 from __future__ import annotations
@@ -26,13 +28,12 @@ from usb2rc.mapping import Mapping
 from usb2rc.outputs import protocol
 from usb2rc.outputs.channels import IBUS_SCALE, RC11_SCALE, OutputChannels, WireScale
 from usb2rc.outputs.sumd import SumdChannels
+from usb2rc.protocols.c2_16b.engine import C2Settings
 from usb2rc.protocols.c2_16b.session import C2Line
-from usb2rc.protocols.crsf.session import CrsfLine
+from usb2rc.protocols.crsf.session import CrsfLine, CrsfSession
 from usb2rc.protocols.ibus.session import IbusLine
 from usb2rc.protocols.sbus.session import SbusLine
 from usb2rc.protocols.sumd.session import SumdLine
-from usb2rc.rc_sessions import CrsfSession
-from usb2rc.session import C2Settings
 from usb2rc.state import NodeTable
 
 
@@ -141,8 +142,9 @@ def build_ibus(ctx: OutputContext) -> BuiltOutput:
 def build_mavlink(ctx: OutputContext) -> BuiltOutput:
     """The registry's build function: a MAVLink output on UDP (`udpout:` / `udpin:`, polled
     by the driver) or on a serial port / URL (read by a reader thread)."""
-    from usb2rc.outputs import mavlink  # pymavlink's dialect: only with a MAVLink output
-    from usb2rc.protocols.mavlink.session import MavlinkLine
+    from usb2rc.protocols.mavlink import (
+        session as mavlink,  # pymavlink's dialect: only with a MAVLink output
+    )
 
     out = ctx.config
     assert out.port
@@ -157,5 +159,20 @@ def build_mavlink(ctx: OutputContext) -> BuiltOutput:
         link = SerialLink(out.port, out.baudrate)
     tick_bytes = mavlink.heartbeat_bytes() + mavlink.max_message_bytes(options.message)
     engine = mavlink.MavlinkSession(options, key, time.time())
-    session = MavlinkLine(out.port, channels, engine, tick_bytes, out.rate_hz)
+    session = mavlink.MavlinkLine(out.port, channels, engine, tick_bytes, out.rate_hz)
     return _running(ctx, link, session, 1.0 / out.rate_hz)
+
+
+BUILDERS: dict[str, Callable[[OutputContext], BuiltOutput]] = {
+    "c2-16b": build_c2_16b,
+    "sumd": build_sumd,
+    "crsf": build_crsf,
+    "sbus": build_sbus,
+    "ibus": build_ibus,
+    "mavlink": build_mavlink,
+}
+
+
+def build(context: OutputContext) -> BuiltOutput:
+    """The running pieces of the output `context.config` configures."""
+    return BUILDERS[context.config.protocol](context)
