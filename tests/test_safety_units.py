@@ -109,7 +109,6 @@ def test_sumd_stopping_sets_the_failsafe_bit() -> None:
 
 def test_table_stop_makes_every_node_failsafe_with_its_values_held_and_no_event() -> None:
     table = NodeTable()
-    box = table.subscribe()
     table.add_device(
         0,
         STICK,
@@ -117,12 +116,13 @@ def test_table_stop_makes_every_node_failsafe_with_its_values_held_and_no_event(
         RecordSource(stick_record(StickState(x=9000, buttons=1))),
         "JOYSTICK",
     )
-    table.collect(box)
+    cursor = table.step_if_due().log.end
     live = table.frames()[0]
     assert not live.failsafe and live.group1 == 1
     table.stop()
-    events, frames = table.collect(box)
-    assert events == []  # not unplugged: no `2`
+    stopped = table.step_if_due()
+    events, frames = stopped.log.since(cursor), stopped.frames
+    assert events == ()  # not unplugged: no `2`
     assert frames[0].failsafe and frames[0].axes == live.axes and frames[0].group1 == 0
 
 

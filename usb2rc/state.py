@@ -1,10 +1,10 @@
 """Node state: the one lock-guarded place where devices (hot-plug and reader threads) meet
-the outputs (scheduler threads).
+the outputs (driver threads).
 
 Devices are attached to Node-IDs. One step per base period (usb2rc.nodestep) reads each
 reader's record once, runs the neutral guard and the trims, and publishes an immutable
-snapshot of every node; each output subscribes and gets, per tick and under one lock, the
-service events queued for it and the latest snapshot's frames through its own tap latch.
+snapshot of every node with the service event log (`NodeSnapshot`, `EventLog`); each
+output's session reads it with its own event cursor and its own tap latch.
 Reading never changes the nodes: which outputs exist, or tick, does not change when a
 device arms. Readers never take this lock: each publishes one immutable `ReaderRecord` by a
 single assignment. Devices are added and removed only by the lifecycle thread
@@ -31,7 +31,6 @@ from usb2rc.nodestep import (
     DeviceView,
     NodeView,
     TableSnapshot,
-    TapLatch,
     compose,
     merge_axes,
     trimmed,
@@ -349,7 +348,7 @@ Expected = dict[int, dict[str, ExpectedEntry]]
 
 
 class NodeTable:
-    """Node-IDs, the devices feeding them, and the service events each output still owes."""
+    """Node-IDs, the devices feeding them, and the log of their service events."""
 
     def __init__(
         self, expected: Expected | None = None, clock: Callable[[], float] = time.monotonic
@@ -358,8 +357,6 @@ class NodeTable:
         self._clock = clock  # the frames' time: the neutral guard's rest (the readers' clock)
         self._nodes: dict[int, _Node] = {}
         self._by_key: dict[str, tuple[int, _Attached]] = {}
-        self._outbox: list[list[ServiceEvent] | None] = []  # None: frames only (SUMD)
-        self._latches: list[TapLatch | None] = []  # per subscriber (None: no taps shown)
         self._trims = TrimStore()
         self._stopping = False
         # The step (docs/DESIGN.md, "Node state: one step per period"): the latest snapshot,
@@ -376,36 +373,10 @@ class NodeTable:
 
     # --- outputs -------------------------------------------------------------------------
 
-    def subscribe(self, events: bool = True, taps: bool = True) -> int:
-        """An output's subscription: its service events (events=False: none, for a channel
-        output) and its own latch of the buttons tapped between two of its frames
-        (taps=False: the state as it is, for `monitor`'s view)."""
-        with self._lock:
-            self._outbox.append([] if events else None)
-            self._latches.append(TapLatch() if taps else None)
-            return len(self._outbox) - 1
-
-    def collect(self, subscriber: int) -> tuple[list[ServiceEvent], list[NodeFrame]]:
-        """The events owed to this output and every node's frame, taken together."""
-        with self._lock:
-            events = self._outbox[subscriber]
-            if events is None:
-                events = []
-            else:
-                self._outbox[subscriber] = []
-            changes = self._step_if_due_locked()
-            frames = self._frames_of(subscriber)
-        _log_changes(changes)
-        return events, frames
-
-    def frames(self, subscriber: int | None = None) -> list[NodeFrame]:
-        """Every node's frame in the latest step; with `subscriber`, buttons tapped since
-        its last frame show as pressed (no lost taps, docs/ICD.md "Taps")."""
-        with self._lock:
-            changes = self._step_if_due_locked()
-            frames = self._frames_of(subscriber)
-        _log_changes(changes)
-        return frames
+    def frames(self) -> list[NodeFrame]:
+        """Every node's frame in the latest step (buttons as they are: an output shows the
+        taps between its frames through its own `TapLatch`, docs/ICD.md "Taps")."""
+        return self.step_if_due().frames
 
     def snapshot(self) -> NodeSnapshot:
         """The latest step's snapshot, as it is: reading it changes nothing."""
@@ -432,10 +403,6 @@ class NodeTable:
                         attached.last_inputs = attached.last_step(self._clock())
                         attached.present = False
             self._by_key.clear()
-
-    def _frames_of(self, subscriber: int | None) -> list[NodeFrame]:
-        latch = None if subscriber is None else self._latches[subscriber]
-        return self._snapshot.frames if latch is None else latch.frames(self._snapshot)
 
     def _step_if_due_locked(self) -> list[str]:
         """The step, memoised: it runs once per (period, devices, records), whoever calls."""
@@ -467,29 +434,6 @@ class NodeTable:
         self._snapshot = NodeSnapshot(period, now, tuple(views), self._log)
         self._resting = _resting(nodes, now)
         return changes
-
-    def request_connect_sequences(self, subscriber: int, node_id: int | None = None) -> int:
-        """Answer a `<` (node_id None: every present node) or a `4` poll for one node.
-
-        A connect sequence already owed to this output is not queued twice, so a far end
-        that keeps asking cannot fill the line with service frames."""
-        with self._lock:
-            box = self._outbox[subscriber]
-            assert box is not None, "a C2-16B output subscribes to the events"
-            queued = 0
-            for nid in sorted(self._nodes):
-                if node_id is not None and nid != node_id:
-                    continue
-                for attached in self._nodes[nid].attached:
-                    event = _connected(nid, attached)
-                    if attached.present and event not in box:
-                        box.append(event)
-                        queued += 1
-            if node_id is not None and not any(
-                a.present for a in self._nodes.get(node_id, _Node(node_id)).attached
-            ):
-                box.append(ServiceEvent(EventKind.DISCONNECTED, node_id))
-            return queued
 
     # --- devices -------------------------------------------------------------------------
 
@@ -710,11 +654,8 @@ class NodeTable:
                     self._nodes[node_id] = _Node(node_id, expected=dict(entries))
 
     def _broadcast(self, event: ServiceEvent) -> None:
-        """Queue `event` for every subscriber, and append it to the log the next step
-        publishes (the layout changed: a step is due even within this period)."""
-        for box in self._outbox:
-            if box is not None:
-                box.append(event)
+        """Append `event` to the log the next step publishes (the layout changed: a step is
+        due even within this period); each line session reads it with its own cursor."""
         present = tuple(
             _connected(node_id, attached)
             for node_id in sorted(self._nodes)
