@@ -20,7 +20,7 @@ from typing import Any
 
 from usb2rc.lines.session import ChannelValues, FrameLineSession, FrameSession
 from usb2rc.protocol import crsf
-from usb2rc.protocols.rc11 import padded
+from usb2rc.protocols.rc11_channels import padded
 
 # ELRS sends a timing correction every 200 ms while it hears the handset; after a second
 # without one the session goes back to the configured rate.

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 from usb2rc.lines.session import ChannelValues, FrameLineSession, FrameSession
 from usb2rc.protocol import rc11, sbus
-from usb2rc.protocols.rc11 import padded
+from usb2rc.protocols.rc11_channels import padded
 from usb2rc.scaling import RC11_CENTRE
 
 
