@@ -34,7 +34,7 @@ from __future__ import annotations
 import enum
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Generic, Protocol, TypeVar
 
 from usb2rc.nodestep import NodeFrame, TapLatch
 from usb2rc.state import NodeSnapshot
@@ -214,14 +214,35 @@ class ChannelValues(Protocol):
     def evaluate(self, frames: Iterable[NodeFrame]) -> tuple[list[int], bool]: ...
 
 
-class LineBase:
+class Engine(Protocol):
+    """A protocol's line state machine, as `LineBase` drives it."""
+
+    line_open: bool
+    stalled: bool
+    stalls: int
+
+    def line_opened(self) -> None: ...
+    def line_lost(self) -> None: ...
+    def line_drained(self) -> None: ...
+    def line_flushed(self) -> None: ...
+    def stopping(self) -> None: ...
+    @property
+    def stop_done(self) -> bool: ...
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered: ...
+
+
+E = TypeVar("E", bound=Engine)
+F = TypeVar("F", bound=FrameLineSession)
+
+
+class LineBase(Generic[E]):
     """What every session shares around its protocol engine: the line's open/stall state
     (the engine's), the back-pressure decision, the period, the tap latch."""
 
     def __init__(
         self,
         name: str,
-        engine: Any,
+        engine: E,
         backpressure: Backpressure,
         period_s: float,
     ) -> None:
@@ -275,8 +296,7 @@ class LineBase:
         self.engine.stalled = True
 
     def wrote(self, sent: int, unsure: int = 0) -> Delivered:
-        result: Delivered = self.engine.wrote(sent, unsure)
-        return result
+        return self.engine.wrote(sent, unsure)
 
     def stopping(self) -> None:
         self.engine.stopping()
@@ -298,16 +318,14 @@ class LineBase:
         return {"queue_full_ticks": self.backpressure.held_queue_full}
 
 
-class FrameSession(LineBase):
+class FrameSession(LineBase[F]):
     """A channel output's session (SUMD, CRSF, SBUS, iBus): one frame of its channels a tick,
     its values from the snapshot through its own tap latch."""
-
-    engine: FrameLineSession
 
     def __init__(
         self,
         name: str,
-        engine: FrameLineSession,
+        engine: F,
         channels: ChannelValues,
         frame_length: int,
         period_s: float,

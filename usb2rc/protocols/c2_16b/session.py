@@ -35,9 +35,7 @@ def is_request(frame: c2_16b.Frame) -> bool:
     return frame.service is c2_16b.Service.POLL
 
 
-class C2Line(LineBase):
-    engine: C2Session
-
+class C2Line(LineBase[C2Session]):
     def __init__(self, name: str, settings: C2Settings) -> None:
         engine = C2Session(settings, name=name)
         tick_bytes = engine.capacity * engine.frame_len

@@ -161,9 +161,7 @@ class CrsfSession(FrameLineSession):
         return ", ".join(parts)
 
 
-class CrsfLine(FrameSession):
-    engine: CrsfSession
-
+class CrsfLine(FrameSession[CrsfSession]):
     def __init__(self, name: str, channels: ChannelValues, engine: CrsfSession) -> None:
         super().__init__(name, engine, channels, crsf.RC_FRAME_LEN, engine.configured_interval_s)
 

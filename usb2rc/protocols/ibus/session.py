@@ -25,9 +25,7 @@ class IbusSession(FrameLineSession):
         return ibus.encode_ibus([*channels[: ibus.CHANNELS], *unlisted])
 
 
-class IbusLine(FrameSession):
-    engine: IbusSession
-
+class IbusLine(FrameSession[IbusSession]):
     def __init__(self, name: str, channels: ChannelValues, rate_hz: float) -> None:
         super().__init__(name, IbusSession(), channels, ibus.FRAME_LEN, 1.0 / rate_hz)
 

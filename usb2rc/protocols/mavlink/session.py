@@ -404,9 +404,7 @@ def heartbeat_bytes() -> int:
     return len(heartbeat.pack(mav))
 
 
-class MavlinkLine(LineBase):
-    engine: MavlinkSession
-
+class MavlinkLine(LineBase[MavlinkSession]):
     def __init__(
         self,
         name: str,

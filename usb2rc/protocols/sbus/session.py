@@ -25,6 +25,6 @@ class SbusSession(FrameLineSession):
         )
 
 
-class SbusLine(FrameSession):
+class SbusLine(FrameSession[SbusSession]):
     def __init__(self, name: str, channels: ChannelValues, rate_hz: float) -> None:
         super().__init__(name, SbusSession(), channels, sbus.FRAME_LEN, 1.0 / rate_hz)

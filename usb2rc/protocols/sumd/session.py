@@ -15,6 +15,6 @@ class SumdSession(FrameLineSession):
         return sumd.encode_sumd(channels, failsafe=failsafe)
 
 
-class SumdLine(FrameSession):
+class SumdLine(FrameSession[SumdSession]):
     def __init__(self, name: str, channels: ChannelValues, frame_length: int, rate_hz: float):
         super().__init__(name, SumdSession(), channels, frame_length, 1.0 / rate_hz)
