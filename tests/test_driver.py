@@ -13,7 +13,7 @@ import serial
 from daemon_harness import PtyLine, StickState
 from test_state_scheduler import BINDING, Source, info
 
-from usb2rc.lines.driver import GRID_S, Driver, Pace, earliest, on_grid
+from usb2rc.lines.driver import Driver, Pace, aligned, earliest
 from usb2rc.lines.rx import LinkReader
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.mapping import ChannelSource
@@ -154,8 +154,14 @@ def test_a_crsf_line_on_loop_reads_its_far_end_and_comes_back_after_a_lost_port(
     assert driver.stats.tick_errors == 0
 
 
-def test_every_driver_wakes_on_the_one_grid() -> None:
-    assert on_grid(0.0) == 0.0 and on_grid(GRID_S * 3) == GRID_S * 3
-    assert on_grid(GRID_S * 3 + 1e-4) == GRID_S * 4
+def test_every_driver_ticks_on_multiples_of_its_period_from_one_epoch() -> None:
+    """Two outputs started apart, at 50 and 100 Hz: every tick of the first is one of the
+    second's (the first tick is the next multiple of the period on the monotonic clock)."""
+    assert aligned(0.0, 0.02) == 0.0 and aligned(0.0201, 0.02) == 0.04
+    first, second = aligned(123.4567, 0.02), aligned(123.4612, 0.01)
+    assert round(first / 0.02) * 0.02 == first and round(second / 0.01) * 0.01 == second
+    fifty = {round(first + k * 0.02, 6) for k in range(10)}
+    hundred = {round(second + k * 0.01, 6) for k in range(20)}
+    assert fifty - {round(first, 6)} <= hundred
     assert earliest([Pace(0.0, 0.02), Pace(2.0, 0.01), Pace(1.5, 0.02)]) == Pace(1.5, 0.02)
     assert earliest([Pace(0.0, 0.02)]) is None  # nobody ticks yet

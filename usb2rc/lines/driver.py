@@ -11,10 +11,12 @@ Once a tick, on absolute monotonic deadlines, the driver
 It knows no protocol: what to send, when to stall, when to flush, when the next tick is due
 (`session.next_due`) are the session's. A late tick is counted, never caught up with a burst.
 
-One clock: every driver wakes on the grid, the multiples of GRID_S on the monotonic clock
-(the node clock's epoch); its deadlines keep their exact period, only the wake-ups are
-rounded up to the grid, so the outputs of a daemon wake together and a reader that paces
-on them (`Daemon._reader_pause`, `earliest`) wakes once per grid tick, not once per output.
+One clock: a driver's ticks fall on the multiples of its period on the monotonic clock, the
+node clock's epoch (`aligned`), whenever it starts. Outputs whose periods are multiples of
+one another (the defaults: 20, 10, 4 ms) tick together, on node steps (every 4 ms, the base
+period), so a reader that paces on them (`Daemon._reader_pause`, through `earliest`) wakes
+once for all of them. A CRSF output that follows its module's timing leaves the grid: the
+module sets its phase (`session.next_due`), to the microsecond.
 """
 
 from __future__ import annotations
@@ -36,20 +38,19 @@ from usb2rc.worker import Worker
 
 log = logging.getLogger("usb2rc.lines")
 
-GRID_S = 0.0005  # every driver wakes on a multiple of this (monotonic clock)
 PERIODS_KEPT = 3000
 FINAL_TICKS_S = 0.25  # at most this long for the failsafe frames when usb2rc stops
 STALL_LOG_QUIET_S = 10.0  # a line that stalls again and again is logged once in this long
 
 
-def on_grid(t: float) -> float:
-    """The first grid point at or after `t` (a float's error below a nanosecond is none)."""
-    return math.ceil(t / GRID_S - 1e-6) * GRID_S
+def aligned(now: float, period_s: float) -> float:
+    """The first multiple of `period_s` at or after `now` (monotonic clock, epoch 0)."""
+    return math.ceil(now / period_s - 1e-9) * period_s
 
 
 @dataclass(frozen=True)
 class Pace:
-    """When a driver's next tick is due (monotonic, on the grid) and its period now: one
+    """When a driver's next tick is due (monotonic) and its period now: one
     value, so a reader pacing on it never pairs one tick's deadline with another's period.
     Only the driver's own thread replaces it, whole."""
 
@@ -134,10 +135,10 @@ class Driver(Worker):
     # --- the loop ----------------------------------------------------------------------------
 
     def run(self) -> None:
-        deadline = on_grid(time.monotonic())
+        deadline = aligned(time.monotonic(), self.period_s)
         while not self.stopping:
-            self.pace = Pace(on_grid(deadline), self.period_s)
-            delay = self.pace.deadline - time.monotonic()
+            self.pace = Pace(deadline, self.period_s)
+            delay = deadline - time.monotonic()
             if delay > 0 and self._wait(delay):
                 break
             started = time.monotonic()
@@ -156,7 +157,7 @@ class Driver(Worker):
                 missed = int(behind // period) + 1
                 self.stats.missed_ticks += missed
                 deadline += missed * period
-            self.pace = Pace(on_grid(deadline), period)  # readers sample for it
+            self.pace = Pace(deadline, period)  # readers sample for it
         self._final_ticks()
         self.link.close()
 
