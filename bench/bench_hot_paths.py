@@ -5,8 +5,9 @@ and each reader's wake-ups, ~100 a second, each draining ~10 reports. Thread CPU
 (`time.thread_time`), so other load on the machine changes the figures less than it changes
 wall-clock ones (it still evicts caches: compare runs made back to back).
 
-Tick: the real `scheduler.C2Output.tick()` (follow the link, `NodeTable.collect`,
-`C2Session.tick` with one data frame per node, the write) on a pty that a `cat` subprocess
+Tick: the real `lines.driver.Driver.tick()` of a C2-16B output (follow the link, the node
+snapshot `NodeTable.step_if_due` ("collect"), `C2Line.tick` with one data frame per node,
+the write) on a pty that a `cat` subprocess
 drains, `--nodes` T.16000M devices whose readers' records change every tick (as at 1 kHz):
 - `tick_hot_us`: ticks back to back, the best of `--runs` means (the code's own cost);
 - `tick_paced_us`: one tick every 20 ms, as the daemon runs it (median): code and data are
@@ -43,11 +44,12 @@ from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import DeviceReader, ReaderRecord
 from usb2rc.hid.replay import ReplayBackend, install_file
+from usb2rc.lines.driver import Driver, Pace
+from usb2rc.lines.serial_link import SerialLink
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import NodeTable
-from usb2rc.scheduler import C2Output, Pace
-from usb2rc.session import C2Settings
-from usb2rc.transport import SerialLink
+from usb2rc.protocols.c2_16b.engine import C2Settings
+from usb2rc.protocols.c2_16b.session import C2Line
 
 PERIOD_S = 0.020
 
@@ -80,7 +82,9 @@ class Rig:
             source = Source(ReaderRecord(decoder.state(), 1, 0, time.monotonic()))
             self.table.add_device(node_id, info, binding, source, "JOYSTICK")
             self.feeds.append((source, decoder.feed, decoder.state))
-        self.output = C2Output("bench", SerialLink(port, 921600), self.table, C2Settings())
+        session = C2Line("bench", C2Settings())
+        link = SerialLink(port, 921600)
+        self.output = Driver("bench", link, session, self.table.step_if_due, PERIOD_S)
         self.output.link.open_now()
         self._count = 0
         for _ in range(10):  # the startup frame and the connect sequences go out
@@ -114,7 +118,7 @@ def hot(rig: Rig, ticks: int, runs: int) -> float:
 
 def paced(rig: Rig, ticks: int) -> dict[str, float]:
     """One tick per period; thread CPU per tick and per part (medians, µs)."""
-    output, table, session = rig.output, rig.table, rig.output.c2
+    output, table, session = rig.output, rig.table, rig.output.session
     parts: dict[str, list[float]] = {"tick": [], "collect": [], "session": [], "write": []}
     deadline = time.monotonic()
     for i in range(ticks):
@@ -128,11 +132,11 @@ def paced(rig: Rig, ticks: int) -> dict[str, float]:
             continue
         # the same work in parts (without the link's follow-up and stats, a few µs)
         t0 = time.thread_time()
-        events, frames = table.collect(output.subscriber)
+        snapshot = table.step_if_due()
         t1 = time.thread_time()
-        data = session.tick(events, frames)
+        data = session.tick(time.monotonic(), snapshot)
         t2 = time.thread_time()
-        output.send(data)
+        output._send(data)
         t3 = time.thread_time()
         parts["collect"].append(t1 - t0)
         parts["session"].append(t2 - t1)

@@ -48,6 +48,13 @@ from pathlib import Path
 from typing import Any
 
 from usb2rc.config import layout
+from usb2rc.lines.driver import Pace
+from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
+from usb2rc.protocols.crsf.session import CrsfSession
+from usb2rc.protocols.ibus.session import IbusSession
+from usb2rc.protocols.mavlink.session import ControlValues, MavlinkSession
+from usb2rc.protocols.sbus.session import SbusSession
+from usb2rc.protocols.sumd.session import SumdSession
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
@@ -58,12 +65,8 @@ from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import DeviceReader
 from usb2rc.hid.replay import ReplayBackend, ReplayDevice, install_file
 from usb2rc.nodes.step import NodeFrame
-from usb2rc.outputs.mavlink import ControlValues, MavlinkSession
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.sbus import codec as sbus
-from usb2rc.rc_sessions import CrsfSession, IbusSession, SbusSession
-from usb2rc.scheduler import Pace
-from usb2rc.session import C2Session, C2Settings, SumdSession
 
 GRID_S = 0.020
 

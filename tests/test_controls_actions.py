@@ -12,8 +12,8 @@ from pymavlink.dialects.v20 import common as mavlink2
 from usb2rc.config.controls_model import ActionConfig
 from usb2rc.config.load import ChannelRef, load_config_text
 from usb2rc.config.mavlink import MavlinkOptions
-from usb2rc.outputs.mavlink import ControlValues, MavlinkSession
 from usb2rc.protocols.mavlink.actions import TRIES
+from usb2rc.protocols.mavlink.session import ControlValues, MavlinkSession, stats_record
 
 BUTTON = ChannelRef(0, "button", 2, "node0.button2")
 COPTER = (mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, mavlink2.MAV_TYPE_QUADROTOR)
@@ -146,7 +146,6 @@ outputs:
 
 
 def test_the_stats_line_shows_the_actions_and_the_last_result() -> None:
-    from usb2rc.outputs.mavlink import stats_record
     from usb2rc.runtime.stats_text import output_line
 
     vehicle = Vehicle(*COPTER)

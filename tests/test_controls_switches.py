@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from daemon_harness import T16000M_DESCRIPTOR, RecordSource, StickState
+from table_reader import TableReader
 
 from usb2rc.config.controls_model import SwitchConfig, ThrottleCut
 from usb2rc.config.layout import AXIS_NAMES
@@ -185,11 +186,12 @@ def test_a_reload_keeps_positions_by_name_and_clamps_to_fewer_positions() -> Non
 
 def test_a_switch_slot_feeds_the_node_axis_and_survives_a_tap_latch() -> None:
     pilot = Pilot([SwitchConfig("gear", "toggle", (button(3),), slot="aux1")])
-    output = pilot.table.subscribe(events=False)
+    output = TableReader(pilot.table)  # an output's own tap latch over the snapshots
     aux1 = AXIS_NAMES.index("aux1")
     pilot.tap(3)
     pilot.tap(1)  # a tap the output's latch recomposes the frame for
-    frame = pilot.table.frames(output)[0]
+    pilot.clock.now += BASE_PERIOD_S
+    frame = output.frames()[0]
     assert frame.axes[aux1] == 32767
     assert frame.switches == (("gear", 32767),)
 

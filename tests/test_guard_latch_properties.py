@@ -20,6 +20,7 @@ from daemon_harness import (
 )
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from table_reader import TableReader
 
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
@@ -150,7 +151,7 @@ def test_every_press_shows_in_the_next_frame_of_each_output(ops: list) -> None:
     nothing else."""
     reader = DeviceReader(NoDevice(), LAYOUT.make_decoder(), lambda r, c: None)  # type: ignore[arg-type]
     table = NodeTable(clock=lambda: time.monotonic() + REST_S)  # frames after the guard's rest
-    outputs = [table.subscribe(events=False), table.subscribe(events=False)]
+    outputs = [TableReader(table), TableReader(table)]
     table.add_device(0, NoDevice.info, BINDING, reader, "JOYSTICK")
     buttons = 0
     pressed_since = [0, 0]  # per output: rising edges since its last frame (the model)
@@ -166,7 +167,7 @@ def test_every_press_shows_in_the_next_frame_of_each_output(ops: list) -> None:
             reader._publish()
         else:
             k = op[1]
-            frame = table.frames(outputs[k])[0]
+            frame = outputs[k].frames()[0]
             if presses_since[k] <= PRESSES_KEPT:  # the press log's bound (docs/ICD.md, "Taps")
                 assert frame.group1 & 0xF == buttons | pressed_since[k]
             pressed_since[k], presses_since[k] = 0, 0

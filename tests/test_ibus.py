@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from ibus_reference import RefIbusReader, microseconds
 
 from usb2rc.protocols.ibus import codec as ibus
-from usb2rc.rc_sessions import IbusSession
+from usb2rc.protocols.ibus.session import IbusSession
 
 # 14 × 1500 µs (0x05DC): sum of bytes 0..29 = 0x20 + 0x40 + 14 × (0xDC + 0x05) = 0x0CAE,
 # checksum 0xFFFF - 0x0CAE = 0xF351, little-endian.

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from daemon_harness import INVERT_X_CONFIG, StickState, install, timed_recording
+from table_reader import TableReader
 
 from usb2rc.config.load import load_config_text
 from usb2rc.daemon import expected_nodes
@@ -77,11 +78,11 @@ def wait_until(predicate, timeout: float = WAIT_S) -> None:
 
 def refusing_setup(
     tmp_path: Path, refusals: int, retry_s: float
-) -> tuple[NodeTable, int, ScriptedBackend, DeviceLifecycle]:
+) -> tuple[NodeTable, TableReader, ScriptedBackend, DeviceLifecycle]:
     """A stick pin-mapped to node 4 whose first `refusals` opens are refused."""
     mapping, expected = mapping_of("false")
     table = NodeTable(expected)
-    subscriber = table.subscribe()
+    subscriber = TableReader(table)
     backend = ScriptedBackend(tmp_path)
     backend.refusals = refusals
     lifecycle = DeviceLifecycle(backend, table, mapping, make_reader, retry_s=retry_s)
@@ -95,8 +96,8 @@ def live_x(table: NodeTable) -> int | None:
     return None if frame.failsafe else frame.axes[0]
 
 
-def events_of(table: NodeTable, subscriber: int) -> list[tuple[EventKind, int]]:
-    events, _frames = table.collect(subscriber)
+def events_of(table: NodeTable, subscriber: TableReader) -> list[tuple[EventKind, int]]:
+    events, _frames = subscriber.collect()
     return [(e.kind, e.node_id) for e in events]
 
 
@@ -157,7 +158,7 @@ def test_an_open_refused_is_retried_while_plugged_and_reported_once(tmp_path: Pa
         wait_until(lambda: bool(seen.extend(events_of(table, subscriber))) or len(seen) >= 2)
         assert backend.opens == 4
         assert seen == [(EventKind.ERROR, 4), (EventKind.CONNECTED, 4)]
-        errors = [e for e in table.collect(subscriber)[0] if e.kind is EventKind.ERROR]
+        errors = [e for e in subscriber.collect()[0] if e.kind is EventKind.ERROR]
         assert errors == []
     finally:
         for reader in lifecycle.shutdown(WAIT_S):
@@ -165,9 +166,9 @@ def test_an_open_refused_is_retried_while_plugged_and_reported_once(tmp_path: Pa
 
 
 def test_the_error_code_of_a_refused_open_is_permission_denied(tmp_path: Path) -> None:
-    table, subscriber, _backend, lifecycle = refusing_setup(tmp_path, refusals=1, retry_s=60)
+    _table, subscriber, _backend, lifecycle = refusing_setup(tmp_path, refusals=1, retry_s=60)
     lifecycle.handle_queued()
-    (error,) = table.collect(subscriber)[0]
+    (error,) = subscriber.collect()[0]
     assert (error.kind, error.error_code) == (EventKind.ERROR, int(ErrorCode.PERMISSION_DENIED))
 
 
@@ -191,7 +192,7 @@ def test_a_device_without_its_node_yet_is_looked_at_again(tmp_path: Path) -> Non
     for as long as it is plugged."""
     mapping, expected = mapping_of("false")
     table = NodeTable(expected)
-    subscriber = table.subscribe()
+    subscriber = TableReader(table)
     forgotten: list[str] = []
 
     class NoNodeYet(ScriptedBackend):
@@ -205,7 +206,7 @@ def test_a_device_without_its_node_yet_is_looked_at_again(tmp_path: Path) -> Non
     lifecycle.plugged(info)
     lifecycle.handle_queued()
     assert forgotten == [info.key]
-    assert table.collect(subscriber)[0] == []
+    assert subscriber.collect()[0] == []
 
 
 def test_a_daemon_that_never_started_stops_cleanly(tmp_path: Path) -> None:

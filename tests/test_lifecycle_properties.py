@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from daemon_harness import INVERT_X_CONFIG, T16000M_DESCRIPTOR
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from table_reader import TableReader
 
 from usb2rc.config.load import Config, load_config_text
 from usb2rc.daemon import expected_nodes
@@ -174,13 +175,13 @@ def test_random_event_orders_keep_table_and_lifecycle_in_step(config: int, steps
     world = World()
     mapping, expected = MAPPINGS[config]
     table = NodeTable(expected)
-    subscriber = table.subscribe()
+    subscriber = TableReader(table)
     lifecycle = DeviceLifecycle(world, table, mapping, world.make_reader, retry_s=0)
     for kind, arg in steps:
         apply(world, lifecycle, kind, arg)
         check(world, lifecycle, table)
     # Every device that left a present node was announced as gone: `2` for each removal.
-    services, _frames = table.collect(subscriber)
+    services, _frames = subscriber.collect()
     connects = sum(e.kind is EventKind.CONNECTED for e in services)
     disconnects = sum(e.kind is EventKind.DISCONNECTED for e in services)
     still_present = len(lifecycle.readers)

@@ -18,25 +18,29 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common
 
-from usb2rc import transport_udp
 from usb2rc.config import mavlink as config_mavlink
 from usb2rc.config.load import ConfigError, load_config, load_config_text
 from usb2rc.config.mavlink import MavlinkOptions
 from usb2rc.config.model import ChannelRef
+from usb2rc.lines import udp_link as transport_udp
+from usb2rc.lines.driver import Driver
+from usb2rc.lines.link import LineEvent
+from usb2rc.lines.serial_link import SerialLink
+from usb2rc.lines.udp_link import UdpLink, parse_udp_url
 from usb2rc.nodes.scaling import axis_to_manual, axis_to_manual_z, axis_to_pwm
 from usb2rc.nodes.table import NodeFrame, NodeTable
-from usb2rc.outputs import mavlink
-from usb2rc.outputs.mavlink import (
+from usb2rc.protocols.mavlink import session as mavlink
+from usb2rc.protocols.mavlink.session import (
     HEARTBEAT_S,
     RELEASE_S,
     ControlValues,
     MavlinkChannels,
+    MavlinkLine,
     MavlinkSession,
+    heartbeat_bytes,
+    max_message_bytes,
 )
 from usb2rc.runtime.stats_text import output_line
-from usb2rc.scheduler import MavlinkOutput
-from usb2rc.transport import LineEvent, SerialLink
-from usb2rc.transport_udp import UdpLink, parse_udp_url
 
 INT16 = st.integers(-32768, 32767)
 
@@ -386,7 +390,8 @@ def test_udpout_sends_each_write_as_one_datagram() -> None:
             assert [far.recv(100), far.recv(100)] == [b"one", b"two"]
             far.sendto(b"reply", link._sock.getsockname())  # type: ignore[union-attr]
             wait_until(lambda: link.line_event() is None and link.datagrams_received)
-            assert link.take_received() == b"reply" and link.take_received() == b""
+            assert [data for data, _at in link.take_received()] == [b"reply"]
+            assert link.take_received() == []
         finally:
             link.close()
 
@@ -417,7 +422,9 @@ def test_udpin_locks_to_the_first_caller_and_moves_only_after_its_silence() -> N
         assert first.recv(100) == b"to-first"
         second.sendto(b"call too", ("127.0.0.1", port))  # the peer talks: no redirect
         wait_until(lambda: link.line_event() is None and link.datagrams_from_others == 2)
-        assert link.peer == first.getsockname() and link.take_received() == b"call"
+        assert link.peer == first.getsockname() and [d for d, _at in link.take_received()] == [
+            b"call"
+        ]
         clock[0] += transport_udp.PEER_SILENT_S  # the first went silent: a new call is taken
         second.sendto(b"call again", ("127.0.0.1", port))
         wait_until(lambda: link.line_event() is None and link.peer == second.getsockname())
@@ -458,15 +465,19 @@ def test_udp_urls() -> None:
             parse_udp_url(bad)
 
 
-def test_the_output_thread_writes_each_message_and_counts_one_period_per_tick() -> None:
+def test_the_driver_writes_each_tick_whole_and_counts_one_period_per_tick() -> None:
+    """A tick's messages go out in one write (one datagram on UDP: docs/ICD.md, "MAVLink
+    output"), back to back; the far end parses them in order."""
     link = SerialLink("loop://", 115200)
     assert link.open_now()
     channels = MavlinkChannels([ChannelRef.axis(0, "x")])
-    out = MavlinkOutput("mav", link, NodeTable(), channels, MavlinkSession(MavlinkOptions()))
+    tick_bytes = heartbeat_bytes() + max_message_bytes("rc_channels_override")
+    session = MavlinkLine("mav", channels, MavlinkSession(MavlinkOptions()), tick_bytes, 50.0)
+    out = Driver("mav", link, session, NodeTable().step_if_due, 0.02)
     try:
         out.tick()  # the line opens: a heartbeat, then (node 0 absent: failsafe) a release
         out.tick()
-        assert out.stats.writes == 3 and len(out.stats.periods()) == 1
+        assert out.stats.writes == 2 and len(out.stats.periods()) == 1
         received = bytearray()
 
         def three_messages() -> bool:
@@ -496,24 +507,24 @@ def channels_or_none(message: Any) -> list[int] | None:
 def test_the_registry_builds_a_serial_output_whose_far_end_is_read() -> None:
     """`mavlink` through the registry on a serial line: an RX thread hands what the far end
     sent to the session (loop:// echoes usb2rc's own heartbeats back, so it sees them)."""
+
+    from usb2rc.lines.rx import LinkReader
     from usb2rc.nodes.mapping import compile_mapping
-    from usb2rc.outputs import protocol
-    from usb2rc.outputs.wiring import OutputContext
-    from usb2rc.scheduler import ReplyRx
+    from usb2rc.wiring import OutputContext, build
 
     config = load_config_text(
         "outputs:\n  - {protocol: mavlink, port: 'loop://', channels: [node0.x]}\n"
     )
     (out,) = config.outputs
     context = OutputContext("mav", out, compile_mapping(config), NodeTable())
-    built = protocol("mavlink").build(context)
-    assert isinstance(built.thread, MavlinkOutput) and isinstance(built.rx, ReplyRx)
+    built = build(context)
+    assert isinstance(built.thread, Driver) and isinstance(built.rx, LinkReader)
     assert built.link.open_now()
     built.thread.start()
     built.rx.start()
     try:
-        wait_until(lambda: built.thread.mav.far_end.heartbeats >= 1)
-        assert built.thread.mav.far_end.last_heartbeat_from == (255, 190)
+        wait_until(lambda: built.thread.session.engine.far_end.heartbeats >= 1)
+        assert built.thread.session.engine.far_end.last_heartbeat_from == (255, 190)
         stats = built.thread.protocol_stats()
         assert stats["far_end_heartbeats"] >= 1 and stats["releases"] >= 1  # node 0 absent
     finally:

@@ -15,7 +15,7 @@ from daemon_harness import ROOT, StickState, install, recording, scale
 from test_check_icd_cli import usb2rc
 
 from usb2rc.config.mavlink import MavlinkOptions
-from usb2rc.outputs.mavlink import ControlValues, MavlinkSession
+from usb2rc.protocols.mavlink.session import ControlValues, MavlinkSession
 
 GOOD = ROOT / "usb2rc" / "data" / "config" / "mavlink.yaml"
 
@@ -154,7 +154,7 @@ def test_pymavlink_is_imported_only_with_a_mavlink_output() -> None:
     config and the commands load without pymavlink's 2 MB dialect (a Pi's start time)."""
     code = (
         "import sys\n"
-        "import usb2rc.daemon, usb2rc.config.load, usb2rc.outputs.wiring\n"
+        "import usb2rc.daemon, usb2rc.config.load, usb2rc.wiring\n"
         "from usb2rc.commands import check, decode, icd, monitor\n"
         "print(sorted(m for m in sys.modules if m.startswith('pymavlink')))\n"
         "from usb2rc.outputs import protocol\n"

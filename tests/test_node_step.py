@@ -26,6 +26,7 @@ from daemon_harness import (
 )
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from table_reader import TableReader
 
 from usb2rc.config.load import Config, OutputConfig
 from usb2rc.daemon import Daemon
@@ -138,7 +139,7 @@ def drive(ops: list, readers: int, reads: int) -> list[tuple]:
     output each) read `reads` times. The snapshots' contents, step by step."""
     clock = Clock()
     table = NodeTable(clock=clock)
-    outputs = [table.subscribe(events=False) for _ in range(readers)]
+    outputs = [TableReader(table) for _ in range(readers)]
     source = RecordSource(ReaderRecord(LAYOUT.initial_state(), 0))
     table.add_device(0, INFO, BINDING, source, "JOYSTICK")
     buttons, reports, seen = 0, 0, []
@@ -154,7 +155,7 @@ def drive(ops: list, readers: int, reads: int) -> list[tuple]:
             clock.now += op[1]
         snapshot = table.step_if_due()
         threads = [
-            threading.Thread(target=lambda k=k: [table.frames(outputs[k]) for _ in range(reads)])
+            threading.Thread(target=lambda k=k: [outputs[k].frames() for _ in range(reads)])
             for k in range(readers)
         ]
         for thread in threads:
@@ -190,7 +191,7 @@ def test_a_tap_shows_in_exactly_one_frame_of_each_output_whoever_reads_first() -
     for order in ([0, 1], [1, 0]):
         clock = Clock()
         table = NodeTable(clock=clock)
-        outputs = [table.subscribe(events=False), table.subscribe(events=False)]
+        outputs = [TableReader(table), TableReader(table)]
         source = RecordSource(record_of(StickState(), 1, clock.now))
         table.add_device(0, INFO, BINDING, source, "JOYSTICK")
         clock.now += REST_S + BASE_PERIOD_S
@@ -200,6 +201,6 @@ def test_a_tap_shows_in_exactly_one_frame_of_each_output_whoever_reads_first() -
         shown = {k: [] for k in outputs}
         for _ in range(2):
             for k in order:
-                shown[outputs[k]].append(table.frames(outputs[k])[0].group1 & 1)
+                shown[outputs[k]].append(outputs[k].frames()[0].group1 & 1)
         assert shown == {outputs[0]: [1, 0], outputs[1]: [1, 0]}
         assert table.snapshot().frames[0].group1 & 1 == 0  # the snapshot: as it is

@@ -2,7 +2,7 @@
 race explicitly through a seam, or checks which thread writes a field; none relies on luck.
 
 - `Daemon._become_ready`: the check and the set are one step (READY=1 goes out once);
-- `TickThread.pace`: the deadline and the period are one value, written by the output thread;
+- `Driver.pace`: the deadline and the period are one value, written by the driver thread;
 - `CrsfSession.link`: the module's figures with their time, one value (tests/test_crsf_sbus.py).
 """
 
@@ -20,9 +20,11 @@ from usb2rc.config.load import Config, OutputConfig
 from usb2rc.daemon import Daemon
 from usb2rc.hid.reader import READ_AHEAD_S, reader_pause
 from usb2rc.hid.replay import ReplayBackend
+from usb2rc.lines.driver import Driver, Pace
+from usb2rc.lines.link import LineEvent
+from usb2rc.lines.serial_link import SerialLink
 from usb2rc.protocols.crsf import codec as crsf
-from usb2rc.scheduler import CrsfOutput, Pace
-from usb2rc.transport import LineEvent, SerialLink
+from usb2rc.protocols.crsf.session import CrsfLine
 
 REAL_SERIAL_FOR_URL = serial.serial_for_url
 WAIT_S = 5.0  # a safety net only: every wait below ends on its condition
@@ -116,7 +118,7 @@ class _PaceWrites:
         self.loose: list[str] = []
 
 
-def _watch_pace(thread: CrsfOutput, writes: _PaceWrites) -> None:
+def _watch_pace(thread: Driver, writes: _PaceWrites) -> None:
     def setattr_watched(obj: Any, name: str, value: Any) -> None:
         if name == "pace":
             writes.writers.add(threading.current_thread().name)
@@ -132,11 +134,11 @@ def test_only_the_output_thread_writes_its_pace_and_follows_the_module(
 ) -> None:
     daemon = _daemon(tmp_path, protocol="crsf")
     thread = daemon.outputs[0].thread
-    assert isinstance(thread, CrsfOutput)
+    assert isinstance(thread, Driver) and isinstance(thread.session, CrsfLine)
     writes = _PaceWrites()
     _watch_pace(thread, writes)
     # the module asks for 10 ms (0.1 µs units): next_due follows it from the first tick
-    thread.crsf.received(crsf.encode_timing_sync(100_000, 0), time.monotonic())
+    thread.session.received(crsf.encode_timing_sync(100_000, 0), time.monotonic())
     thread.start()
     try:
         for _ in range(int(WAIT_S / 0.01)):
@@ -246,7 +248,7 @@ def test_each_link_field_has_one_writer_thread(monkeypatch: Any) -> None:
         raise AssertionError("never")
 
     def follow() -> LineEvent | None:
-        """What `_LineThread.follow_link` does with the link each tick."""
+        """What `Driver._follow_link` does with the link each tick."""
         if not link.is_open:
             link.try_open()
         return link.line_event()
@@ -279,3 +281,53 @@ def test_each_link_field_has_one_writer_thread(monkeypatch: Any) -> None:
     assert writers.pop("_broken") == {"rx"}
     assert all(who == {"writer"} for who in writers.values()), writers
     assert link.stats.bytes_read == 0 and link.stats.losses == 1 and link.stats.opens == 2
+
+
+# --- a line session: the driver thread is its one writer -------------------------------------
+
+
+def test_a_session_and_its_engine_are_written_by_the_driver_thread_only() -> None:
+    """What a far end sends reaches the session on the driver's thread (the reader thread only
+    queues bytes): every field of the session and its protocol engine has that one writer,
+    however the module's telemetry and the ticks interleave."""
+    from usb2rc.lines.rx import LinkReader
+    from usb2rc.protocols.channels import OutputChannels
+    from usb2rc.protocols.crsf.session import CrsfSession
+
+    writers: dict[str, set[str]] = {}
+
+    def record(obj: Any, name: str, value: Any) -> None:
+        object.__setattr__(obj, name, value)
+        who = threading.current_thread().name
+        if who != "MainThread":  # the constructors
+            writers.setdefault(f"{type(obj).__name__}.{name}", set()).add(who)
+
+    engine_type = type("Watched", (CrsfSession,), {"__setattr__": record})
+    line_type = type("WatchedLine", (CrsfLine,), {"__setattr__": record})
+    channels = OutputChannels([lambda nodes: (992, False)], crsf.RC_FRAME_LEN)  # live
+    session = line_type("crsf", channels, engine_type(0.004))
+    link = SerialLink("loop://", 400000)
+    from usb2rc.nodes.table import NodeTable
+
+    driver = Driver("driver", link, session, NodeTable().step_if_due, 0.004)
+    reader = LinkReader("reader", link)
+    assert link.open_now()
+    driver.start()
+    reader.start()
+    try:
+        for _ in range(int(WAIT_S / 0.01)):  # loop:// echoes the frames: the module "talks"
+            if session.engine.decoder.frames >= 20:
+                break
+            threading.Event().wait(0.01)
+        link.received.put((crsf.encode_timing_sync(100_000, 0), time.monotonic()))
+        for _ in range(int(WAIT_S / 0.01)):
+            if session.engine.timing_frames:
+                break
+            threading.Event().wait(0.01)
+    finally:
+        driver.stop()
+        reader.stop()
+        driver.join(WAIT_S)
+        reader.join(WAIT_S)
+    assert session.engine.decoder.frames >= 20 and session.engine.timing_frames == 1
+    assert writers and all(who == {"driver"} for who in writers.values()), writers

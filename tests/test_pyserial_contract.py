@@ -1,4 +1,4 @@
-"""What usb2rc.transport assumes of pyserial where pyserial has no public API for it, held
+"""What usb2rc.lines.serial_link assumes of pyserial where pyserial has no public API for it, held
 to the real handlers: a real pty, `loop://`, `socket://` to a local TCP server, `spy://`.
 
 - `plain_fd`: which ports' `write` puts the bytes on their fd unchanged (the link writes
@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 import serial
 
-from usb2rc.transport import FdKind, fd_kind, is_pty, plain_fd, pty_slave_majors
+from usb2rc.lines.serial_link import FdKind, fd_kind, is_pty, plain_fd, pty_slave_majors
 
 
 @pytest.fixture

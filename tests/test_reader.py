@@ -14,7 +14,7 @@ from usb2rc.hid.backend import DeviceInfo, ErrorCode
 from usb2rc.hid.descriptor import InputState, parse_descriptor
 from usb2rc.hid.reader import LAST_CALL_S, READ_AHEAD_S, DeviceReader, reader_pause
 from usb2rc.hid.replay import ReplayBackend, install_file
-from usb2rc.scheduler import Pace
+from usb2rc.lines.driver import Pace
 
 WAIT_S = 10.0
 

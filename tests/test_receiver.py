@@ -8,9 +8,9 @@ import pytest
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.nodes.table import EventKind, NodeFrame, ServiceEvent
 from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
 from usb2rc.protocols.c2_16b.receiver import ReceiverModel
-from usb2rc.scheduler import is_request
-from usb2rc.session import C2Session, C2Settings
+from usb2rc.protocols.c2_16b.session import is_request
 
 AXES = (0,) * 10
 

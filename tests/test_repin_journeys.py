@@ -205,7 +205,6 @@ def test_a_second_stick_of_a_repinned_entry_stays_on_its_node(tmp_path, caplog):
     (in key order) moves, the second would be a second device of that entry on node 4, so
     it stays where it is with its previous mapping, and the log says why."""
     table = NodeTable()
-    subscriber = table.subscribe()
     lifecycle = DeviceLifecycle(
         ScriptedBackend(tmp_path), table, compile_mapping(Config.default()), make_reader
     )
@@ -217,12 +216,13 @@ def test_a_second_stick_of_a_repinned_entry_stays_on_its_node(tmp_path, caplog):
             (0, "replay-a"),
             (1, "replay-b"),
         ]
-        table.collect(subscriber)  # the connect sequences
+        cursor = table.step_if_due().log.end  # after the connect sequences
         pinned = load_config_text(PINNED.format(node=4), "pinned.yaml")
         assert lifecycle.reload(compile_mapping(pinned), expected_nodes(pinned))
         where = [(n, i.port_path, b.name) for n, i, b, _p, _t in table.attachments()]
         assert where == [(1, "replay-b", "Thrustmaster T.16000M"), (4, "replay-a", "stick")]
-        events, _frames = table.collect(subscriber)
+        events = table.step_if_due().log.since(cursor)
+        assert events is not None
         assert [(e.kind, e.node_id) for e in events] == [
             (EventKind.DISCONNECTED, 0),
             (EventKind.CONNECTED, 4),

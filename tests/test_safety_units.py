@@ -16,8 +16,9 @@ from usb2rc.nodes.guard import default_arm
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import EventKind, NodeFrame, NodeTable, ServiceEvent
 from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
 from usb2rc.protocols.sumd import codec as sumd
-from usb2rc.session import C2Session, C2Settings, SumdSession
+from usb2rc.protocols.sumd.session import SumdSession
 
 LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
 STICK = DeviceInfo(key="k", path="k", vid=0x044F, pid=0xB10A, product="T.16000M", port_path="1-1")
@@ -109,7 +110,6 @@ def test_sumd_stopping_sets_the_failsafe_bit() -> None:
 
 def test_table_stop_makes_every_node_failsafe_with_its_values_held_and_no_event() -> None:
     table = NodeTable()
-    box = table.subscribe()
     table.add_device(
         0,
         STICK,
@@ -117,12 +117,13 @@ def test_table_stop_makes_every_node_failsafe_with_its_values_held_and_no_event(
         RecordSource(stick_record(StickState(x=9000, buttons=1))),
         "JOYSTICK",
     )
-    table.collect(box)
+    cursor = table.step_if_due().log.end
     live = table.frames()[0]
     assert not live.failsafe and live.group1 == 1
     table.stop()
-    events, frames = table.collect(box)
-    assert events == []  # not unplugged: no `2`
+    stopped = table.step_if_due()
+    events, frames = stopped.log.since(cursor), stopped.frames
+    assert events == ()  # not unplugged: no `2`
     assert frames[0].failsafe and frames[0].axes == live.axes and frames[0].group1 == 0
 
 
@@ -350,8 +351,10 @@ def test_a_hat_trim_steps_once_per_push() -> None:
 
 
 def test_sbus_and_crsf_stopping_send_their_failsafe() -> None:
+
+    from usb2rc.protocols.crsf.session import CrsfSession
     from usb2rc.protocols.sbus import codec as sbus
-    from usb2rc.rc_sessions import CrsfSession, SbusSession
+    from usb2rc.protocols.sbus.session import SbusSession
 
     sbus_line = SbusSession()
     sbus_line.line_opened()
@@ -370,9 +373,10 @@ def test_sbus_and_crsf_stopping_send_their_failsafe() -> None:
 
 
 def test_mavlink_stopping_releases_the_override_in_one_tick() -> None:
+
     from usb2rc.config.mavlink import MavlinkOptions
-    from usb2rc.outputs.mavlink import ControlValues, MavlinkSession
     from usb2rc.protocols.mavlink.codec import MavlinkDecoder
+    from usb2rc.protocols.mavlink.session import ControlValues, MavlinkSession
 
     session = MavlinkSession(MavlinkOptions())
     session.line_opened()

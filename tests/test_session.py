@@ -33,7 +33,7 @@ from hypothesis import strategies as st
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.nodes.table import EventKind, NodeFrame, ServiceEvent
 from usb2rc.protocols.c2_16b import codec as c2_16b
-from usb2rc.session import C2Session, C2Settings
+from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
 
 Service = c2_16b.Service
 CONNECT = (Service.CONNECTED, Service.VID_PID, Service.DEVICE_STRING, Service.DEVICE_TYPE)
@@ -624,8 +624,9 @@ def test_round_robin_serves_every_node_and_warns_once_per_node_count(caplog):
 
 
 def test_a_stalled_sumd_line_gets_no_frames_until_it_drains():
+
     from usb2rc.protocols.sumd import codec as sumd
-    from usb2rc.session import SumdSession
+    from usb2rc.protocols.sumd.session import SumdSession
 
     session = SumdSession()
     assert session.tick([12000] * 8, False) == b""  # no line yet
@@ -668,8 +669,9 @@ def test_a_flush_starts_the_line_over_and_the_lost_stick_still_gets_its_2():
 
 
 def test_a_flushed_sumd_line_goes_on_with_fresh_frames():
+
     from usb2rc.protocols.sumd import codec as sumd
-    from usb2rc.session import SumdSession
+    from usb2rc.protocols.sumd.session import SumdSession
 
     session = SumdSession()
     session.line_opened()

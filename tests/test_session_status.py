@@ -20,9 +20,10 @@ from hypothesis import strategies as st
 from test_session import NODES, Receiver, World, actions, run
 
 from usb2rc.config.model import HandoverConfig
+from usb2rc.lines.session import Delivered
 from usb2rc.nodes.table import NodeFrame
 from usb2rc.protocols.c2_16b import codec as c2_16b
-from usb2rc.session import C2Session, C2Settings, Delivered
+from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
 
 HOLD = HandoverConfig(button=5, destination=9)
 AXES = (0,) * 10

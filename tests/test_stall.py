@@ -23,12 +23,15 @@ from test_stall_journeys import PTY_FAR_END_BUFFER, PTY_KERNEL_QUEUE
 from test_state_scheduler import BINDING, Source, info
 
 from usb2rc import __version__
+from usb2rc.lines.driver import Driver
+from usb2rc.lines.serial_link import SerialLink
 from usb2rc.nodes.table import NodeTable
 from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.c2_16b.engine import C2Settings
+from usb2rc.protocols.c2_16b.session import C2Line
 from usb2rc.protocols.sumd import codec as sumd
 from usb2rc.protocols.sumd.channels import SumdChannels
-from usb2rc.scheduler import C2Output, C2Settings, SumdOutput, queue_cap
-from usb2rc.transport import SerialLink
+from usb2rc.protocols.sumd.session import SumdLine
 
 LIVE = c2_16b.LIVE
 STARTUP = c2_16b.startup(__version__)[: c2_16b.FRAME_LEN]  # as the daemon sends it
@@ -241,17 +244,19 @@ class LoopRig:
     received: bytearray = field(default_factory=bytearray)
 
     def __post_init__(self) -> None:
-        tick_bytes = 6 * 36  # 115200 baud, 50 Hz: 6 frames of 36 bytes
-        self.link = SerialLink("loop://", max_queued_bytes=queue_cap(tick_bytes))
+        self.link = SerialLink("loop://")
         assert self.link.open_now()
-        settings = C2Settings(version="0.1.0")
-        self.out = C2Output("loop", self.link, self.table, settings)
+        self.out = c2_driver("loop", self.link, self.table, C2Settings(version="0.1.0"))
 
     def read_all(self) -> None:
         port = self.link._adopted
         assert port is not None
         while waiting := port.in_waiting:
             self.received += port.read(waiting)
+
+
+def c2_driver(name: str, link: SerialLink, table: NodeTable, settings: C2Settings) -> Driver:
+    return Driver(name, link, C2Line(name, settings), table.step_if_due, 1 / settings.rate_hz)
 
 
 def test_loop_stalled_while_sticks_come_and_go():
@@ -261,11 +266,13 @@ def test_loop_stalled_while_sticks_come_and_go():
     for _ in range(5):  # the far end reads every tick
         rig.out.tick()
         rig.read_all()
-    assert rig.out.c2.stalled is False
+    assert rig.out.session.stalled is False
     for _ in range(20):  # ... and stops: the queue holds two ticks, then nothing is added
         rig.out.tick()
-    assert rig.out.c2.stalled and rig.link.stats.writes_skipped_queue_full >= 1
-    assert rig.link._adopted.out_waiting <= queue_cap(6 * 36)
+    backpressure = rig.out.session.backpressure
+    assert rig.out.session.stalled and backpressure.held_queue_full >= 1
+    # 115200 baud, 50 Hz: 6 frames of 36 bytes a tick, at most two ticks queued
+    assert rig.link._adopted.out_waiting <= backpressure.cap == 2 * 6 * 36
     rig.table.remove_device(a.key)
     rig.table.add_device(1, b, BINDING, Source.of(StickState(x=16383)), "JOYSTICK")
     for _ in range(10):
@@ -325,13 +332,14 @@ def test_a_sumd_pty_holds_no_more_than_a_tick_behind_a_far_end_that_stopped_read
     link = SerialLink(os.ttyname(slave))
     value = [0x2260]
     channels = SumdChannels([lambda nodes: (value[0], False)] * 8)
-    out = SumdOutput("sumd", link, NodeTable(), channels)
+    session = SumdLine("sumd", channels, sumd.frame_length(8), 100.0)
+    out = Driver("sumd", link, session, NodeTable().step_if_due, 0.01)
     try:
         assert link.open_now()
         frame_len = sumd.frame_length(8)
         for _ in range(2 * (PTY_FAR_END_BUFFER + PTY_KERNEL_QUEUE) // frame_len):
             out.tick()  # twice what the pty can hold, and nobody reads
-        assert not out.sumd.stalled and link.stats.short_writes == 0
+        assert not out.session.stalled and link.stats.short_writes == 0
         value[0] = 0x3B60  # the stick moved during the stall
         out.tick()
         got = b""
@@ -355,7 +363,7 @@ def test_a_serial_port_queue_is_dropped_when_a_stall_begins(monkeypatch):
     queue count set by the test): when the queue is over two ticks the line is stalled, and
     what it holds, as old as the stall, is dropped at once; the line starts over with the
     startup frame (a C2-16B receiver may have read any part of what was dropped)."""
-    from usb2rc import transport
+    from usb2rc.lines import serial_link as transport
 
     queued = [0]
     monkeypatch.setattr(transport, "is_pty", lambda fd: False)  # a pty posing as a UART
@@ -363,8 +371,8 @@ def test_a_serial_port_queue_is_dropped_when_a_stall_begins(monkeypatch):
     master, slave = os.openpty()
     tty.setraw(master)
     table = NodeTable()
-    link = SerialLink(os.ttyname(slave), max_queued_bytes=queue_cap(6 * 36))
-    out = C2Output("uart", link, table, C2Settings(version=__version__))
+    link = SerialLink(os.ttyname(slave))
+    out = c2_driver("uart", link, table, C2Settings(version=__version__))
     try:
         assert link.open_now()
         table.add_device(0, info("a", "1-1"), BINDING, Source.of(StickState(x=0)), "JOYSTICK")
@@ -374,10 +382,10 @@ def test_a_serial_port_queue_is_dropped_when_a_stall_begins(monkeypatch):
         written_before = link.stats.bytes_written
         before = decoder.feed(read_bytes(master, written_before))
         assert any(f.status == LIVE for f in data(before))
-        queued[0] = queue_cap(6 * 36)  # the far end stopped: the UART holds two ticks
+        queued[0] = 2 * 6 * 36  # the far end stopped: the UART holds two ticks
         out.tick()
-        assert link.stats.writes_skipped_queue_full == 1 and link.stats.flushes == 1
-        assert out.stats.stalls == 1 and not out.c2.stalled  # the queue is empty: go on
+        assert out.session.backpressure.held_queue_full == 1 and link.stats.flushes == 1
+        assert out.stats.stalls == 1 and not out.session.stalled  # the queue is empty: go on
         queued[0] = 0
         out.tick()
         after = decoder.feed(read_bytes(master, link.stats.bytes_written - written_before))

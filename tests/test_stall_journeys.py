@@ -31,8 +31,8 @@ from typing import Any
 
 from daemon_harness import DECODERS, PtyLine, StickState, install, run_daemon, timed_recording
 
+from usb2rc.lines.serial_link import SOCKET_SEND_BUFFER
 from usb2rc.protocols.c2_16b import codec as c2_16b
-from usb2rc.transport import SOCKET_SEND_BUFFER
 
 REST_S = 0.5  # the stick rests first: the neutral guard arms on a stick at rest
 RAMP_S = 20.0  # then X ramps from 0 to 16383 in this long, a report every EVENT_S

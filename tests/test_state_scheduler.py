@@ -1,4 +1,4 @@
-"""NodeTable and C2Output in one process, ticked by hand: the safety rules, exactly.
+"""NodeTable and a C2-16B driver in one process, ticked by hand: the safety rules, exactly.
 
 Each test here pins down one rule a reviewer found broken once: identical devices without a
 serial number, a device that has not reported yet, a far end flooding `<`, a write that
@@ -17,14 +17,17 @@ from usb2rc.daemon import expected_nodes
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
+from usb2rc.lines.driver import Driver
+from usb2rc.lines.link import LineEvent, LinkStats, Written
+from usb2rc.lines.session import LinkState
 from usb2rc.nodes.binding import default_binding, unsigned_slots
 from usb2rc.nodes.guard import NO_GUARD
 from usb2rc.nodes.mapping import ChannelSource, compile_mapping
 from usb2rc.nodes.table import NodeFrame, NodeTable
 from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.c2_16b.engine import C2Settings
+from usb2rc.protocols.c2_16b.session import C2Line
 from usb2rc.protocols.sumd.channels import SumdChannels, sumd_channel
-from usb2rc.scheduler import C2Output, C2Settings
-from usb2rc.transport import LineEvent, Written
 
 LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
 
@@ -132,6 +135,9 @@ class FakeLink:
     """A serial line that records writes; `accept` decides whether a write goes out."""
 
     url: str = "fake://"
+    baudrate: int = 115200
+    last_error: str = ""
+    stats: LinkStats = field(default_factory=LinkStats)
     is_open: bool = True
     accept: bool = True
     writes: list[bytes] = field(default_factory=list)
@@ -152,14 +158,20 @@ class FakeLink:
             return Written(len(data))
         return Written(0)
 
-    def drained(self) -> bool:
+    def state(self, probe_writable: bool) -> LinkState:
+        return LinkState(writable=self.accept)  # a socket's: nothing counted nor dropped
+
+    def wait_writable(self, timeout_s: float) -> bool:
         return self.accept
 
-    def wait_drained(self, timeout_s: float) -> bool:
-        return self.accept
+    def flush(self, counted: bool = True) -> bool:
+        return False  # nothing stale to drop, nothing lost
 
-    def discard_stale(self) -> bool:
-        return False  # like a serial port: nothing stale to drop, nothing lost
+    def take_received(self) -> list[tuple[bytes, float]]:
+        return []
+
+    def counters(self) -> dict[str, int | str]:
+        return {}
 
     def close(self) -> None:
         pass
@@ -170,8 +182,12 @@ def decode(chunks: list[bytes]) -> list:
     return [f for chunk in chunks for f in decoder.feed(chunk)]
 
 
-def c2_output(table: NodeTable, link: FakeLink) -> C2Output:
-    return C2Output("test", link, table, C2Settings(version="0.1.0"))  # type: ignore[arg-type]
+def c2_output(table: NodeTable, link: FakeLink, baudrate: int = 115200) -> Driver:
+    session = C2Line("test", C2Settings(baudrate=baudrate, version="0.1.0"))
+    return Driver("test", link, session, table.step_if_due, 0.02)
+
+
+CONFIG_REQUEST = c2_16b.encode_data(c2_16b.CONFIG_REQUEST, 0x10, 0, (0,) * 10, 0, 0)
 
 
 def test_a_flood_of_config_requests_never_starves_the_data():
@@ -181,13 +197,13 @@ def test_a_flood_of_config_requests_never_starves_the_data():
     for n in range(2):
         table.add_device(n, info(f"k{n}", f"1-{n}"), BINDING, Source.of(LEFT), "JOYSTICK")
     for _ in range(100):  # the far end asks `<` every tick
-        table.request_connect_sequences(out.subscriber)
+        out.session.received(CONFIG_REQUEST, 0.0)
         out.tick()
     frames = decode(link.writes)
     data = [f for f in frames if isinstance(f, c2_16b.DataFrame)]
     per_node = {n: sum(f.node_id == n for f in data) for n in range(2)}
     assert min(per_node.values()) >= 40, per_node  # each node at least every other tick
-    assert all(len(decode([w])) <= out.capacity for w in link.writes)
+    assert all(len(decode([w])) <= out.session.engine.capacity for w in link.writes)
 
 
 def test_a_failed_write_keeps_the_service_frames_and_the_codes():
@@ -226,7 +242,7 @@ def test_a_node_being_re_announced_keeps_sending_but_never_live_before_its_seque
     table = NodeTable()
     link = FakeLink()
     # 57600 baud: 3 frames a tick, so a re-announcement spreads over several ticks
-    out = C2Output("test", link, table, C2Settings(baudrate=57600, version="0.1.0"))  # type: ignore[arg-type]
+    out = c2_output(table, link, baudrate=57600)
     stick = info("k0", "1-1")
     table.add_device(0, stick, BINDING, Source.of(LEFT), "JOYSTICK")
     for _ in range(4):
@@ -262,7 +278,7 @@ def test_stats_are_read_while_the_output_thread_adds_periods():
     on a copy, so the append neither waits for it nor breaks it."""
     import threading
 
-    from usb2rc.scheduler import OutputStats
+    from usb2rc.lines.driver import OutputStats
 
     stats = OutputStats()
     appended = threading.Event()

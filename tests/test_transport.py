@@ -1,4 +1,4 @@
-"""SerialLink: a slow or failing open never blocks the caller (the scheduler's tick)."""
+"""SerialLink: a slow or failing open never blocks the caller (the driver's tick)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,17 @@ import threading
 
 import serial
 
-from usb2rc import transport
-from usb2rc.transport import SOCKET_SEND_BUFFER, LineEvent, SerialLink
+from usb2rc.lines import serial_link as transport
+from usb2rc.lines.driver import Driver
+from usb2rc.lines.link import LineEvent
+from usb2rc.lines.serial_link import SOCKET_SEND_BUFFER, SerialLink
+from usb2rc.protocols.c2_16b.engine import C2Settings
+from usb2rc.protocols.c2_16b.session import C2Line
+
+
+def c2_driver(link: SerialLink, table) -> Driver:
+    session = C2Line("test", C2Settings(version="0.1.0"))
+    return Driver("test", link, session, table.step_if_due, 0.02)
 
 
 def test_a_slow_open_runs_aside_and_is_reported_once(monkeypatch):
@@ -51,7 +60,7 @@ def test_a_failing_open_is_logged_once_with_what_to_do(monkeypatch, caplog):
 
 
 class PausingTable:
-    """A NodeTable whose next `collect` stops until the test lets it go on: the writer
+    """A NodeTable whose next `step_if_due` stops until the test lets it go on: the writer
     thread is held in the middle of a tick, at the point of the test's choosing."""
 
     def __init__(self, table) -> None:
@@ -63,12 +72,12 @@ class PausingTable:
     def __getattr__(self, name):
         return getattr(self.table, name)
 
-    def collect(self, subscriber):
+    def step_if_due(self):
         if self.pause_next:
             self.pause_next = False
             self.in_collect.set()
             assert self.go_on.wait(10), "never let go on"
-        return self.table.collect(subscriber)
+        return self.table.step_if_due()
 
 
 def test_a_port_opened_in_the_middle_of_a_tick_carries_nothing_before_the_startup(monkeypatch):
@@ -81,7 +90,6 @@ def test_a_port_opened_in_the_middle_of_a_tick_carries_nothing_before_the_startu
 
     from usb2rc.nodes.table import NodeTable
     from usb2rc.protocols.c2_16b import codec as c2_16b
-    from usb2rc.scheduler import C2Output, C2Settings
 
     release_open = threading.Event()
     ports = []
@@ -96,10 +104,10 @@ def test_a_port_opened_in_the_middle_of_a_tick_carries_nothing_before_the_startu
     table = PausingTable(NodeTable())
     table.add_device(0, info("k0", "1-1"), BINDING, Source.of(StickState()), "JOYSTICK")
     link = SerialLink("held://", reopen_interval_s=0.0)
-    out = C2Output("test", link, table, C2Settings(version="0.1.0"))  # type: ignore[arg-type]
+    out = c2_driver(link, table)
     table.pause_next = True
     ticking = threading.Thread(target=out.tick)
-    ticking.start()  # starts the opener (held), finds no line, then stops in collect
+    ticking.start()  # starts the opener (held), finds no line, then stops in the step
     assert table.in_collect.wait(10)
     release_open.set()
     link._opener.join(10)
@@ -127,7 +135,6 @@ def test_a_line_lost_and_reopened_starts_again_with_the_startup_frame(monkeypatc
 
     from usb2rc.nodes.table import NodeTable
     from usb2rc.protocols.c2_16b import codec as c2_16b
-    from usb2rc.scheduler import C2Output, C2Settings
 
     ports = []
     real_open = serial.serial_for_url
@@ -141,10 +148,10 @@ def test_a_line_lost_and_reopened_starts_again_with_the_startup_frame(monkeypatc
     table.add_device(0, info("k0", "1-1"), BINDING, Source.of(StickState()), "JOYSTICK")
     link = SerialLink("again://", reopen_interval_s=0.0)
     assert link.open_now()
-    out = C2Output("test", link, table, C2Settings(version="0.1.0"))  # type: ignore[arg-type]
+    out = c2_driver(link, table)
     for _ in range(3):
         out.tick()
-    link._broken = (ports[0], OSError("gone"))  # what RxThread records on a read failure
+    link._broken = (ports[0], OSError("gone"))  # what LinkReader records on a read failure
     out.tick()  # the writer closes it ...
     out.tick()  # ... and starts the opener
     link._opener.join(10)
@@ -169,7 +176,7 @@ def test_a_pty_says_how_much_went_and_when_it_drains():
     link = SerialLink(os.ttyname(slave))
     try:
         assert link.open_now() and link.line_event() is LineEvent.OPENED
-        assert link.hides_queue  # its queue is not reported on a pty
+        assert link.state(False).hides_queue  # its queue is not reported on a pty
         chunk = bytes(216)
         written = [link.write(chunk) for _ in range(400)]  # far more than a pty holds
         assert any(w.sent < len(chunk) for w in written)  # the OS said: no more
@@ -178,13 +185,13 @@ def test_a_pty_says_how_much_went_and_when_it_drains():
         while select.select([], [slave], [], 0.2)[1]:
             written.append(link.write(chunk))
         assert link.stats.bytes_written == sum(w.sent for w in written)
-        assert not link.drained()
+        assert not link.state(True).writable
         got = 0
         while select.select([master], [], [], 0.5)[0] and got < link.stats.bytes_written:
             got += len(os.read(master, 65536))
-            if link.drained():
+            if link.state(True).writable:
                 break
-        assert link.drained() and got > 0
+        assert link.state(True).writable and got > 0
     finally:
         link.close()
         os.close(master)
@@ -203,7 +210,7 @@ def test_a_pty_drops_what_it_holds_on_request():
         assert link.open_now() and link.line_event() is LineEvent.OPENED
         while select.select([], [slave], [], 0.2)[1]:  # full, and stays full
             link.write(bytes(216))
-        assert link.discard_stale() and link.stats.flushes == 1
+        assert link.flush() and link.stats.flushes == 1
         got = 0
         while select.select([master], [], [], 0.2)[0]:
             got += len(os.read(master, 65536))
@@ -219,7 +226,7 @@ def test_a_port_that_reports_its_queue_is_not_flushed():
     try:
         assert link.open_now() and link.line_event() is LineEvent.OPENED
         assert link.write(b"H-").sent == 2
-        assert not link.discard_stale() and link.stats.flushes == 0
+        assert not link.flush() and link.stats.flushes == 0
         assert link._adopted.in_waiting == 2  # what was written is still there
     finally:
         link.close()

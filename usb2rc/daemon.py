@@ -27,19 +27,17 @@ from usb2rc.config.load import Config, OutputConfig
 from usb2rc.hid.backend import Backend, Device
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor
-from usb2rc.hid.reader import DeviceReader, OnExit
+from usb2rc.hid.reader import DeviceReader, GridTick, OnExit
+from usb2rc.lines.driver import Driver, Pace, earliest
+from usb2rc.lines.link import Link
+from usb2rc.lines.rx import LinkReader
 from usb2rc.nodes.lifecycle import DeviceLifecycle
 from usb2rc.nodes.mapping import Mapping, compile_mapping, match_text
 from usb2rc.nodes.step import NodeClock
 from usb2rc.nodes.table import Expected, ExpectedEntry, NodeTable
-from usb2rc.outputs import protocol
-from usb2rc.outputs.wiring import OutputContext
 from usb2rc.runtime import stats_text
-from usb2rc.runtime.worker import Worker
-from usb2rc.scheduler import C2Output, Pace, ReplyRx, RxThread, TickThread
 from usb2rc.status_socket import StatusServer, StatusSource
-from usb2rc.transport import SerialLink
-from usb2rc.transport_udp import UdpLink
+from usb2rc.wiring import OutputContext, build
 
 log = logging.getLogger("usb2rc")
 
@@ -60,9 +58,9 @@ class NoPortError(ValueError):
 @dataclass
 class _Output:
     config: OutputConfig
-    link: SerialLink | UdpLink
-    thread: TickThread
-    rx: Worker | None = None
+    link: Link
+    thread: Driver
+    rx: LinkReader | None = None
 
 
 @dataclass(frozen=True)
@@ -174,13 +172,13 @@ class Daemon:
     # --- outputs ---------------------------------------------------------------------------
 
     def _make_output(self, index: int, out: OutputConfig) -> _Output:
-        """The protocol's build function (the registry in usb2rc/outputs) makes its pieces."""
+        """The protocol's build function (`usb2rc.wiring`) makes its pieces."""
         assert out.port
         name = f"output{index + 1}-{out.protocol}"
         context = OutputContext(
             name, out, self.mapping, self.table, self._tick, self._first_write, self.version
         )
-        built = protocol(out.protocol).build(context)
+        built = build(context)
         return _Output(out, built.link, built.thread, built.rx)
 
     def _first_write(self) -> None:
@@ -217,11 +215,12 @@ class Daemon:
     def _forget(self, key: str) -> None:
         self.monitor.forget(key)
 
-    def _next_tick(self) -> Pace:
+    def _next_tick(self) -> GridTick:
         """The next tick of any output: the busy readers sleep until just before it
         (`hid/reader.py: reader_pause`). One read of each output's pace: its deadline and
-        period are one value (the output thread may replace it meanwhile; never half of it)."""
-        return min((o.thread.pace for o in self.outputs), key=lambda p: p.deadline)
+        period are one value (the driver may replace it meanwhile; never half of it). The
+        drivers tick on one grid; before any ticks, a past tick: read as reports come."""
+        return earliest(o.thread.pace for o in self.outputs) or Pace(0.0, 0.0)
 
     def all_outputs_ticking(self, within_s: float = 1.0) -> bool:
         """True while every output thread has ticked in the last `within_s` seconds: one hung
@@ -358,7 +357,7 @@ class Daemon:
             "missed_ticks": st.missed_ticks,
             "period_p99_error_ms": st.period_p99_error_ms(out.thread.period_s),
             "bytes_written": link.bytes_written,
-            "queue_full_skips": link.writes_skipped_queue_full,
+            "queue_full_skips": link.writes_skipped_queue_full,  # UDP: refused datagrams
             "write_timeouts": link.write_timeouts,
             "short_writes": link.short_writes,
             "stalls": st.stalls,
@@ -366,22 +365,10 @@ class Daemon:
             "line_losses": link.losses,
             "tick_errors": st.tick_errors,
         }
-        if isinstance(out.thread, C2Output):
-            record["data_frames"] = st.data_frames
-            record["service_frames"] = st.service_frames
-            record["round_robin_deferrals"] = st.deferred_nodes
-            record["handover_frames"] = st.handover_frames
-            record["handovers_cut"] = st.handovers_cut
-            record["low_battery_frames"] = st.low_battery_frames
         record.update(out.thread.protocol_stats())
-        if isinstance(out.rx, ReplyRx):  # a far end faster than its line loses the excess
+        record["queue_full_skips"] += record.pop("queue_full_ticks", 0)
+        if out.rx is not None:  # a far end faster than its line loses the excess
             record["rx_dropped_bytes"] = out.rx.budget.dropped_bytes
-        if isinstance(out.rx, RxThread):
-            record["rx_bytes"] = link.bytes_read
-            record["rx_skipped"] = out.rx.decoder.bytes_skipped
-            record["rx_crc_failures"] = out.rx.decoder.crc_failures
-            record["rx_requests"] = out.rx.requests
-            record["rx_requests_dropped"] = out.rx.requests_dropped
         return record
 
     @staticmethod

@@ -361,15 +361,19 @@ class StatusSource:
         self._stats = stats
         self._check = check
         self._clock = clock
-        self._subscriber = table.subscribe(events=True, taps=False)
+        self._event_cursor = 0  # its own place in the table's service event log
         self._events: list[dict[str, Any]] = []
 
     def __call__(self) -> dict[str, Any]:
         now = self._clock()
-        events, _frames = self.table.collect(self._subscriber)
+        snapshot = self.table.snapshot()  # a read: it steps nothing
+        events = snapshot.log.since(self._event_cursor)
+        if events is None:  # fell behind the log's bound: what it still keeps
+            events = snapshot.log.events
+        self._event_cursor = snapshot.log.end
         self._events = (self._events + [event_record(e, now) for e in events])[-EVENTS_KEPT:]
         record: dict[str, Any] = {"at": round(now, 3), "stats": self._stats()}
-        record.update(snapshot_record(self.table.snapshot(), self.table))
+        record.update(snapshot_record(snapshot, self.table))
         record["events"] = self._events
         record["check"] = self._check()
         return record

@@ -73,7 +73,7 @@ def output_previews(config: Config, daemon: Daemon) -> list[tuple[str, Preview]]
         if out.protocol != "mavlink":
             continue
         from usb2rc.config.mavlink import MavlinkOptions
-        from usb2rc.outputs.mavlink import MavlinkChannels, preview_text
+        from usb2rc.protocols.mavlink.session import MavlinkChannels, preview_text
 
         message = MavlinkOptions.of(out).message
         channels = MavlinkChannels(daemon.mapping.sumd_channels(out), message)
@@ -94,8 +94,9 @@ class InputSide:
         self.ports = f"outputs on {urls}" if urls else "no serial port is opened"
         self.table = self.daemon.table
         self.previews = output_previews(config, self.daemon)
-        # the service events an output would send; buttons as they are now (no tap latch)
-        self.subscriber = self.table.subscribe(taps=False)
+        # the service events an output would send (its own cursor in the table's event log);
+        # buttons as they are now (no tap latch)
+        self.event_cursor = 0
         self.events: deque[str] = deque(maxlen=200)
         self.event_total = 0
 
@@ -106,7 +107,13 @@ class InputSide:
         self.daemon.stop()
 
     def snapshot(self) -> Snapshot:
-        events, frames = self.table.collect(self.subscriber)
+        table_now = self.table.step_if_due()
+        frames = table_now.frames
+        log = table_now.log
+        events = log.since(self.event_cursor)
+        if events is None:  # fell behind the log's bound: what it still keeps
+            events = log.events
+        self.event_cursor = log.end
         for event in events:
             self.events.append(event_text(event))
             self.event_total += 1

@@ -50,7 +50,7 @@ class MavlinkOptions:
 
 
 # The MAVLink output's facts, here so that the config loads without pymavlink's 2 MB
-# dialect (check, icd); usb2rc.outputs.mavlink imports them.
+# dialect (check, icd); usb2rc.protocols.mavlink.session imports them.
 RC_CHANNELS_OVERRIDE, MANUAL_CONTROL = "rc_channels_override", "manual_control"
 MESSAGES = (RC_CHANNELS_OVERRIDE, MANUAL_CONTROL)
 OVERRIDE_MAX_CHANNELS = 18
@@ -58,7 +58,7 @@ MANUAL_AXES = ("x", "y", "z", "r")  # the first four channels of a manual_contro
 MANUAL_MAX_BUTTONS = 32  # buttons (bits 0-15) and buttons2 (16-31)
 MOST_CHANNELS = max(OVERRIDE_MAX_CHANNELS, len(MANUAL_AXES) + MANUAL_MAX_BUTTONS)
 # Bytes on the wire at most (MAVLink 2, unsigned), for the bandwidth of a serial line;
-# tests hold them to what pymavlink packs (outputs.mavlink.max_message_bytes).
+# tests hold them to what pymavlink packs (protocols.mavlink.session.max_message_bytes).
 MESSAGE_BYTES = {RC_CHANNELS_OVERRIDE: 50, MANUAL_CONTROL: 25}
 HEARTBEAT_BYTES = 21
 SIGNATURE_BYTES = 13  # a signed message's link id, timestamp and signature

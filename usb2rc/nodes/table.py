@@ -1,10 +1,10 @@
 """Node state: the one lock-guarded place where devices (hot-plug and reader threads) meet
-the outputs (scheduler threads).
+the outputs (driver threads).
 
 Devices are attached to Node-IDs. One step per base period (usb2rc.nodes.step) reads each
 reader's record once, runs the neutral guard and the trims, and publishes an immutable
-snapshot of every node; each output subscribes and gets, per tick and under one lock, the
-service events queued for it and the latest snapshot's frames through its own tap latch.
+snapshot of every node with the service event log (`NodeSnapshot`, `EventLog`); each
+output's session reads it with its own event cursor and its own tap latch.
 Reading never changes the nodes: which outputs exist, or tick, does not change when a
 device arms. Readers never take this lock: each publishes one immutable `ReaderRecord` by a
 single assignment. Devices are added and removed only by the lifecycle thread
@@ -30,11 +30,9 @@ from usb2rc.nodes.binding import DeviceBinding, NodeInputs
 from usb2rc.nodes.guard import RestWatch
 from usb2rc.nodes.step import (
     BASE_PERIOD_S,
-    EMPTY,
     DeviceView,
     NodeView,
     TableSnapshot,
-    TapLatch,
     compose,
     merge_axes,
     trimmed,
@@ -46,6 +44,8 @@ from usb2rc.nodes.switches import SwitchBank
 from usb2rc.nodes.trims import TrimStore
 
 log = logging.getLogger("usb2rc.nodes")
+
+EVENTS_KEPT = 1024  # the service event log's bound: a line further behind announces again
 
 
 class EventKind(Enum):
@@ -61,6 +61,48 @@ class ServiceEvent:
     info: DeviceInfo | None = None
     device_type: str = ""
     error_code: int = 0
+
+
+@dataclass(frozen=True)
+class EventLog:
+    """The table's service events, append-only and bounded, as one immutable value: event
+    number `start + i` is `events[i]`. A line session keeps its own cursor (the number of
+    the next event it has not seen); a cursor before `start` fell behind (`since` says
+    None) and must announce everything again from `present`: the CONNECTED event of every
+    device present, in Node-ID order (what a line that opens announces)."""
+
+    start: int = 0
+    events: tuple[ServiceEvent, ...] = ()
+    present: tuple[ServiceEvent, ...] = ()
+
+    @property
+    def end(self) -> int:
+        """The number the next event will get: a cursor here has seen everything."""
+        return self.start + len(self.events)
+
+    def since(self, cursor: int) -> tuple[ServiceEvent, ...] | None:
+        """The events from number `cursor` on; None if some of them were dropped already."""
+        if cursor < self.start:
+            return None
+        return self.events[cursor - self.start :]
+
+    def appended(self, event: ServiceEvent, present: tuple[ServiceEvent, ...]) -> EventLog:
+        """This log with `event` added (the oldest dropped past EVENTS_KEPT)."""
+        events = (*self.events, event)
+        drop = max(0, len(events) - EVENTS_KEPT)
+        return EventLog(self.start + drop, events[drop:], present)
+
+
+EMPTY_LOG = EventLog()
+
+
+@dataclass(frozen=True)
+class NodeSnapshot(TableSnapshot):
+    """A step's snapshot (`nodestep.TableSnapshot`) with the service event log as it was
+    when the step ran: a line session reads both from one value, so a device's `2` is in
+    the same snapshot as the first frame that has it gone."""
+
+    log: EventLog = EMPTY_LOG
 
 
 @dataclass(frozen=True)
@@ -308,7 +350,7 @@ Expected = dict[int, dict[str, ExpectedEntry]]
 
 
 class NodeTable:
-    """Node-IDs, the devices feeding them, and the service events each output still owes."""
+    """Node-IDs, the devices feeding them, and the log of their service events."""
 
     def __init__(
         self, expected: Expected | None = None, clock: Callable[[], float] = time.monotonic
@@ -317,14 +359,13 @@ class NodeTable:
         self._clock = clock  # the frames' time: the neutral guard's rest (the readers' clock)
         self._nodes: dict[int, _Node] = {}
         self._by_key: dict[str, tuple[int, _Attached]] = {}
-        self._outbox: list[list[ServiceEvent] | None] = []  # None: frames only (SUMD)
-        self._latches: list[TapLatch | None] = []  # per subscriber (None: no taps shown)
         self._trims = TrimStore()
         self._switches = SwitchBank()  # switches and throttle cuts (nodes/switches.py)
         self._stopping = False
         # The step (docs/DESIGN.md, "Node state: one step per period"): the latest snapshot,
         # and what it was made from: the period, the devices' layout, the readers' records.
-        self._snapshot = EMPTY
+        self._snapshot: NodeSnapshot = NodeSnapshot()
+        self._log = EMPTY_LOG  # replaced whole by `_broadcast`, published by each step
         self._layout = 0  # bumped whenever devices, entries or bindings change
         self._stepped: tuple[int, int, tuple[ReaderRecord, ...]] | None = None
         # devices resting, not long enough yet at the last step: a step when one has
@@ -335,42 +376,16 @@ class NodeTable:
 
     # --- outputs -------------------------------------------------------------------------
 
-    def subscribe(self, events: bool = True, taps: bool = True) -> int:
-        """An output's subscription: its service events (events=False: none, for a channel
-        output) and its own latch of the buttons tapped between two of its frames
-        (taps=False: the state as it is, for `monitor`'s view)."""
-        with self._lock:
-            self._outbox.append([] if events else None)
-            self._latches.append(TapLatch() if taps else None)
-            return len(self._outbox) - 1
+    def frames(self) -> list[NodeFrame]:
+        """Every node's frame in the latest step (buttons as they are: an output shows the
+        taps between its frames through its own `TapLatch`, docs/ICD.md "Taps")."""
+        return self.step_if_due().frames
 
-    def collect(self, subscriber: int) -> tuple[list[ServiceEvent], list[NodeFrame]]:
-        """The events owed to this output and every node's frame, taken together."""
-        with self._lock:
-            events = self._outbox[subscriber]
-            if events is None:
-                events = []
-            else:
-                self._outbox[subscriber] = []
-            changes = self._step_if_due_locked()
-            frames = self._frames_of(subscriber)
-        _log_changes(changes)
-        return events, frames
-
-    def frames(self, subscriber: int | None = None) -> list[NodeFrame]:
-        """Every node's frame in the latest step; with `subscriber`, buttons tapped since
-        its last frame show as pressed (no lost taps, docs/ICD.md "Taps")."""
-        with self._lock:
-            changes = self._step_if_due_locked()
-            frames = self._frames_of(subscriber)
-        _log_changes(changes)
-        return frames
-
-    def snapshot(self) -> TableSnapshot:
+    def snapshot(self) -> NodeSnapshot:
         """The latest step's snapshot, as it is: reading it changes nothing."""
         return self._snapshot
 
-    def step_if_due(self) -> TableSnapshot:
+    def step_if_due(self) -> NodeSnapshot:
         """Run the step unless it already ran for this period, these reader records and
         these devices (the master clock's call, each base period); the latest snapshot."""
         with self._lock:
@@ -391,10 +406,6 @@ class NodeTable:
                         attached.last_inputs = attached.last_step(self._clock())
                         attached.present = False
             self._by_key.clear()
-
-    def _frames_of(self, subscriber: int | None) -> list[NodeFrame]:
-        latch = None if subscriber is None else self._latches[subscriber]
-        return self._snapshot.frames if latch is None else latch.frames(self._snapshot)
 
     def _step_if_due_locked(self) -> list[str]:
         """The step, memoised: it runs once per (period, devices, records), whoever calls."""
@@ -425,32 +436,11 @@ class NodeTable:
                 changes.append(change)
         stepped = self._switches.step(views)
         positions = tuple(sorted(self._switches.positions.items()))
-        self._snapshot = TableSnapshot(period, now, stepped, positions)
+        self._snapshot = NodeSnapshot(
+            period=period, at=now, nodes=stepped, switches=positions, log=self._log
+        )
         self._resting = _resting(nodes, now)
         return changes
-
-    def request_connect_sequences(self, subscriber: int, node_id: int | None = None) -> int:
-        """Answer a `<` (node_id None: every present node) or a `4` poll for one node.
-
-        A connect sequence already owed to this output is not queued twice, so a far end
-        that keeps asking cannot fill the line with service frames."""
-        with self._lock:
-            box = self._outbox[subscriber]
-            assert box is not None, "a C2-16B output subscribes to the events"
-            queued = 0
-            for nid in sorted(self._nodes):
-                if node_id is not None and nid != node_id:
-                    continue
-                for attached in self._nodes[nid].attached:
-                    event = _connected(nid, attached)
-                    if attached.present and event not in box:
-                        box.append(event)
-                        queued += 1
-            if node_id is not None and not any(
-                a.present for a in self._nodes.get(node_id, _Node(node_id)).attached
-            ):
-                box.append(ServiceEvent(EventKind.DISCONNECTED, node_id))
-            return queued
 
     # --- devices -------------------------------------------------------------------------
 
@@ -678,9 +668,16 @@ class NodeTable:
                     self._nodes[node_id] = _Node(node_id, expected=dict(entries))
 
     def _broadcast(self, event: ServiceEvent) -> None:
-        for box in self._outbox:
-            if box is not None:
-                box.append(event)
+        """Append `event` to the log the next step publishes (the layout changed: a step is
+        due even within this period); each line session reads it with its own cursor."""
+        present = tuple(
+            _connected(node_id, attached)
+            for node_id in sorted(self._nodes)
+            for attached in self._nodes[node_id].attached
+            if attached.present
+        )
+        self._log = self._log.appended(event, present)
+        self._layout += 1
 
 
 def _same(before: tuple[ReaderRecord, ...], now: tuple[ReaderRecord, ...]) -> bool:

@@ -3,16 +3,18 @@
 An output is three pieces, and every protocol has the same shape:
 
 - the sans-IO wire codec, `usb2rc.protocols.<name>` (values → bytes → values);
-- the sans-IO line session (`usb2rc.session.SumdSession`, `usb2rc.rc_sessions`), driven by
-  the shared scheduler (`usb2rc.scheduler`: one thread per output, one frame per tick);
+- the sans-IO line session, `usb2rc.protocols.<name>.session`, on the one session interface
+  (`usb2rc.lines.session`), driven by the one generic driver (`usb2rc.lines.driver`);
 - the output's channels, from the typed channel references of the config to wire values and
   the frame's failsafe flag (`usb2rc.protocols.channels`, with each protocol's scale).
 
 `PROTOCOLS` below is the one place that lists them: what the config accepts for each
 (`config.py` reads its keys, defaults and channel limits from here), how many bytes a frame
 takes and how many bit times a byte (the bandwidth check), which decoder `usb2rc decode` uses
-and which function builds the running output (`usb2rc.outputs.wiring`). Adding a protocol is
-one `OutputProtocol` entry here plus its modules. `usb2rc.daemon` only wires them together.
+A low-level table: the config model reads it, so it imports no session, link or driver; the
+running output is built by `usb2rc.wiring` (one build function per protocol, found by
+name; tests/test_structure.py holds the two lists equal). Adding a protocol is one
+`OutputProtocol` entry here, its build function there, plus its codec and session.
 """
 
 from __future__ import annotations
@@ -75,9 +77,10 @@ class OutputProtocol:
 
     `channels` is (min, max) for a channel output, None for C2-16B (which sends nodes).
     `frame_length(n)` is the bytes of one frame of n listed channels (the bandwidth check and
-    the transmit queue cap). `decoder` and `build` are "module:attribute" so that this registry
-    imports nothing heavy: `decoder()` makes the stream decoder `usb2rc decode` uses,
-    `build(ctx)` the running output (`usb2rc.outputs.wiring.OutputContext`)."""
+    the bandwidth check). `decoder` is "module:attribute" so that this registry imports
+    nothing heavy: `decoder()` makes the stream decoder `usb2rc decode` uses. The running
+    output is built by `usb2rc.wiring.build` (not from here: this table sits below the
+    config model, the sessions and the driver above it)."""
 
     name: str
     summary: str
@@ -85,7 +88,6 @@ class OutputProtocol:
     default_rate_hz: float
     frame_length: Callable[[int], int]
     decoder_path: str
-    build_path: str
     bits_per_byte: int = 10  # 8N1
     channels: tuple[int, int] | None = None
     channels_required: bool = False
@@ -115,9 +117,6 @@ class OutputProtocol:
     def scale(self) -> Any:
         """The channels' `outputs.channels.WireScale` (`scale_path`)."""
         return _resolve(self.scale_path)
-
-    def build(self, context: Any) -> Any:
-        return _resolve(self.build_path)(context)
 
     def bits_per_second(self, rate_hz: float, channel_count: int) -> float:
         """What one frame a tick needs on the wire."""
@@ -176,7 +175,6 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_rate_hz=50,
             frame_length=_c2_frame_length,
             decoder_path="usb2rc.protocols.c2_16b.codec:Decoder",
-            build_path="usb2rc.outputs.wiring:build_c2_16b",
             options={
                 "line_feed": Option(_boolean, True, "LF (0x0A) after each 35-byte frame"),
                 "service_status": Option(
@@ -191,7 +189,6 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_rate_hz=100,
             frame_length=_sumd_frame_length,
             decoder_path="usb2rc.protocols.sumd.codec:SumdDecoder",
-            build_path="usb2rc.outputs.wiring:build_sumd",
             channels=(sumd_codec.MIN_CHANNELS, sumd_codec.MAX_CHANNELS),
             options={
                 "extended": Option(_boolean, False, "axes onto 900-2100 µs, not 1100-1900 µs"),
@@ -204,7 +201,6 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_rate_hz=250,
             frame_length=_crsf_frame_length,
             decoder_path="usb2rc.protocols.crsf.codec:CrsfDecoder",
-            build_path="usb2rc.outputs.wiring:build_crsf",
             channels=(1, 16),
             channels_required=True,
             options={
@@ -226,7 +222,6 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_rate_hz=100,
             frame_length=_sbus_frame_length,
             decoder_path="usb2rc.protocols.sbus.codec:SbusDecoder",
-            build_path="usb2rc.outputs.wiring:build_sbus",
             bits_per_byte=sbus_codec.BITS_PER_BYTE,
             channels=(1, 18),
             channels_required=True,
@@ -241,7 +236,6 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_rate_hz=100,
             frame_length=_ibus_frame_length,
             decoder_path="usb2rc.protocols.ibus.codec:IbusDecoder",
-            build_path="usb2rc.outputs.wiring:build_ibus",
             channels=(1, ibus_codec.CHANNELS),
             channels_required=True,
             note="32-byte frames, 14 channels, 115200 baud 8N1; channels past the list "
@@ -257,7 +251,6 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_rate_hz=50,
             frame_length=_mavlink_frame_length,
             decoder_path="usb2rc.protocols.mavlink.codec:MavlinkDecoder",
-            build_path="usb2rc.outputs.wiring:build_mavlink",
             channels=(1, config_mavlink.MOST_CHANNELS),
             options={k: Option(*spec) for k, spec in config_mavlink.OPTION_SPECS.items()},
             check_path="usb2rc.config.mavlink_check:check_mavlink_output",

@@ -1,1 +1,1 @@
-"""The c2_16b package."""
+"""The C2-16B output protocol: its codec and its line session, and what else is its own."""

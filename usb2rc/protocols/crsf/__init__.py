@@ -1,1 +1,1 @@
-"""The crsf package."""
+"""The CRSF output protocol: its codec and its line session, and what else is its own."""

@@ -1,1 +1,1 @@
-"""The ibus package."""
+"""The iBus output protocol: its codec and its line session, and what else is its own."""

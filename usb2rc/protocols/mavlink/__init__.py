@@ -1,1 +1,1 @@
-"""The mavlink package."""
+"""The MAVLink output protocol: its codec and its line session, and what else is its own."""

@@ -1,1 +1,1 @@
-"""The sbus package."""
+"""The SBUS output protocol: its codec and its line session, and what else is its own."""

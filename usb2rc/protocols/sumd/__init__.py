@@ -1,1 +1,1 @@
-"""The sumd package."""
+"""The SUMD output protocol: its codec and its line session, and what else is its own."""

@@ -21,8 +21,8 @@ from collections.abc import Collection, Sequence
 from usb2rc.config.model import OutputConfig
 from usb2rc.config.yamlnodes import Problem, Where
 from usb2rc.nodes.mapping import ChannelSource
+from usb2rc.protocols import BITS_PER_BYTE_ON_WIRE
 from usb2rc.protocols.sumd import codec as sumd
-from usb2rc.session import BITS_PER_BYTE_ON_WIRE
 
 FEWEST_CHANNELS_READ = 4  # PX4, ArduPilot: fewer are misread
 MOST_CHANNELS_KEPT = 18  # PX4, Betaflight: the rest of the frame is dropped

@@ -4,30 +4,28 @@ Any pyserial URL works (`/dev/serial0`, `socket://host:port`, `spy:///dev/ttyUSB
 `loop://`). A missing or vanished port is logged once and retried every second; opening
 happens in a helper thread, so a slow open never blocks a tick.
 
-Two threads use a link: the output's writer thread and its RX thread. Only the writer thread
-writes, closes and *adopts* a port: the opener offers a new port, and the writer learns
-of it from `line_event()` (OPENED) before it writes anything on it, so the output session
-always hears of a new line before its first byte goes out. Each field has one writer
-(`SerialLink`'s docstring); a close waits for a read in progress.
+Two threads use a link: the output's driver thread (the writer) and its reader thread
+(`lines.rx.LinkReader`, which hands what it reads to the driver through `received`). Only
+the writer writes, closes and *adopts* a port: the opener offers a new port, and the writer
+learns of it from `line_event()` (OPENED) before it writes anything on it, so the output
+session always hears of a new line before its first byte goes out. Each field has one
+writer (`SerialLink`'s docstring); a close waits for a read in progress.
 
 A write never blocks a tick and says how many bytes went out (`Written`):
 - posix ports (serial ports, ptys) and `socket://` (whose send buffer is kept small): one
   non-blocking `os.write` on the port's `fileno()` (`plain_fd`);
 - other URLs (`loop://`, `rfc2217://`, ...): `port.write` in pieces that fit the write
   timeout; a piece that times out may or may not have gone (`Written.unsure`).
-Where the OS reports its transmit queue (serial ports, `loop://`), a write that would push
-it past `max_queued_bytes` is skipped (0 bytes); where it does not (ptys, sockets), a write
-the OS does not take whole says the far end stopped reading. Either way the writer waits
-for `drained()` before it writes again.
+`state()` reports what the OS holds (`lines.session.LinkState`): the transmit queue where the
+OS counts it (serial ports, `loop://`), whether the port can drop it, whether it hides it (a
+pty), whether the fd takes bytes. The session decides what to add and when to drop
+(`lines.session.Backpressure`); this module only carries it out.
 
-Dropping stale bytes: this module only says what the OS lets it drop, the output thread
-(`scheduler._LineThread`) decides when. `discard_stale()` drops what the OS holds for the
-far end (`tcflush(TCOFLUSH)`, as pyserial's `reset_output_buffer()`) on any posix port: a
-serial port's transmit queue, a pty's kernel queue. On a pty that is not all of it: the far
-end's own line discipline keeps the first 4095 bytes it did not read, which only the far
-end can drop (tests/test_stall_journeys.py::test_what_a_pty_flush_drops). `hides_queue`
-says the OS does not tell what waits (a pty): there a write the far end has not taken one
-tick later is stale, and only a flush before the next write keeps it off the line.
+Dropping stale bytes: `flush()` drops what the OS holds for the far end
+(`tcflush(TCOFLUSH)`, as pyserial's `reset_output_buffer()`) on any posix port: a serial
+port's transmit queue, a pty's kernel queue. On a pty that is not all of it: the far end's
+own line discipline keeps the first 4095 bytes it did not read, which only the far end can
+drop (tests/test_stall_journeys.py::test_what_a_pty_flush_drops).
 """
 
 from __future__ import annotations
@@ -49,43 +47,16 @@ from typing import Any
 import serial
 from serial.urlhandler import protocol_socket
 
+from usb2rc.lines.link import LineEvent, LinkStats, Written
+from usb2rc.lines.rx import RX_CHUNKS_QUEUED, Handoff
+from usb2rc.lines.session import LinkState
+
 log = logging.getLogger("usb2rc.serial")
 
 SOCKET_SEND_BUFFER = 4096  # bytes: what a stalled TCP bridge can hold back from us
 PTY_SLAVE_DIR = "/dev/pts/"  # where Linux names UNIX98 pty slaves (os.ttyname)
 PROC_DEVICES = "/proc/devices"  # the kernel's character majors, by driver name
 PTY_SLAVE_DRIVERS = ("pts", "ttyp")  # UNIX98 and legacy BSD pty slaves
-
-
-@dataclass
-class LinkStats:
-    """A link's counters. Each has one writer: the output (writer) thread, except
-    `bytes_read` (the RX thread); the stats thread only reads them."""
-
-    bytes_written: int = 0
-    writes: int = 0
-    writes_skipped_queue_full: int = 0
-    write_timeouts: int = 0
-    short_writes: int = 0  # the OS took less than the whole write (the far end stalls)
-    bytes_read: int = 0  # the RX thread's
-    losses: int = 0
-    opens: int = 0  # ports adopted by the writer
-    flushes: int = 0  # the OS queue dropped when a stall began or drained (posix ports)
-
-
-@dataclass(frozen=True)
-class Written:
-    """What one write put out: `sent` bytes surely (a prefix), then `unsure` bytes that may
-    or may not have gone; `lost`: the write failed and the port is closed."""
-
-    sent: int
-    unsure: int = 0
-    lost: bool = False
-
-
-class LineEvent(enum.Enum):
-    OPENED = "opened"  # the writer adopted a new port: a fresh line
-    LOST = "lost"  # the port failed and is closed
 
 
 @dataclass(frozen=True)
@@ -205,10 +176,11 @@ class SerialLink:
 
     Who writes what (docs/DESIGN.md, "Threads and what each owns"):
     - the opener thread only opens a port and offers the result (`_offer`, under `_lock`);
-    - the writer thread owns everything else: it takes the offer, adopts the port (`_handle`,
-      `_adopted`), writes, logs, counts (`stats`, `last_error`) and closes;
-    - the RX thread reads the adopted port and reports a failed read (`_broken`, its only
-      field besides `stats.bytes_read`); the writer acts on it at its next tick.
+    - the writer (driver) thread owns everything else: it takes the offer, adopts the port
+      (`_handle`, `_adopted`), writes, logs, counts (`stats`, `last_error`) and closes;
+    - the reader thread reads the adopted port, puts what it read in `received` and reports
+      a failed read (`_broken`, its only fields besides `stats.bytes_read`); the writer acts
+      on it at its next tick.
     A port is closed only under `_port_lock`, which a read holds: a read never runs on a
     closed port (at most one read timeout, 50 ms, delays a close).
     """
@@ -219,7 +191,6 @@ class SerialLink:
         baudrate: int = 115200,
         *,
         write_timeout_s: float = 0.005,
-        max_queued_bytes: int = 4096,
         reopen_interval_s: float = 1.0,
         parity: str = serial.PARITY_NONE,
         stopbits: float = serial.STOPBITS_ONE,
@@ -229,10 +200,11 @@ class SerialLink:
         self.parity = parity  # SBUS: even parity, two stop bits (8E2)
         self.stopbits = stopbits
         self.write_timeout_s = write_timeout_s
-        self.max_queued_bytes = max_queued_bytes
         self.reopen_interval_s = reopen_interval_s
         self.stats = LinkStats()
         self.last_error = ""  # writer thread
+        # what the reader thread read, with when (reader -> writer, bounded)
+        self.received: Handoff[tuple[bytes, float]] = Handoff(RX_CHUNKS_QUEUED)
         self._closing = False  # close() only
         self._lock = threading.Lock()  # guards the offer slot, not I/O
         self._offer: _Opened | None = None  # opener -> writer
@@ -364,10 +336,6 @@ class SerialLink:
         handle = self._handle
         if handle is None or not data:
             return Written(0)
-        queued = self._queued_bytes(handle)
-        if queued is not None and queued + len(data) > self.max_queued_bytes:
-            self.stats.writes_skipped_queue_full += 1
-            return Written(0)
         result = self._put(handle, data)
         if result.lost:
             return result
@@ -377,46 +345,25 @@ class SerialLink:
             self.stats.short_writes += 1
         return result
 
-    def drained(self) -> bool:
-        """After a stall: may the writer write again? With a reported transmit queue, once it
-        holds at most half of `max_queued_bytes`; otherwise once the OS takes bytes again
-        (the port's fd is writable)."""
+    def state(self, probe_writable: bool) -> LinkState:
+        """What the OS holds for the far end now; `probe_writable`: ask the fd whether it
+        takes bytes (a stalled line's question: one system call, not made every tick)."""
         handle = self._handle
         if handle is None:
-            return False
+            return LinkState(writable=False)
         queued = self._queued_bytes(handle)
-        if queued is not None:
-            return queued <= self.max_queued_bytes // 2
-        if handle.fd is None:
-            return True  # nothing to ask: try again
-        return _writable(handle.fd, 0.0)
+        flushable = handle.fd is not None and handle.kind in (FdKind.TTY, FdKind.PTY)
+        writable = True
+        if probe_writable and queued is None and handle.fd is not None:
+            writable = _writable(handle.fd, 0.0)
+        return LinkState(queued, flushable, handle.kind is FdKind.PTY, writable)
 
-    def discard_stale(self) -> bool:
-        """A stall began, or the stalled line drained: drop what the OS still holds for the
-        far end; True if it could (the caller must then assume any suffix of what it wrote
-        was lost). A posix port can: a serial port's transmit queue (at most two ticks), a
-        pty's kernel queue (about 16 KB, frames as old as the stall). Sockets and other URLs
-        cannot (False: the caller must assume all of it arrives). Counted in `flushes`."""
-        if not self._flush():
-            return False
-        self.stats.flushes += 1
-        return True
-
-    @property
-    def hides_queue(self) -> bool:
-        """The adopted port is a posix fd whose OS does not say what waits in it (a pty)."""
-        handle = self._handle
-        return handle is not None and handle.kind is FdKind.PTY
-
-    def discard_unread(self) -> bool:
-        """Before a tick's write where the OS hides its queue (`hides_queue`, a pty): drop
-        what the far end has not taken since the last tick. A far end that reads has the
-        kernel hand it the bytes at once, so what is still there is a tick old: it waits
-        behind a far end that stopped reading. The OS does not say whether anything was
-        there, so this is not counted as a flush. True if it flushed."""
-        return self.hides_queue and self._flush()
-
-    def _flush(self) -> bool:
+    def flush(self, counted: bool = True) -> bool:
+        """Drop what the OS holds for the far end; True if it could (the caller must then
+        assume any suffix of what it wrote was lost). A posix port can: a serial port's
+        transmit queue, a pty's kernel queue (about 16 KB). Sockets and other URLs cannot.
+        `counted`: a stale queue dropped (`flushes`); not the unread bytes a channel output
+        drops on a pty before each tick (the OS does not say whether any were there)."""
         handle = self._handle
         if handle is None or handle.fd is None or handle.kind not in (FdKind.TTY, FdKind.PTY):
             return False
@@ -425,17 +372,26 @@ class SerialLink:
         except (OSError, termios.error) as exc:
             log.debug("serial port %s: could not drop the stale bytes: %s", self.url, exc)
             return False
+        if counted:
+            self.stats.flushes += 1
         return True
 
-    def wait_drained(self, timeout_s: float) -> bool:
-        """`drained()`, but where the OS can say when the fd takes bytes again, wait up to
-        timeout_s for it (writer thread, between ticks): a far end reads a pty's whole
-        buffer in well under a tick, so a drain seen only at the next tick comes after the
-        stale bytes were read."""
+    def wait_writable(self, timeout_s: float) -> bool:
+        """Between ticks of a stalled line: wait up to timeout_s for the fd to take bytes
+        again, where the OS can say (a pty, a socket; a far end reads a pty's whole buffer
+        in well under a tick). False at once where it cannot."""
         handle = self._handle
         if handle is None or handle.queue_known or handle.fd is None:
-            return self.drained()
+            return False
         return _writable(handle.fd, max(0.0, timeout_s))
+
+    def take_received(self) -> list[tuple[bytes, float]]:
+        """What the reader thread read since the last call (driver thread)."""
+        return self.received.take_all()
+
+    def counters(self) -> dict[str, int | str]:
+        """The link's own counters for the stats record."""
+        return {"rx_bytes": self.stats.bytes_read, "module_rx_reads_dropped": self.received.dropped}
 
     def _put(self, handle: _Handle, data: bytes) -> Written:
         """One write; a failure closes the port (`lost`), after what went out before it."""

@@ -25,11 +25,16 @@ Two pieces, both sans-IO (no thread, no socket, no clock: `now` is passed in):
   from `target_system`, signed when signing is on): `transport_udp.UdpLink` locks to the
   first sender that calls.
 
+- `MavlinkLine`: the session on the one interface (`usb2rc.lines.session`): a tick's messages
+  in one write (one datagram on UDP: MAVLink receivers parse the packets of a datagram back to
+  back, docs/ICD.md "MAVLink output").
+
 pymavlink packs every byte (`message.pack(mav)`); nothing here writes MAVLink by hand.
 """
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -46,6 +51,7 @@ from usb2rc.config.mavlink import (
     RC_CHANNELS_OVERRIDE,
     MavlinkOptions,
 )
+from usb2rc.lines.session import Backpressure, Delivered, LineBase
 from usb2rc.nodes.mapping import ChannelSource
 from usb2rc.nodes.scaling import (
     MANUAL_MAX,
@@ -58,11 +64,10 @@ from usb2rc.nodes.scaling import (
     button_to_pwm,
     node_button_bit,
 )
-from usb2rc.nodes.table import NodeFrame
+from usb2rc.nodes.table import NodeFrame, NodeSnapshot
 from usb2rc.protocols.channels import int16_value
 from usb2rc.protocols.mavlink.actions import ActionRunner
 from usb2rc.protocols.mavlink.codec import MavlinkDecoder, set_up_signing, signing_timestamp
-from usb2rc.session import Delivered
 
 OVERRIDE_FIRST_CHANNELS = 8  # channels 1-8: 0 releases; 9-18 (MAVLink 2 extensions): 65534
 RELEASE_LOW, RELEASE_HIGH = 0, 65534  # common.xml: 0 / UINT16_MAX-1 "release to the RC radio"
@@ -209,7 +214,7 @@ class FarEnd:
 class MavlinkSession:
     """The MAVLink line of one output, sans-IO: `tick(now, values)` → the messages to send,
     one `bytes` each (one datagram each on UDP), and `wrote(sent)` for each of them in
-    order. The line events are those of `usb2rc.session.SumdSession`. `key`: the signing
+    order. The line events are those of `lines.session.FrameLineSession`. `key`: the signing
     key (`config_mavlink.read_signing_key`), `wall_time`: the wall clock at the start."""
 
     def __init__(
@@ -443,3 +448,50 @@ def heartbeat_bytes() -> int:
         mavlink2.MAV_TYPE_GCS, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, mavlink2.MAV_STATE_ACTIVE
     )
     return len(heartbeat.pack(mav))
+
+
+class MavlinkLine(LineBase[MavlinkSession]):
+    def __init__(
+        self,
+        name: str,
+        channels: MavlinkChannels,
+        engine: MavlinkSession,
+        tick_bytes: int,
+        rate_hz: float,
+        wall_clock: Callable[[], float] = time.time,
+    ) -> None:
+        super().__init__(name, engine, Backpressure(tick_bytes), 1.0 / rate_hz)
+        self.channels = channels
+        self.tick_bytes = tick_bytes
+        self.wall_clock = wall_clock  # signing timestamps follow the wall clock
+        self._lengths: list[int] = []  # the last tick's messages, in order
+
+    def tick(self, now: float, snapshot: NodeSnapshot) -> bytes:
+        self._lengths = []
+        if not self.can_add(self.tick_bytes):
+            return b""
+        values = self.channels.evaluate(self.latch.frames(snapshot))
+        messages = self.engine.tick(now, values, self.wall_clock())
+        self._lengths = [len(m) for m in messages]
+        return b"".join(messages)
+
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
+        """The engine hears of each message in turn: whole, or the one cut short (a stall:
+        the rest of the tick is not sent)."""
+        lengths, self._lengths = self._lengths, []
+        data = 0
+        stalled = False
+        for length in lengths:
+            delivered = self.engine.wrote(min(length, max(0, sent)))
+            sent -= length
+            data += delivered.data_frames
+            if delivered.stalled or not self.engine.line_open:
+                stalled = delivered.stalled
+                break
+        return Delivered(0, data, stalled)
+
+    def received(self, data: bytes, now: float) -> None:
+        self.engine.received(data)
+
+    def stats(self, now: float) -> dict[str, Any]:
+        return {**super().stats(now), **stats_record(self.engine)}

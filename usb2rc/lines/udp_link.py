@@ -12,11 +12,11 @@ names them.
   been silent for `PEER_SILENT_S` and another sender calls. `allow` (addresses or CIDRs)
   drops senders outside it before anything else (`datagrams_not_allowed`).
 
-It offers what the output thread needs of a link (`transport.SerialLink`'s shape):
-`line_event()`, `write()`, `drained()`, ... A datagram goes out whole or not at all; the
-socket is non-blocking, so a write never blocks a tick. What arrives from the peer is kept
-for `take_received()` (the output thread reads it once a tick, no other thread touches the
-socket). The output thread is the one writer of every field: no helper or RX thread, and
+It is a `lines.link.Link`: `line_event()`, `write()`, `state()`, ... A datagram goes out
+whole or not at all; the socket is non-blocking, so a write never blocks a tick. What
+arrives from the peer is kept for `take_received()` (the driver polls it once a tick, no
+other thread touches the socket). The driver is the one writer of every field: no helper or
+reader thread, and
 `open_now()` runs before that thread starts, `Daemon.stop`'s `close()` after it was joined.
 An open that fails (a host that does not resolve) is retried once every
 `REOPEN_INTERVAL_S`, logged once per distinct error and then reminded at most once every
@@ -34,7 +34,8 @@ import time
 from collections.abc import Callable, Iterable
 
 from usb2rc.config.udp_url import is_udp_url, parse_udp_url
-from usb2rc.transport import LineEvent, LinkStats, Written
+from usb2rc.lines.link import LineEvent, LinkStats, Written
+from usb2rc.lines.session import LinkState
 
 __all__ = ["UdpLink", "is_udp_url", "parse_udp_url"]
 
@@ -268,10 +269,13 @@ class UdpLink:
             record["udp_peer"] = "none (no vehicle has called yet)"
         return record
 
-    def take_received(self) -> bytes:
-        """What arrived since the last call (the far end's MAVLink stream)."""
+    def take_received(self) -> list[tuple[bytes, float]]:
+        """What arrived since the last call (the far end's MAVLink stream), read now."""
+        self._poll()
+        if not self._received:
+            return []
         data, self._received = bytes(self._received), bytearray()
-        return data
+        return [(data, self.clock())]
 
     def write(self, data: bytes) -> Written:
         """One datagram; whole or not at all. Nobody listening is not an error for UDP."""
@@ -293,16 +297,15 @@ class UdpLink:
         self.stats.bytes_written += sent
         return Written(sent)
 
-    def drained(self) -> bool:
+    def state(self, probe_writable: bool) -> LinkState:
+        """UDP holds nothing it can count or drop; `probe_writable`: whether the socket's
+        send buffer takes a datagram again."""
         sock = self._sock
         if sock is None:
-            return False
-        try:
-            return bool(select.select([], [sock], [], 0)[1])
-        except (OSError, ValueError):
-            return True
+            return LinkState(writable=False)
+        return LinkState(writable=not probe_writable or self.wait_writable(0.0))
 
-    def wait_drained(self, timeout_s: float) -> bool:
+    def wait_writable(self, timeout_s: float) -> bool:
         sock = self._sock
         if sock is None:
             return False
@@ -311,8 +314,8 @@ class UdpLink:
         except (OSError, ValueError):
             return True
 
-    def discard_stale(self) -> bool:
-        """Nothing to discard: a datagram the OS refused is gone, none waits."""
+    def flush(self, counted: bool = True) -> bool:
+        """Nothing to drop: a datagram the OS refused is gone, none waits."""
         return False
 
     def _lost(self, exc: OSError) -> None:

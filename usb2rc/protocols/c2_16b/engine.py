@@ -1,6 +1,6 @@
-"""The line sessions: what goes on one output line, as sans-IO state machines.
+"""The C2-16B line state machine (the engine of `protocols.c2_16b.session.C2Line`), sans-IO.
 
-(About 600 lines on purpose: C2Session's invariants — announce state, codes, owed
+(About 550 lines on purpose: C2Session's invariants — announce state, codes, owed
 service frames, stalls and flushes — hold only together, and are tested together.)
 
 A `C2Session` is one C2-16B output's line protocol (h11's `Connection` is the model): it owns
@@ -18,11 +18,12 @@ port and no clock, so every interleaving can be driven from a test:
     received(frame)                      a frame from the far end (`<`, `4` requests,
                                          answered in the next tick)
 
-The output thread (`scheduler.C2Output`) is a thin loop around it. `SumdSession` is the same
-shape for a SUMD output, which has no state beyond the line's.
+`C2Line` puts it on the one session interface (`usb2rc.lines.session`): it feeds it the
+node snapshot's events and frames and the far end's decoded requests, and the generic driver
+(`usb2rc.lines.driver`) moves the bytes.
 
-It lives here, not in `protocol/`: `protocol/` holds the frame codecs and knows nothing of
-devices, while a session speaks in `state.ServiceEvent` and `state.NodeFrame`.
+It is not in `protocol/`: `protocol/` holds the frame codecs and knows nothing of devices,
+while a session speaks in `state.ServiceEvent` and `state.NodeFrame`.
 
 Invariants, whatever the line does (docs/ICD.md, "Service frames" and "A stalled line"):
 - the startup frame is the first thing on every (re)opened line;
@@ -49,14 +50,13 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from usb2rc.data_status import DataStatuses
+from usb2rc.lines.session import Delivered
 from usb2rc.nodes.table import EventKind, NodeFrame, ServiceEvent
+from usb2rc.protocols import BITS_PER_BYTE_ON_WIRE
 from usb2rc.protocols.c2_16b import codec as c2_16b
-from usb2rc.protocols.sumd import codec as sumd
+from usb2rc.protocols.c2_16b.data_status import DataStatuses
 
 log = logging.getLogger("usb2rc.session")
-
-BITS_PER_BYTE_ON_WIRE = 10  # 8N1: start + 8 data + stop
 
 
 def frames_per_tick(baudrate: int, rate_hz: float, frame_len: int) -> int:
@@ -129,15 +129,6 @@ class _Slot:
     owed: _Owed | None = None
     data_node: int | None = None
     status: int = 0  # a data frame's status byte (`&`: byte 4 is its destination, not a code)
-
-
-@dataclass(frozen=True)
-class Delivered:
-    """What `wrote()` found went out: frames counted once, as the stats want them."""
-
-    service_frames: int = 0
-    data_frames: int = 0
-    stalled: bool = False
 
 
 def _announced_after(announced: set[int], owed: Iterable[_Owed]) -> set[int]:
@@ -553,74 +544,3 @@ class C2Session:
     @property
     def owed_frames(self) -> int:
         return len(self._owed)
-
-
-class FrameLineSession:
-    """A channel output's line: one frame a tick while the line is open and not stalled.
-
-    Such a protocol has no service state, so a stall only stops the frames (the values would
-    be stale); a frame cut short fails the receiver's check and is not sent again. A
-    subclass says what the frame is (`frame`); SUMD here, CRSF and SBUS in
-    `usb2rc.rc_sessions`."""
-
-    def __init__(self) -> None:
-        self.line_open = False
-        self.stalled = False
-        self.stalls = 0
-        self._last_len = 0
-        self._stopping = False
-        self._stop_sent = False
-
-    def stopping(self) -> None:
-        """usb2rc stops: every frame from now on is the protocol's failsafe frame (SUMD
-        0x81, SBUS the failsafe and frame-lost flags, CRSF none: its failsafe is silence)."""
-        self._stopping = True
-
-    @property
-    def stop_done(self) -> bool:
-        """Stopping, and a failsafe frame went out whole (or the line cannot take one)."""
-        return self._stopping and (self._stop_sent or not self.line_open or self.stalled)
-
-    def line_opened(self) -> None:
-        self.line_open, self.stalled = True, False
-
-    def line_lost(self) -> None:
-        self.line_open, self.stalled = False, False
-
-    def line_drained(self) -> None:
-        self.stalled = False
-
-    def line_flushed(self) -> None:
-        """The stale frames were dropped: nothing to announce, the next frame is fresh."""
-        self.stalled = False
-
-    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
-        """This tick's frame of the channels' wire values (b"": nothing this tick)."""
-        raise NotImplementedError
-
-    def tick(self, channels: Sequence[int], failsafe: bool) -> bytes:
-        self._last_len = 0
-        if not self.line_open or self.stalled:
-            return b""
-        frame = self.frame(channels, failsafe or self._stopping)
-        if self._stopping and not frame:
-            self._stop_sent = True  # its failsafe is silence (CRSF): nothing more to send
-        self._last_len = len(frame)
-        return frame
-
-    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
-        whole = self._last_len > 0 and sent >= self._last_len
-        self._stop_sent = self._stop_sent or (whole and self._stopping)
-        stalled = self.line_open and sent < self._last_len
-        if stalled and not self.stalled:
-            self.stalls += 1
-        self.stalled = self.stalled or stalled
-        self._last_len = 0
-        return Delivered(0, 1 if whole else 0, stalled)
-
-
-class SumdSession(FrameLineSession):
-    """The SUMD line: one frame a tick (status 0x81 while failsafe)."""
-
-    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
-        return sumd.encode_sumd(channels, failsafe=failsafe)

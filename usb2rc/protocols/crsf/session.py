@@ -1,75 +1,32 @@
-"""The CRSF, SBUS and iBus line sessions, sans-IO (no thread, no port, no clock: time is passed in).
+"""The CRSF line session, sans-IO (no thread, no port, no clock: time is passed in).
 
-Both are `session.FrameLineSession`s: one frame a tick while the line is open and not
-stalled, channel values in (11-bit wire values, `outputs.channels.RC11_SCALE`), bytes out.
-
-- `SbusSession`: a 25-byte frame every tick; while any listed channel's node is in failsafe
-  the frame carries the frame-lost and failsafe flags (docs/ICD.md, "SBUS output").
-- `IbusSession`: a 32-byte frame of 14 channels (µs, `outputs.channels.IBUS_SCALE`) every
-  tick while every listed channel is live; while any is in failsafe it sends nothing, as
-  CRSF does: iBus has no failsafe flag, the receiver's own failsafe fires on the silence
-  (docs/ICD.md, "iBus output").
-- `CrsfSession`: an RC_CHANNELS_PACKED frame every tick while every listed channel is live
-  (to the module's address 0xEE, or to a flight controller's 0xC8: `address`);
+- `CrsfSession` (a `lines.session.FrameLineSession`: one frame a tick while the line is open
+  and not stalled, 11-bit wire values in, `outputs.channels.RC11_SCALE`): an
+  RC_CHANNELS_PACKED frame every tick while every listed channel is live (to the module's
+  address 0xEE, or to a flight controller's 0xC8: `address`);
   while any is in failsafe it sends nothing, so the ExpressLRS transmitter module stops and
   the receiver's own failsafe fires (docs/ICD.md, "CRSF failsafe"). It decodes what the module
   sends back (`received(data, now)`): link statistics, and the timing-correction frames with
-  which an ELRS module asks the handset to follow its packet rate and phase; the scheduler
-  asks `next_send(due, now)` when the next frame is due.
+  which an ELRS module asks the handset to follow its packet rate and phase; `next_send(due,
+  now)` says when the next frame is due.
+- `CrsfLine`: it on the one session interface (`usb2rc.lines.session`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
-from usb2rc.nodes.scaling import RC11_CENTRE, RC11_LOW
-from usb2rc.protocols import rc11
+from usb2rc.lines.session import ChannelValues, FrameLineSession, FrameSession
 from usb2rc.protocols.crsf import codec as crsf
-from usb2rc.protocols.ibus import codec as ibus
-from usb2rc.protocols.sbus import codec as sbus
-from usb2rc.session import FrameLineSession
+from usb2rc.protocols.rc11_channels import padded
 
 # ELRS sends a timing correction every 200 ms while it hears the handset; after a second
 # without one the session goes back to the configured rate.
 SYNC_STALE_S = 1.0
 MIN_INTERVAL_S = 0.001  # the module's rate is followed up to 1000 Hz, never faster
 MAX_INTERVAL_S = 0.1  # ... and down to 10 Hz; anything else is implausible and ignored
-UNLISTED = RC11_LOW  # channels past the list: 988 µs ("off" for a switch channel)
-
-
-def padded(channels: Sequence[int], count: int = rc11.CHANNELS) -> list[int]:
-    """The listed channels, then UNLISTED up to `count`."""
-    return [*channels[:count], *([UNLISTED] * (count - len(channels)))]
-
-
-class SbusSession(FrameLineSession):
-    """SBUS: channels 1..16 analogue, 17 and 18 digital (on above the centre)."""
-
-    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
-        digital = channels[rc11.CHANNELS :]
-        return sbus.encode_sbus(
-            padded(channels),
-            ch17=len(digital) > 0 and digital[0] > RC11_CENTRE,
-            ch18=len(digital) > 1 and digital[1] > RC11_CENTRE,
-            frame_lost=failsafe,
-            failsafe=failsafe,
-        )
-
-
-class IbusSession(FrameLineSession):
-    """iBus: channels 1..14 in µs; channels past the list at 1000 µs ("off" for a switch)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.withheld = 0  # ticks without a frame because a channel is in failsafe
-
-    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
-        if failsafe:
-            self.withheld += 1
-            return b""
-        unlisted = [ibus.PULSE_LOW] * (ibus.CHANNELS - len(channels))
-        return ibus.encode_ibus([*channels[: ibus.CHANNELS], *unlisted])
 
 
 @dataclass(frozen=True)
@@ -202,3 +159,36 @@ class CrsfSession(FrameLineSession):
         else:
             parts.append(f"own rate {1 / self.configured_interval_s:.0f} Hz")
         return ", ".join(parts)
+
+
+class CrsfLine(FrameSession[CrsfSession]):
+    def __init__(self, name: str, channels: ChannelValues, engine: CrsfSession) -> None:
+        super().__init__(name, engine, channels, crsf.RC_FRAME_LEN, engine.configured_interval_s)
+
+    def received(self, data: bytes, now: float) -> None:
+        self.engine.received(data, now)
+
+    def next_due(self, due: float, now: float) -> float:
+        """The module's interval and phase while it sends timing corrections."""
+        return self.engine.next_send(due, now)
+
+    def period(self, now: float) -> float:
+        return self.engine.interval_s(now)
+
+    def stats(self, now: float) -> dict[str, Any]:
+        """The module's link quality, timing and what was withheld."""
+        session, decoder = self.engine, self.engine.decoder
+        module_link = session.link  # one read: one report's figures
+        link = None if module_link is None else module_link.stats
+        return {
+            **super().stats(now),
+            "module": session.link_text(now),
+            "link_quality_up": None if link is None else link.uplink_link_quality,
+            "link_quality_down": None if link is None else link.downlink_link_quality,
+            "frames_withheld": session.withheld,
+            "module_rx_frames": decoder.frames,
+            "module_rx_crc_failures": decoder.crc_failures,
+            "module_rx_skipped": decoder.bytes_skipped,
+            "timing_corrections": session.timing_frames,
+            "timing_corrections_ignored": session.timing_ignored,
+        }

@@ -1,0 +1,168 @@
+"""The one driver (`usb2rc.lines.driver.Driver`) running its own thread over real links: a pty
+whose far end stops reading and reads again, and pyserial's `loop://` whose port fails under
+its reader thread. What is judged is what reaches the far end, decoded."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import serial
+from daemon_harness import PtyLine, StickState
+from test_state_scheduler import BINDING, Source, info
+
+from usb2rc.lines.driver import Driver, Pace, aligned, earliest
+from usb2rc.lines.rx import LinkReader
+from usb2rc.lines.serial_link import SerialLink
+from usb2rc.nodes.mapping import ChannelSource
+from usb2rc.nodes.table import NodeTable
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.c2_16b.engine import C2Settings
+from usb2rc.protocols.c2_16b.session import C2Line
+from usb2rc.protocols.channels import RC11_SCALE, OutputChannels
+from usb2rc.protocols.crsf import codec as crsf
+from usb2rc.protocols.crsf.session import CrsfLine, CrsfSession
+
+WAIT_S = 10.0  # a safety net: every wait ends on its condition
+Service = c2_16b.Service
+
+
+class StallingPty(PtyLine):
+    """A pty far end that stops reading while `reads` is clear."""
+
+    def __init__(self) -> None:
+        self.reads = threading.Event()
+        self.reads.set()
+        super().__init__("c2-16b")
+
+    def _reading(self) -> bool:
+        if self.reads.is_set():
+            return True
+        self.reads.wait(0.05)
+        return False
+
+
+def until(condition: Callable[[], Any], what: str) -> Any:
+    deadline = time.monotonic() + WAIT_S
+    while not (result := condition()):
+        assert time.monotonic() < deadline, f"never: {what}"
+        time.sleep(0.01)
+    return result
+
+
+def names(frames: list[Any]) -> list[str]:
+    return [
+        f.service.service_name if isinstance(f, c2_16b.ServiceFrame) else chr(f.status)
+        for f in frames
+    ]
+
+
+def test_a_c2_line_on_a_pty_stalls_starts_over_when_read_again_and_stops_failsafe() -> None:
+    far = StallingPty()
+    table = NodeTable()
+    for node in range(4):  # 4 frames a tick at 200 Hz: the pty's ~20 KB fill in a second
+        stick = info(f"k{node}", f"1-{node}")
+        table.add_device(node, stick, BINDING, Source.of(StickState()), "JOYSTICK")
+    link = SerialLink(far.path, 921600)
+    session = C2Line(far.path, C2Settings(rate_hz=200, baudrate=921600, version="0.1.0"))
+    driver = Driver("c2", link, session, table.step_if_due, 1 / 200)
+    assert link.open_now()
+    driver.start()
+    try:
+        far.wait_for(lambda frames: ">" in names(frames), WAIT_S)
+        far.reads.clear()  # the far end stops reading: the pty fills, the line stalls
+        until(lambda: driver.stats.stalls >= 1, "a stall")
+        assert session.stalled
+        before = len(far.frames())
+        far.reads.set()  # it reads again: what the pty held is dropped, the line starts over
+
+        def restarted(frames: list[Any]) -> bool:
+            after = names(frames[before:])
+            if "startup" not in after:
+                return False
+            fresh = after[len(after) - after[::-1].index("startup") :]
+            return fresh[:4] == ["connected", "vid-pid", "device-string", "device-type"] and (
+                ">" in fresh[4:]
+            )
+
+        far.wait_for(restarted, WAIT_S)
+        assert link.stats.flushes >= 1
+    finally:
+        driver.stop()
+        driver.join(WAIT_S)
+    assert not driver.is_alive()
+    last = [f for f in far.wait_for(lambda frames: frames) if isinstance(f, c2_16b.DataFrame)]
+    assert last[-1].status == c2_16b.FAILSAFE  # the stop's `!` went out before the close
+    far.close()
+
+
+class FailingReads:
+    """pyserial's `serial_for_url`, its `loop://` ports' reads failing while `fail` is set."""
+
+    def __init__(self) -> None:
+        self.fail = threading.Event()
+        self.ports: list[serial.SerialBase] = []
+        self._real = serial.serial_for_url
+
+    def __call__(self, url: str, **kwargs: Any) -> serial.SerialBase:
+        port = self._real("loop://", **kwargs)
+        real_read = port.read
+
+        def read(size: int = 1) -> bytes:
+            if self.fail.is_set():
+                self.fail.clear()
+                raise serial.SerialException("device disconnected")
+            data: bytes = real_read(size)
+            return data
+
+        port.read = read  # type: ignore[method-assign]
+        self.ports.append(port)
+        return port
+
+
+def test_a_crsf_line_on_loop_reads_its_far_end_and_comes_back_after_a_lost_port(
+    monkeypatch: Any,
+) -> None:
+    """loop:// echoes the RC frames: the reader thread hands them to the driver, which gives
+    them to the session (counted as the module's frames). A read that fails loses the line;
+    the driver reopens it and the frames go on."""
+    opener = FailingReads()
+    monkeypatch.setattr(serial, "serial_for_url", opener)
+    table = NodeTable()
+    table.add_device(0, info("a", "1-1"), BINDING, Source.of(StickState()), "JOYSTICK")
+    channels = OutputChannels.scaled([ChannelSource(0, "axis", 0)], RC11_SCALE, crsf.RC_FRAME_LEN)
+    session = CrsfLine("crsf", channels, CrsfSession(0.01))
+    link = SerialLink("loop://", 400000, reopen_interval_s=0.05)
+    driver = Driver("crsf", link, session, table.step_if_due, 0.01)
+    reader = LinkReader("crsf-rx", link)
+    assert link.open_now()
+    driver.start()
+    reader.start()
+    try:
+        until(lambda: session.engine.decoder.frames >= 5, "the far end's frames")
+        opener.fail.set()  # the next read fails: the driver closes the port and reopens it
+        until(lambda: link.stats.losses == 1 and link.stats.opens == 2, "a reopened port")
+        heard = session.engine.decoder.frames
+        until(lambda: session.engine.decoder.frames >= heard + 5, "frames on the new port")
+        assert session.line_open and len(opener.ports) == 2
+    finally:
+        driver.stop()
+        reader.stop()
+        driver.join(WAIT_S)
+        reader.join(WAIT_S)
+    assert driver.stats.tick_errors == 0
+
+
+def test_every_driver_ticks_on_multiples_of_its_period_from_one_epoch() -> None:
+    """Two outputs started apart, at 50 and 100 Hz: every tick of the first is one of the
+    second's (the first tick is the next multiple of the period on the monotonic clock)."""
+    assert aligned(0.0, 0.02) == 0.0 and aligned(0.0201, 0.02) == 0.04
+    first, second = aligned(123.4567, 0.02), aligned(123.4612, 0.01)
+    assert round(first / 0.02) * 0.02 == first and round(second / 0.01) * 0.01 == second
+    fifty = {round(first + k * 0.02, 6) for k in range(10)}
+    hundred = {round(second + k * 0.01, 6) for k in range(20)}
+    assert fifty - {round(first, 6)} <= hundred
+    assert earliest([Pace(0.0, 0.02), Pace(2.0, 0.01), Pace(1.5, 0.02)]) == Pace(1.5, 0.02)
+    assert earliest([Pace(0.0, 0.02)]) is None  # nobody ticks yet

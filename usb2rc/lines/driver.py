@@ -1,0 +1,330 @@
+"""The one driver: a thread that pumps any line session over any link (python-can's `Notifier`).
+
+Once a tick, on absolute monotonic deadlines, the driver
+- follows the link: a new port (`session.line_opened()`) before anything is written on it, a
+  lost one (`line_lost()`); what the far end sent (`session.received(data, now)`: a serial
+  link's reader thread queued it, a UDP link is polled here);
+- reports the link's state to the session and carries out what it asks (`Ask.FLUSH`: drop
+  what the link holds, then `flush_done`; `Ask.DROP_UNREAD`);
+- asks the session for the tick's bytes (`tick(now, snapshot)`), writes them in one
+  non-blocking write and tells the session what went (`wrote(sent, unsure)`).
+It knows no protocol: what to send, when to stall, when to flush, when the next tick is due
+(`session.next_due`) are the session's. A late tick is counted, never caught up with a burst.
+
+One clock: a driver's ticks fall on the multiples of its period on the monotonic clock, the
+node clock's epoch (`aligned`), whenever it starts. Outputs whose periods are multiples of
+one another (the defaults: 20, 10, 4 ms) tick together, on node steps (every 4 ms, the base
+period), so a reader that paces on them (`Daemon._reader_pause`, through `earliest`) wakes
+once for all of them. A CRSF output that follows its module's timing leaves the grid: the
+module sets its phase (`session.next_due`), to the microsecond.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from usb2rc.lines.link import LineEvent, Link, Written
+from usb2rc.lines.session import Ask, LineSession
+from usb2rc.nodes.table import NodeSnapshot
+from usb2rc.runtime.worker import Worker
+
+log = logging.getLogger("usb2rc.lines")
+
+PERIODS_KEPT = 3000
+FINAL_TICKS_S = 0.25  # at most this long for the failsafe frames when usb2rc stops
+STALL_LOG_QUIET_S = 10.0  # a line that stalls again and again is logged once in this long
+
+
+def aligned(now: float, period_s: float) -> float:
+    """The first multiple of `period_s` at or after `now` (monotonic clock, epoch 0)."""
+    return math.ceil(now / period_s - 1e-9) * period_s
+
+
+@dataclass(frozen=True)
+class Pace:
+    """When a driver's next tick is due (monotonic) and its period now: one
+    value, so a reader pacing on it never pairs one tick's deadline with another's period.
+    Only the driver's own thread replaces it, whole."""
+
+    deadline: float
+    period_s: float
+
+
+def earliest(paces: Iterable[Pace]) -> Pace | None:
+    """The next tick of any output (None: no output ticks): what a reader wakes for."""
+    ticking = [pace for pace in paces if pace.deadline]
+    return min(ticking, key=lambda pace: pace.deadline) if ticking else None
+
+
+@dataclass
+class OutputStats:
+    """Counters of one output. The driver writes them; `stats_lines` reads them from
+    another thread, so the periods are only read through `periods()` (a copy under a lock:
+    iterating the deque while the writer appends would raise)."""
+
+    ticks: int = 0
+    late_ticks: int = 0
+    missed_ticks: int = 0
+    writes: int = 0
+    tick_errors: int = 0
+    stalls: int = 0
+    periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
+    _periods_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def add_period(self, period_s: float) -> None:
+        with self._periods_lock:
+            self.periods_s.append(period_s)
+
+    def periods(self) -> list[float]:
+        with self._periods_lock:
+            return list(self.periods_s)
+
+    def period_p99_error_ms(self, nominal_s: float) -> float:
+        periods = self.periods()
+        if not periods:
+            return 0.0
+        errors = sorted(abs(p - nominal_s) for p in periods)
+        return errors[min(len(errors) - 1, int(len(errors) * 0.99))] * 1000.0
+
+
+class Driver(Worker):
+    """One output: `session` over `link`, ticked on the grid until stopped.
+
+    `snapshot`: the node table's latest step (`NodeTable.step_if_due`); `on_tick` after every
+    tick (the watchdog hook), `on_first_write` once, after the first write that went out.
+    Every field is written by this thread only; `pace` and `stats` are read by others."""
+
+    def __init__(
+        self,
+        name: str,
+        link: Link,
+        session: LineSession,
+        snapshot: Callable[[], NodeSnapshot],
+        period_s: float,
+        on_tick: Callable[[], None] | None = None,
+        on_first_write: Callable[[], None] | None = None,
+    ) -> None:
+        super().__init__(name)
+        self.link = link
+        self.session = session
+        self.snapshot = snapshot
+        self.pace = Pace(0.0, period_s)  # deadline 0: not ticking yet
+        self.stats = OutputStats()
+        self.on_tick = on_tick
+        self.on_first_write = on_first_write
+        self.last_tick_monotonic = 0.0
+        self._last_write = 0.0
+        self._logged_errors: set[str] = set()
+        self._stalled_since = 0.0
+        self._stall_logged_at = -STALL_LOG_QUIET_S
+        self._stalls_not_logged = 0
+
+    @property
+    def period_s(self) -> float:
+        """The period now (a CRSF module may change it; `pace` has it with its deadline)."""
+        return self.pace.period_s
+
+    # --- the loop ----------------------------------------------------------------------------
+
+    def run(self) -> None:
+        deadline = aligned(time.monotonic(), self.period_s)
+        while not self.stopping:
+            self.pace = Pace(deadline, self.period_s)
+            delay = deadline - time.monotonic()
+            if delay > 0 and self._wait(delay):
+                break
+            started = time.monotonic()
+            if started - deadline > self.period_s / 2:
+                self.stats.late_ticks += 1
+            if self._safe_tick():
+                self.stats.ticks += 1
+                self.last_tick_monotonic = time.monotonic()
+                self._safe_call(self.on_tick)
+            now = time.monotonic()
+            following = self.session.next_due(deadline, now)
+            period = self.session.period(now)
+            deadline = following
+            behind = time.monotonic() - deadline
+            if behind >= 0:  # a whole tick lost: skip it, never burst to catch up
+                missed = int(behind // period) + 1
+                self.stats.missed_ticks += missed
+                deadline += missed * period
+            self.pace = Pace(deadline, period)  # readers sample for it
+        self._final_ticks()
+        self.link.close()
+
+    def _wait(self, delay_s: float) -> bool:
+        """Between ticks; True when stopped. While the line is stalled, wait on the link
+        itself and tell the session the moment it takes bytes: the far end reads what a
+        pty holds in well under a tick, and the stale part must be dropped before it does."""
+        end = time.monotonic() + delay_s
+        if self.session.stalled and self.link.wait_writable(delay_s):
+            self._follow_backpressure()
+        return self.sleep(max(0.0, end - time.monotonic()))
+
+    def _safe_tick(self) -> bool:
+        """One tick; a bug in it is logged (once per kind) and counted, never kills the
+        thread. A failed tick does not count as alive, so a driver that keeps failing
+        starves the watchdog and systemd restarts it."""
+        try:
+            self.tick()
+        except Exception as exc:
+            self.stats.tick_errors += 1
+            frame = traceback.extract_tb(exc.__traceback__)[-1]
+            kind = f"{type(exc).__name__} at {frame.filename}:{frame.lineno}"
+            if kind not in self._logged_errors:
+                self._logged_errors.add(kind)
+                log.exception("%s: tick failed (%s: %s); going on", self.name, kind, exc)
+            return False
+        return True
+
+    def _safe_call(self, hook: Callable[[], object] | None) -> None:
+        if hook is None:
+            return
+        try:
+            hook()
+        except Exception:
+            log.exception("%s: hook %r failed", self.name, hook)
+
+    # --- one tick ----------------------------------------------------------------------------
+
+    def tick(self) -> None:
+        self._follow_link()
+        self._follow_backpressure()
+        was_stalled = self.session.stalled
+        data = self.session.tick(time.monotonic(), self.snapshot())
+        written = self._send(data)
+        if self.session.stalled and not was_stalled:
+            self._stall_began(written, len(data))
+
+    def _follow_link(self) -> None:
+        """The line's events, in this thread only: a new port is adopted (and the session
+        told) before anything is written on it; what the far end sent goes to the session."""
+        link, session = self.link, self.session
+        if not link.is_open:
+            link.try_open()
+        event = link.line_event()
+        if event is not None:
+            if event is LineEvent.OPENED:
+                session.line_opened()
+            else:
+                session.line_lost()
+        for data, at in link.take_received():
+            session.received(data, at)
+
+    def _follow_backpressure(self) -> None:
+        """Tell the session what the link holds; carry out what it asks."""
+        session = self.session
+        was_stalled = session.stalled
+        ask = session.link_state(self.link.state(probe_writable=was_stalled))
+        if ask is Ask.DROP_UNREAD:
+            self.link.flush(counted=False)
+        elif ask is Ask.FLUSH:
+            flushed = self.link.flush()
+            session.flush_done(flushed)
+            if was_stalled and not session.stalled:
+                self._say_resumed(flushed)
+        elif was_stalled and not session.stalled:
+            self._say_resumed(False)
+
+    def _send(self, data: bytes) -> Written:
+        """Write the session's bytes and tell it what went out."""
+        if not data:
+            return Written(0)
+        written: Written = self.link.write(data)
+        self.session.wrote(written.sent, written.unsure)
+        if written.lost:  # what went out before the failure counts; the line is gone
+            self.session.line_lost()
+        if written.sent or written.unsure:
+            self._note_write()
+        return written
+
+    def _note_write(self) -> None:
+        now = time.monotonic()
+        if self._last_write:
+            self.stats.add_period(now - self._last_write)
+        self._last_write = now
+        self.stats.writes += 1
+        if self.on_first_write:
+            callback, self.on_first_write = self.on_first_write, None
+            self._safe_call(callback)
+
+    # --- stalls (the session decides; the driver logs what happened) --------------------------
+
+    def _stall_began(self, written: Written, size: int) -> None:
+        """The session stalled the line (a write cut short, or a full queue the link
+        reports)."""
+        self.stats.stalls += 1
+        self._stalled_since = time.monotonic()
+        before = self.link.stats.flushes
+        self._follow_backpressure()  # a serial port: its queue is dropped at once
+        flushed = self.link.stats.flushes > before
+        self._log_stall(
+            logging.WARNING,
+            "%s: %s stalled: the far end takes no more bytes (%d of %d went out); %s",
+            self.name,
+            self.link.url,
+            written.sent,
+            size,
+            "dropped what its queue held, starting over"
+            if flushed
+            else "no frames are added until it drains",
+        )
+
+    def _say_resumed(self, flushed: bool) -> None:
+        self._log_stall(
+            logging.INFO,
+            "%s: %s takes bytes again after %.1f s; %s",
+            self.name,
+            self.link.url,
+            time.monotonic() - self._stalled_since,
+            "dropped the stale bytes it held, restarted the line"
+            if flushed
+            else "resumed with fresh frames",
+        )
+
+    def _log_stall(self, level: int, text: str, *args: object) -> None:
+        """A line that stalls again and again (a serial far end that never reads, whose
+        queue is dropped at each stall) is logged once in STALL_LOG_QUIET_S; the stats
+        count every stall and flush."""
+        now = time.monotonic()
+        if level == logging.WARNING:
+            if now - self._stall_logged_at < STALL_LOG_QUIET_S:
+                self._stalls_not_logged += 1
+                return
+            if self._stalls_not_logged:
+                text += f" ({self._stalls_not_logged} more stalls since the last such line)"
+            self._stall_logged_at, self._stalls_not_logged = now, 0
+        elif self._stalls_not_logged:
+            level = logging.DEBUG  # the resume of a stall that was not logged either
+        log.log(level, text, *args)
+
+    # --- stop ---------------------------------------------------------------------------------
+
+    def _final_ticks(self) -> None:
+        """usb2rc stops: the protocol's failsafe before the port closes (docs/ICD.md,
+        "Stop"). Ticks go on at the tick rate until the session says its failsafe went
+        out, or the line cannot take it, and for at most FINAL_TICKS_S: a stalled line
+        never holds the stop."""
+        session = self.session
+        session.stopping()
+        end = time.monotonic() + FINAL_TICKS_S
+        while session.line_open and not session.stop_done:
+            self._safe_tick()
+            if session.stop_done or time.monotonic() + self.period_s > end:
+                break
+            time.sleep(self.period_s)  # `sleep()` returns at once now: the worker is stopping
+        if session.line_open and not session.stop_done:
+            log.warning("%s: stopped before every node's failsafe frame went out", self.name)
+
+    def protocol_stats(self) -> dict[str, Any]:
+        """The session's record and the link's counters (labels: `usb2rc.runtime.stats_text`)."""
+        return {**self.session.stats(time.monotonic()), **self.link.counters()}

@@ -1,0 +1,122 @@
+"""What a far end sends, on a link read on its own thread: read within a budget, handed to the
+driver through a bounded queue. The driver passes the bytes to its session
+(`session.received(data, now)`) on its own thread: a session is only ever touched by one.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import time
+from typing import Generic, Protocol, TypeVar
+
+from usb2rc.protocols import BITS_PER_BYTE_ON_WIRE
+from usb2rc.runtime.worker import Worker
+
+log = logging.getLogger("usb2rc.lines")
+
+T = TypeVar("T")
+RX_LINE_SHARE = 2.0  # a far end is read at up to twice what its baud rate carries
+RX_BURST_S = 0.1  # ... after a burst of up to 0.1 s of the line (at least RX_BURST_MIN)
+RX_BURST_MIN = 4096
+RX_CHUNKS_QUEUED = 64  # reads waiting for the driver (at most RX_BURST_MIN each)
+
+
+class RxBudget:
+    """What a reader takes of a far end that sends faster than its line can: a token
+    bucket of bytes at RX_LINE_SHARE × the baud rate's bytes per second. A real UART never
+    exceeds it; a pty or `socket://` can send without limit, and decoding all of it would
+    take the CPU from the driver. The excess is dropped, unread, and counted."""
+
+    def __init__(self, baudrate: int) -> None:
+        self.bytes_per_s = RX_LINE_SHARE * baudrate / BITS_PER_BYTE_ON_WIRE
+        self.burst = max(float(RX_BURST_MIN), self.bytes_per_s * RX_BURST_S)
+        self.dropped_bytes = 0  # the reader thread writes it, `stats` reads it
+        self._tokens = self.burst
+        self._at = time.monotonic()
+
+    def admit(self, data: bytes, now: float) -> bytes:
+        """The part of `data`, read at `now`, within the budget (its start: the decoder
+        resynchronises on the next frame)."""
+        self._tokens = min(self.burst, self._tokens + (now - self._at) * self.bytes_per_s)
+        self._at = now
+        taken = min(len(data), int(self._tokens))
+        self._tokens -= taken
+        self.dropped_bytes += len(data) - taken
+        return data[:taken]
+
+
+class Handoff(Generic[T]):
+    """A queue from a reader thread (the only writer) to the driver (the only reader) that
+    holds at most `cap` items: one more is dropped and counted, so a far end never grows it
+    without bound while the driver is busy."""
+
+    def __init__(self, cap: int) -> None:
+        self.cap = cap
+        self.dropped = 0  # the reader thread writes it, `stats` reads it
+        self._queue: queue.SimpleQueue[T] = queue.SimpleQueue()
+
+    def put(self, item: T) -> None:
+        if self._queue.qsize() >= self.cap:  # only this thread adds: the check holds
+            self.dropped += 1
+            return
+        self._queue.put(item)
+
+    def take_all(self) -> list[T]:
+        """What waits now (at most `cap` items: the driver's work is bounded)."""
+        items: list[T] = []
+        if self._queue.empty():  # the usual tick: no exception raised and caught
+            return items
+        for _ in range(self.cap):
+            try:
+                items.append(self._queue.get_nowait())
+            except queue.Empty:
+                break
+        return items
+
+
+class ReadableLink(Protocol):
+    url: str
+    baudrate: int
+    received: Handoff[tuple[bytes, float]]
+
+    @property
+    def readable(self) -> bool: ...
+    def read(self) -> bytes: ...
+
+
+class LinkReader(Worker):
+    """Reads what the far end of a link sends and hands the bytes, with when they were read,
+    to the link's `received` queue (the driver takes them). At most `RxBudget` of them: a far
+    end that floods the line loses the excess here, counted."""
+
+    def __init__(self, name: str, link: ReadableLink) -> None:
+        super().__init__(name)
+        self.link = link
+        self.budget = RxBudget(link.baudrate)
+
+    def run(self) -> None:
+        while not self.stopping:
+            if not self.link.readable:
+                self.sleep(0.1)
+                continue
+            data = self.link.read()
+            if not data:
+                continue
+            now = time.monotonic()
+            dropped_before = self.budget.dropped_bytes
+            admitted = self.budget.admit(data, now)
+            if self.budget.dropped_bytes and not dropped_before:
+                self._say_dropping()
+            if admitted:
+                self.link.received.put((admitted, now))
+
+    def _say_dropping(self) -> None:
+        """The first drop is logged; every dropped byte is counted (stats: rx bytes dropped)."""
+        log.warning(
+            "%s: %s sends faster than %d baud carries; the excess is dropped unread "
+            "(counted in stats: rx bytes dropped)",
+            self.name,
+            self.link.url,
+            self.link.baudrate,
+        )

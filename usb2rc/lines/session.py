@@ -1,0 +1,343 @@
+"""The one line-session interface every output protocol implements, sans-IO (h11's `Connection`).
+
+A line session is everything one output knows about its line, and nothing about threads,
+ports or clocks (time is passed in). The driver (one generic loop, whatever the protocol)
+only moves events and bytes:
+
+    line_opened() / line_lost()           the link adopted a new port / lost it
+    link_state(state) -> Ask              what the link reports now (bytes it holds, or
+                                          unknown; whether it can drop them; whether it
+                                          takes bytes): the session decides the
+                                          back-pressure and asks the driver to act on it
+    flush_done(flushed)                   the driver carried out Ask.FLUSH (True: the link
+                                          dropped what it held)
+    received(data, now)                   bytes from the far end (each session owns its
+                                          stream decoder)
+    tick(now, snapshot) -> bytes          one tick: the session evaluates its own channels
+                                          from the node snapshot (its own tap latch, its own
+                                          event cursor: reading the snapshot changes nothing)
+    wrote(sent, unsure)                   how much of the tick's bytes went out
+    stopping() / stop_done                usb2rc stops: the protocol's failsafe, then done
+    next_due(due, now)                    when the tick after the one due at `due` is due
+    period(now)                           the period now (a CRSF module may set it)
+    stats(now) -> dict                    what only this protocol counts (stats record)
+
+Back-pressure is decided here, by `Backpressure`, once for every protocol (docs/ICD.md,
+"A stalled line"): no tick adds bytes while the line is stalled; a serial port's queue is
+dropped when a stall begins; a channel output on a pty drops what the far end left unread
+before each tick; a C2-16B output on a pty waits for the drain, then drops the rest; a socket
+or UDP is never flushed.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any, Generic, Protocol, TypeVar
+
+from usb2rc.nodes.step import NodeFrame, TapLatch
+from usb2rc.nodes.table import NodeSnapshot
+
+QUEUE_TICKS = 2  # at most this many ticks of bytes wait in a queue the link reports
+
+
+@dataclass(frozen=True)
+class LinkState:
+    """What a link reports, as the driver read it just now (the link only reports)."""
+
+    queued: int | None = None  # bytes it holds for the far end; None: it does not say
+    flushable: bool = False  # it can drop what it holds (a serial port, a pty)
+    hides_queue: bool = False  # it holds bytes it cannot count (a pty): droppable only
+    writable: bool = True  # it takes bytes now (after a stall: the far end reads again)
+
+
+class Ask(enum.Enum):
+    """What a session asks of the driver after a `link_state`."""
+
+    NOTHING = "nothing"
+    FLUSH = "flush"  # drop what the link holds, then `flush_done(flushed)`
+    DROP_UNREAD = "drop unread"  # drop what the far end has not read; no event follows
+
+
+class Backpressure:
+    """The stall policy of one line, decided in one place for every protocol.
+
+    `tick_bytes`: the most one tick adds (a queue the link reports may hold QUEUE_TICKS of
+    them); `drops_unread_each_tick`: a frame lost to a flush is replaced by the next one (a
+    channel output), so on a pty what the far end left unread is dropped before each tick;
+    a session whose frames carry state (C2-16B) waits for the drain instead."""
+
+    def __init__(self, tick_bytes: int, drops_unread_each_tick: bool = True) -> None:
+        self.cap = QUEUE_TICKS * max(1, tick_bytes)
+        self.drops_unread_each_tick = drops_unread_each_tick
+        self.held_queue_full = 0  # ticks that added nothing: the reported queue was full
+        self.flushes_asked = 0
+        self.state = LinkState()
+
+    def ask(self, stalled: bool, line_open: bool, state: LinkState) -> Ask:
+        """The driver's next act on the link, given the session's own stall state."""
+        self.state = state
+        if not line_open:
+            return Ask.NOTHING
+        if stalled:
+            if state.flushable and not state.hides_queue:
+                return self._flush()  # a serial port: its queue is as old as the stall
+            if self.drained(state):
+                return self._flush() if state.flushable else Ask.NOTHING
+            return Ask.NOTHING
+        if state.hides_queue and self.drops_unread_each_tick:
+            return Ask.DROP_UNREAD
+        return Ask.NOTHING
+
+    def _flush(self) -> Ask:
+        self.flushes_asked += 1
+        return Ask.FLUSH
+
+    def drained(self, state: LinkState) -> bool:
+        """A stalled line may take bytes again: its queue is back to half the cap, or (a
+        queue it does not report) the OS takes bytes again."""
+        if state.queued is not None:
+            return state.queued <= self.cap // 2
+        return state.writable
+
+    def room(self, size: int) -> bool:
+        """Whether `size` more bytes keep the reported queue within the cap (a tick that
+        would pass it adds nothing: the line stalls, counted in `held_queue_full`)."""
+        queued = self.state.queued
+        if queued is None or queued + size <= self.cap:
+            return True
+        self.held_queue_full += 1
+        return False
+
+
+@dataclass(frozen=True)
+class Delivered:
+    """What `wrote()` found went out: frames counted once, as the stats want them."""
+
+    service_frames: int = 0
+    data_frames: int = 0
+    stalled: bool = False
+
+
+class FrameLineSession:
+    """A channel output's line: one frame a tick while the line is open and not stalled.
+
+    Such a protocol has no service state, so a stall only stops the frames (the values would
+    be stale); a frame cut short fails the receiver's check and is not sent again. A
+    subclass says what the frame is (`frame`); SUMD, CRSF, SBUS, iBus in
+    `usb2rc.protocols`."""
+
+    def __init__(self) -> None:
+        self.line_open = False
+        self.stalled = False
+        self.stalls = 0
+        self._last_len = 0
+        self._stopping = False
+        self._stop_sent = False
+
+    def stopping(self) -> None:
+        """usb2rc stops: every frame from now on is the protocol's failsafe frame (SUMD
+        0x81, SBUS the failsafe and frame-lost flags, CRSF none: its failsafe is silence)."""
+        self._stopping = True
+
+    @property
+    def stop_done(self) -> bool:
+        """Stopping, and a failsafe frame went out whole (or the line cannot take one)."""
+        return self._stopping and (self._stop_sent or not self.line_open or self.stalled)
+
+    def line_opened(self) -> None:
+        self.line_open, self.stalled = True, False
+
+    def line_lost(self) -> None:
+        self.line_open, self.stalled = False, False
+
+    def line_drained(self) -> None:
+        self.stalled = False
+
+    def line_flushed(self) -> None:
+        """The stale frames were dropped: nothing to announce, the next frame is fresh."""
+        self.stalled = False
+
+    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        """This tick's frame of the channels' wire values (b"": nothing this tick)."""
+        raise NotImplementedError
+
+    def tick(self, channels: Sequence[int], failsafe: bool) -> bytes:
+        self._last_len = 0
+        if not self.line_open or self.stalled:
+            return b""
+        frame = self.frame(channels, failsafe or self._stopping)
+        if self._stopping and not frame:
+            self._stop_sent = True  # its failsafe is silence (CRSF): nothing more to send
+        self._last_len = len(frame)
+        return frame
+
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
+        whole = self._last_len > 0 and sent >= self._last_len
+        self._stop_sent = self._stop_sent or (whole and self._stopping)
+        stalled = self.line_open and sent < self._last_len
+        if stalled and not self.stalled:
+            self.stalls += 1
+        self.stalled = self.stalled or stalled
+        self._last_len = 0
+        return Delivered(0, 1 if whole else 0, stalled)
+
+
+class LineSession(Protocol):
+    """What the driver knows of any output's session (see the module docstring)."""
+
+    name: str
+
+    @property
+    def line_open(self) -> bool: ...
+    @property
+    def stalled(self) -> bool: ...
+    def line_opened(self) -> None: ...
+    def line_lost(self) -> None: ...
+    def link_state(self, state: LinkState) -> Ask: ...
+    def flush_done(self, flushed: bool) -> None: ...
+    def received(self, data: bytes, now: float) -> None: ...
+    def tick(self, now: float, snapshot: NodeSnapshot) -> bytes: ...
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered: ...
+    def stopping(self) -> None: ...
+    @property
+    def stop_done(self) -> bool: ...
+    def next_due(self, due: float, now: float) -> float: ...
+    def period(self, now: float) -> float: ...
+    def stats(self, now: float) -> dict[str, Any]: ...
+
+
+class ChannelValues(Protocol):
+    """An output's channels: wire values and failsafe from the node frames."""
+
+    def evaluate(self, frames: Iterable[NodeFrame]) -> tuple[list[int], bool]: ...
+
+
+class Engine(Protocol):
+    """A protocol's line state machine, as `LineBase` drives it."""
+
+    line_open: bool
+    stalled: bool
+    stalls: int
+
+    def line_opened(self) -> None: ...
+    def line_lost(self) -> None: ...
+    def line_drained(self) -> None: ...
+    def line_flushed(self) -> None: ...
+    def stopping(self) -> None: ...
+    @property
+    def stop_done(self) -> bool: ...
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered: ...
+
+
+E = TypeVar("E", bound=Engine)
+F = TypeVar("F", bound=FrameLineSession)
+
+
+class LineBase(Generic[E]):
+    """What every session shares around its protocol engine: the line's open/stall state
+    (the engine's), the back-pressure decision, the period, the tap latch."""
+
+    def __init__(
+        self,
+        name: str,
+        engine: E,
+        backpressure: Backpressure,
+        period_s: float,
+    ) -> None:
+        self.name = name
+        self.engine = engine  # the protocol's line state machine (open, stalled, wrote)
+        self.backpressure = backpressure
+        self.period_s = period_s
+        self.latch = TapLatch()  # this output's taps: advanced by its own ticks only
+
+    @property
+    def line_open(self) -> bool:
+        return bool(self.engine.line_open)
+
+    @property
+    def stalled(self) -> bool:
+        return bool(self.engine.stalled)
+
+    def line_opened(self) -> None:
+        self.engine.line_opened()
+
+    def line_lost(self) -> None:
+        self.engine.line_lost()
+
+    def link_state(self, state: LinkState) -> Ask:
+        ask = self.backpressure.ask(self.stalled, self.line_open, state)
+        if ask is Ask.NOTHING and self.stalled and self.backpressure.drained(state):
+            self.engine.line_drained()  # nothing to drop (a socket, loop://): go on
+        return ask
+
+    def flush_done(self, flushed: bool) -> None:
+        """After Ask.FLUSH: what the link held is gone (start over), or it could not."""
+        if flushed:
+            self.engine.line_flushed()
+        elif self.backpressure.drained(self.backpressure.state):
+            self.engine.line_drained()
+
+    def can_add(self, size: int) -> bool:
+        """Whether a tick may add `size` bytes: an open line, not stalled, with room in the
+        queue the link reports; a full queue stalls the line (as a write cut short would)."""
+        if not self.line_open or self.stalled:
+            return False
+        if self.backpressure.room(size):
+            return True
+        self._stall_now()
+        return False
+
+    def _stall_now(self) -> None:
+        """The line stalls without a write (the reported queue is full)."""
+        if not self.engine.stalled:
+            self.engine.stalls += 1
+        self.engine.stalled = True
+
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
+        return self.engine.wrote(sent, unsure)
+
+    def stopping(self) -> None:
+        self.engine.stopping()
+
+    @property
+    def stop_done(self) -> bool:
+        return bool(self.engine.stop_done)
+
+    def received(self, data: bytes, now: float) -> None:
+        """A protocol whose far end says nothing it needs ignores what it sends."""
+
+    def next_due(self, due: float, now: float) -> float:
+        return due + self.period_s
+
+    def period(self, now: float) -> float:
+        return self.period_s
+
+    def stats(self, now: float) -> dict[str, Any]:
+        return {"queue_full_ticks": self.backpressure.held_queue_full}
+
+
+class FrameSession(LineBase[F]):
+    """A channel output's session (SUMD, CRSF, SBUS, iBus): one frame of its channels a tick,
+    its values from the snapshot through its own tap latch."""
+
+    def __init__(
+        self,
+        name: str,
+        engine: F,
+        channels: ChannelValues,
+        frame_length: int,
+        period_s: float,
+    ) -> None:
+        super().__init__(name, engine, Backpressure(frame_length), period_s)
+        self.channels = channels
+        self.frame_length = frame_length
+
+    def tick(self, now: float, snapshot: NodeSnapshot) -> bytes:
+        # no frame on a closed or stalled line: the channels are not read, so the taps
+        # since the last frame stay latched for the next one
+        if not self.can_add(self.frame_length):
+            return b""
+        values, failsafe = self.channels.evaluate(self.latch.frames(snapshot))
+        return self.engine.tick(values, failsafe)

@@ -1,0 +1,119 @@
+"""The C2-16B line session on the one interface: the `session.C2Session` engine (the startup
+frame, the service frames owed, codes, round-robin, announcements), fed from the node
+snapshot and the far end's bytes.
+
+- Service events come from the snapshot's append-only event log (`state.EventLog`): the
+  session keeps its own cursor, so reading the table changes nothing. A cursor the log has
+  dropped (the line fell more than `state.EVENTS_KEPT` events behind) starts the line over
+  as a reopened line does: the startup frame, then every present device's connect sequence.
+- A line that opens announces the devices present in the snapshot (`EventLog.present`); on
+  the first line the events logged before it go out first (an unusable device's `3`).
+- What the far end sends is decoded here: `<` and `4` requests, at most REQUESTS_PER_TICK
+  a tick (the engine coalesces them anyway); the rest are counted, not answered.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from usb2rc.lines.session import Backpressure, Delivered, LineBase
+from usb2rc.nodes.table import NodeSnapshot, ServiceEvent
+from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
+
+REQUESTS_PER_TICK = 512  # 2 per Node-ID: more in one tick only repeat what is asked
+
+
+def is_request(frame: c2_16b.Frame) -> bool:
+    """A `<` config request or a `4` poll request: what the far end may ask.
+
+    Byte 4 does not matter (docs/ICD.md, "UART receive"): a `<`'s is the far end's message
+    code, a `4`'s a service code, which the ICD leaves TBD; a poll that carries one is still
+    a poll, and answering it costs at most one connect sequence (never queued twice)."""
+    if isinstance(frame, c2_16b.DataFrame):
+        return frame.status == c2_16b.CONFIG_REQUEST
+    return frame.service is c2_16b.Service.POLL
+
+
+class C2Line(LineBase[C2Session]):
+    def __init__(self, name: str, settings: C2Settings) -> None:
+        engine = C2Session(settings, name=name)
+        tick_bytes = engine.capacity * engine.frame_len
+        # its frames carry state: on a pty it waits for the drain, then drops the rest
+        backpressure = Backpressure(tick_bytes, drops_unread_each_tick=False)
+        super().__init__(name, engine, backpressure, 1.0 / settings.rate_hz)
+        self.decoder = c2_16b.Decoder()
+        self.requests = 0
+        self.requests_dropped = 0
+        self.data_frames = 0  # frames that went out whole (counted once)
+        self.service_frames = 0
+        self.log_gaps = 0  # times the event log had dropped what this line had not seen
+        self._cursor = 0  # the next event number this line has not seen
+        self._announce_present = False  # a line opened: announce the devices present
+        self._lines_opened = 0
+        self._requests_this_tick = 0
+
+    def line_opened(self) -> None:
+        self.engine.line_opened()
+        self._announce_present = True
+
+    def received(self, data: bytes, now: float) -> None:
+        for frame in self.decoder.feed(data):
+            if not is_request(frame):
+                continue
+            self.requests += 1
+            if self._requests_this_tick >= REQUESTS_PER_TICK:
+                self.requests_dropped += 1
+                continue
+            self._requests_this_tick += 1
+            self.engine.received(frame)
+
+    def tick(self, now: float, snapshot: NodeSnapshot) -> bytes:
+        self._requests_this_tick = 0
+        events = self._events(snapshot)
+        out = self.engine.tick(events, self.latch.frames(snapshot))
+        if out and not self.backpressure.room(len(out)):
+            self.engine.wrote(0)  # nothing went: service frames stay owed, codes unused
+            return b""
+        return out
+
+    def _events(self, snapshot: NodeSnapshot) -> tuple[ServiceEvent, ...]:
+        log = snapshot.log
+        fresh = log.since(self._cursor)
+        self._cursor = log.end
+        if fresh is None:
+            self.log_gaps += 1
+            fresh = ()
+            if self.engine.line_open:
+                self.engine.line_opened()  # the receiver learns the whole picture again
+                self._announce_present = True
+        if not self._announce_present:
+            return fresh
+        self._announce_present = False
+        self._lines_opened += 1
+        if self._lines_opened > 1:
+            fresh = ()  # what was logged for the dead line is superseded by what is present
+        return (*fresh, *log.present)
+
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
+        delivered = self.engine.wrote(sent, unsure)
+        self.data_frames += delivered.data_frames
+        self.service_frames += delivered.service_frames
+        return delivered
+
+    def stats(self, now: float) -> dict[str, Any]:
+        statuses = self.engine.statuses
+        return {
+            **super().stats(now),
+            "data_frames": self.data_frames,
+            "service_frames": self.service_frames,
+            "round_robin_deferrals": self.engine.deferred_nodes,
+            "handover_frames": statuses.handover_frames,
+            "handovers_cut": statuses.handovers_cut,
+            "low_battery_frames": statuses.low_battery_frames,
+            "rx_skipped": self.decoder.bytes_skipped,
+            "rx_crc_failures": self.decoder.crc_failures,
+            "rx_requests": self.requests,
+            "rx_requests_dropped": self.requests_dropped,
+            "event_log_gaps": self.log_gaps,
+        }
