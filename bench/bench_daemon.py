@@ -253,7 +253,7 @@ def latency_figures(
 
 
 def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[str, Any]:
-    from usb2rc.config.load import Config
+    from usb2rc.configfile import Config
     from usb2rc.daemon import Daemon
     from usb2rc.hid.replay import ReplayBackend, ReplayDevice
 

@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from daemon_harness import StickState, recording
 
-from usb2rc.config.load import Config
+from usb2rc.configfile import Config
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import DeviceReader, ReaderRecord

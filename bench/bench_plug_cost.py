@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
 from daemon_harness import real_device_recordings
 
-from usb2rc.config.load import Config
+from usb2rc.configfile import Config
 from usb2rc.hid import descriptor
 from usb2rc.hid.backend import Device
 from usb2rc.hid.descriptor import DeviceLayout

@@ -43,7 +43,7 @@ from daemon_harness import (  # noqa: E402
     run_daemon,
 )
 
-from usb2rc.config.load import MAX_CONFIG_BYTES, MAX_DEVICE_ENTRIES  # noqa: E402
+from usb2rc.configfile import MAX_CONFIG_BYTES, MAX_DEVICE_ENTRIES  # noqa: E402
 from usb2rc.protocols.c2_16b.codec import FAILSAFE  # noqa: E402
 
 SMALL = "devices:\n  - name: stick\n    match: {vid: 0x044f, pid: 0xb10a}\n    node_id: 4\n"

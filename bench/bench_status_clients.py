@@ -140,7 +140,7 @@ def run(seconds: float, rounds: int) -> dict[str, Any]:
 
 def line_cost(calls: int) -> dict[str, float]:
     """µs per status line and per json.dumps of it (median, max), on the demo recordings."""
-    from usb2rc.config.load import Config
+    from usb2rc.configfile import Config
     from usb2rc.daemon import Daemon
     from usb2rc.examples import data_dir
     from usb2rc.hid.replay import ReplayBackend

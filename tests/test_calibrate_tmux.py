@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 from daemon_harness import ROOT, StickState, install, recording
 
-from usb2rc.config.load import Calibration, load_config
+from usb2rc.configfile import Calibration, load_config
 
 WAIT_S = 30.0
 SWEEP = [StickState(x=x, y=x, rz=x >> 6, slider=x >> 6) for x in range(0, 16384, 820)]

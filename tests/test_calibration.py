@@ -16,7 +16,7 @@ from usb2rc.config.calibration import (
     rest_noise,
     suggest_deadband,
 )
-from usb2rc.config.load import Calibration
+from usb2rc.configfile import Calibration
 
 X = AxisTarget(0, "stick", "x", "X", 1, 0, 1023)
 THROTTLE = AxisTarget(0, "stick", "slider", "Slider", 2, 0, 255, deadband=0.1)

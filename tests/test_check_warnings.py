@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from usb2rc.commands.check import warnings
-from usb2rc.config.load import load_config_text
+from usb2rc.configfile import load_config_text
 from usb2rc.nodes.mapping import compile_mapping
 
 STICK = """

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from usb2rc.config.load import Calibration, Config, ConfigError, OutputConfig, load_config_text
+from usb2rc.configfile import Calibration, Config, ConfigError, OutputConfig, load_config_text
 
 
 def errors(text: str) -> list[str]:

@@ -9,10 +9,10 @@ from daemon_harness import ROOT
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from usb2rc.commands.config_edit import AxisCalibration, EditError, set_calibrations
 from usb2rc.commands.init import read_devices
 from usb2rc.commands.starter import starter_config
-from usb2rc.config.edit import AxisCalibration, EditError, set_calibrations
-from usb2rc.config.load import Calibration, load_config_text
+from usb2rc.configfile import Calibration, load_config_text
 
 HOTAS = (ROOT / "usb2rc" / "data" / "config" / "hotas.yaml").read_text()
 CAL = Calibration(10, 500, 1000)

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from usb2rc.commands.check import load_or_default
-from usb2rc.config.load import (
+from usb2rc.configfile import (
     ChannelRef,
     ConfigError,
     OutputConfig,

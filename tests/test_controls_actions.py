@@ -10,8 +10,8 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
 from usb2rc.config.controls_model import ActionConfig
-from usb2rc.config.load import ChannelRef, load_config_text
 from usb2rc.config.mavlink import MavlinkOptions
+from usb2rc.configfile import ChannelRef, load_config_text
 from usb2rc.protocols.mavlink.actions import TRIES
 from usb2rc.protocols.mavlink.session import ControlValues, MavlinkSession, stats_record
 

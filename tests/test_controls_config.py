@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from usb2rc.config.load import ConfigError, load_config_text
+from usb2rc.configfile import ConfigError, load_config_text
 
 HEAD = """switches:
   gear: {toggle: node0.button3}

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from usb2rc.config.controls_model import Curve, MixInput, MixRef, Rates, SwitchConfig
 from usb2rc.config.layout import AXIS_NAMES
-from usb2rc.config.load import ChannelRef, Config, OutputConfig
+from usb2rc.configfile import ChannelRef, Config, OutputConfig
 from usb2rc.nodes.curves import normalised, points_curve, position_value, to_int16
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import NodeFrame

@@ -11,7 +11,7 @@ from table_reader import TableReader
 
 from usb2rc.config.controls_model import SwitchConfig, ThrottleCut
 from usb2rc.config.layout import AXIS_NAMES
-from usb2rc.config.load import ChannelRef
+from usb2rc.configfile import ChannelRef
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord

@@ -29,8 +29,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rc_reference import crsf_frame
 
+from usb2rc.lines.link import BITS_PER_BYTE_ON_WIRE
 from usb2rc.lines.rx import Handoff, RxBudget
-from usb2rc.protocols import BITS_PER_BYTE_ON_WIRE
 from usb2rc.protocols.crsf.session import MAX_INTERVAL_S, MIN_INTERVAL_S, CrsfSession
 
 WAIT_S = 20.0

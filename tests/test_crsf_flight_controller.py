@@ -25,7 +25,7 @@ import pytest
 from daemon_harness import PtyLine, StickState, expected_frame, install, recording, run_daemon
 
 from usb2rc.commands.check import describe_output, warnings
-from usb2rc.config.load import ConfigError, load_config_text
+from usb2rc.configfile import ConfigError, load_config_text
 from usb2rc.nodes.mapping import compile_mapping
 
 WAIT_S = 20.0

@@ -21,7 +21,7 @@ from rc_reference import (
     rc11,
 )
 
-from usb2rc.config.load import load_config_text
+from usb2rc.configfile import load_config_text
 from usb2rc.nodes.scaling import axis_to_rc11, button_to_rc11
 from usb2rc.protocols import rc11 as block
 from usb2rc.protocols.crc import crc8_dvb_s2

@@ -27,7 +27,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from stress_harness import env_int, figures, mutate
 
-from usb2rc.config.load import ConfigError, load_config, load_config_text
+from usb2rc.configfile import ConfigError, load_config, load_config_text
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.recording import RecordingError, format_recording, parse_recording
 from usb2rc.hid.replay import ReplayBackend

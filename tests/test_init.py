@@ -16,7 +16,7 @@ from daemon_harness import ROOT, StickState, install, recording
 from usb2rc.cli import main
 from usb2rc.commands.init import read_devices
 from usb2rc.commands.starter import PluggedDevice, starter_config
-from usb2rc.config.load import load_config_text
+from usb2rc.configfile import load_config_text
 from usb2rc.hid.descriptor import InputState
 from usb2rc.hid.recording import read_recording
 from usb2rc.nodes.binding import default_axis_fields, default_binding

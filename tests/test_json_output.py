@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from cli_harness import usb2rc
 
-from usb2rc.config.load import Problem
+from usb2rc.configfile import Problem
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = Path(__file__).parent / "data" / "configs"

@@ -15,7 +15,7 @@ from pathlib import Path
 from daemon_harness import INVERT_X_CONFIG, StickState, install, timed_recording
 from table_reader import TableReader
 
-from usb2rc.config.load import load_config_text
+from usb2rc.configfile import load_config_text
 from usb2rc.daemon import expected_nodes
 from usb2rc.hid.backend import Device, DeviceGone, DeviceInfo, DevicePermissionError, ErrorCode
 from usb2rc.hid.descriptor import DeviceLayout
@@ -212,7 +212,7 @@ def test_a_device_without_its_node_yet_is_looked_at_again(tmp_path: Path) -> Non
 def test_a_daemon_that_never_started_stops_cleanly(tmp_path: Path) -> None:
     """`serve` stops the daemon whatever `start()` got to, so stop must cope with threads
     that never started."""
-    from usb2rc.config.load import Config
+    from usb2rc.configfile import Config
     from usb2rc.daemon import Daemon
 
     daemon = Daemon(Config.default(), ReplayBackend(tmp_path), port_override="loop://")

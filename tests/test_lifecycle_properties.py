@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from table_reader import TableReader
 
-from usb2rc.config.load import Config, load_config_text
+from usb2rc.configfile import Config, load_config_text
 from usb2rc.daemon import expected_nodes
 from usb2rc.hid.backend import DeviceInfo, DevicePermissionError, ErrorCode
 from usb2rc.hid.descriptor import DeviceLayout, InputState

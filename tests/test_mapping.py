@@ -6,7 +6,7 @@ from fractions import Fraction
 
 import pytest
 
-from usb2rc.config.load import Config, load_config_text
+from usb2rc.configfile import Config, load_config_text
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DeviceLayout, InputField, InputState
 from usb2rc.nodes.binding import MappingError, NodeInputs, default_axis_fields

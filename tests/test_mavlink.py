@@ -19,9 +19,9 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common
 
 from usb2rc.config import mavlink as config_mavlink
-from usb2rc.config.load import ConfigError, load_config, load_config_text
 from usb2rc.config.mavlink import MavlinkOptions
 from usb2rc.config.model import ChannelRef
+from usb2rc.configfile import ConfigError, load_config, load_config_text
 from usb2rc.lines import udp_link as transport_udp
 from usb2rc.lines.driver import Driver
 from usb2rc.lines.link import LineEvent

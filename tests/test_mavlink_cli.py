@@ -154,7 +154,7 @@ def test_pymavlink_is_imported_only_with_a_mavlink_output() -> None:
     config and the commands load without pymavlink's 2 MB dialect (a Pi's start time)."""
     code = (
         "import sys\n"
-        "import usb2rc.daemon, usb2rc.config.load, usb2rc.wiring\n"
+        "import usb2rc.daemon, usb2rc.configfile, usb2rc.wiring\n"
         "from usb2rc.commands import check, decode, icd, monitor\n"
         "print(sorted(m for m in sys.modules if m.startswith('pymavlink')))\n"
         "from usb2rc.outputs import protocol\n"

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from daemon_harness import ROOT, DaemonProcess, PtyLine, data_frames
 
-from usb2rc.config.load import load_config
+from usb2rc.configfile import load_config
 from usb2rc.daemon import expected_nodes
 from usb2rc.nodes.missing import FIRST_WARNING_S, REPEAT_S, MissingWarnings
 from usb2rc.nodes.table import MissingEntry, NodeTable

@@ -26,7 +26,7 @@ import pytest
 from daemon_harness import ROOT, StickState, install, scale, timed_recording
 
 from usb2rc.commands import monitor
-from usb2rc.config.load import Config, load_config, load_config_text
+from usb2rc.configfile import Config, load_config, load_config_text
 from usb2rc.hid.backend import ErrorCode
 from usb2rc.hid.replay import ReplayBackend
 from usb2rc.nodes.table import EventKind, ServiceEvent

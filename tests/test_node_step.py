@@ -28,7 +28,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from table_reader import TableReader
 
-from usb2rc.config.load import Config, OutputConfig
+from usb2rc.configfile import Config, OutputConfig
 from usb2rc.daemon import Daemon
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor

@@ -16,7 +16,7 @@ from typing import Any
 
 import serial
 
-from usb2rc.config.load import Config, OutputConfig
+from usb2rc.configfile import Config, OutputConfig
 from usb2rc.daemon import Daemon
 from usb2rc.hid.reader import READ_AHEAD_S, reader_pause
 from usb2rc.hid.replay import ReplayBackend

@@ -231,7 +231,7 @@ def wait_log(daemon: Any, pattern: re.Pattern[str]) -> str:
 
 def test_monitor_with_outputs_shows_the_module_link_quality(tmp_path: Path, replay_dir):
     from usb2rc.commands import monitor
-    from usb2rc.config.load import load_config_text
+    from usb2rc.configfile import load_config_text
     from usb2rc.hid.replay import ReplayBackend
 
     module = FakeModule()

@@ -17,7 +17,7 @@ import pytest
 import yaml
 from daemon_harness import ROOT, DaemonProcess, PtyLine, StickState, install, recording
 
-from usb2rc.config.load import load_config
+from usb2rc.configfile import load_config
 
 HOTAS = str(ROOT / "usb2rc" / "data" / "config" / "hotas.yaml")
 

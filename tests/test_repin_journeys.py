@@ -30,7 +30,7 @@ from daemon_harness import (
 )
 from test_lifecycle import ScriptedBackend, make_reader, plug_stick
 
-from usb2rc.config.load import Config, load_config_text
+from usb2rc.configfile import Config, load_config_text
 from usb2rc.daemon import expected_nodes
 from usb2rc.nodes.lifecycle import DeviceLifecycle
 from usb2rc.nodes.mapping import compile_mapping

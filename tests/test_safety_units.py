@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from daemon_harness import T16000M_DESCRIPTOR, RecordSource, StickState, scale, stick_record
 
-from usb2rc.config.load import ConfigError, load_config_text
+from usb2rc.configfile import ConfigError, load_config_text
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord

@@ -10,7 +10,7 @@ from cli_harness import usb2rc
 from daemon_harness import ROOT
 
 from usb2rc.cli import main
-from usb2rc.config.load import load_config_text
+from usb2rc.configfile import load_config_text
 from usb2rc.service.sandbox import (
     DROP_IN,
     UNIT,

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import pytest
 from daemon_harness import T16000M_DESCRIPTOR, StickState
 
-from usb2rc.config.load import load_config_text
+from usb2rc.configfile import load_config_text
 from usb2rc.daemon import expected_nodes
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor

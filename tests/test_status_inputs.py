@@ -12,7 +12,7 @@ import pytest
 from hid_encoder import decode as reference_decode
 from hid_encoder import encode, ref_reports
 
-from usb2rc.config.load import load_config_text
+from usb2rc.configfile import load_config_text
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import threading
 
-from usb2rc.config.load import Config, OutputConfig
+from usb2rc.configfile import Config, OutputConfig
 from usb2rc.daemon import Daemon
 from usb2rc.hid.replay import ReplayBackend
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from usb2rc import __version__
-from usb2rc.config.load import Config, OutputConfig
+from usb2rc.configfile import Config, OutputConfig
 from usb2rc.hid.backend import Backend, Device
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import serial
 
-from usb2rc.config.load import OutputConfig
 from usb2rc.config.mavlink import MavlinkOptions, read_signing_key
+from usb2rc.configfile import OutputConfig
 from usb2rc.lines.driver import Driver
 from usb2rc.lines.link import Link
 from usb2rc.lines.rx import LinkReader

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from usb2rc.commands.arguments import replay_dir
+from usb2rc.commands.config_edit import AxisCalibration, EditError, set_calibrations
 from usb2rc.commands.list_devices import UnreadableDevice, read_layout
 from usb2rc.config.calibration import (
     AxisResult,
@@ -33,8 +34,7 @@ from usb2rc.config.calibration import (
     Step,
     Wizard,
 )
-from usb2rc.config.edit import AxisCalibration, EditError, set_calibrations
-from usb2rc.config.load import Config, ConfigError, DeviceConfig, load_config
+from usb2rc.configfile import Config, ConfigError, DeviceConfig, load_config
 from usb2rc.hid.backend import Backend, DeviceInfo, ErrorCode
 from usb2rc.hid.choose import choose_backend
 from usb2rc.hid.descriptor import DeviceLayout, InputState, ReportDecoder

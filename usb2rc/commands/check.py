@@ -29,7 +29,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from usb2rc.commands.arguments import replay_dir
-from usb2rc.config.load import (
+from usb2rc.config.mavlink import MavlinkOptions, baud_needed
+from usb2rc.config.port_url import port_argument
+from usb2rc.config.udp_url import is_udp_url
+from usb2rc.configfile import (
     Config,
     ConfigError,
     DeviceConfig,
@@ -38,9 +41,6 @@ from usb2rc.config.load import (
     load_config,
     load_runnable,
 )
-from usb2rc.config.mavlink import MavlinkOptions, baud_needed
-from usb2rc.config.port_url import port_argument
-from usb2rc.config.udp_url import is_udp_url
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DescriptorError, parse_descriptor
 from usb2rc.hid.replay import ReplayBackend

@@ -6,7 +6,7 @@ from __future__ import annotations
 from typing import Any
 
 from usb2rc.config.controls_model import ActionConfig, MixInput, MixRef, SwitchConfig
-from usb2rc.config.load import Config
+from usb2rc.configfile import Config
 from usb2rc.nodes.curves import position_value
 
 SWITCH_KEYS = ("switch", "kind", "buttons", "positions", "int16", "initial", "failsafe", "slot")

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from usb2rc.commands.monitor import LogLines, captured_log
 from usb2rc.config.layout import AXIS_NAMES
-from usb2rc.config.load import Config
+from usb2rc.configfile import Config
 from usb2rc.daemon import Daemon
 from usb2rc.hid.replay import ReplayBackend, install_file
 from usb2rc.protocols.c2_16b.receiver import NodeView, ReceiverModel

@@ -19,7 +19,9 @@ from usb2rc.commands import controls_describe as describe
 from usb2rc.commands.arguments import replay_dir
 from usb2rc.commands.check import bind_replay, device_record, load_or_default, output_records
 from usb2rc.config.layout import GROUP1_BUTTONS, HAT1_SHIFT
-from usb2rc.config.load import (
+from usb2rc.config.mavlink import MANUAL_AXES, RC_CHANNELS_OVERRIDE, MavlinkOptions
+from usb2rc.config.udp_url import is_udp_url
+from usb2rc.configfile import (
     HAT_DIRECTIONS,
     AxisConfig,
     Config,
@@ -27,8 +29,6 @@ from usb2rc.config.load import (
     DeviceConfig,
     OutputConfig,
 )
-from usb2rc.config.mavlink import MANUAL_AXES, RC_CHANNELS_OVERRIDE, MavlinkOptions
-from usb2rc.config.udp_url import is_udp_url
 from usb2rc.hid.usages import GD_JOYSTICK
 from usb2rc.nodes.binding import shaping_text, usage_label
 from usb2rc.nodes.guard import DEFAULT_TOLERANCE, default_arm, normalize_arm
@@ -386,7 +386,7 @@ def document(config: Config, fmt: str) -> list[str]:
             lines += heading(f"{name} output {i + 1} ({output.port or '--port'})", 2, fmt)
             lines += [RC11_NOTES[output.protocol], ""]
             lines += table(["channel", "source", "kind", "wire"], rc11_rows(mapping, output), fmt)
-        elif (entry := protocol(output.protocol)).note and entry.scale_path:
+        elif (entry := protocol(output.protocol)).note and entry.scale is not None:
             lines += heading(f"{entry.title} output {i + 1} ({output.port or '--port'})", 2, fmt)
             lines += [entry.note, ""]
             lines += table(["channel", "source", "kind", "wire"], scaled_rows(mapping, output), fmt)
@@ -397,7 +397,8 @@ def scaled_rows(mapping: Mapping, output: OutputConfig) -> list[list[object]]:
     """The channels of an output whose registry row has a `WireScale`, from that scale;
     channels past the list at the released-button value (what such a session pads with)."""
     entry = protocol(output.protocol)
-    scale = entry.scale()
+    scale = entry.scale
+    assert scale is not None  # only called for a registry row with one
     axis = f"{scale.axis(-32768)}..{scale.axis(32767)}, centre {scale.axis(0)}"
     button = f"{scale.button(False)} / {scale.button(True)}"
     rows: list[list[object]] = []

@@ -23,8 +23,8 @@ import sys
 from usb2rc.commands.arguments import replay_dir
 from usb2rc.commands.list_devices import UnreadableDevice, no_devices_hint, read_layout
 from usb2rc.commands.starter import PluggedDevice, SkippedDevice, device_label, starter_config
-from usb2rc.config.load import ConfigError, load_config_text
 from usb2rc.config.port_url import port_argument
+from usb2rc.configfile import ConfigError, load_config_text
 from usb2rc.hid.choose import choose_backend
 from usb2rc.hid.hotplug import initial_devices
 from usb2rc.runtime.textfile import write_atomically

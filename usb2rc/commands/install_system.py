@@ -174,7 +174,7 @@ def rendered(file: SystemFile, program: list[str]) -> str:
 
 def drop_in_for(config_text: str, source: str, root: Path) -> tuple[str | None, list[str]]:
     """network.conf for the config (None: it opens no IP socket) and the warnings to show."""
-    from usb2rc.config.load import load_config_text
+    from usb2rc.configfile import load_config_text
 
     peers = service_sandbox.network_peers(load_config_text(config_text, source), root)
     warnings = [p.warning for p in peers if p.warning]
@@ -304,7 +304,7 @@ def give_config_to_group(root: Path, path: Path) -> str:
 
 def checked_config(path: str) -> str:
     """The text of a config that passes `usb2rc check`; raises ConfigError / OSError."""
-    from usb2rc.config.load import load_config
+    from usb2rc.configfile import load_config
 
     load_config(path)
     return Path(path).read_text()
@@ -363,7 +363,7 @@ def _usage_problem(root: str, program: list[str]) -> str | None:
 def _config_text(path: str | None) -> str | None:
     if path is None:
         return packaged_text(BY_NAME["default.yaml"])
-    from usb2rc.config.load import ConfigError
+    from usb2rc.configfile import ConfigError
 
     try:
         return checked_config(path)
@@ -436,7 +436,7 @@ def installed_config(request: Request) -> tuple[str, str] | None:
 
 def install_drop_in(request: Request) -> list[str]:
     """network.conf for the installed config's IP outputs (service_sandbox)."""
-    from usb2rc.config.load import ConfigError
+    from usb2rc.configfile import ConfigError
 
     config = installed_config(request)
     if config is None:

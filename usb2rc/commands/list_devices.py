@@ -58,7 +58,7 @@ def load_mapping(path: str | None) -> Any:
     """The compiled mapping of --config, or None (raises ValueError on a bad config)."""
     if not path:
         return None
-    from usb2rc.config.load import load_config
+    from usb2rc.configfile import load_config
     from usb2rc.nodes.mapping import compile_mapping
 
     return compile_mapping(load_config(path))

@@ -27,7 +27,7 @@ from typing import Any
 
 from usb2rc.commands.run import add_common_input_args, load_or_report, make_backend
 from usb2rc.config.layout import AXIS_NAMES
-from usb2rc.config.load import Config
+from usb2rc.configfile import Config
 from usb2rc.daemon import Daemon, NoPortError
 from usb2rc.hid.backend import Backend, DeviceInfo, ErrorCode
 from usb2rc.nodes.binding import DeviceBinding, describe_button_runs

@@ -17,8 +17,8 @@ from collections.abc import Callable
 from usb2rc import status_socket
 from usb2rc.commands.arguments import replay_dir
 from usb2rc.commands.check import check_record
-from usb2rc.config.load import Config, ConfigError, load_config, load_runnable
 from usb2rc.config.port_url import port_argument
+from usb2rc.configfile import Config, ConfigError, load_config, load_runnable
 from usb2rc.daemon import Daemon, NoPortError, ReloadResult, log_reload
 from usb2rc.hid.backend import Backend
 from usb2rc.hid.choose import choose_backend

@@ -17,7 +17,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from usb2rc.config.layout import GROUP1_BUTTONS
-from usb2rc.config.model import DEFAULT_BAUDRATE, DEFAULT_RATE_HZ
+from usb2rc.config.model import DEFAULT_BAUDRATE
+from usb2rc.configfile import DEFAULT_RATE_HZ
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DeviceLayout, InputField
 from usb2rc.hid.usages import usage_name

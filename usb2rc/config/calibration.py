@@ -22,7 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import Enum
 
-from usb2rc.config.load import Calibration
+from usb2rc.config.model import Calibration
 
 REST_SAMPLES = 20  # samples at rest before Enter takes the centre (1 s at the 20 Hz view)
 MIN_TRAVEL = 0.05  # the axis must move over this fraction of its logical range

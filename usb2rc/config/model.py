@@ -1,9 +1,10 @@
 """What a loaded config is: plain frozen dataclasses (channel references: channel_ref.py;
 the controls': controls/model.py).
 
-config.py reads YAML into these (its siblings config_devices.py and config_checks.py read
-the device entries and cross-check them); mapping.py compiles them. `usb2rc.config.load`
-re-exports every public name here, so code imports them from there.
+`usb2rc.configfile` reads YAML into these (with config/devices.py and config/checks.py,
+which read the device entries and cross-check them); nodes/mapping.py compiles them.
+`usb2rc.configfile` re-exports the public names for the commands; the stages below it
+import them from here.
 """
 
 from __future__ import annotations
@@ -14,14 +15,12 @@ from typing import Any
 from usb2rc.config.channel_ref import CHANNEL_ALLOWED as CHANNEL_ALLOWED  # re-exported
 from usb2rc.config.channel_ref import ChannelRef as ChannelRef
 from usb2rc.config.controls_model import MixRef, SwitchConfig, ThrottleCut
+from usb2rc.config.output_options import option_default
 from usb2rc.config.yamlnodes import Where
 from usb2rc.hid.usages import GDC_BATTERY_STRENGTH
-from usb2rc.outputs import PROTOCOLS as OUTPUT_PROTOCOLS
 
 MAX_HID_BUTTON = 65535
 HAT_DIRECTIONS = ("up", "up-right", "right", "down-right", "down", "down-left", "left", "up-left")
-PROTOCOLS = tuple(OUTPUT_PROTOCOLS)  # the registry in usb2rc/outputs/__init__.py
-DEFAULT_RATE_HZ = {name: entry.default_rate_hz for name, entry in OUTPUT_PROTOCOLS.items()}
 DEFAULT_BAUDRATE = 115200
 SUMD_MIN_CHANNELS, SUMD_MAX_CHANNELS = 2, 32
 SUMD_DEFAULT_SLOTS = ("x", "y", "z", "rz", "slider", "rx", "ry", "dial")
@@ -163,11 +162,11 @@ class OutputConfig:
     options: tuple[tuple[str, Any], ...] = ()
 
     def option(self, name: str) -> Any:
-        """A protocol-only key's value: as configured, else the registry's default."""
+        """A protocol-only key's value: as configured, else its default (output_options)."""
         for key, value in self.options:
             if key == name:
                 return value
-        return OUTPUT_PROTOCOLS[self.protocol].options[name].default
+        return option_default(self.protocol, name)
 
     def __post_init__(self) -> None:
         given: tuple[ChannelRef | MixRef | str, ...] | None = self.channels

@@ -15,6 +15,8 @@ from typing import Protocol
 
 from usb2rc.lines.session import LinkState
 
+BITS_PER_BYTE_ON_WIRE = 10  # 8N1: start + 8 data + stop (SBUS: its own, `sbus.BITS_PER_BYTE`)
+
 
 @dataclass
 class LinkStats:

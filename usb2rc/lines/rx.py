@@ -10,7 +10,7 @@ import queue
 import time
 from typing import Generic, Protocol, TypeVar
 
-from usb2rc.protocols import BITS_PER_BYTE_ON_WIRE
+from usb2rc.lines.link import BITS_PER_BYTE_ON_WIRE
 from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger("usb2rc.lines")

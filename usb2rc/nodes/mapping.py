@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 from usb2rc.config.controls_model import ActionConfig, Curve, MixInput, MixRef
 from usb2rc.config.layout import AXIS_NAMES
-from usb2rc.config.load import (
+from usb2rc.config.model import (
     SUMD_DEFAULT_SLOTS,
     ChannelRef,
     Config,

@@ -8,67 +8,37 @@ An output is three pieces, and every protocol has the same shape:
 - the output's channels, from the typed channel references of the config to wire values and
   the frame's failsafe flag (`usb2rc.protocols.channels`, with each protocol's scale).
 
-`PROTOCOLS` below is the one place that lists them: what the config accepts for each
-(`config.py` reads its keys, defaults and channel limits from here), how many bytes a frame
-takes and how many bit times a byte (the bandwidth check), which decoder `usb2rc decode` uses
-A low-level table: the config model reads it, so it imports no session, link or driver; the
-running output is built by `usb2rc.wiring` (one build function per protocol, found by
-name; tests/test_structure.py holds the two lists equal). Adding a protocol is one
-`OutputProtocol` entry here, its build function there, plus its codec and session.
+`PROTOCOLS` below is the one place that lists them: what the config file accepts for each
+(`usb2rc.configfile` reads its keys, defaults and channel limits from here; the keys only
+some protocols take are in `usb2rc.config.output_options`), how many bytes a frame takes
+and how many bit times a byte (the bandwidth check), which decoder `usb2rc decode` uses.
+Plain imports only: the registry sits above the codecs and the config model and below the
+config file reader, and imports no session, link or driver; the running output is built by
+`usb2rc.wiring` (one build function per protocol, found by name; tests/test_structure.py
+holds the two lists equal). Adding a protocol is one `OutputProtocol` entry here, its build
+function there, plus its codec and session.
 """
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-# Aliased: a submodule of this package of the same name (outputs.sumd) would shadow them.
 from usb2rc.config import mavlink as config_mavlink
+from usb2rc.config.mavlink_check import check_mavlink_output
+from usb2rc.config.output_options import OPTIONS, Option
 from usb2rc.protocols.c2_16b import codec as c2_16b_codec
+from usb2rc.protocols.c2_16b.codec import Decoder as C2Decoder
+from usb2rc.protocols.channels import IBUS_SCALE, WireScale
 from usb2rc.protocols.crsf import codec as crsf_codec
+from usb2rc.protocols.crsf.codec import CrsfDecoder
 from usb2rc.protocols.ibus import codec as ibus_codec
+from usb2rc.protocols.ibus.codec import IbusDecoder
 from usb2rc.protocols.sbus import codec as sbus_codec
+from usb2rc.protocols.sbus.codec import SbusDecoder
 from usb2rc.protocols.sumd import codec as sumd_codec
-
-if TYPE_CHECKING:
-    from yaml.nodes import Node
-
-    from usb2rc.config.yamlnodes import NodeReader
-
-OptionReader = Callable[["NodeReader", "Node", str], Any]
-
-
-@dataclass(frozen=True)
-class Option:
-    """A config key only some protocols take: how to read it, its default, its doc line."""
-
-    read: OptionReader
-    default: Any
-    doc: str
-
-
-def _boolean(reader: NodeReader, node: Node, path: str) -> Any:
-    return reader.boolean(node, path)
-
-
-def _service_status(reader: NodeReader, node: Node, path: str) -> Any:
-    return reader.choice(node, path, ("ascii", "binary"))
-
-
-CRSF_ADDRESSES = {
-    "module": crsf_codec.ADDRESS_MODULE,
-    "flight_controller": crsf_codec.ADDRESS_FLIGHT_CONTROLLER,
-}
-
-
-def _crsf_address(reader: NodeReader, node: Node, path: str) -> Any:
-    """`module` (0xEE), `flight_controller` (0xC8) or an address byte 0..255, as the byte."""
-    if isinstance(reader.scalar(node), int):
-        return reader.integer(node, path, 0, 0xFF)
-    name = reader.choice(node, path, (*CRSF_ADDRESSES, "an integer 0..255"))
-    return None if name is None else CRSF_ADDRESSES[name]
+from usb2rc.protocols.sumd.codec import SumdDecoder
 
 
 @dataclass(frozen=True)
@@ -76,47 +46,39 @@ class OutputProtocol:
     """One output protocol as the rest of usb2rc sees it.
 
     `channels` is (min, max) for a channel output, None for C2-16B (which sends nodes).
-    `frame_length(n)` is the bytes of one frame of n listed channels (the bandwidth check and
-    the bandwidth check). `decoder` is "module:attribute" so that this registry imports
-    nothing heavy: `decoder()` makes the stream decoder `usb2rc decode` uses. The running
-    output is built by `usb2rc.wiring.build` (not from here: this table sits below the
-    config model, the sessions and the driver above it)."""
+    `frame_length(n)` is the bytes of one frame of n listed channels (the bandwidth check).
+    `decoder()` makes the stream decoder `usb2rc decode` uses. The running output is built
+    by `usb2rc.wiring.build` (not from here: the sessions and the
+    driver sit above this table)."""
 
     name: str
     summary: str
     default_baudrate: int
     default_rate_hz: float
     frame_length: Callable[[int], int]
-    decoder_path: str
+    decoder: Callable[[], Any]  # makes the stream decoder `usb2rc decode` uses
     bits_per_byte: int = 10  # 8N1
     channels: tuple[int, int] | None = None
     channels_required: bool = False
     options: Mapping[str, Option] = field(default_factory=dict)
-    # "module:function(reader, node, items, path, output)": the checks only this protocol
-    # has. A protocol with one owns its channel count and bandwidth checks (MAVLink: both
-    # depend on its `message`, and UDP has no baud rate); config.py skips the generic ones.
-    check_path: str = ""
-    # One line on the wire and the failsafe, and "module:attribute" of the channels'
-    # `WireScale`: with both, `check` and `icd` describe the output with no branch of their own.
+    # function(reader, node, items, path, output): the checks only this protocol has. A
+    # protocol with one owns its channel count and bandwidth checks (MAVLink: both depend
+    # on its `message`, and UDP has no baud rate); the config file skips the generic ones.
+    own_checks: Callable[..., None] | None = None
+    # One line on the wire and the failsafe, and the channels' `WireScale`: with both,
+    # `check` and `icd` describe the output with no branch of their own.
     note: str = ""
-    scale_path: str = ""
+    scale: WireScale | None = None
     display_name: str = ""  # as docs write it, when not the name in capitals
 
     @property
     def title(self) -> str:
         return self.display_name or self.name.upper()
 
-    def decoder(self) -> Any:
-        return _resolve(self.decoder_path)()
-
     def check(self, *args: Any) -> None:
-        """The protocol's own config checks (`check_path`), if it has any."""
-        if self.check_path:
-            _resolve(self.check_path)(*args)
-
-    def scale(self) -> Any:
-        """The channels' `outputs.channels.WireScale` (`scale_path`)."""
-        return _resolve(self.scale_path)
+        """The protocol's own config checks (`own_checks`), if it has any."""
+        if self.own_checks is not None:
+            self.own_checks(*args)
 
     def bits_per_second(self, rate_hz: float, channel_count: int) -> float:
         """What one frame a tick needs on the wire."""
@@ -136,9 +98,12 @@ class OutputProtocol:
         )
 
 
-def _resolve(path: str) -> Any:
-    module, _, attribute = path.partition(":")
-    return getattr(importlib.import_module(module), attribute)
+def _mavlink_decoder() -> Any:
+    # Imported when `decode` makes one: pymavlink's dialect costs 60 ms, and every command
+    # that reads a config imports this registry.
+    from usb2rc.protocols.mavlink.codec import MavlinkDecoder
+
+    return MavlinkDecoder()
 
 
 def _c2_frame_length(_channels: int) -> int:
@@ -174,13 +139,8 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_baudrate=115200,
             default_rate_hz=50,
             frame_length=_c2_frame_length,
-            decoder_path="usb2rc.protocols.c2_16b.codec:Decoder",
-            options={
-                "line_feed": Option(_boolean, True, "LF (0x0A) after each 35-byte frame"),
-                "service_status": Option(
-                    _service_status, "ascii", "service frame status `'1'..'8'` or 0x01..0x08"
-                ),
-            },
+            decoder=C2Decoder,
+            options=OPTIONS["c2-16b"],
         ),
         OutputProtocol(
             "sumd",
@@ -188,11 +148,9 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_baudrate=115200,
             default_rate_hz=100,
             frame_length=_sumd_frame_length,
-            decoder_path="usb2rc.protocols.sumd.codec:SumdDecoder",
+            decoder=SumdDecoder,
             channels=(sumd_codec.MIN_CHANNELS, sumd_codec.MAX_CHANNELS),
-            options={
-                "extended": Option(_boolean, False, "axes onto 900-2100 µs, not 1100-1900 µs"),
-            },
+            options=OPTIONS["sumd"],
         ),
         OutputProtocol(
             "crsf",
@@ -200,20 +158,10 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_baudrate=400000,
             default_rate_hz=250,
             frame_length=_crsf_frame_length,
-            decoder_path="usb2rc.protocols.crsf.codec:CrsfDecoder",
+            decoder=CrsfDecoder,
             channels=(1, 16),
             channels_required=True,
-            options={
-                "follow_module": Option(
-                    _boolean, True, "follow the module's timing-correction frames"
-                ),
-                "address": Option(
-                    _crsf_address,
-                    crsf_codec.ADDRESS_MODULE,
-                    "RC frames to `module` (0xEE, a TX module) or `flight_controller` "
-                    "(0xC8, an FC's receiver UART), or an address byte 0..255",
-                ),
-            },
+            options=OPTIONS["crsf"],
         ),
         OutputProtocol(
             "sbus",
@@ -221,7 +169,7 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_baudrate=sbus_codec.BAUDRATE,
             default_rate_hz=100,
             frame_length=_sbus_frame_length,
-            decoder_path="usb2rc.protocols.sbus.codec:SbusDecoder",
+            decoder=SbusDecoder,
             bits_per_byte=sbus_codec.BITS_PER_BYTE,
             channels=(1, 18),
             channels_required=True,
@@ -235,13 +183,13 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             # take any rate, and 32 bytes at 115200 baud fit up to 360 Hz.
             default_rate_hz=100,
             frame_length=_ibus_frame_length,
-            decoder_path="usb2rc.protocols.ibus.codec:IbusDecoder",
+            decoder=IbusDecoder,
             channels=(1, ibus_codec.CHANNELS),
             channels_required=True,
             note="32-byte frames, 14 channels, 115200 baud 8N1; channels past the list "
             "1000 µs. While a listed channel's node is in failsafe no frame is sent: the "
             'receiver\'s own failsafe takes over (docs/ICD.md, "iBus output").',
-            scale_path="usb2rc.protocols.channels:IBUS_SCALE",
+            scale=IBUS_SCALE,
             display_name="iBus",
         ),
         OutputProtocol(
@@ -250,10 +198,10 @@ PROTOCOLS: dict[str, OutputProtocol] = {
             default_baudrate=115200,
             default_rate_hz=50,
             frame_length=_mavlink_frame_length,
-            decoder_path="usb2rc.protocols.mavlink.codec:MavlinkDecoder",
+            decoder=_mavlink_decoder,
             channels=(1, config_mavlink.MOST_CHANNELS),
-            options={k: Option(*spec) for k, spec in config_mavlink.OPTION_SPECS.items()},
-            check_path="usb2rc.config.mavlink_check:check_mavlink_output",
+            options=OPTIONS["mavlink"],
+            own_checks=check_mavlink_output,
         ),
     )
 }

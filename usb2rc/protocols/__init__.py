@@ -6,5 +6,3 @@ the one interface of `usb2rc.lines.session` (`<name>.session`) and what else is 
 Encoders return bytes and raise ValueError on bad input; the streaming decoders take bytes in
 any chunking, return frames, count what they skip and never raise. No threads, no ports.
 """
-
-BITS_PER_BYTE_ON_WIRE = 10  # 8N1: start + 8 data + stop (SBUS: its own, `sbus.BITS_PER_BYTE`)

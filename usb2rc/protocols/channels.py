@@ -26,7 +26,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-from usb2rc.config.load import ChannelRef
+from usb2rc.config.channel_ref import ChannelRef
 from usb2rc.nodes.curves import clamp, mix_line, normalised, position_value, to_int16
 from usb2rc.nodes.mapping import ChannelSource, MixLine
 from usb2rc.nodes.scaling import axis_to_rc11, button_to_rc11, node_button_bit

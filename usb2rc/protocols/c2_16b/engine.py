@@ -50,9 +50,9 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from usb2rc.lines.link import BITS_PER_BYTE_ON_WIRE
 from usb2rc.lines.session import Delivered
 from usb2rc.nodes.table import EventKind, NodeFrame, ServiceEvent
-from usb2rc.protocols import BITS_PER_BYTE_ON_WIRE
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.c2_16b.data_status import DataStatuses
 

@@ -42,8 +42,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from usb2rc.config.channel_ref import ChannelRef
 from usb2rc.config.controls_model import ActionConfig
-from usb2rc.config.load import ChannelRef
 from usb2rc.config.mavlink import (
     MANUAL_AXES,
     MESSAGES,

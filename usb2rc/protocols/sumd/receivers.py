@@ -20,8 +20,8 @@ from collections.abc import Collection, Sequence
 
 from usb2rc.config.model import OutputConfig
 from usb2rc.config.yamlnodes import Problem, Where
+from usb2rc.lines.link import BITS_PER_BYTE_ON_WIRE
 from usb2rc.nodes.mapping import ChannelSource
-from usb2rc.protocols import BITS_PER_BYTE_ON_WIRE
 from usb2rc.protocols.sumd import codec as sumd
 
 FEWEST_CHANNELS_READ = 4  # PX4, ArduPilot: fewer are misread

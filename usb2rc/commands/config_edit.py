@@ -26,8 +26,8 @@ from dataclasses import dataclass
 
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
-from usb2rc.config.load import Calibration, ConfigError, load_config_text
 from usb2rc.config.yamlnodes import compose
+from usb2rc.configfile import Calibration, ConfigError, load_config_text
 
 # A value to write: scalar text, or a mapping of them (written as a flow mapping).
 Value = str | dict[str, "Value"]

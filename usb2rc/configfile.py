@@ -1,4 +1,4 @@
-"""The YAML config: load → validate → (mapping.py) compile.
+"""The YAML config file: load → validate → (nodes/mapping.py) compile.
 
 `load_config(path)` / `load_config_text(text, source)` return a `Config` of plain frozen
 dataclasses, or raise `ConfigError` listing *every* problem found, each a `Problem` record
@@ -16,14 +16,18 @@ the outputs open (a port per output, a port that can be a serial line). A file a
 MAX_CONFIG_BYTES or with more than MAX_DEVICE_ENTRIES entries is refused before it is read
 further: parsing holds the interpreter, and a reload parses while the outputs tick.
 
-The schema is in four modules; this one is the entry point and re-exports the others'
-public names (import them from here):
+It sits at the top, above the output registry (`usb2rc.outputs`, whose rows say what each
+protocol's output accepts), which sits above the codecs and the config package. The schema
+is in the config package; this module is the entry point and re-exports its public names
+for the commands (the stages below import them from where they are defined):
 
-- `yamlnodes.py`: the node reader (lines, type checks, unknown keys), `Problem`,
+- `config/yamlnodes.py`: the node reader (lines, type checks, unknown keys), `Problem`,
   `ConfigError`, `Where` — nothing about usb2rc's schema;
-- `config_model.py`: the dataclasses and `ChannelRef` (SUMD channel names, parsed once);
+- `config/model.py`: the dataclasses and `ChannelRef` (channel names, parsed once);
+  `config/output_options.py`: the keys only some protocols take;
 - this module: the top level and `outputs:`;
-- `config_devices.py`: `devices:`; `config_checks.py`: clashes and SUMD channel sources.
+- `config/devices.py`: `devices:`; `config/checks.py`: clashes and channel sources;
+  `config/controls.py`: switches, mixes, throttle cuts.
 """
 
 from __future__ import annotations
@@ -46,10 +50,8 @@ from usb2rc.config.devices import read_devices
 from usb2rc.config.model import (
     CHANNEL_ALLOWED,
     DEFAULT_BAUDRATE,
-    DEFAULT_RATE_HZ,
     HAT_DIRECTIONS,
     MAX_HID_BUTTON,
-    PROTOCOLS,
     SUMD_DEFAULT_SLOTS,
     SUMD_MAX_CHANNELS,
     SUMD_MIN_CHANNELS,
@@ -76,8 +78,12 @@ from usb2rc.config.yamlnodes import (
     decode,
     reject_recording,
 )
+from usb2rc.outputs import PROTOCOLS as OUTPUT_PROTOCOLS
 from usb2rc.outputs import OutputProtocol, option_keys
 from usb2rc.outputs import protocol as output_protocol
+
+PROTOCOLS = tuple(OUTPUT_PROTOCOLS)
+DEFAULT_RATE_HZ = {name: entry.default_rate_hz for name, entry in OUTPUT_PROTOCOLS.items()}
 
 __all__ = [
     "DEFAULT_BAUDRATE",
@@ -246,7 +252,7 @@ def _read_output(reader: NodeReader, node: Node, path: str) -> OutputConfig | No
                 options.append((key, value))
     values["options"] = tuple(options)
     if entry.channels and "channels" in items:
-        counted = not entry.check_path  # else the protocol's own check counts them
+        counted = entry.own_checks is None  # else the protocol's own check counts them
         channels = _read_channels(reader, items["channels"][1], f"{path}.channels", entry, counted)
         if channels is not None:
             values["channels"], values["channel_wheres"] = channels
@@ -254,7 +260,7 @@ def _read_output(reader: NodeReader, node: Node, path: str) -> OutputConfig | No
         reader.error(node, f"{path}.channels", f"missing: {name} outputs list their channels")
     values = {key: value for key, value in values.items() if value is not None}
     output = OutputConfig(**values)
-    if entry.check_path:
+    if entry.own_checks is not None:
         entry.check(reader, node, items, path, output)
     else:
         _check_bandwidth(reader, entry, output, items, path)
