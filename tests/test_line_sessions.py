@@ -185,7 +185,7 @@ class Line:
             failsafe = node not in self.present or not live[node]
             frame = NodeFrame(node, failsafe, (axis,) + (0,) * 9, 1, 0)
             views.append(NodeView(frame))
-        return NodeSnapshot(self.ticks, 0.0, tuple(views), self.log)
+        return NodeSnapshot(period=self.ticks, at=0.0, nodes=tuple(views), log=self.log)
 
     # --- the line ---------------------------------------------------------------------------
 

@@ -124,17 +124,6 @@ def package_graph() -> dict[str, set[str]]:
     return graph
 
 
-# The middle of the pipeline: the session interface, the driver and the links; one session
-# package per protocol; the wiring that builds them. Before issue 21 `outputs/wiring.py`
-# imported the scheduler, which imported `outputs.channels`: outputs <-> scheduler.
-PIPELINE_MIDDLE = ("usb2rc.lines", "usb2rc.protocols", "usb2rc.wiring")
-
-
-def test_no_package_level_loop_runs_through_the_lines_sessions_or_wiring() -> None:
-    loops = [loop for loop in cycles(package_graph()) if set(loop) & set(PIPELINE_MIDDLE)]
-    assert loops == []
-
-
 def reached_from(start: str) -> set[str]:
     """Every usb2rc module `start` imports, directly or through others."""
     mods = modules()

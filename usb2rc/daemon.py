@@ -4,8 +4,8 @@
                                                      outputs <── NodeTable
                                                      outputs ──> serial line / UDP
 
-The outputs are one per config `outputs:` entry, in any of five protocols: C2-16B, SUMD,
-CRSF, SBUS and MAVLink (usb2rc.outputs has the registry).
+The outputs are one per config `outputs:` entry, in any protocol of the registry
+(usb2rc.outputs: C2-16B, SUMD, CRSF, SBUS, iBus, MAVLink), built by usb2rc.wiring.
 
 Devices come and go only on the lifecycle thread (usb2rc.nodes.lifecycle); readers publish records
 that the table reads without waiting; the scheduler threads never wait on a device.

@@ -5,7 +5,8 @@ found by name in `BUILDERS` (tests/test_structure.py holds the two lists equal):
 the protocol's session (`usb2rc.protocols.<name>.session`) and its link and hands both to
 the one generic driver (`usb2rc.lines.driver.Driver`). `usb2rc.daemon` calls `build` for
 each configured output and only starts and stops what comes back. It lives here, above the
-registry, which the config model reads and which therefore imports no session or driver.
+registry, which the config file reader reads and which therefore imports no session or
+driver.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The controls as `icd` (text and `--json`) and `check` describe them: switches (their
+"""The controls as `icd` (text and `--json`) describes them: switches (their
 values on the wire), throttle cuts, mixes (their lines) and MAVLink actions."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """A MAVLink output's `actions:` (docs/CONFIG.md, "MAVLink actions"), read into
-`controls.model.ActionConfig`. Imported by `config_mavlink` (the output registry's option
-reader), so it imports neither config_model nor pymavlink; `config_controls` checks the
+`config.controls_model.ActionConfig`. Imported by `config.mavlink` (the MAVLink options'
+reader), so it imports neither config.model nor pymavlink; `config.controls` checks the
 switch names actions use."""
 
 from __future__ import annotations

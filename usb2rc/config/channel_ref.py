@@ -1,6 +1,6 @@
 """A channel as the config names it, parsed once: `ChannelRef` (`node1.x`, `node1.button5`,
-`switch.gear`). Its own module so that the config's dataclasses (`config_model`) and the
-controls' (`controls.model`) both use it without importing each other; `usb2rc.configfile`
+`switch.gear`). Its own module so that the config's dataclasses (`config.model`) and the
+controls' (`config.controls_model`) both use it without importing each other; `usb2rc.configfile`
 re-exports it."""
 
 from __future__ import annotations

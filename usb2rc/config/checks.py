@@ -1,6 +1,6 @@
 """Cross-checks over a read config: clashes on a node, SUMD channels nobody feeds, ports.
 
-Part of config.py's schema (docs/CONFIG.md): two sources on one axis slot or node bit, a
+Part of the config file's schema (docs/CONFIG.md): two sources on one axis slot or node bit, a
 default-layout entry sharing its node, and a SUMD channel whose node / slot / button no
 device feeds are problems naming both places. `port_problems` is what would fail when the
 outputs open: an output without a port, a port that exists but is no serial line.
@@ -124,8 +124,8 @@ def channel_problem(config: Config, ref: ChannelRef) -> str | None:
 
 
 # --------------------------------------------------------------------------- ports
-# What would fail when the outputs open, found before: `load_runnable` (config.py) adds these
-# to the file's own problems, for `run`, a reload and `check` alike.
+# What would fail when the outputs open, found before: `load_runnable` (usb2rc.configfile)
+# adds these to the file's own problems, for `run`, a reload and `check` alike.
 
 
 def port_problems(config: Config, port_override: str | None) -> list[Problem]:

@@ -1,6 +1,7 @@
 """Read the `devices:` entries of a config: match, node_id, axes, buttons, hats.
 
-Part of config.py's schema (docs/CONFIG.md describes each key); config.py calls `read_devices`.
+Part of the config file's schema (docs/CONFIG.md describes each key); `usb2rc.configfile`
+calls `read_devices`.
 Every problem goes to the NodeReader, which keeps reading after one.
 """
 

@@ -6,7 +6,7 @@ key is read here (`read_signing_key`: the file's mode checked, the passphrase ha
 The checks only a MAVLink output has are the registry's `check` hook,
 `usb2rc.config.mavlink_check`.
 
-Imported by the registry (`usb2rc.outputs`), so it imports neither config_model nor pymavlink.
+Imported by the registry (`usb2rc.outputs`), so it imports neither config.model nor pymavlink.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from usb2rc.config.actions import read_actions
 from usb2rc.config.yamlnodes import NodeReader
 
 
-class _Configured(Protocol):  # config_model.OutputConfig (which imports the registry)
+class _Configured(Protocol):  # config.model.OutputConfig (which imports this module's options)
     def option(self, name: str) -> Any: ...
 
 

@@ -1,6 +1,6 @@
-"""The checks only a MAVLink output has (the output registry's `check` hook, run by
-config.py after the keys are read): its channel count by message, MANUAL_CONTROL's layout
-(x, y, z, r, then buttons), a UDP port's address (`allow` only on udpin), the signing key
+"""The checks only a MAVLink output has (the output registry's `own_checks`, run by the
+config file reader after the keys are read): its channel count by message, MANUAL_CONTROL's
+layout (x, y, z, r, then buttons), a UDP port's address (`allow` only on udpin), the signing key
 file (readable, owner only), and on a serial line the bandwidth of the control message each
 tick plus a heartbeat a second. Each problem is at the line of its key
 (the output's own line when the key is missing); docs/CONFIG.md, "MAVLink outputs".

@@ -1,6 +1,6 @@
 """Read the status options of a `devices:` entry: `handover` (`&` frames) and `low_battery`
-(`%` frames). Part of config.py's schema (docs/CONFIG.md, "Handover and low battery");
-config_devices.py calls these. Every problem goes to the NodeReader, which keeps reading.
+(`%` frames). Part of the config file's schema (docs/CONFIG.md, "Handover and low battery");
+config/devices.py calls these. Every problem goes to the NodeReader, which keeps reading.
 """
 
 from __future__ import annotations

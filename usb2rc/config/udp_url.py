@@ -1,6 +1,6 @@
 """MAVLink's UDP addresses as mavutil names them, `udpout:HOST:PORT` / `udpin:HOST:PORT`:
 parsed without importing anything heavy (the config and `decode` read them;
-`transport_udp.UdpLink` opens them)."""
+`lines.udp_link.UdpLink` opens them)."""
 
 from __future__ import annotations
 

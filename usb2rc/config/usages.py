@@ -1,5 +1,5 @@
 """Read a usage (and which field of it) from a config value: shared by the device entries
-(config_devices.py) and their status options (config_status.py)."""
+(config/devices.py) and their status options (config/status.py)."""
 
 from __future__ import annotations
 

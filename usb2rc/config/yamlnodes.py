@@ -9,7 +9,8 @@ A `Problem` is a record: where (file, line, key path), what, and what would be a
 formatted once, by `Problem.format()`, as `file:line: key.path: message (allowed: ...)`;
 `ConfigError` carries the records and, for callers that print, their formatted lines.
 
-This module knows nothing about usb2rc's schema (config.py and its siblings do).
+This module knows nothing about usb2rc's schema (`usb2rc.configfile` and the config
+package's other modules do).
 """
 
 from __future__ import annotations

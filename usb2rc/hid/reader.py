@@ -53,7 +53,7 @@ LAST_CALL_S = 0.00025  # and once more this long before it, for what came in mea
 
 class GridTick(Protocol):
     """When the next tick is due (monotonic) and the period after it, as one value (a
-    reader never pairs one tick's deadline with another's period): `scheduler.Pace`."""
+    reader never pairs one tick's deadline with another's period): `lines.driver.Pace`."""
 
     @property
     def deadline(self) -> float: ...

@@ -199,7 +199,7 @@ def hat_table(field: InputField, to: str | tuple[int | None, ...]) -> HatPlan:
 def _hat_bits(direction: int | None, to: str | tuple[int | None, ...]) -> tuple[int, int]:
     if direction is None:
         return (0, 0)
-    if isinstance(to, str):  # "hat1", the only name config.py lets through
+    if isinstance(to, str):  # "hat1", the only name the config file lets through
         return (1 << (HAT1_SHIFT + direction), 0)
     button = to[direction]
     if button is None:

@@ -37,7 +37,7 @@ class KnownDevicesError(ValueError):
 class KnownAxis:
     usage: int
     role: str  # "rudder", "throttle", "left toe brake"
-    arm: str  # centre, low, high, any (guard.ARM_CHOICES, normalized)
+    arm: str  # centre, low, high, any (config.model.ARM_CHOICES, normalized)
     why: str = ""  # the source of `arm` when it is not the entry's
 
     @property

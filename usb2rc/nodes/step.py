@@ -84,7 +84,8 @@ class NodeView:
     overrides: tuple[tuple[int, int], ...] = ()  # (slot, value): switch slots, throttle cuts
 
 
-@dataclass(frozen=True)
+# keyword-only: a field added later cannot shift what positional arguments meant
+@dataclass(frozen=True, kw_only=True)
 class TableSnapshot:
     """Every node after step `period` (sorted by Node-ID)."""
 
@@ -119,7 +120,7 @@ def compose(
         group1 |= inputs.group1
         group2 |= inputs.group2
         unsigned |= binding.unsigned_slots  # computed once, with the binding
-        if inputs.handover:  # one handover button per node (config_status)
+        if inputs.handover:  # one handover button per node (config/status.py)
             handover = binding.handover
         low_battery = low_battery or inputs.low_battery
     return NodeFrame(

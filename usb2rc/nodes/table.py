@@ -96,7 +96,8 @@ class EventLog:
 EMPTY_LOG = EventLog()
 
 
-@dataclass(frozen=True)
+# keyword-only: a field added later cannot shift what positional arguments meant
+@dataclass(frozen=True, kw_only=True)
 class NodeSnapshot(TableSnapshot):
     """A step's snapshot (`nodestep.TableSnapshot`) with the service event log as it was
     when the step ran: a line session reads both from one value, so a device's `2` is in

@@ -1,10 +1,11 @@
 """Channel outputs' channels: node frames → wire values and the failsafe flag, for any protocol.
 
-SUMD, CRSF, SBUS and iBus (and MAVLink's RC override) carry a list of channels named the same way in
-the config: `nodeN.<slot>` (an axis slot of node N) or `nodeN.buttonK` (node button K, 1..56);
-`config.ChannelRef` holds one, parsed once, and `Mapping.sumd_channels(output)` resolves an
-output's list (or the default one) into `ChannelSource`s. Here they are evaluated, once a tick,
-from the NodeTable's frames, through the protocol's `WireScale`:
+SUMD, CRSF, SBUS and iBus (and MAVLink's RC override) carry a list of channels named the same
+way in the config: `nodeN.<slot>` (an axis slot of node N) or `nodeN.buttonK` (node button K,
+1..56); `config.channel_ref.ChannelRef` holds one, parsed once, and
+`Mapping.sumd_channels(output)` resolves an output's list (or the default one) into
+`ChannelSource`s. Here they are evaluated, once a tick, from the NodeTable's frames, through
+the protocol's `WireScale`:
 
 - an axis: the node's slot value; whether it is a uint16 comes from the frame
   (`NodeFrame.unsigned_slots`: the bindings and pinned entries feeding the node, see

@@ -1,8 +1,8 @@
-"""The C2-16B line session on the one interface: the `session.C2Session` engine (the startup
+"""The C2-16B line session on the one interface: the `c2_16b.engine.C2Session` engine (the startup
 frame, the service frames owed, codes, round-robin, announcements), fed from the node
 snapshot and the far end's bytes.
 
-- Service events come from the snapshot's append-only event log (`state.EventLog`): the
+- Service events come from the snapshot's append-only event log (`nodes.table.EventLog`): the
   session keeps its own cursor, so reading the table changes nothing. A cursor the log has
   dropped (the line fell more than `state.EVENTS_KEPT` events behind) starts the line over
   as a reopened line does: the startup frame, then every present device's connect sequence.

@@ -1,7 +1,7 @@
 """The CRSF line session, sans-IO (no thread, no port, no clock: time is passed in).
 
 - `CrsfSession` (a `lines.session.FrameLineSession`: one frame a tick while the line is open
-  and not stalled, 11-bit wire values in, `outputs.channels.RC11_SCALE`): an
+  and not stalled, 11-bit wire values in, `protocols.channels.RC11_SCALE`): an
   RC_CHANNELS_PACKED frame every tick while every listed channel is live (to the module's
   address 0xEE, or to a flight controller's 0xC8: `address`);
   while any is in failsafe it sends nothing, so the ExpressLRS transmitter module stops and

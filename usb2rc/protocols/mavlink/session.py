@@ -22,7 +22,7 @@ Two pieces, both sans-IO (no thread, no socket, no clock: `now` is passed in):
   id 0, timestamps from the wall clock passed to `tick`), and only messages signed with the
   key count from the far end.
 - `VehicleCall`: whether a datagram to a udpin port is the vehicle calling (a HEARTBEAT
-  from `target_system`, signed when signing is on): `transport_udp.UdpLink` locks to the
+  from `target_system`, signed when signing is on): `lines.udp_link.UdpLink` locks to the
   first sender that calls.
 
 - `MavlinkLine`: the session on the one interface (`usb2rc.lines.session`): a tick's messages
@@ -215,7 +215,7 @@ class MavlinkSession:
     """The MAVLink line of one output, sans-IO: `tick(now, values)` → the messages to send,
     one `bytes` each (one datagram each on UDP), and `wrote(sent)` for each of them in
     order. The line events are those of `lines.session.FrameLineSession`. `key`: the signing
-    key (`config_mavlink.read_signing_key`), `wall_time`: the wall clock at the start."""
+    key (`config.mavlink.read_signing_key`), `wall_time`: the wall clock at the start."""
 
     def __init__(
         self,

@@ -1,8 +1,8 @@
 """The SUMD output's channels: node frames → SUMD wire values (µs × 8) and the failsafe flag.
 
 The evaluation is every channel output's (`usb2rc.protocols.channels`); SUMD brings its scale:
-an axis through `protocol.sumd.axis_to_sumd` (1100..1900 µs, or 900..2100 µs `extended`), a
-button through `protocol.sumd.button_to_sumd` (1900 µs pressed, 1100 µs released). A frame is
+an axis through `protocols.sumd.codec.axis_to_sumd` (1100..1900 µs, or 900..2100 µs `extended`), a
+button through `protocols.sumd.codec.button_to_sumd` (1900 µs pressed, 1100 µs released). A frame is
 failsafe (status 0x81) when any node it reads is failsafe or absent.
 """
 
