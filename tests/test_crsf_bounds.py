@@ -102,8 +102,28 @@ def test_the_rx_budget_takes_twice_the_line_rate_and_counts_the_rest():
     assert budget.bytes_per_s == 80000 and budget.burst == 8000
     start = time.monotonic()
     taken = sum(len(budget.admit(bytes(4096), start)) for _ in range(100))
-    assert taken == 8000 and budget.dropped_bytes == 100 * 4096 - 8000
-    assert abs(len(budget.admit(bytes(4096), start + 0.01)) - 800) <= 1  # 10 ms of budget
+    assert taken == 4096 and budget.dropped_bytes == 99 * 4096  # whole reads: one fits
+    assert budget.admit(bytes(4096), start + 0.002) == b""  # 3904 + 160 bytes of budget
+    assert len(budget.admit(bytes(4096), start + 0.01)) == 4096  # 3904 + 800: it fits
+    assert len(budget.admit(bytes(9000), start + 1.0)) == 8000  # longer than the burst: cut
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.integers(1, 4096), st.floats(0, 0.05)), max_size=200))
+def test_the_rx_budget_takes_whole_reads_within_its_rate(reads: list[tuple[int, float]]):
+    """Whatever the reads' sizes and timing: each read is taken whole or not at all (so what
+    is taken decodes as the far end sent it), never more than the rate and one burst."""
+    budget = RxBudget(115200, now=0.0)
+    now, taken, offered = 0.0, 0, 0
+    for size, gap in reads:
+        now += gap
+        data = bytes(size)
+        got = budget.admit(data, now)
+        assert got in (b"", data)
+        taken += len(got)
+        offered += size
+    assert taken <= budget.burst + now * budget.bytes_per_s + 1e-6
+    assert budget.dropped_bytes == offered - taken
 
 
 def test_a_handoff_holds_at_most_its_cap_and_counts_the_rest():

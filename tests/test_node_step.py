@@ -204,3 +204,15 @@ def test_a_tap_shows_in_exactly_one_frame_of_each_output_whoever_reads_first() -
                 shown[outputs[k]].append(outputs[k].frames()[0].group1 & 1)
         assert shown == {outputs[0]: [1, 0], outputs[1]: [1, 0]}
         assert table.snapshot().frames[0].group1 & 1 == 0  # the snapshot: as it is
+
+
+def test_the_node_clock_runs_at_the_fastest_outputs_period_on_the_base_grid() -> None:
+    """Each driver steps before its ticks; the clock only keeps the snapshot live between
+    them, at the fastest output's period rounded down onto the 4 ms grid."""
+    from usb2rc.nodes.step import LIVENESS_PERIOD_S, clock_period
+
+    assert clock_period([1 / 50]) == pytest.approx(0.020)  # C2-16B alone: 50 wake-ups, not 250
+    assert clock_period([1 / 50, 1 / 100]) == pytest.approx(0.008)  # SUMD's 10 ms: 2 periods
+    assert clock_period([1 / 50, 1 / 250]) == pytest.approx(BASE_PERIOD_S)  # CRSF's 4 ms
+    assert clock_period([1 / 500]) == pytest.approx(BASE_PERIOD_S)  # never below the grid
+    assert clock_period([]) == pytest.approx(LIVENESS_PERIOD_S)  # monitor: no output

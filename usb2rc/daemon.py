@@ -33,7 +33,7 @@ from usb2rc.lines.link import Link
 from usb2rc.lines.rx import LinkReader
 from usb2rc.nodes.lifecycle import DeviceLifecycle
 from usb2rc.nodes.mapping import Mapping, compile_mapping, match_text
-from usb2rc.nodes.step import NodeClock
+from usb2rc.nodes.step import NodeClock, clock_period
 from usb2rc.nodes.table import Expected, ExpectedEntry, NodeTable
 from usb2rc.runtime import stats_text
 from usb2rc.status_socket import StatusServer, StatusSource
@@ -147,14 +147,15 @@ class Daemon:
         self.mapping: Mapping = compile_mapping(config)
         self.table = NodeTable(expected_nodes(self.mapping))
         self.table.set_controls(config.switches, config.throttle_cuts)  # nodes/switches.py
-        # the master clock: one node step per base period, whether or not an output reads
-        self.node_clock = NodeClock(self.table.step_if_due, time.monotonic)
         self._on_ready = on_ready
         self._on_tick = on_tick
         self._on_status = on_status
         self._ready_once = threading.Event()  # set once, under _ready_lock; read anywhere
         self._ready_lock = threading.Lock()
         self.outputs = [self._make_output(i, out) for i, out in enumerate(self.output_configs)]
+        # the clock that steps the nodes whether or not an output reads, on the drivers' grid
+        periods = (out.thread.period_s for out in self.outputs)
+        self.node_clock = NodeClock(self.table.step_if_due, time.monotonic, clock_period(periods))
         self.lifecycle = DeviceLifecycle(
             backend, self.table, self.mapping, self._make_reader, forget=self._forget
         )

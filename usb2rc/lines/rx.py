@@ -26,24 +26,36 @@ class RxBudget:
     """What a reader takes of a far end that sends faster than its line can: a token
     bucket of bytes at RX_LINE_SHARE × the baud rate's bytes per second. A real UART never
     exceeds it; a pty or `socket://` can send without limit, and decoding all of it would
-    take the CPU from the driver. The excess is dropped, unread, and counted."""
+    take the CPU from the driver. The excess is dropped, a whole read at a time, and
+    counted."""
 
-    def __init__(self, baudrate: int) -> None:
+    def __init__(self, baudrate: int, now: float | None = None) -> None:
         self.bytes_per_s = RX_LINE_SHARE * baudrate / BITS_PER_BYTE_ON_WIRE
         self.burst = max(float(RX_BURST_MIN), self.bytes_per_s * RX_BURST_S)
         self.dropped_bytes = 0  # the reader thread writes it, `stats` reads it
         self._tokens = self.burst
-        self._at = time.monotonic()
+        self._at = time.monotonic() if now is None else now  # the bucket's clock
 
     def admit(self, data: bytes, now: float) -> bytes:
-        """The part of `data`, read at `now`, within the budget (its start: the decoder
-        resynchronises on the next frame)."""
+        """`data`, read at `now`, whole while the budget holds it, else nothing (counted).
+
+        Whole reads, not each read's start: a read is the far end's bytes in order, so
+        what is taken decodes but for a frame cut at its two ends. The starts of many
+        reads, joined, are bytes the far end never sent, and a fast reader's short reads
+        leave starts shorter than one frame: a flood then let no request through at all,
+        or some, depending on how the reader's and the sender's threads happened to run.
+        A read longer than the burst is cut to the burst when the bucket is full."""
         self._tokens = min(self.burst, self._tokens + (now - self._at) * self.bytes_per_s)
         self._at = now
-        taken = min(len(data), int(self._tokens))
-        self._tokens -= taken
-        self.dropped_bytes += len(data) - taken
-        return data[:taken]
+        size = len(data)
+        if size > self.burst and self._tokens >= self.burst:
+            self.dropped_bytes += size - int(self.burst)
+            data, size = data[: int(self.burst)], int(self.burst)
+        if size <= self._tokens:
+            self._tokens -= size
+            return data
+        self.dropped_bytes += size
+        return b""
 
 
 class Handoff(Generic[T]):

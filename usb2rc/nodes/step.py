@@ -6,12 +6,16 @@ failsafe and publishes a `TableSnapshot` with one assignment. Reading a snapshot
 nothing (docs/DESIGN.md, "Node state: one step per period").
 
 Decisions:
-- the base period is fixed, BASE_PERIOD_S (4 ms, 250 Hz): faster than every output's
-  default rate, and a step is cheap (a few dataclasses per device);
-- the step for a period runs exactly once, whoever triggers it: the `NodeClock` thread
-  every period (so arming and trims never wait for an output to tick), or an output whose
-  read finds the period (or a reader's record, or the table's devices) changed since the
-  last step, under the table lock, memoised;
+- the base period is fixed, BASE_PERIOD_S (4 ms, 250 Hz): the grid steps are memoised on
+  (at most one per period and set of reader records), faster than every output's default
+  rate;
+- the step for a period runs exactly once, whoever triggers it: each driver before each of
+  its ticks (so a frame carries the newest records), or the `NodeClock` thread once per
+  fastest output's period (so arming and trims never wait for an output to tick: a
+  `udpin` output nobody called, `monitor`), under the table lock, memoised. The clock
+  does not run at the base period: between two ticks of the fastest output no one reads
+  a step, and stepping 250 times a second for a 50 Hz line was a third of the daemon's CPU
+  (bench/README.md, "Issue 22");
 - "every tap since my last frame" is per output state, and lives with the output: its
   `TapLatch` remembers, per device, the last press serial it showed, and shows the presses
   the snapshot's records logged since. Whichever output reads first, each sees each tap in
@@ -20,7 +24,7 @@ Decisions:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 
 from usb2rc.config.model import HandoverConfig
@@ -30,7 +34,9 @@ from usb2rc.nodes.binding import DeviceBinding, NodeInputs
 from usb2rc.nodes.scaling import add_trim
 from usb2rc.runtime.worker import Worker
 
-BASE_PERIOD_S = 0.004  # the master clock's period: one node step each
+BASE_PERIOD_S = 0.004  # the step's grid: at most one step per period and set of records
+# With no output (`monitor`, the status socket alone): the snapshot stepped at 50 Hz.
+LIVENESS_PERIOD_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -179,17 +185,33 @@ class TapLatch:
         return replace(latched, axes=tuple(axes), switches=frame.switches)
 
 
-class NodeClock(Worker):
-    """The master clock: `step` (NodeTable.step_if_due) once per base period, aligned to
-    multiples of the period on the monotonic clock, whether or not an output reads."""
+def clock_period(output_periods: Iterable[float]) -> float:
+    """The node clock's period for outputs of these periods: the fastest output's, rounded
+    down onto the base grid (a whole number of BASE_PERIOD_S, at least one); with no output,
+    LIVENESS_PERIOD_S. Every driver steps the table itself before each of its ticks, so the
+    clock only keeps the snapshot live between them: a faster clock would step for nobody."""
+    fastest = min(output_periods, default=LIVENESS_PERIOD_S)
+    return max(1, int(fastest / BASE_PERIOD_S + 1e-9)) * BASE_PERIOD_S
 
-    def __init__(self, step: Callable[[], object], clock: Callable[[], float]) -> None:
+
+class NodeClock(Worker):
+    """The clock that keeps the snapshot live whether or not an output reads: `step`
+    (NodeTable.step_if_due) once per `period_s` (`clock_period`), aligned to multiples of it
+    on the monotonic clock, the grid the drivers tick on."""
+
+    def __init__(
+        self,
+        step: Callable[[], object],
+        clock: Callable[[], float],
+        period_s: float = BASE_PERIOD_S,
+    ) -> None:
         super().__init__("node-clock")
         self._step = step
         self._clock = clock
+        self.period_s = period_s
 
     def run(self) -> None:
         while not self.stopping:
             self._step()
-            if self.sleep(BASE_PERIOD_S - self._clock() % BASE_PERIOD_S):
+            if self.sleep(self.period_s - self._clock() % self.period_s):
                 return
