@@ -11,7 +11,7 @@ from typing import Any
 
 import serial
 from daemon_harness import PtyLine, StickState
-from test_state_scheduler import BINDING, Source, info
+from test_node_table_driver import BINDING, Source, info
 
 from usb2rc.lines.driver import Driver, Pace, aligned, earliest
 from usb2rc.lines.rx import LinkReader

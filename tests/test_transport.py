@@ -86,7 +86,7 @@ def test_a_port_opened_in_the_middle_of_a_tick_carries_nothing_before_the_startu
     must not write on the new port; the next one starts it with `8` and the connect
     sequence, and no `>` comes before them."""
     from daemon_harness import StickState
-    from test_state_scheduler import BINDING, Source, info
+    from test_node_table_driver import BINDING, Source, info
 
     from usb2rc.nodes.table import NodeTable
     from usb2rc.protocols.c2_16b import codec as c2_16b
@@ -131,7 +131,7 @@ def test_a_line_lost_and_reopened_starts_again_with_the_startup_frame(monkeypatc
     """The RX thread finds the port broken; the writer closes it and opens another, whose
     line starts with `8` and the connect sequence before any `>`."""
     from daemon_harness import StickState
-    from test_state_scheduler import BINDING, Source, info
+    from test_node_table_driver import BINDING, Source, info
 
     from usb2rc.nodes.table import NodeTable
     from usb2rc.protocols.c2_16b import codec as c2_16b

@@ -121,7 +121,7 @@ OUTPUT_KEYS = (*COMMON_OUTPUT_KEYS, "channels", *option_keys())
 _CONFIG_FIELDS = {f.name for f in dataclasses.fields(OutputConfig)}
 
 # Bounds on what a reload parses while the outputs tick (docs/CONFIG.md, "Reload"). Parsing
-# runs Python on the main thread; the scheduler threads get the interpreter back every 0.5 ms,
+# runs Python on the main thread; the output threads get the interpreter back every 0.5 ms,
 # but parts of the parse (PyYAML's scan of the whole text, collections of a large node tree)
 # hold it longer: a 10 MB file held the ticks up 60-240 ms, 2000 entries 100 ms. The shipped
 # configs are 1-3 KiB with three entries; these leave room for 40 times that.

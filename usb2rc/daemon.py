@@ -8,7 +8,7 @@ The outputs are one per config `outputs:` entry, in any protocol of the registry
 (usb2rc.outputs: C2-16B, SUMD, CRSF, SBUS, iBus, MAVLink), built by usb2rc.wiring.
 
 Devices come and go only on the lifecycle thread (usb2rc.nodes.lifecycle); readers publish records
-that the table reads without waiting; the scheduler threads never wait on a device.
+that the table reads without waiting; the output threads never wait on a device.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ log = logging.getLogger("usb2rc")
 JOIN_TIMEOUT_S = 0.5
 # A thread that wants the GIL asks the running one to drop it after this long (Python's
 # default: 5 ms). Plugging a device runs Python for milliseconds on the lifecycle and hot-plug
-# threads (descriptor parse, decoder plan, a replayed recording); the scheduler thread needs
+# threads (descriptor parse, decoder plan, a replayed recording); the output threads need
 # the GIL after its wake-up and after each system call of a tick (~3 times), and may wait a
 # whole slice each time: up to ~15 ms late with 5 ms slices (bench/bench_daemon.py, plug
 # figures). Busy readers hold the GIL ~0.1 ms per wake-up: they are not sliced more often.
@@ -225,7 +225,7 @@ class Daemon:
 
     def all_outputs_ticking(self, within_s: float = 1.0) -> bool:
         """True while every output thread has ticked in the last `within_s` seconds: one hung
-        scheduler stops the watchdog being fed; a stuck device cannot (it has no say here)."""
+        output thread stops the watchdog being fed; a stuck device cannot (it has no say here)."""
         now = time.monotonic()
         return all(now - out.thread.last_tick_monotonic < within_s for out in self.outputs)
 

@@ -45,7 +45,7 @@ from usb2rc.protocols.sumd.codec import SumdFrame
 
 @runtime_checkable
 class DescribedFrame(Protocol):
-    """A frame that says how it prints (`protocol.ibus.IbusFrame`): a protocol whose frames
+    """A frame that says how it prints (`protocols.ibus.codec.IbusFrame`): a protocol whose frames
     do needs no branch here, only its registry row."""
 
     def kind(self) -> str: ...

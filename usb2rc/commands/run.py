@@ -142,7 +142,7 @@ def make_backend(args: argparse.Namespace) -> Backend:
 
 
 class _WatchdogFeeder:
-    """Feeds systemd's watchdog from the scheduler's tick: a hung scheduler stops feeding."""
+    """Feeds systemd's watchdog from the output threads' ticks: a hung one stops feeding."""
 
     def __init__(self, notifier: Notifier) -> None:
         self.notifier = notifier

@@ -154,7 +154,7 @@ class DeviceLayout:
     def report_plans(self) -> dict[int, _ReportPlan]:
         """The decode plan of each input report ID, compiled once per layout: a device of a
         model seen before gets the cached layout (`parse_descriptor`), so a replug compiles
-        nothing (compiling is Python that competes with the scheduler for the GIL). Plans
+        nothing (compiling is Python that competes with the output threads for the GIL). Plans
         hold no state; each ReportDecoder keeps its own values."""
         return {rid: _compile_report(self, rid) for rid in self.input_report_lengths}
 

@@ -44,7 +44,7 @@ def _hex_bytes(tokens: list[str]) -> bytes:
     """One byte per hex token. hid-recorder writes two digits each: bytes.fromhex (C) takes
     those ~10x faster than a generator. A 4 s recording at 1 kHz is 4000 lines, parsed while
     the daemon runs (a replayed plug), and Python-speed parsing holds the GIL in slices the
-    scheduler thread has to wait through."""
+    output threads have to wait through."""
     try:
         data = bytes.fromhex(" ".join(tokens))
     except ValueError:
@@ -174,7 +174,7 @@ def open_recording(
 
     Reads the lines up to the first event only (hid-recorder writes the header first), so
     the cost of a long recording is paid as it is played, not all at once: the replay
-    backend opens devices on threads that share the GIL with the scheduler. The iterator
+    backend opens devices on threads that share the GIL with the output threads. The iterator
     raises RecordingError at the first bad line it reaches. Header lines after the first
     event are not in the header; a file whose `R:` comes after its first event is parsed
     whole here (and raises here if it has none)."""

@@ -12,7 +12,7 @@ reader thread: it holds the open file and its position, never the text nor the e
 played (a loop reads the file again from the top each lap). A 20 MB recording cost ~5x its
 size in RSS while the whole text and every event were held (issue 19); it costs a line's
 worth now. A 4 s recording at 1 kHz is ~4000 lines and ~5-15 ms of Python:
-parsed at once on the hot-plug thread, it competed with the scheduler for the GIL while the
+parsed at once on the hot-plug thread, it competed with the output threads for the GIL while the
 daemon ran (bench/bench_plug_cost.py). The price: an `E:` line that is not valid is found when it
 is played, not when the file appears. Its device's `read()` then raises `OSError(EIO)`
 naming the line (the daemon sends `3`, read failed), and from then on the file is listed in

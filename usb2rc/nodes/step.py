@@ -15,7 +15,7 @@ Decisions:
   `udpin` output nobody called, `monitor`), under the table lock, memoised. The clock
   does not run at the base period: between two ticks of the fastest output no one reads
   a step, and stepping 250 times a second for a 50 Hz line was a third of the daemon's CPU
-  (bench/README.md, "Issue 22");
+  (bench/README.md, "Issue 22, second pass");
 - "every tap since my last frame" is per output state, and lives with the output: its
   `TapLatch` remembers, per device, the last press serial it showed, and shows the presses
   the snapshot's records logged since. Whichever output reads first, each sees each tap in

@@ -99,7 +99,7 @@ EMPTY_LOG = EventLog()
 # keyword-only: a field added later cannot shift what positional arguments meant
 @dataclass(frozen=True, kw_only=True)
 class NodeSnapshot(TableSnapshot):
-    """A step's snapshot (`nodestep.TableSnapshot`) with the service event log as it was
+    """A step's snapshot (`nodes.step.TableSnapshot`) with the service event log as it was
     when the step ran: a line session reads both from one value, so a device's `2` is in
     the same snapshot as the first frame that has it gone."""
 

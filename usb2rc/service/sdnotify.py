@@ -4,7 +4,7 @@
 and `$WATCHDOG_USEC` / `$WATCHDOG_PID`. Outside systemd every method is a no-op returning
 False, so callers never need an `if`.
 
-The socket is NON-BLOCKING on purpose: the watchdog is fed from the scheduler thread, and a
+The socket is NON-BLOCKING on purpose: the watchdog is fed from the output threads, and a
 blocking datagram socket would stall a tick (and then the whole RC stream) as soon as the
 receiver's queue fills. A message that cannot be sent right now is dropped and counted; no
 method ever raises.

@@ -17,7 +17,7 @@ Two pieces, both sans-IO (no thread, no socket, no clock: `now` is passed in):
   - manual_control: no MANUAL_CONTROL at all, so the autopilot's manual-control-lost
     failsafe fires (PX4 COM_RC_LOSS_T; ArduPilot's RC_OVERRIDE_TIME).
   What the far end sends is parsed with a second pymavlink instance
-  (`protocol.mavlink.MavlinkDecoder`, `received`): its heartbeats are counted for the stats.
+  (`protocols.mavlink.codec.MavlinkDecoder`, `received`): its heartbeats are counted for the stats.
 - With a signing key (`signing_key_file`) every message is signed (MAVLink 2 signing, link
   id 0, timestamps from the wall clock passed to `tick`), and only messages signed with the
   key count from the far end.
