@@ -27,7 +27,7 @@ OUTSIDE = re.compile(r"DECISIONS\.md|(?:\.\./|/work/)shared\b", re.IGNORECASE)
 # may wrap onto the next line (whitespace, and a comment's `#`, between its parts).
 _GAP = r"(?:\s|#)*"
 CITATION = re.compile(
-    rf'\b((?:docs/)?[A-Za-z][\w-]*\.md),{_GAP}("[^"\n]+"(?:{_GAP}(?:,|and|or){_GAP}"[^"\n]+")*)'
+    rf'\b((?:docs/|bench/)?[A-Za-z][\w-]*\.md),{_GAP}("[^"\n]+"(?:{_GAP}(?:,|and|or){_GAP}"[^"\n]+")*)'
 )
 QUOTED = re.compile(r'"([^"\n]+)"')
 # `[text](ICD.md#axis-scaling)`, `(docs/ICD.md#failsafe)`
