@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 from daemon_harness import PtyLine, StickState, install, recording, run_daemon
-from test_stall_journeys import PTY_FAR_END_BUFFER, PTY_KERNEL_QUEUE
 from test_node_table_driver import BINDING, Source, info
+from test_stall_journeys import PTY_FAR_END_BUFFER, PTY_KERNEL_QUEUE
 
 from usb2rc import __version__
 from usb2rc.lines.driver import Driver

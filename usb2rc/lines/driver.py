@@ -13,10 +13,10 @@ It knows no protocol: what to send, when to stall, when to flush, when the next 
 
 One clock: a driver's ticks fall on the multiples of its period on the monotonic clock, the
 node clock's epoch (`aligned`), whenever it starts. Outputs whose periods are multiples of
-one another (the defaults: 20, 10, 4 ms) tick together, on node steps (every 4 ms, the base
-period), so a reader that paces on them (`Daemon._reader_pause`, through `earliest`) wakes
-once for all of them. A CRSF output that follows its module's timing leaves the grid: the
-module sets its phase (`session.next_due`), to the microsecond.
+one another (the defaults: 20, 10, 4 ms) tick together, on the 4 ms grid of the node step
+(`nodes.step.BASE_PERIOD_S`), so a reader that paces on them (`Daemon._next_tick`, through
+`earliest`) wakes once for all of them. A CRSF output that follows its module's timing
+leaves the grid: the module sets its phase (`session.next_due`), to the microsecond.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The node step's result and its readers: one immutable snapshot of every node per step.
 
-The node table (usb2rc.nodes.table) runs one *step* per base period of the master clock: it reads
+The node table (usb2rc.nodes.table) runs one *step* at a time (nodes.table.step_if_due): it reads
 each reader's record once, arms the neutral guard, steps the trims, decides each node's
 failsafe and publishes a `TableSnapshot` with one assignment. Reading a snapshot changes
 nothing (docs/DESIGN.md, "Node state: one step per period").

@@ -1,4 +1,4 @@
-"""Switches and throttle cuts in the node step: one owner, stepped once per base period.
+"""Switches and throttle cuts in the node step: one owner, stepped once per node step.
 
 `SwitchBank` is owned by the node table (usb2rc.nodes.table) and used under its lock. Each step it
 reads, per node, the presses its live devices' readers logged since the bank last looked

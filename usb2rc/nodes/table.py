@@ -1,7 +1,8 @@
 """Node state: the one lock-guarded place where devices (hot-plug and reader threads) meet
 the outputs (driver threads).
 
-Devices are attached to Node-IDs. One step per base period (usb2rc.nodes.step) reads each
+Devices are attached to Node-IDs. One step at a time (usb2rc.nodes.step: before each output
+tick, and on the node clock between them; at most one per base period and records) reads each
 reader's record once, runs the neutral guard and the trims, and publishes an immutable
 snapshot of every node with the service event log (`NodeSnapshot`, `EventLog`); each
 output's session reads it with its own event cursor and its own tap latch.
@@ -388,7 +389,8 @@ class NodeTable:
 
     def step_if_due(self) -> NodeSnapshot:
         """Run the step unless it already ran for this period, these reader records and
-        these devices (the master clock's call, each base period); the latest snapshot."""
+        these devices (each driver's call before its tick, and the node clock's); the latest
+        snapshot."""
         with self._lock:
             changes = self._step_if_due_locked()
             snapshot = self._snapshot
