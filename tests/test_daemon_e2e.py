@@ -99,7 +99,9 @@ def test_plug_states_unplug_replug_and_sigterm(tmp_path, line, replay_dir):
         count_before = len(line.frames())
         (replay_dir / "stick.hid").unlink()
         line.wait_for(lambda fr: "disconnected" in services(fr[count_before:], 0))
-        line.wait_for(lambda fr: any(f.status == FAILSAFE for f in data_frames(fr, 0)))
+        line.wait_for(
+            lambda fr: any(f.status == FAILSAFE for f in data_frames(fr[count_before:], 0))
+        )
         after = line.frames()[count_before:]
         gone = services(after, 0).index("disconnected")
         failsafe = [f for f in data_frames(after, 0) if f.status == FAILSAFE]
