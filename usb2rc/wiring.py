@@ -71,7 +71,7 @@ def _running(ctx: OutputContext, link: Link, session: LineSession, period_s: flo
         ctx.name,
         link,
         session,
-        ctx.table.step_if_due,
+        ctx.table.tick_snapshot,
         period_s,
         ctx.on_tick,
         ctx.on_first_write,
