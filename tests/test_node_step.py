@@ -218,40 +218,17 @@ def test_the_node_clock_runs_at_the_fastest_outputs_period_on_the_base_grid() ->
     assert clock_period([]) == pytest.approx(LIVENESS_PERIOD_S)  # monitor: no output
 
 
-def test_a_tick_sends_the_clocks_step_while_fresh_and_steps_itself_otherwise() -> None:
-    """The node clock steps STEP_LEAD_S before the grid tick; a driver's tick reads that
-    step (no second step, no lock) while it is at most FRESH_S old, on the same devices, and
-    steps itself when it is not: a late clock, a plug or an unplug since."""
-    from usb2rc.nodes.step import FRESH_S, STEP_LEAD_S
-
-    clock = Clock()
-    table = NodeTable(clock=clock)
-    source = RecordSource(record_of(StickState(), 1, clock.now))
-    table.add_device(0, INFO, BINDING, source, "JOYSTICK")
-    clock.now += REST_S + BASE_PERIOD_S
-    stepped = table.step_if_due()  # the clock's step, a lead before the tick
-    assert not stepped.frames[0].failsafe  # armed: at rest long enough
-    source.record = record_of(StickState(buttons=1), 2, clock.now)  # a report right after it
-    clock.now += STEP_LEAD_S  # the tick
-    assert table.tick_snapshot() is stepped  # fresh: read, not stepped again
-    clock.now = stepped.at + FRESH_S * 1.5  # the clock was late: the tick steps, fresh records
-    late = table.tick_snapshot()
-    assert late is not stepped and late.frames[0].group1 & 1
-    table.add_device(1, DeviceInfo("k1", "k1", 0x044F, 0xB10A, "T.16000M"), BINDING, source, "J")
-    plugged = table.tick_snapshot()  # the clock has not moved: only the plug makes it step
-    assert plugged is not late and 1 in {frame.node_id for frame in plugged.frames}
-    table.remove_device("k1")
-    unplugged = table.tick_snapshot()
-    assert unplugged is not plugged and unplugged.log is not plugged.log  # with the `2` owed
-
-
-def test_the_node_clock_steps_a_lead_before_each_grid_tick() -> None:
-    from usb2rc.nodes.step import STEP_LEAD_S, NodeClock
+def test_the_node_clock_steps_halfway_between_two_grid_ticks() -> None:
+    """The drivers tick on the multiples of the period; the clock steps half a period off
+    them, so its wake-up and step never make a tick wait."""
+    from usb2rc.nodes.step import NodeClock
 
     period = 0.020
     node_clock = NodeClock(lambda: None, Clock(), period)
     tick = 5000 * period  # a grid tick on the monotonic clock
-    assert node_clock.until_next_step(tick - STEP_LEAD_S) == pytest.approx(period)
-    assert node_clock.until_next_step(tick) == pytest.approx(period - STEP_LEAD_S)
-    late = tick - STEP_LEAD_S + period / 2  # a step that ran late waits for the next tick's
-    assert late + node_clock.until_next_step(late) == pytest.approx(tick + period - STEP_LEAD_S)
+    halfway = tick + period / 2
+    assert tick + node_clock.until_next_step(tick) == pytest.approx(halfway)
+    assert node_clock.until_next_step(halfway) == pytest.approx(period)  # on time: the next
+    assert node_clock.until_next_step(halfway - 0.00005) == pytest.approx(period + 0.00005)
+    late = halfway + 0.6 * period  # a step that ran late waits for the next halfway point
+    assert late + node_clock.until_next_step(late) == pytest.approx(halfway + period)

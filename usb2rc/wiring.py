@@ -71,7 +71,7 @@ def _running(ctx: OutputContext, link: Link, session: LineSession, period_s: flo
         ctx.name,
         link,
         session,
-        ctx.table.tick_snapshot,
+        ctx.table.step_if_due,
         period_s,
         ctx.on_tick,
         ctx.on_first_write,

@@ -48,7 +48,7 @@ MAX_BATCH = 1000  # reports decoded as one batch (a paced reader's drain)
 # good between them is not understood (wrong descriptor, unknown report IDs).
 BAD_REPORTS_LIMIT = 20
 READ_AHEAD_S = 0.002  # a paced reader wakes this long before a tick to drain its device
-LAST_CALL_S = 0.0005  # and once more this long before it, before the node step (STEP_LEAD_S)
+LAST_CALL_S = 0.00025  # and once more this long before it, for what came in meanwhile
 
 
 class GridTick(Protocol):

@@ -11,8 +11,9 @@ Decisions:
   rate;
 - the step for a period runs exactly once, whoever triggers it: each driver before each of
   its ticks (so a frame carries the newest records), or the `NodeClock` thread once per
-  fastest output's period (so arming and trims never wait for an output to tick: a
-  `udpin` output nobody called, `monitor`), under the table lock, memoised. The clock
+  fastest output's period, half a period off the ticks (so arming and trims never wait for
+  an output to tick: a `udpin` output nobody called, `monitor`; and no tick waits for the
+  clock), under the table lock, memoised. The clock
   does not run at the base period: between two ticks of the fastest output no one reads
   a step, and stepping 250 times a second for a 50 Hz line was a third of the daemon's CPU
   (bench/README.md, "Issue 22, second pass");
@@ -38,13 +39,7 @@ from usb2rc.runtime.worker import Worker
 BASE_PERIOD_S = 0.004  # the step's grid: at most one step per period and set of records
 # With no output (`monitor`, the status socket alone): the snapshot stepped at 50 Hz.
 LIVENESS_PERIOD_S = 0.02
-# The node clock steps this long before each grid tick, after the readers' last call
-# (hid.reader.LAST_CALL_S): the drivers that tick on the grid then only read the snapshot,
-# and no tick waits for a step (bench/README.md, "Issue 21, the period error").
-STEP_LEAD_S = 0.00025
 EARLY_WAKE_S = 0.0001  # the node clock's wake-up may come this much early (float rounding)
-# A driver's tick sends a snapshot at most this old (NodeTable.tick_snapshot), else it steps.
-FRESH_S = 0.001
 
 
 @dataclass(frozen=True)
@@ -204,22 +199,22 @@ def clock_period(output_periods: Iterable[float]) -> float:
 
 class NodeClock(Worker):
     """The clock that keeps the snapshot live whether or not an output reads: `step`
-    (NodeTable.step_if_due) once per `period_s` (`clock_period`), `lead_s` before each
-    multiple of it on the monotonic clock, the grid the drivers tick on: their ticks then
-    read the step it made (NodeTable.tick_snapshot)."""
+    (NodeTable.step_if_due) once per `period_s` (`clock_period`), half a period off the
+    multiples of it on the monotonic clock, the grid the drivers tick on: a step never wakes
+    with a tick. (Stepping on the grid, or just before it, made every tick wait for the
+    clock's wake-up and step: the drivers' own p99 period error, bench/README.md "Issue 21,
+    the period error".)"""
 
     def __init__(
         self,
         step: Callable[[], object],
         clock: Callable[[], float],
         period_s: float = BASE_PERIOD_S,
-        lead_s: float = STEP_LEAD_S,
     ) -> None:
         super().__init__("node-clock")
         self._step = step
         self._clock = clock
         self.period_s = period_s
-        self.lead_s = lead_s
 
     def run(self) -> None:
         while not self.stopping:
@@ -228,9 +223,10 @@ class NodeClock(Worker):
                 return
 
     def until_next_step(self, now: float) -> float:
-        """From `now` to the next step: `lead_s` before a grid tick, the first one more than
-        EARLY_WAKE_S away (a wake-up a hair early, or a float's rounding, must not step twice
-        for one tick; a step taken late waits for the next tick's)."""
+        """From `now` to the next step: halfway between two grid ticks, the first such
+        moment more than EARLY_WAKE_S away (a wake-up a hair early, or a float's rounding,
+        must not step twice for one period; a step taken late waits for the next one)."""
         period = self.period_s
-        tick = (math.floor((now + self.lead_s + EARLY_WAKE_S) / period) + 1) * period
-        return tick - self.lead_s - now
+        phase = period / 2
+        step = (math.floor((now - phase + EARLY_WAKE_S) / period) + 1) * period + phase
+        return step - now

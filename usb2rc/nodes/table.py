@@ -31,7 +31,6 @@ from usb2rc.nodes.binding import DeviceBinding, NodeInputs
 from usb2rc.nodes.guard import RestWatch
 from usb2rc.nodes.step import (
     BASE_PERIOD_S,
-    FRESH_S,
     DeviceView,
     NodeView,
     TableSnapshot,
@@ -106,7 +105,6 @@ class NodeSnapshot(TableSnapshot):
     the same snapshot as the first frame that has it gone."""
 
     log: EventLog = EMPTY_LOG
-    layout: int = 0  # the table's device layout the step saw (`NodeTable.tick_snapshot`)
 
 
 @dataclass(frozen=True)
@@ -399,22 +397,6 @@ class NodeTable:
         _log_changes(changes)
         return snapshot
 
-    def tick_snapshot(self) -> NodeSnapshot:
-        """What a driver's tick sends: the node clock's step a lead before the grid tick
-        (`nodes.step.STEP_LEAD_S`), read without the lock or a step, when it is fresh: at most
-        FRESH_S old, on the devices as they are, no guard's rest come due since. Otherwise
-        (the clock late, an off-grid CRSF tick, a plug or unplug since) the step, now: a frame
-        never carries records older than FRESH_S, whichever thread ran first."""
-        snapshot = self._snapshot  # one read: the value the checks and the frame share
-        now = self._clock()
-        if (
-            now - snapshot.at <= FRESH_S
-            and snapshot.layout == self._layout
-            and not any(rest.rested_by(now) for rest in self._resting)
-        ):
-            return snapshot
-        return self.step_if_due()
-
     def stop(self) -> None:
         """usb2rc stops: every device counts as gone from now on (no service events), so
         every node sends `!` with its failsafe or held values (docs/ICD.md, "Stop")."""
@@ -458,12 +440,7 @@ class NodeTable:
         stepped = self._switches.step(views)
         positions = tuple(sorted(self._switches.positions.items()))
         self._snapshot = NodeSnapshot(
-            period=period,
-            at=now,
-            nodes=stepped,
-            switches=positions,
-            log=self._log,
-            layout=self._layout,
+            period=period, at=now, nodes=stepped, switches=positions, log=self._log
         )
         self._resting = _resting(nodes, now)
         return changes
