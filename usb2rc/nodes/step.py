@@ -201,9 +201,8 @@ class NodeClock(Worker):
     """The clock that keeps the snapshot live whether or not an output reads: `step`
     (NodeTable.step_if_due) once per `period_s` (`clock_period`), half a period off the
     multiples of it on the monotonic clock, the grid the drivers tick on: a step never wakes
-    with a tick. (Stepping on the grid, or just before it, made every tick wait for the
-    clock's wake-up and step: the drivers' own p99 period error, bench/README.md "Issue 21,
-    the period error".)"""
+    with a tick. (On the grid, the clock's wake-up and step fell on every tick; just before
+    it, next to the readers' last call: bench/README.md, "Issue 21, the period error".)"""
 
     def __init__(
         self,
