@@ -23,6 +23,10 @@ daemon's) and prints one JSON line per decoded frame. What is measured:
   default rates, each on a pty of its own (MAVLink: UDP to a local socket), drained by a
   thread here; the C2-16B output stays on the reader's pty: the CPU figure is then the daemon
   with every output.
+- crsf500: C2-16B plus CRSF at 500 Hz (ELRS's F500 packet rate, 921600 baud) on ptys, 4
+  resting T.16000M at 1 kHz (a moving stick never arms, and CRSF's failsafe is silence), the
+  daemon in this process: p50/p99 |period error| of each driver's own write-to-write periods
+  over --crsf-seconds, CRSF's missed and late (> 1 ms) ticks from its own counters.
 - start: spawning `python -m usb2rc run ...` (one replayed device) -> the startup frame
   (service 8) and the first data frame on the pty; median of --starts.
 - stop: SIGTERM -> the process has exited (every start trial and the cpu run).
@@ -63,6 +67,7 @@ from daemon_harness import (  # noqa: E402
     real_device_recordings,
     recording,
     scale,
+    timed_recording,
 )
 
 from usb2rc.protocols.c2_16b import codec as c2_16b  # noqa: E402
@@ -315,6 +320,93 @@ def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[
     inside_errors = [abs(period - PERIOD_S) for period in inside]
     result["period_p99_error_inside_ms"] = percentile(inside_errors, 0.99) * 1e3
     return result
+
+
+# --- CRSF at 500 Hz (ELRS's F500 packet rate), in-process -------------------------------------
+
+CRSF500_HZ = 500
+CRSF500_CONFIG = (
+    "outputs:\n"
+    "  - {{protocol: c2-16b, port: '{c2}'}}\n"
+    "  - {{protocol: crsf, port: '{crsf}', rate_hz: 500, baudrate: 921600, channels: {channels}}}\n"
+)
+
+
+def resting_recording(seconds: float, name: str) -> str:
+    """1000 reports/s of a stick at rest (X toggles one count, so every report is a new
+    value): the neutral guard arms, so CRSF sends; a moving stick never arms, and CRSF's
+    failsafe is silence (`frames_withheld`)."""
+    states = [(i * 0.001, StickState(x=8192 + i % 2)) for i in range(int(seconds * 1000))]
+    return timed_recording(states, name=name)
+
+
+def driver_period_figures(
+    periods: Sequence[float], period_s: float, prefix: str
+) -> dict[str, float]:
+    """p50/p99/max |period error| of one driver's own write-to-write periods."""
+    errors = [abs(period - period_s) for period in periods]
+    if not errors:
+        raise RuntimeError(f"{prefix}: no write in the window")
+    return {
+        f"{prefix}_p50_error_ms": percentile(errors, 0.50) * 1e3,
+        f"{prefix}_p99_error_ms": percentile(errors, 0.99) * 1e3,
+        f"{prefix}_max_error_ms": max(errors) * 1e3,
+    }
+
+
+def take_periods(stats: Any) -> list[float]:
+    """The periods a driver noted since the last call (it keeps only its last few thousand:
+    6 s at 500 Hz). `popleft` while the driver appends on the right loses none."""
+    kept = stats.periods_s
+    return [kept.popleft() for _ in range(len(kept))]
+
+
+def run_crsf500(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
+    """C2-16B (50 Hz) plus CRSF at 500 Hz on ptys (921600 baud), 4 resting T.16000M at 1 kHz,
+    the daemon in this process: each driver's own write periods over the window, and CRSF's
+    missed and late ticks from its own counters."""
+    from usb2rc.configfile import load_config_text
+    from usb2rc.daemon import Daemon
+    from usb2rc.hid.replay import ReplayBackend
+
+    replay_dir = workdir / "crsf500"
+    replay_dir.mkdir()
+    for i in range(4):
+        text = resting_recording(4.0, f"Thrustmaster T.16000M {i}")
+        (replay_dir / f"device{i}.hid").write_text(text)
+    drain = OutputDrain(["crsf", "crsf"])  # two ptys: C2-16B's and CRSF's far ends
+    c2_port, crsf_port = drain.ports
+    config = load_config_text(
+        CRSF500_CONFIG.format(c2=c2_port, crsf=crsf_port, channels=EXTRA_CHANNELS)
+    )
+    daemon = Daemon(config, ReplayBackend(replay_dir, loop=True))
+    daemon.start()
+    try:
+        c2, crsf = (output.thread for output in daemon.outputs)
+        deadline = time.monotonic() + 20
+        while crsf.stats.writes < CRSF500_HZ // 10:  # the nodes armed: CRSF sends
+            if time.monotonic() > deadline:
+                raise RuntimeError("CRSF at 500 Hz never sent (did the nodes arm?)")
+            time.sleep(0.05)
+        time.sleep(warmup)
+        periods: dict[Any, list[float]] = {c2: [], crsf: []}
+        for driver in periods:
+            take_periods(driver.stats)
+        missed0, late0, ticks0 = crsf.stats.missed_ticks, crsf.stats.late_ticks, crsf.stats.ticks
+        end = time.monotonic() + window
+        while (left := end - time.monotonic()) > 0:
+            time.sleep(min(1.0, left))
+            for driver, kept in periods.items():
+                kept.extend(take_periods(driver.stats))
+        missed, late = crsf.stats.missed_ticks - missed0, crsf.stats.late_ticks - late0
+        ticks = crsf.stats.ticks - ticks0
+        figures = driver_period_figures(periods[crsf], 1 / CRSF500_HZ, "crsf500")
+        figures.update(driver_period_figures(periods[c2], PERIOD_S, "crsf500_c2"))
+    finally:
+        daemon.stop()
+        drain.close()
+    return {**figures, "crsf500_ticks": ticks, "crsf500_missed_ticks": missed,
+            "crsf500_late_ticks": late}  # fmt: skip
 
 
 # --- the daemon as a subprocess ---------------------------------------------------------------
@@ -672,6 +764,8 @@ GOALS = {  # figure: (limit, "<=" | "abs<=", text)
     "cpu_pct": (5.0, "<=", "≤ 5% of a core"),
     "plug_live_excess_ms": (4.0, "<=", "≤ 4 ms"),
     "rss_mb": (40.0, "<=", "≤ 40 MB"),
+    "crsf500_p99_error_ms": (0.2, "<=", "≤ 0.2 ms"),
+    "crsf500_missed_ticks": (0, "<=", "none"),
     "stop_s_max": (1.0, "<", "< 1 s"),
 }
 
@@ -694,6 +788,9 @@ SUMMED = {
     "gaps",
     "plug_live_gaps",
     "plug_live_stick_breaks",
+    "crsf500_ticks",
+    "crsf500_missed_ticks",
+    "crsf500_late_ticks",
 }
 
 ROWS = [
@@ -723,6 +820,11 @@ ROWS = [
     ("cpu_real_without_replay_pct", "  without the replay backend", "%", 2),
     ("rss_real_mb", "  RSS", "MB", 1),
     ("real_reports_per_s_min", "  reports/s consumed (slowest dev)", "/s", 1),
+    ("crsf500_p99_error_ms", "CRSF 500 Hz: p99 |period - 2 ms|", "ms", 3),
+    ("crsf500_p50_error_ms", "  p50", "ms", 3),
+    ("crsf500_missed_ticks", "  missed ticks", "", 0),
+    ("crsf500_late_ticks", "  late ticks (> 1 ms)", "", 0),
+    ("crsf500_c2_p99_error_ms", "  C2-16B beside it: p99 |period error|", "ms", 3),
     ("plug_quiet_max_interval_ms", "stick frames: max interval, quiet", "ms", 2),
     ("plug_live_max_interval_ms", "  ... while 5 devices are plugged", "ms", 2),
     ("plug_live_excess_ms", "  plugging - quiet", "ms", 2),
@@ -767,7 +869,7 @@ def combine(runs: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-PARTS = ("period", "cpu", "cpu_real", "idle", "plug", "starts")
+PARTS = ("period", "cpu", "cpu_real", "idle", "crsf500", "plug", "starts")
 # Issue 22's second CPU figure: four real descriptors (BENCH_MODELS), random reports of every
 # input report ID at 1 kHz each, 12 s looped (12,000 events per file, as the issue measured).
 REAL_SECONDS = 12.0
@@ -826,6 +928,8 @@ def one_run(args: argparse.Namespace) -> dict[str, Any]:
             result.update(run_cpu_real(workdir, args.warmup, args.cpu_seconds))
         if "idle" in parts:
             result.update(run_idle(workdir, args.warmup, args.cpu_seconds))
+        if "crsf500" in parts:
+            result.update(run_crsf500(workdir, args.warmup, args.crsf_seconds))
         if "plug" in parts:
             result.update(run_plug_while_live(workdir, args.plug_seconds, args.plug_rounds))
         if "starts" in parts:
@@ -852,6 +956,9 @@ def main() -> None:
     parser.add_argument("--report-ms", type=float, default=23.0, help="ramp step (23 ms)")
     parser.add_argument("--cpu-seconds", type=float, default=30.0, help="CPU window (30)")
     parser.add_argument("--warmup", type=float, default=5.0, help="before the CPU window (5)")
+    parser.add_argument(
+        "--crsf-seconds", type=float, default=10.0, help="CRSF at 500 Hz window (10)"
+    )
     parser.add_argument("--starts", type=int, default=5, help="start/stop trials (5)")
     parser.add_argument("--plug-seconds", type=float, default=5.0, help="plug windows (5)")
     parser.add_argument("--plug-rounds", type=int, default=3, help="plug rounds (3)")

@@ -113,7 +113,7 @@ def test_daemon(tmp_path: Path) -> None:
     out = run(
         sys.executable, "bench/bench_daemon.py", "--seconds", "2", "--cpu-seconds", "1",
         "--warmup", "0.3", "--starts", "1", "--plug-seconds", "1", "--plug-rounds", "1",
-        "--json", str(json_path),
+        "--crsf-seconds", "1", "--json", str(json_path),
     )  # fmt: skip
     result = last_json(out)
     assert result == json.loads(json_path.read_text())
@@ -137,6 +137,8 @@ def test_daemon(tmp_path: Path) -> None:
         "cpu_real_replay_pct",
         "cpu_idle_pct",
         "rss_real_mb",
+        "crsf500_p99_error_ms",
+        "crsf500_c2_p99_error_ms",
     ):
         assert isinstance(figures[key], float | int), key
     assert figures["real_devices"] == 4  # the four real descriptors, each read
@@ -144,6 +146,7 @@ def test_daemon(tmp_path: Path) -> None:
     assert figures["latency_reports"] > 10
     assert figures["devices"] == 4
     assert figures["plug_devices"] == 5
+    assert figures["crsf500_ticks"] > 0
     assert "p99 |period - 20 ms|" in out
 
 

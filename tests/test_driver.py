@@ -153,6 +153,9 @@ def test_a_crsf_line_on_loop_reads_its_far_end_and_comes_back_after_a_lost_port(
         driver.join(WAIT_S)
         reader.join(WAIT_S)
     assert driver.stats.tick_errors == 0
+    took = driver.stats.tick_durations()  # one per tick, what `tick_p99_ms` reads
+    assert len(took) == driver.stats.ticks and all(0 < t < 1 for t in took)
+    assert driver.stats.tick_p99_ms() == sorted(took)[int(len(took) * 0.99)] * 1000
 
 
 def test_every_driver_ticks_on_multiples_of_its_period_from_one_epoch() -> None:

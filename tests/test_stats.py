@@ -39,13 +39,15 @@ WAIT_S = 20.0
 C2_LINE = re.compile(
     r"stats: output1-c2-16b (?P<url>\S+): writes (?P<writes>\d+), ticks (?P<ticks>\d+), "
     r"late (?P<late>\d+), missed (?P<missed>\d+), p99 \|period error\| (?P<p99>[\d.]+) ms, "
-    r"bytes (?P<bytes>\d+), .*data frames (?P<data>\d+), service frames (?P<service>\d+), "
+    r"p99 tick (?P<tick>[\d.]+) ms, bytes (?P<bytes>\d+), "
+    r".*data frames (?P<data>\d+), service frames (?P<service>\d+), "
     r".*rx bytes (?P<rx>\d+), rx skipped (?P<skipped>\d+), "
     r"rx crc failures (?P<crc>\d+), requests (?P<requests>\d+)"
 )
 SUMD_LINE = re.compile(
     r"stats: output2-sumd (?P<url>\S+): writes (?P<writes>\d+), ticks (?P<ticks>\d+), "
-    r"late (?P<late>\d+), .*p99 \|period error\| (?P<p99>[\d.]+) ms, bytes (?P<bytes>\d+)"
+    r"late (?P<late>\d+), .*p99 \|period error\| (?P<p99>[\d.]+) ms, "
+    r"p99 tick (?P<tick>[\d.]+) ms, bytes (?P<bytes>\d+)"
 )
 DEVICE_LINE = re.compile(
     r"stats: device Thrustmaster T\.16000M \(replay-stick\): (?P<reports>\d+) reports "
@@ -115,6 +117,7 @@ def test_sigusr1_logs_output_device_and_receive_figures(tmp_path, line, sumd_lin
         assert 0 < int(c2["writes"]) <= int(c2["ticks"]) + 1
         assert int(c2["late"]) >= 0 and int(c2["missed"]) >= 0
         assert float(c2["p99"]) >= 0.0
+        assert 0.0 < float(c2["tick"]) < 20.0  # ticks ran, each well within its period
         assert int(c2["bytes"]) >= 36 * int(c2["writes"])  # at least one frame a write
         # frames sent: startup, the connect sequence, and its repeat for the `<` request
         assert int(c2["service"]) == 1 + 4 + 4

@@ -357,6 +357,7 @@ class Daemon:
             "late_ticks": st.late_ticks,
             "missed_ticks": st.missed_ticks,
             "period_p99_error_ms": st.period_p99_error_ms(out.thread.period_s),
+            "tick_p99_ms": st.tick_p99_ms(),
             "bytes_written": link.bytes_written,
             "queue_full_skips": link.writes_skipped_queue_full,  # UDP: refused datagrams
             "write_timeouts": link.write_timeouts,

@@ -77,22 +77,39 @@ class OutputStats:
     tick_errors: int = 0
     stalls: int = 0
     periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
+    # how long each tick took, wake-up to written: what a tick costs, whatever the wake-up's
+    # jitter (other threads' work, a status client, shows here)
+    ticks_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
     _periods_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def add_period(self, period_s: float) -> None:
         with self._periods_lock:
             self.periods_s.append(period_s)
 
+    def add_tick(self, took_s: float) -> None:
+        with self._periods_lock:
+            self.ticks_s.append(took_s)
+
     def periods(self) -> list[float]:
         with self._periods_lock:
             return list(self.periods_s)
 
+    def tick_durations(self) -> list[float]:
+        with self._periods_lock:
+            return list(self.ticks_s)
+
     def period_p99_error_ms(self, nominal_s: float) -> float:
-        periods = self.periods()
-        if not periods:
-            return 0.0
-        errors = sorted(abs(p - nominal_s) for p in periods)
-        return errors[min(len(errors) - 1, int(len(errors) * 0.99))] * 1000.0
+        return _p99_ms([abs(p - nominal_s) for p in self.periods()])
+
+    def tick_p99_ms(self) -> float:
+        return _p99_ms(self.tick_durations())
+
+
+def _p99_ms(values_s: list[float]) -> float:
+    if not values_s:
+        return 0.0
+    values_s.sort()
+    return values_s[min(len(values_s) - 1, int(len(values_s) * 0.99))] * 1000.0
 
 
 class Driver(Worker):
@@ -147,6 +164,7 @@ class Driver(Worker):
             if self._safe_tick():
                 self.stats.ticks += 1
                 self.last_tick_monotonic = time.monotonic()
+                self.stats.add_tick(self.last_tick_monotonic - started)
                 self._safe_call(self.on_tick)
             now = time.monotonic()
             following = self.session.next_due(deadline, now)

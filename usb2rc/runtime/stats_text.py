@@ -16,6 +16,7 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("late_ticks", "late {}"),
     ("missed_ticks", "missed {}"),
     ("period_p99_error_ms", "p99 |period error| {:.3f} ms"),
+    ("tick_p99_ms", "p99 tick {:.3f} ms"),
     ("bytes_written", "bytes {}"),
     ("queue_full_skips", "queue-full skips {}"),
     ("write_timeouts", "write timeouts {}"),
