@@ -28,5 +28,8 @@ def test_bench_status_clients_prints_every_figure() -> None:
     for kind in ("none", "reading", "stuck"):
         assert figures[f"{kind}_frames"] > 1
         assert figures[f"{kind}_p99_error_ms"] >= 0
+        assert 0 < figures[f"{kind}_tick_p50_ms"] <= figures[f"{kind}_tick_p99_ms"]
+        assert figures[f"{kind}_inside_p99_error_ms"] >= 0
+    assert "reading_minus_none_tick_p99_ms" in figures
     assert figures["json_dumps_us_median"] > 0
     assert figures["line_us_median"] >= figures["json_dumps_us_median"]

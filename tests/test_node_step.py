@@ -218,6 +218,40 @@ def test_the_node_clock_runs_at_the_fastest_outputs_period_on_the_base_grid() ->
     assert clock_period([]) == pytest.approx(LIVENESS_PERIOD_S)  # monitor: no output
 
 
+def clearance_ms(phase: float, period: float, output_periods: list[float]) -> float:
+    """How close the clock's steps (phase + k periods, over 2 s) come to any output's tick."""
+    closest = period
+    for k in range(round(2.0 / period)):
+        at = k * period + phase
+        for p in output_periods:
+            closest = min(closest, at % p, p - at % p)
+    return round(closest * 1000, 6)
+
+
+def test_the_node_clock_steps_where_no_output_ticks() -> None:
+    """The clock's phase keeps its steps away from every output's ticks: half its period
+    for outputs on its own grid, elsewhere when a slower output's ticks fall on that half."""
+    from usb2rc.nodes.step import clock_period, clock_phase
+
+    assert clock_phase(0.020, [1 / 50]) == pytest.approx(0.010)  # C2-16B alone: halfway
+    # the default rates of all five outputs: the clock at CRSF's 4 ms; halfway (2 ms) falls
+    # on every other 10 ms tick of SUMD and SBUS, 1 ms (or 3) off the grid on none
+    five = [1 / 50, 1 / 100, 1 / 250, 1 / 100, 1 / 50]
+    period = clock_period(five)
+    assert clearance_ms(period / 2, period, five) == 0.0
+    phase = clock_phase(period, five)
+    assert phase in (pytest.approx(0.001), pytest.approx(0.003))
+    assert clearance_ms(phase, period, five) == pytest.approx(1.0)
+    # CRSF at 500 Hz ticks on every 2 ms: the clock (4 ms) steps between two of them
+    assert clock_phase(0.004, [1 / 50, 1 / 500]) == pytest.approx(0.001)
+    # rates that share no grid (SBUS at 70 Hz): no phase misses every tick, the best is taken
+    odd = [1 / 50, 1 / 70]
+    period = clock_period(odd)
+    best = clearance_ms(clock_phase(period, odd), period, odd)
+    assert best >= 0.2
+    assert all(clearance_ms(period * i / 40, period, odd) <= best + 0.1 for i in range(40))
+
+
 def test_the_node_clock_steps_halfway_between_two_grid_ticks() -> None:
     """The drivers tick on the multiples of the period; the clock steps half a period off
     them, so its wake-up and step never make a tick wait."""

@@ -33,9 +33,10 @@ from usb2rc.lines.link import Link
 from usb2rc.lines.rx import LinkReader
 from usb2rc.nodes.lifecycle import DeviceLifecycle
 from usb2rc.nodes.mapping import Mapping, compile_mapping, match_text
-from usb2rc.nodes.step import NodeClock, clock_period
+from usb2rc.nodes.step import NodeClock, clock_period, clock_phase
 from usb2rc.nodes.table import Expected, ExpectedEntry, NodeTable
 from usb2rc.runtime import stats_text
+from usb2rc.status_socket import PERIOD_S as STATUS_PERIOD_S
 from usb2rc.status_socket import StatusServer, StatusSource
 from usb2rc.wiring import OutputContext, build
 
@@ -49,6 +50,13 @@ JOIN_TIMEOUT_S = 0.5
 # whole slice each time: up to ~15 ms late with 5 ms slices (bench/bench_daemon.py, plug
 # figures). Busy readers hold the GIL ~0.1 ms per wake-up: they are not sliced more often.
 GIL_SWITCH_S = 0.0005
+
+
+def status_grid(clock_period_s: float, clock_phase_s: float) -> tuple[float, float]:
+    """The status socket's period and phase: its lines ride on the node clock's steps, a
+    whole number of them near STATUS_PERIOD_S apart, where no output ticks."""
+    steps = max(1, round(STATUS_PERIOD_S / clock_period_s))
+    return steps * clock_period_s, clock_phase_s
 
 
 class NoPortError(ValueError):
@@ -154,8 +162,11 @@ class Daemon:
         self._ready_lock = threading.Lock()
         self.outputs = [self._make_output(i, out) for i, out in enumerate(self.output_configs)]
         # the clock that steps the nodes whether or not an output reads, on the drivers' grid
-        periods = (out.thread.period_s for out in self.outputs)
-        self.node_clock = NodeClock(self.table.step_if_due, time.monotonic, clock_period(periods))
+        periods = [out.thread.period_s for out in self.outputs]
+        period = clock_period(periods)
+        self.node_clock = NodeClock(
+            self.table.step_if_due, time.monotonic, period, clock_phase(period, periods)
+        )
         self.lifecycle = DeviceLifecycle(
             backend, self.table, self.mapping, self._make_reader, forget=self._forget
         )
@@ -164,8 +175,14 @@ class Daemon:
         self._switch_interval: float | None = None  # the GIL's, to restore on stop()
         self._judge = judge
         self._checked: tuple[Config, dict[str, Any]] | None = None  # config, its check
+        status_period, status_phase = status_grid(period, self.node_clock.phase_s)
         self.status_server = (
-            StatusServer(status_socket, StatusSource(self.table, self.stats_record, self.checked))
+            StatusServer(
+                status_socket,
+                StatusSource(self.table, self.stats_record, self.checked),
+                period_s=status_period,
+                phase_s=status_phase,
+            )
             if status_socket
             else None
         )

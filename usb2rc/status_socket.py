@@ -20,6 +20,7 @@ import contextlib
 import errno
 import json
 import logging
+import math
 import os
 import selectors
 import socket
@@ -161,11 +162,16 @@ class StatusServer(Worker):
         status: Record,
         period_s: float = PERIOD_S,
         client_cap: int = CLIENT_CAP_BYTES,
+        phase_s: float = 0.0,
     ) -> None:
+        """`phase_s`: the lines go out at that offset from the multiples of `period_s` on
+        the monotonic clock (the daemon gives the node clock's grid, where no output ticks,
+        so that a line's work does not delay a tick)."""
         super().__init__("status-socket")
         self.path = path
         self._status = status
         self.period_s = period_s
+        self.phase_s = phase_s
         self.client_cap = client_cap
         self.counters = StatusCounters()
         self._listener: socket.socket | None = None
@@ -199,19 +205,24 @@ class StatusServer(Worker):
     # --- the thread ----------------------------------------------------------------------
 
     def run(self) -> None:
-        next_line = time.monotonic()
+        next_line = self.line_after(time.monotonic())
         while not self.stopping:
             now = time.monotonic()
             if now >= next_line:
                 if self._clients:  # nobody connected: no line built, no cost
                     self._broadcast(self._line())
-                next_line = max(next_line + self.period_s, now)  # late: no burst to catch up
+                next_line = self.line_after(max(next_line + self.period_s / 2, now))
             timeout = min(self.period_s, max(0.0, next_line - time.monotonic()))
             for key, mask in self._selector.select(timeout):
                 if key.fileobj is self._listener:
                     self._accept()
                 elif (client := self._clients.get(key.fd)) is not None:
                     self._serve(client, mask)
+
+    def line_after(self, now: float) -> float:
+        """The first line time after `now` (late: the next one, never a burst to catch up)."""
+        phase, period = self.phase_s, self.period_s
+        return (math.floor((now - phase) / period) + 1) * period + phase
 
     def _line(self) -> bytes | None:
         try:

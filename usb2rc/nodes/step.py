@@ -11,9 +11,9 @@ Decisions:
   rate;
 - the step for a period runs exactly once, whoever triggers it: each driver before each of
   its ticks (so a frame carries the newest records), or the `NodeClock` thread once per
-  fastest output's period, half a period off the ticks (so arming and trims never wait for
-  an output to tick: a `udpin` output nobody called, `monitor`; and no tick waits for the
-  clock), under the table lock, memoised. The clock
+  fastest output's period, at a phase away from every output's ticks (so arming and trims
+  never wait for an output to tick: a `udpin` output nobody called, `monitor`; and no tick
+  waits for the clock), under the table lock, memoised. The clock
   does not run at the base period: between two ticks of the fastest output no one reads
   a step, and stepping 250 times a second for a 50 Hz line was a third of the daemon's CPU
   (bench/README.md, "Issue 22, second pass");
@@ -39,6 +39,11 @@ from usb2rc.runtime.worker import Worker
 BASE_PERIOD_S = 0.004  # the step's grid: at most one step per period and set of records
 # With no output (`monitor`, the status socket alone): the snapshot stepped at 50 Hz.
 LIVENESS_PERIOD_S = 0.02
+# The clock's phase: this many offsets tried, over about a second of steps (at most this
+# many), once when the outputs are built.
+PHASE_CANDIDATES = 20
+PHASE_HORIZON_S = 1.0
+PHASE_HORIZON_STEPS = 250
 EARLY_WAKE_S = 0.0001  # the node clock's wake-up may come this much early (float rounding)
 
 
@@ -197,23 +202,50 @@ def clock_period(output_periods: Iterable[float]) -> float:
     return max(1, int(fastest / BASE_PERIOD_S + 1e-9)) * BASE_PERIOD_S
 
 
+def clock_phase(period_s: float, output_periods: Iterable[float]) -> float:
+    """Where in its period the node clock steps: of PHASE_CANDIDATES offsets from the grid,
+    the one whose steps stay farthest from every output's ticks (each output ticks on the
+    multiples of its own period) over PHASE_HORIZON_S; of equal ones, the nearest to half
+    the period. Half the period when the outputs tick only on the clock's own grid (one
+    output: always). With SUMD's 10 ms beside CRSF's 4 ms, half of 4 ms falls on every
+    other SUMD tick; 1 ms off the grid falls on none."""
+    periods = list(output_periods)
+    steps = max(1, min(PHASE_HORIZON_STEPS, round(PHASE_HORIZON_S / period_s)))
+
+    def clearance(phase: float) -> float:
+        """The step's closest approach to any tick (rounded: a float's residue is no gap)."""
+        closest = period_s
+        for k in range(steps):
+            at = k * period_s + phase
+            for period in periods:
+                left = at % period
+                closest = min(closest, left, period - left)
+        return round(closest, 7)
+
+    offsets = [period_s * i / PHASE_CANDIDATES for i in range(PHASE_CANDIDATES)]
+    return max(offsets, key=lambda phase: (clearance(phase), -abs(phase - period_s / 2)))
+
+
 class NodeClock(Worker):
     """The clock that keeps the snapshot live whether or not an output reads: `step`
-    (NodeTable.step_if_due) once per `period_s` (`clock_period`), half a period off the
-    multiples of it on the monotonic clock, the grid the drivers tick on: a step never wakes
-    with a tick. (On the grid, the clock's wake-up and step fell on every tick; just before
-    it, next to the readers' last call: bench/README.md, "Issue 21, the period error".)"""
+    (NodeTable.step_if_due) once per `period_s` (`clock_period`), `phase_s` (`clock_phase`)
+    off its multiples on the monotonic clock, where the outputs' ticks are not: the clock's
+    wake-up and step keep away from every tick. (On the grid, they fell on every tick; just
+    before it, next to the readers' last call: bench/README.md, "Issue 21, the period
+    error".)"""
 
     def __init__(
         self,
         step: Callable[[], object],
         clock: Callable[[], float],
         period_s: float = BASE_PERIOD_S,
+        phase_s: float | None = None,
     ) -> None:
         super().__init__("node-clock")
         self._step = step
         self._clock = clock
         self.period_s = period_s
+        self.phase_s = period_s / 2 if phase_s is None else phase_s
 
     def run(self) -> None:
         while not self.stopping:
@@ -222,10 +254,10 @@ class NodeClock(Worker):
                 return
 
     def until_next_step(self, now: float) -> float:
-        """From `now` to the next step: halfway between two grid ticks, the first such
-        moment more than EARLY_WAKE_S away (a wake-up a hair early, or a float's rounding,
-        must not step twice for one period; a step taken late waits for the next one)."""
-        period = self.period_s
-        phase = period / 2
+        """From `now` to the next step: `phase_s` after a multiple of the period, the first
+        such moment more than EARLY_WAKE_S away (a wake-up a hair early, or a float's
+        rounding, must not step twice for one period; a step taken late waits for the next
+        one)."""
+        period, phase = self.period_s, self.phase_s
         step = (math.floor((now - phase + EARLY_WAKE_S) / period) + 1) * period + phase
         return step - now
