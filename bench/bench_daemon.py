@@ -401,6 +401,9 @@ def run_crsf500(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
         missed, late = crsf.stats.missed_ticks - missed0, crsf.stats.late_ticks - late0
         ticks = crsf.stats.ticks - ticks0
         figures = driver_period_figures(periods[crsf], 1 / CRSF500_HZ, "crsf500")
+        took = crsf.stats.tick_durations()  # its last ticks (3000: 6 s), wake-up to written
+        figures["crsf500_tick_p50_ms"] = percentile(took, 0.50) * 1e3
+        figures["crsf500_tick_p99_ms"] = percentile(took, 0.99) * 1e3
         figures.update(driver_period_figures(periods[c2], PERIOD_S, "crsf500_c2"))
     finally:
         daemon.stop()
@@ -822,6 +825,7 @@ ROWS = [
     ("real_reports_per_s_min", "  reports/s consumed (slowest dev)", "/s", 1),
     ("crsf500_p99_error_ms", "CRSF 500 Hz: p99 |period - 2 ms|", "ms", 3),
     ("crsf500_p50_error_ms", "  p50", "ms", 3),
+    ("crsf500_tick_p99_ms", "  tick, wake-up to written: p99", "ms", 3),
     ("crsf500_missed_ticks", "  missed ticks", "", 0),
     ("crsf500_late_ticks", "  late ticks (> 1 ms)", "", 0),
     ("crsf500_c2_p99_error_ms", "  C2-16B beside it: p99 |period error|", "ms", 3),
