@@ -253,3 +253,12 @@ def test_a_paced_reader_counts_every_report_and_shows_the_last(tmp_path: Path) -
 )
 def test_reader_pause_wakes_before_the_grid_tick(now: float, expected: float) -> None:
     assert reader_pause(Pace(0.020, 0.020), now) == pytest.approx(expected)
+
+
+def test_on_a_fast_grid_the_drain_wakes_between_two_ticks_not_with_one() -> None:
+    """CRSF at 500 Hz: a 2 ms grid. A whole read-ahead (2 ms) before a tick is the tick
+    before it; the drain wakes halfway between them, the last call as on any grid."""
+    assert reader_pause(Pace(0.020, 0.002), 0.0185) == pytest.approx(0.0005)  # at 19 ms
+    assert reader_pause(Pace(0.020, 0.002), 0.019) == pytest.approx(0.001 - LAST_CALL_S)
+    after = 0.020 - LAST_CALL_S + 0.00001
+    assert after + reader_pause(Pace(0.020, 0.002), after) == pytest.approx(0.021)

@@ -70,10 +70,13 @@ def reader_pause(tick: GridTick, now: float) -> float:
     (the bulk of a tick's reports), then until LAST_CALL_S before it (the one or two since),
     then until READ_AHEAD_S before the tick after. Two wake-ups per tick instead of one per
     report in the last READ_AHEAD_S; a report in the last LAST_CALL_S goes with the next
-    tick (the tick's own wake-up is not more precise than that). 0 when the tick is past
-    (the clock has not started, or stopped ticking): read as reports come."""
+    tick (the tick's own wake-up is not more precise than that). A grid faster than two
+    read-aheads (CRSF at 500 Hz: 2 ms) reads ahead by half its period: a whole period ahead,
+    the drain woke with the tick before. 0 when the tick is past (the clock has not started,
+    or stopped ticking): read as reports come."""
     due = tick.deadline
-    for wake in (due - READ_AHEAD_S, due - LAST_CALL_S, due + tick.period_s - READ_AHEAD_S):
+    ahead = min(READ_AHEAD_S, tick.period_s / 2)
+    for wake in (due - ahead, due - LAST_CALL_S, due + tick.period_s - ahead):
         if wake > now:
             return wake - now
     return 0.0
