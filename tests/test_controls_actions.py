@@ -4,6 +4,8 @@ mode names for ArduPilot Copter and PX4, decoded with pymavlink."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from typing import Any
 
 import pytest
@@ -157,3 +159,25 @@ def test_the_stats_line_shows_the_actions_and_the_last_result() -> None:
     text = output_line(record)
     assert "actions: fired 1, commands sent 1, acked 1, unanswered 0, refused 0" in text
     assert text.endswith("last: node0.button2: mode LOITER: MAV_RESULT_DENIED")
+
+
+def test_mavutil_is_imported_only_for_an_output_that_names_a_mode() -> None:
+    """pymavlink's mavutil (about 9 MB of RSS) is loaded for the mode maps only: never for a
+    MAVLink output whose actions name no mode, and for one that does when it is built, not
+    at the first press (that would be an import inside a tick)."""
+    script = """
+import sys
+from usb2rc.config.controls_model import ActionConfig
+from usb2rc.configfile import ChannelRef
+from usb2rc.protocols.mavlink.actions import ActionRunner
+import usb2rc.protocols.mavlink.session, usb2rc.wiring
+button = ChannelRef(0, "button", 1, "node0.button1")
+ActionRunner([ActionConfig("arm", button), ActionConfig("command_long", button)], None, (1, 1))
+print("pymavlink.mavutil" in sys.modules)
+ActionRunner([ActionConfig("rtl", button)], None, (1, 1))
+print("pymavlink.mavutil" in sys.modules)
+"""
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, check=True, timeout=60
+    ).stdout.split()
+    assert out == ["False", "True"]

@@ -32,12 +32,24 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink2
 
 from usb2rc.config.controls_model import ActionConfig
 
 log = logging.getLogger(__name__)
+
+NEEDS_MODE_MAPS = ("mode", "rtl", "land")  # action kinds that look up a mode by name
+
+
+def mode_maps() -> Any:  # pymavlink has no types
+    """pymavlink's `mavutil`, for its mode maps only. Importing it loads a whole dialect,
+    about 9 MB of RSS on a Pi that may have 512 MB: an output whose actions name no mode
+    never imports it, and one whose actions do imports it when it is built (never in a
+    tick)."""
+    from pymavlink import mavutil
+
+    return mavutil
+
 
 TRIES = 3
 RETRY_S = 1.0
@@ -98,6 +110,8 @@ class ActionRunner:
         self.stats = ActionStats()
         self._states = [_State() for _ in self.actions]
         self._pending: dict[int, _Pending] = {}
+        if any(action.kind in NEEDS_MODE_MAPS for action in self.actions):
+            mode_maps()
 
     def tick(self, now: float, triggers: Sequence[bool], failsafe: bool) -> list[Any]:
         """This tick's COMMAND_LONGs: actions whose hold completed, and retries due."""
@@ -226,6 +240,7 @@ class ActionRunner:
 def set_mode(name: str, vehicle: Vehicle) -> tuple[int, tuple[float, ...]] | None:
     """DO_SET_MODE's command and params for a mode name on this vehicle, or None."""
     custom = float(mavlink2.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)
+    mavutil = mode_maps()
     if vehicle.autopilot == PX4:
         px4 = mavutil.px4_map.get(name)
         if px4 is None:
@@ -240,6 +255,7 @@ def set_mode(name: str, vehicle: Vehicle) -> tuple[int, tuple[float, ...]] | Non
 
 def mode_names(autopilot: int, vehicle_type: int) -> list[str]:
     """The mode names a vehicle takes (for messages and `check`)."""
+    mavutil = mode_maps()
     if autopilot == PX4:
         return sorted(mavutil.px4_map)
     return sorted(mavutil.mode_mapping_byname(vehicle_type) or {})
