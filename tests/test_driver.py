@@ -9,6 +9,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import pytest
 import serial
 from daemon_harness import PtyLine, StickState
 from test_node_table_driver import BINDING, Source, info
@@ -167,5 +168,15 @@ def test_every_driver_ticks_on_multiples_of_its_period_from_one_epoch() -> None:
     fifty = {round(first + k * 0.02, 6) for k in range(10)}
     hundred = {round(second + k * 0.01, 6) for k in range(20)}
     assert fifty - {round(first, 6)} <= hundred
-    assert earliest([Pace(0.0, 0.02), Pace(2.0, 0.01), Pace(1.5, 0.02)]) == Pace(1.5, 0.02)
+    assert earliest([Pace(0.0, 0.02), Pace(2.0, 0.01), Pace(1.5, 0.02)]) == Pace(
+        1.5, pytest.approx(0.02)
+    )
     assert earliest([Pace(0.0, 0.02)]) is None  # nobody ticks yet
+
+
+def test_the_readers_pace_is_the_next_tick_and_the_gap_to_the_one_after_of_any_output() -> None:
+    """C2-16B (20 ms) and SUMD (10 ms) due together: the tick after is SUMD's, 10 ms on,
+    whichever the readers read first; CRSF (4 ms) at 8 ms and SUMD at 10 ms: 2 ms on."""
+    assert earliest([Pace(1.00, 0.020), Pace(1.00, 0.010)]) == Pace(1.00, pytest.approx(0.010))
+    assert earliest([Pace(1.00, 0.010), Pace(1.00, 0.020)]) == Pace(1.00, pytest.approx(0.010))
+    assert earliest([Pace(0.008, 0.004), Pace(0.010, 0.010)]) == Pace(0.008, pytest.approx(0.002))

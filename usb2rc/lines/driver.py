@@ -59,9 +59,17 @@ class Pace:
 
 
 def earliest(paces: Iterable[Pace]) -> Pace | None:
-    """The next tick of any output (None: no output ticks): what a reader wakes for."""
+    """The next tick of any output (None: no output ticks): what a reader wakes for. Its
+    `period_s` is the gap from it to the tick after it, of whichever output: two outputs
+    due together (C2-16B's 20 ms and SUMD's 10 ms), or a slower one due sooner than the
+    faster one's next, must not send a reader to sleep past a tick (it would miss a
+    release, and a tap would show in two frames)."""
     ticking = [pace for pace in paces if pace.deadline]
-    return min(ticking, key=lambda pace: pace.deadline) if ticking else None
+    if not ticking:
+        return None
+    due = min(pace.deadline for pace in ticking)
+    after = min(p.deadline if p.deadline > due else p.deadline + p.period_s for p in ticking)
+    return Pace(due, after - due)
 
 
 @dataclass
