@@ -36,7 +36,9 @@ from usb2rc.protocols.c2_16b.codec import FAILSAFE, LIVE
 
 INVERTED, PLAIN = 32767, -32768  # node 4's X with and without `invert: true`
 DEADLINE_S = 15.0
-MOVED_STICK = recording([StickState(), StickState(x=0)])  # at rest first: the guard arms
+# At rest first, long enough for the guard to arm on a starved machine (two busy loops on
+# both cores: the reader got to the rest report too late for a 0.1 s rest, 4 runs in 20).
+MOVED_STICK = recording([StickState(), StickState(x=0)], hold_s=0.5)
 
 
 def with_port(text: str, port: str) -> str:
@@ -216,7 +218,11 @@ def test_sigterm_while_a_reload_waits_on_the_file_abandons_it(tmp_path, line, re
         writer = open_when_read(config, daemon)  # the reload is in open()/read() now
         after = len(line.frames())
         daemon.signal(signal.SIGTERM)
-        assert first_failsafe_after(line, after) < 25
+        try:
+            live_after_stop = first_failsafe_after(line, after)
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}; the daemon's log:\n{daemon.log()}") from None
+        assert live_after_stop < 25
         assert daemon.proc.wait(DEADLINE_S) == 0
     finally:
         daemon.stop()
