@@ -255,10 +255,14 @@ def test_reader_pause_wakes_before_the_grid_tick(now: float, expected: float) ->
     assert reader_pause(Pace(0.020, 0.020), now) == pytest.approx(expected)
 
 
-def test_on_a_fast_grid_the_drain_wakes_between_two_ticks_not_with_one() -> None:
-    """CRSF at 500 Hz: a 2 ms grid. A whole read-ahead (2 ms) before a tick is the tick
-    before it; the drain wakes halfway between them, the last call as on any grid."""
-    assert reader_pause(Pace(0.020, 0.002), 0.0185) == pytest.approx(0.0005)  # at 19 ms
-    assert reader_pause(Pace(0.020, 0.002), 0.019) == pytest.approx(0.001 - LAST_CALL_S)
-    after = 0.020 - LAST_CALL_S + 0.00001
-    assert after + reader_pause(Pace(0.020, 0.002), after) == pytest.approx(0.021)
+def test_on_a_fast_grid_a_reader_wakes_once_per_tick_at_its_last_call() -> None:
+    """CRSF at 500 or 250 Hz, or SUMD's tick 2 ms after CRSF's: the next tick is at most two
+    read-aheads away, and the reader wakes once for it, at its last call (a bulk wake-up
+    would fall on or next to the tick before). A longer gap keeps the bulk wake-up."""
+    last = 0.020 - LAST_CALL_S + 0.00001  # just after the last call before the tick at 20 ms
+    for gap in (0.002, 0.004):
+        assert last + reader_pause(Pace(0.020, gap), last) == pytest.approx(
+            0.020 + gap - LAST_CALL_S
+        )
+    assert last + reader_pause(Pace(0.020, 0.0041), last) == pytest.approx(0.0241 - READ_AHEAD_S)
+    assert reader_pause(Pace(0.020, 0.002), 0.0185) == pytest.approx(0.00125)  # its last call

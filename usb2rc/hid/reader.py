@@ -68,15 +68,17 @@ NextTick = Callable[[], GridTick]
 def reader_pause(tick: GridTick, now: float) -> float:
     """How long a busy reader may sleep at `now`: until READ_AHEAD_S before the next tick
     (the bulk of a tick's reports), then until LAST_CALL_S before it (the one or two since),
-    then until READ_AHEAD_S before the tick after. Two wake-ups per tick instead of one per
+    then until the tick after's first wake-up. Two wake-ups per tick instead of one per
     report in the last READ_AHEAD_S; a report in the last LAST_CALL_S goes with the next
-    tick (the tick's own wake-up is not more precise than that). A grid faster than two
-    read-aheads (CRSF at 500 Hz: 2 ms) reads ahead by half its period: a whole period ahead,
-    the drain woke with the tick before. 0 when the tick is past (the clock has not started,
-    or stopped ticking): read as reports come."""
-    due = tick.deadline
-    ahead = min(READ_AHEAD_S, tick.period_s / 2)
-    for wake in (due - ahead, due - LAST_CALL_S, due + tick.period_s - ahead):
+    tick (the tick's own wake-up is not more precise than that). `tick.period_s` is the gap
+    to the tick after, of any output: when it is no longer than two read-aheads (CRSF at
+    250 or 500 Hz, SUMD's tick 2 ms after CRSF's), the reader wakes once for it, at its last
+    call: a bulk wake-up there would fall on or next to the tick before, for a few reports.
+    0 when the tick is past (the clock has not started, or stopped ticking): read as
+    reports come."""
+    due, gap = tick.deadline, tick.period_s
+    ahead = READ_AHEAD_S if gap > 2 * READ_AHEAD_S else LAST_CALL_S
+    for wake in (due - READ_AHEAD_S, due - LAST_CALL_S, due + gap - ahead):
         if wake > now:
             return wake - now
     return 0.0
