@@ -53,6 +53,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -354,10 +355,9 @@ def driver_period_figures(
     }
 
 
-def take_periods(stats: Any) -> list[float]:
-    """The periods a driver noted since the last call (it keeps only its last few thousand:
-    6 s at 500 Hz). `popleft` while the driver appends on the right loses none."""
-    kept = stats.periods_s
+def take_all(kept: deque[float]) -> list[float]:
+    """What a driver noted in one of its deques since the last call (it keeps only its last
+    few thousand: 6 s at 500 Hz). `popleft` while the driver appends on the right loses none."""
     return [kept.popleft() for _ in range(len(kept))]
 
 
@@ -391,13 +391,13 @@ def run_crsf500(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
         time.sleep(warmup)
         periods: dict[Any, list[float]] = {c2: [], crsf: []}
         for driver in periods:
-            take_periods(driver.stats)
+            take_all(driver.stats.periods_s)
         missed0, late0, ticks0 = crsf.stats.missed_ticks, crsf.stats.late_ticks, crsf.stats.ticks
         end = time.monotonic() + window
         while (left := end - time.monotonic()) > 0:
             time.sleep(min(1.0, left))
             for driver, kept in periods.items():
-                kept.extend(take_periods(driver.stats))
+                kept.extend(take_all(driver.stats.periods_s))
         missed, late = crsf.stats.missed_ticks - missed0, crsf.stats.late_ticks - late0
         ticks = crsf.stats.ticks - ticks0
         figures = driver_period_figures(periods[crsf], 1 / CRSF500_HZ, "crsf500")

@@ -44,13 +44,12 @@ import sys
 import tempfile
 import threading
 import time
-from collections import deque
 from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_daemon import PERIOD_S, PtyReader, percentile, ramp_recording
+from bench_daemon import PERIOD_S, PtyReader, percentile, ramp_recording, take_all
 
 CLIENTS = 5
 KINDS = ("none", "reading", "stuck")
@@ -141,11 +140,6 @@ class ClientsProcess:
         assert self.proc.stdin
         self.proc.stdin.close()
         self.proc.wait(10)
-
-
-def take_all(kept: deque[float]) -> list[float]:
-    """What a driver noted since the last call (`popleft` while it appends: none lost)."""
-    return [kept.popleft() for _ in range(len(kept))]
 
 
 def run(seconds: float, rounds: int) -> dict[str, Any]:
