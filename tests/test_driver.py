@@ -14,7 +14,17 @@ import serial
 from daemon_harness import PtyLine, StickState
 from test_node_table_driver import BINDING, Source, info
 
-from usb2rc.lines.driver import Driver, Pace, aligned, earliest
+from usb2rc.lines.driver import (
+    LEAD_FIRST_S,
+    LEAD_MARGIN_S,
+    LEAD_MAX_SHARE,
+    LEAD_WINDOW,
+    Driver,
+    Lead,
+    Pace,
+    aligned,
+    earliest,
+)
 from usb2rc.lines.rx import LinkReader
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.nodes.mapping import ChannelSource
@@ -180,3 +190,67 @@ def test_the_readers_pace_is_the_next_tick_and_the_gap_to_the_one_after_of_any_o
     assert earliest([Pace(1.00, 0.020), Pace(1.00, 0.010)]) == Pace(1.00, pytest.approx(0.010))
     assert earliest([Pace(1.00, 0.010), Pace(1.00, 0.020)]) == Pace(1.00, pytest.approx(0.010))
     assert earliest([Pace(0.008, 0.004), Pace(0.010, 0.010)]) == Pace(0.008, pytest.approx(0.002))
+
+
+def test_a_tick_makes_its_bytes_ahead_and_writes_them_on_its_deadline() -> None:
+    """The records are read and the frame made `lead` before the deadline; the write waits
+    for the deadline, so frames go out on the grid whatever the step and the session cost.
+    The readers pace on the tick's start, not on its write."""
+    far = PtyLine("c2-16b")
+    table = NodeTable()
+    table.add_device(0, info("k0", "1-0"), BINDING, Source.of(StickState()), "JOYSTICK")
+    link = SerialLink(far.path, 921600)
+    session = C2Line(far.path, C2Settings(rate_hz=100, baudrate=921600, version="0.1.0"))
+    driver = Driver("c2", link, session, table.step_if_due, 0.01)
+    this_tick: dict[str, Any] = {}
+    written: list[dict[str, Any]] = []  # per write: the tick's deadline, start, pace, times
+    session_tick, link_write, tick = session.tick, link.write, driver.tick
+
+    def recorded_tick(deadline: float | None = None, start: float = 0.0) -> None:
+        this_tick.clear()
+        this_tick.update(deadline=deadline, start=start, pace=driver.pace)
+        tick(deadline, start)
+
+    def timed_session_tick(now: float, snapshot: Any) -> bytes:
+        this_tick["made"] = time.monotonic()
+        return session_tick(now, snapshot)
+
+    def timed_write(data: bytes) -> Any:
+        written.append({**this_tick, "written": time.monotonic()})
+        return link_write(data)
+
+    driver.tick = recorded_tick  # type: ignore[method-assign]
+    session.tick = timed_session_tick  # type: ignore[method-assign]
+    link.write = timed_write  # type: ignore[method-assign]
+    assert link.open_now()
+    driver.start()
+    try:
+        until(lambda: len(written) >= 60, "60 written ticks")
+    finally:
+        driver.stop()
+        driver.join(WAIT_S)
+        far.close()
+    on_grid = [w for w in written if w["deadline"] is not None]  # the final ticks: at once
+    assert len(on_grid) >= 60
+    for w in on_grid:
+        assert w["start"] < w["deadline"] <= w["written"]  # never before its moment
+        assert w["made"] <= w["written"]
+        assert round(w["deadline"] / 0.01) * 0.01 == pytest.approx(w["deadline"])
+        assert w["pace"].deadline == w["start"]  # what the readers pace on
+    assert 0.0 < driver.lead.s <= 0.01 * LEAD_MAX_SHARE
+
+
+def test_the_lead_is_the_ticks_recent_cost_and_one_held_up_tick_does_not_move_it() -> None:
+    lead = Lead(0.02)
+    assert lead.s == LEAD_FIRST_S
+    costs = [0.0003] * (LEAD_WINDOW - 2) + [0.009, 0.012]  # two ticks the host held up
+    for cost in costs:
+        lead.took(cost, 0.02)
+    assert lead.s == pytest.approx(0.0003 + LEAD_MARGIN_S)
+    for _ in range(LEAD_WINDOW):  # a machine slower than a quarter period: capped there
+        lead.took(0.009, 0.02)
+    assert lead.s == pytest.approx(0.02 * LEAD_MAX_SHARE)
+    for _ in range(LEAD_WINDOW):  # a faster one: the lead follows it back down
+        lead.took(0.00001, 0.02)
+    assert lead.s == pytest.approx(0.00001 + LEAD_MARGIN_S)
+    assert Lead(0.001).s == pytest.approx(0.001 * LEAD_MAX_SHARE)  # CRSF at 1 kHz

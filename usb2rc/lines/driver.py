@@ -11,6 +11,12 @@ Once a tick, on absolute monotonic deadlines, the driver
 It knows no protocol: what to send, when to stall, when to flush, when the next tick is due
 (`session.next_due`) are the session's. A late tick is counted, never caught up with a burst.
 
+Ready before, written on the moment: a tick starts `Lead.s` before its deadline (the tick's
+own recent cost, `Lead`), and its bytes wait for the deadline, so they go out on the grid
+whatever the node step and the session cost this time, as a transmitter's mixer runs ahead
+of its frame timer. The readers pace on that start (`Pace.deadline`), so the records are
+as fresh as before; only the write waits.
+
 One clock: a driver's ticks fall on the multiples of its period on the monotonic clock, the
 node clock's epoch (`aligned`), whenever it starts. Outputs whose periods are multiples of
 one another (the defaults: 20, 10, 4 ms) tick together, on the 4 ms grid of the node step
@@ -41,6 +47,10 @@ log = logging.getLogger("usb2rc.lines")
 PERIODS_KEPT = 3000
 FINAL_TICKS_S = 0.25  # at most this long for the failsafe frames when usb2rc stops
 STALL_LOG_QUIET_S = 10.0  # a line that stalls again and again is logged once in this long
+LEAD_FIRST_S = 0.0005  # how long before its deadline a tick starts, until it has measured itself
+LEAD_MARGIN_S = 0.0002  # over the tick's recent cost (its p95): a wake-up is often 0.1 ms late
+LEAD_MAX_SHARE = 0.25  # never more than a quarter period: the records' age
+LEAD_WINDOW = 50  # ticks measured between two updates of the lead
 
 
 def aligned(now: float, period_s: float) -> float:
@@ -50,9 +60,9 @@ def aligned(now: float, period_s: float) -> float:
 
 @dataclass(frozen=True)
 class Pace:
-    """When a driver's next tick is due (monotonic) and its period now: one
-    value, so a reader pacing on it never pairs one tick's deadline with another's period.
-    Only the driver's own thread replaces it, whole."""
+    """When a driver's next tick starts (monotonic: its deadline less its lead, when it
+    reads the records) and its period now: one value, so a reader pacing on it never pairs
+    one tick's start with another's period. Only the driver's own thread replaces it, whole."""
 
     deadline: float
     period_s: float
@@ -72,6 +82,29 @@ def earliest(paces: Iterable[Pace]) -> Pace | None:
     return Pace(due, after - due)
 
 
+class Lead:
+    """How long before its deadline a tick starts, so that its bytes are ready on time:
+    the p95 of what the last LEAD_WINDOW ticks took from their planned start to their bytes
+    (the wake-up's lateness included), plus LEAD_MARGIN_S, at most a quarter period. It
+    follows the machine (a Pi, a VM) and the load (devices, outputs), and a single tick held
+    up by the host moves it by nothing. One driver thread owns it."""
+
+    def __init__(self, period_s: float) -> None:
+        self.s = min(LEAD_FIRST_S, period_s * LEAD_MAX_SHARE)
+        self._costs: list[float] = []
+
+    def took(self, cost_s: float, period_s: float) -> None:
+        """A tick's bytes were ready `cost_s` after its planned start."""
+        costs = self._costs
+        costs.append(cost_s)
+        if len(costs) < LEAD_WINDOW:
+            return
+        costs.sort()
+        p95 = costs[int(len(costs) * 0.95)]
+        self.s = min(period_s * LEAD_MAX_SHARE, p95 + LEAD_MARGIN_S)
+        costs.clear()
+
+
 @dataclass
 class OutputStats:
     """Counters of one output. The driver writes them; `stats_lines` reads them from
@@ -85,8 +118,9 @@ class OutputStats:
     tick_errors: int = 0
     stalls: int = 0
     periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
-    # how long each tick took, wake-up to written: what a tick costs, whatever the wake-up's
-    # jitter (other threads' work, a status client, shows here)
+    # how long each tick took, wake-up to written (its wait for the deadline left out): what
+    # a tick costs, whatever the wake-up's jitter (other threads' work, a status client, shows
+    # here)
     ticks_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
     _periods_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
@@ -142,11 +176,13 @@ class Driver(Worker):
         self.session = session
         self.snapshot = snapshot
         self.pace = Pace(0.0, period_s)  # deadline 0: not ticking yet
+        self.lead = Lead(period_s)
         self.stats = OutputStats()
         self.on_tick = on_tick
         self.on_first_write = on_first_write
         self.last_tick_monotonic = 0.0
         self._last_write = 0.0
+        self._waited_s = 0.0  # this tick's wait for its deadline, bytes ready
         self._logged_errors: set[str] = set()
         self._stalled_since = 0.0
         self._stall_logged_at = -STALL_LOG_QUIET_S
@@ -162,17 +198,18 @@ class Driver(Worker):
     def run(self) -> None:
         deadline = aligned(time.monotonic(), self.period_s)
         while not self.stopping:
-            self.pace = Pace(deadline, self.period_s)
-            delay = deadline - time.monotonic()
+            start = deadline - self.lead.s
+            self.pace = Pace(start, self.period_s)
+            delay = start - time.monotonic()
             if delay > 0 and self._wait(delay):
                 break
             started = time.monotonic()
-            if started - deadline > self.period_s / 2:
+            if started - start > self.period_s / 2:
                 self.stats.late_ticks += 1
-            if self._safe_tick():
+            if self._safe_tick(deadline, start):
                 self.stats.ticks += 1
                 self.last_tick_monotonic = time.monotonic()
-                self.stats.add_tick(self.last_tick_monotonic - started)
+                self.stats.add_tick(self.last_tick_monotonic - started - self._waited_s)
                 self._safe_call(self.on_tick)
             now = time.monotonic()
             following = self.session.next_due(deadline, now)
@@ -196,12 +233,12 @@ class Driver(Worker):
             self._follow_backpressure()
         return self.sleep(max(0.0, end - time.monotonic()))
 
-    def _safe_tick(self) -> bool:
+    def _safe_tick(self, deadline: float | None = None, start: float = 0.0) -> bool:
         """One tick; a bug in it is logged (once per kind) and counted, never kills the
         thread. A failed tick does not count as alive, so a driver that keeps failing
         starves the watchdog and systemd restarts it."""
         try:
-            self.tick()
+            self.tick(deadline, start)
         except Exception as exc:
             self.stats.tick_errors += 1
             frame = traceback.extract_tb(exc.__traceback__)[-1]
@@ -222,14 +259,28 @@ class Driver(Worker):
 
     # --- one tick ----------------------------------------------------------------------------
 
-    def tick(self) -> None:
+    def tick(self, deadline: float | None = None, start: float = 0.0) -> None:
+        """One tick: the link followed, the bytes made, then written at `deadline` (None:
+        at once, as the final ticks are). `start`: when it was planned to begin."""
         self._follow_link()
         self._follow_backpressure()
         was_stalled = self.session.stalled
         data = self.session.tick(time.monotonic(), self.snapshot())
+        self._waited_s = 0.0
+        if deadline is not None:
+            self._until(deadline, start, bool(data))
         written = self._send(data)
         if self.session.stalled and not was_stalled:
             self._stall_began(written, len(data))
+
+    def _until(self, deadline: float, start: float, writing: bool) -> None:
+        """The bytes are ready: the lead learns what that took; they wait for the deadline.
+        A stop during the wait still writes them (the final ticks follow)."""
+        ready = time.monotonic()
+        self.lead.took(ready - start, self.period_s)
+        if writing and deadline > ready:
+            self._waited_s = deadline - ready
+            self.sleep(self._waited_s)
 
     def _follow_link(self) -> None:
         """The line's events, in this thread only: a new port is adopted (and the session
