@@ -190,6 +190,10 @@ def test_the_readers_pace_is_the_next_tick_and_the_gap_to_the_one_after_of_any_o
     assert earliest([Pace(1.00, 0.020), Pace(1.00, 0.010)]) == Pace(1.00, pytest.approx(0.010))
     assert earliest([Pace(1.00, 0.010), Pace(1.00, 0.020)]) == Pace(1.00, pytest.approx(0.010))
     assert earliest([Pace(0.008, 0.004), Pace(0.010, 0.010)]) == Pace(0.008, pytest.approx(0.002))
+    # due together at 1.0, started each its lead before it: one tick for the readers
+    together = earliest([Pace(0.9995, 0.020), Pace(0.9997, 0.010)])
+    assert together == Pace(0.9995, pytest.approx(1.0097 - 0.9995))
+    assert earliest([Pace(1.0, 0.001)]) == Pace(1.0, pytest.approx(0.001))  # CRSF at 1 kHz
 
 
 def test_a_tick_makes_its_bytes_ahead_and_writes_them_on_its_deadline() -> None:

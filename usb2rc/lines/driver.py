@@ -51,6 +51,7 @@ LEAD_FIRST_S = 0.0005  # how long before its deadline a tick starts, until it ha
 LEAD_MARGIN_S = 0.0002  # over the tick's recent cost (its p95): a wake-up is often 0.1 ms late
 LEAD_MAX_SHARE = 0.25  # never more than a quarter period: the records' age
 LEAD_WINDOW = 50  # ticks measured between two updates of the lead
+SAME_TICK_S = 0.0005  # starts this close are one tick for the readers (< half of 1 kHz)
 
 
 def aligned(now: float, period_s: float) -> float:
@@ -73,13 +74,24 @@ def earliest(paces: Iterable[Pace]) -> Pace | None:
     `period_s` is the gap from it to the tick after it, of whichever output: two outputs
     due together (C2-16B's 20 ms and SUMD's 10 ms), or a slower one due sooner than the
     faster one's next, must not send a reader to sleep past a tick (it would miss a
-    release, and a tap would show in two frames)."""
+    release, and a tap would show in two frames). Outputs due together start apart, each
+    its own lead before the deadline: starts within SAME_TICK_S of the first are one tick
+    for the readers (one wake-up, not one per output)."""
     ticking = [pace for pace in paces if pace.deadline]
     if not ticking:
         return None
     due = min(pace.deadline for pace in ticking)
-    after = min(p.deadline if p.deadline > due else p.deadline + p.period_s for p in ticking)
+    after = min(_start_after(pace, due + SAME_TICK_S) for pace in ticking)
     return Pace(due, after - due)
+
+
+def _start_after(pace: Pace, moment: float) -> float:
+    """The first start of `pace`'s output after `moment`."""
+    if pace.deadline > moment:
+        return pace.deadline
+    return (
+        pace.deadline + (math.floor((moment - pace.deadline) / pace.period_s) + 1) * pace.period_s
+    )
 
 
 class Lead:
