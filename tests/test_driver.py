@@ -14,6 +14,7 @@ import serial
 from daemon_harness import PtyLine, StickState
 from test_node_table_driver import BINDING, Source, info
 
+from usb2rc.hid.reader import LAST_CALL_S, reader_pause
 from usb2rc.lines.driver import (
     LEAD_FIRST_S,
     LEAD_MARGIN_S,
@@ -178,22 +179,40 @@ def test_every_driver_ticks_on_multiples_of_its_period_from_one_epoch() -> None:
     fifty = {round(first + k * 0.02, 6) for k in range(10)}
     hundred = {round(second + k * 0.01, 6) for k in range(20)}
     assert fifty - {round(first, 6)} <= hundred
-    assert earliest([Pace(0.0, 0.02), Pace(2.0, 0.01), Pace(1.5, 0.02)]) == Pace(
+    assert earliest([Pace(0.0, 0.02), Pace(2.0, 0.01), Pace(1.5, 0.02)], 1.0) == Pace(
         1.5, pytest.approx(0.02)
     )
-    assert earliest([Pace(0.0, 0.02)]) is None  # nobody ticks yet
+    assert earliest([Pace(0.0, 0.02)], 1.0) is None  # nobody ticks yet
 
 
 def test_the_readers_pace_is_the_next_tick_and_the_gap_to_the_one_after_of_any_output() -> None:
     """C2-16B (20 ms) and SUMD (10 ms) due together: the tick after is SUMD's, 10 ms on,
     whichever the readers read first; CRSF (4 ms) at 8 ms and SUMD at 10 ms: 2 ms on."""
-    assert earliest([Pace(1.00, 0.020), Pace(1.00, 0.010)]) == Pace(1.00, pytest.approx(0.010))
-    assert earliest([Pace(1.00, 0.010), Pace(1.00, 0.020)]) == Pace(1.00, pytest.approx(0.010))
-    assert earliest([Pace(0.008, 0.004), Pace(0.010, 0.010)]) == Pace(0.008, pytest.approx(0.002))
+    now = 0.99
+    both = earliest([Pace(1.00, 0.020), Pace(1.00, 0.010)], now)
+    assert both == Pace(1.00, pytest.approx(0.010))
+    both = earliest([Pace(1.00, 0.010), Pace(1.00, 0.020)], now)
+    assert both == Pace(1.00, pytest.approx(0.010))
+    crsf_then_sumd = earliest([Pace(0.008, 0.004), Pace(0.010, 0.010)], 0.0)
+    assert crsf_then_sumd == Pace(0.008, pytest.approx(0.002))
     # due together at 1.0, started each its lead before it: one tick for the readers
-    together = earliest([Pace(0.9995, 0.020), Pace(0.9997, 0.010)])
+    together = earliest([Pace(0.9995, 0.020), Pace(0.9997, 0.010)], now)
     assert together == Pace(0.9995, pytest.approx(1.0097 - 0.9995))
-    assert earliest([Pace(1.0, 0.001)]) == Pace(1.0, pytest.approx(0.001))  # CRSF at 1 kHz
+    assert earliest([Pace(1.0, 0.001)], now) == Pace(1.0, pytest.approx(0.001))  # CRSF 1 kHz
+
+
+def test_a_driver_between_its_start_and_its_write_paces_the_readers_on_its_next_start() -> None:
+    """C2-16B started at 0.9995 and waits to write at 1.0: its records are read, so a
+    reader asking now sleeps until the next tick of any output (SUMD's at 1.0097), not
+    until the start it has passed. That past start had given a reader no pause at all on a
+    fast grid: it polled through every wait, a drain per report."""
+    c2_mid_tick, sumd = Pace(0.9995, 0.020), Pace(1.0097, 0.010)
+    now = 0.9998
+    assert earliest([c2_mid_tick, sumd], now) == Pace(1.0097, pytest.approx(1.0195 - 1.0097))
+    assert earliest([c2_mid_tick], now) == Pace(pytest.approx(1.0195), pytest.approx(0.020))
+    crsf_mid_tick = Pace(0.9995, 0.004)  # CRSF at 250 Hz, alone
+    tick = earliest([crsf_mid_tick], now)
+    assert tick is not None and reader_pause(tick, now) == pytest.approx(1.0035 - LAST_CALL_S - now)
 
 
 def test_a_tick_makes_its_bytes_ahead_and_writes_them_on_its_deadline() -> None:

@@ -12,7 +12,13 @@ from test_replay import numbered, recording_text
 
 from usb2rc.hid.backend import DeviceInfo, ErrorCode
 from usb2rc.hid.descriptor import InputState, parse_descriptor
-from usb2rc.hid.reader import LAST_CALL_S, READ_AHEAD_S, DeviceReader, reader_pause
+from usb2rc.hid.reader import (
+    LAST_CALL_S,
+    ONE_WAKE_GAP_S,
+    READ_AHEAD_S,
+    DeviceReader,
+    reader_pause,
+)
 from usb2rc.hid.replay import ReplayBackend, install_file
 from usb2rc.lines.driver import Pace
 
@@ -258,11 +264,16 @@ def test_reader_pause_wakes_before_the_grid_tick(now: float, expected: float) ->
 def test_on_a_fast_grid_a_reader_wakes_once_per_tick_at_its_last_call() -> None:
     """CRSF at 500 or 250 Hz, or SUMD's tick 2 ms after CRSF's: the next tick is at most two
     read-aheads away, and the reader wakes once for it, at its last call (a bulk wake-up
-    would fall on or next to the tick before). A longer gap keeps the bulk wake-up."""
+    would fall on or next to the tick before). The gap is between two ticks' starts, each
+    its own lead before the grid: CRSF's 4 ms after C2-16B's measures 4.1 ms when their
+    leads differ by 0.1 ms, and is still one wake-up. A longer gap keeps the bulk wake-up."""
     last = 0.020 - LAST_CALL_S + 0.00001  # just after the last call before the tick at 20 ms
-    for gap in (0.002, 0.004):
+    for gap in (0.002, 0.004, 0.0041, ONE_WAKE_GAP_S):
         assert last + reader_pause(Pace(0.020, gap), last) == pytest.approx(
             0.020 + gap - LAST_CALL_S
         )
-    assert last + reader_pause(Pace(0.020, 0.0041), last) == pytest.approx(0.0241 - READ_AHEAD_S)
+    assert last + reader_pause(Pace(0.020, 0.0046), last) == pytest.approx(0.0246 - READ_AHEAD_S)
     assert reader_pause(Pace(0.020, 0.002), 0.0185) == pytest.approx(0.00125)  # its last call
+    # a drain that ended just after a tick began: the drivers show their next starts, and
+    # the next tick, 3.9 ms on, gets its last call only
+    assert reader_pause(Pace(0.024, 0.004), 0.0201) == pytest.approx(0.024 - LAST_CALL_S - 0.0201)

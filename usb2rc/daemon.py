@@ -238,7 +238,8 @@ class Daemon:
         (`hid/reader.py: reader_pause`). One read of each output's pace: its deadline and
         period are one value (the driver may replace it meanwhile; never half of it). The
         drivers tick on one grid; before any ticks, a past tick: read as reports come."""
-        return earliest(o.thread.pace for o in self.outputs) or Pace(0.0, 0.0)
+        paces = [o.thread.pace for o in self.outputs]
+        return earliest(paces, time.monotonic()) or Pace(0.0, 0.0)
 
     def all_outputs_ticking(self, within_s: float = 1.0) -> bool:
         """True while every output thread has ticked in the last `within_s` seconds: one hung

@@ -49,6 +49,12 @@ MAX_BATCH = 1000  # reports decoded as one batch (a paced reader's drain)
 BAD_REPORTS_LIMIT = 20
 READ_AHEAD_S = 0.002  # a paced reader wakes this long before a tick to drain its device
 LAST_CALL_S = 0.00025  # and once more this long before it, for what came in meanwhile
+# A tick at most this far from the drain before it gets one wake-up, its last call: a bulk
+# wake-up would fall on or next to that drain, for a few reports (CRSF at 250 or 500 Hz,
+# SUMD's tick 2 ms after CRSF's). Two read-aheads, and 0.5 ms for the spread of the ticks'
+# starts: each starts its own lead before the grid (`lines.driver.Lead`), so CRSF's 4 ms
+# after C2-16B's measures 4 ms give or take the difference of their leads.
+ONE_WAKE_GAP_S = 2 * READ_AHEAD_S + 0.0005
 
 
 class GridTick(Protocol):
@@ -66,22 +72,21 @@ NextTick = Callable[[], GridTick]
 
 
 def reader_pause(tick: GridTick, now: float) -> float:
-    """How long a busy reader may sleep at `now`: until READ_AHEAD_S before the next tick
-    (the bulk of a tick's reports), then until LAST_CALL_S before it (the one or two since),
-    then until the tick after's first wake-up. Two wake-ups per tick instead of one per
-    report in the last READ_AHEAD_S; a report in the last LAST_CALL_S goes with the next
-    tick (the tick's own wake-up is not more precise than that). `tick.period_s` is the gap
-    to the tick after, of any output: when it is no longer than two read-aheads (CRSF at
-    250 or 500 Hz, SUMD's tick 2 ms after CRSF's), the reader wakes once for it, at its last
-    call: a bulk wake-up there would fall on or next to the tick before, for a few reports.
-    0 when the tick is past (the clock has not started, or stopped ticking): read as
-    reports come."""
+    """How long a busy reader may sleep at `now`, just after a drain: until READ_AHEAD_S
+    before the next tick (the bulk of a tick's reports), then until LAST_CALL_S before it
+    (the one or two since), then until the tick after's first wake-up. Two wake-ups per
+    tick instead of one per report in the last READ_AHEAD_S; a report in the last
+    LAST_CALL_S goes with the next tick (the tick's own wake-up is not more precise than
+    that). A tick within ONE_WAKE_GAP_S of the drain, or of the tick before it
+    (`tick.period_s` is the gap to the tick after, of any output), gets its last call
+    only. 0 when the tick is past (the clock has not started): read as reports come."""
     due, gap = tick.deadline, tick.period_s
-    ahead = READ_AHEAD_S if gap > 2 * READ_AHEAD_S else LAST_CALL_S
-    for wake in (due - READ_AHEAD_S, due - LAST_CALL_S, due + gap - ahead):
-        if wake > now:
-            return wake - now
-    return 0.0
+    if due - now > ONE_WAKE_GAP_S:
+        return due - READ_AHEAD_S - now
+    if due - LAST_CALL_S > now:
+        return due - LAST_CALL_S - now
+    ahead = READ_AHEAD_S if gap > ONE_WAKE_GAP_S else LAST_CALL_S
+    return max(0.0, due + gap - ahead - now)
 
 
 class Decoder(Protocol):

@@ -69,18 +69,20 @@ class Pace:
     period_s: float
 
 
-def earliest(paces: Iterable[Pace]) -> Pace | None:
-    """The next tick of any output (None: no output ticks): what a reader wakes for. Its
-    `period_s` is the gap from it to the tick after it, of whichever output: two outputs
-    due together (C2-16B's 20 ms and SUMD's 10 ms), or a slower one due sooner than the
-    faster one's next, must not send a reader to sleep past a tick (it would miss a
-    release, and a tap would show in two frames). Outputs due together start apart, each
+def earliest(paces: Iterable[Pace], now: float) -> Pace | None:
+    """The next tick of any output after `now` (None: no output ticks): what a reader wakes
+    for. Its `period_s` is the gap from it to the tick after it, of whichever output: two
+    outputs due together (C2-16B's 20 ms and SUMD's 10 ms), or a slower one due sooner
+    than the faster one's next, must not send a reader to sleep past a tick (it would miss
+    a release, and a tap would show in two frames). Outputs due together start apart, each
     its own lead before the deadline: starts within SAME_TICK_S of the first are one tick
-    for the readers (one wake-up, not one per output)."""
+    for the readers (one wake-up, not one per output). A driver between its start and its
+    write still shows the start it has passed: its records are read, so its next start
+    counts (that past start had made a reader poll through the wait, a drain per report)."""
     ticking = [pace for pace in paces if pace.deadline]
     if not ticking:
         return None
-    due = min(pace.deadline for pace in ticking)
+    due = min(_start_after(pace, now) for pace in ticking)
     after = min(_start_after(pace, due + SAME_TICK_S) for pace in ticking)
     return Pace(due, after - due)
 
