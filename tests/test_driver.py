@@ -16,6 +16,7 @@ from test_node_table_driver import BINDING, Source, info
 
 from usb2rc.hid.reader import LAST_CALL_S, reader_pause
 from usb2rc.lines.driver import (
+    HOLD_MAX_SHARE,
     LEAD_FIRST_S,
     LEAD_MARGIN_S,
     LEAD_MAX_SHARE,
@@ -261,6 +262,44 @@ def test_a_tick_makes_its_bytes_ahead_and_writes_them_on_its_deadline() -> None:
         assert round(w["deadline"] / 0.01) * 0.01 == pytest.approx(w["deadline"])
         assert w["pace"].deadline == w["start"]  # what the readers pace on
     assert 0.0 < driver.lead.s <= 0.01 * LEAD_MAX_SHARE
+
+
+@pytest.mark.parametrize("alone", [True, False])
+def test_the_only_output_holds_the_last_share_of_its_wait_others_sleep_it_all(
+    alone: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The daemon's only output sleeps until HOLD_MAX_SHARE of a period before its
+    deadline and reads the clock from there, keeping the GIL (a woken thread must take it
+    back, and on a busy interpreter that is what makes a write late); one of several sleeps
+    the whole wait, since holding the GIL would hold up the other outputs' ticks. Either way
+    it returns on or after the deadline, and at once when stopped. A clock of its own: each
+    read is 1 µs on, each sleep as long as asked."""
+    link, session = SerialLink("loop://", 115200), C2Line("loop://", C2Settings())
+    driver = Driver("c2", link, session, NodeTable().step_if_due, 0.02, alone=alone)
+    clock, slept = [100.0], []
+
+    def monotonic() -> float:
+        clock[0] += 1e-6
+        return clock[0]
+
+    def sleep(seconds: float) -> bool:
+        slept.append(seconds)
+        if driver.stopping:
+            return True
+        clock[0] += seconds
+        return False
+
+    monkeypatch.setattr(time, "monotonic", monotonic)
+    driver.sleep = sleep  # type: ignore[method-assign]
+    held = HOLD_MAX_SHARE * 0.02 if alone else 0.0
+    driver._wait_for_deadline(100.005)
+    assert clock[0] >= 100.005
+    assert slept == [pytest.approx(0.005 - held, abs=1e-5)]
+    driver.stop()  # stopping: no hold; the bytes go out at once, the final ticks follow
+    slept.clear()
+    asked_at = clock[0]
+    driver._wait_for_deadline(asked_at + 1.0)
+    assert clock[0] < asked_at + 0.001 and slept == [pytest.approx(1.0 - held, abs=1e-5)]
 
 
 def test_the_lead_is_the_ticks_recent_cost_and_one_held_up_tick_does_not_move_it() -> None:

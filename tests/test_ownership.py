@@ -331,3 +331,14 @@ def test_a_session_and_its_engine_are_written_by_the_driver_thread_only() -> Non
         reader.join(WAIT_S)
     assert session.engine.decoder.frames >= 20 and session.engine.timing_frames == 1
     assert writers and all(who == {"driver"} for who in writers.values()), writers
+
+
+def test_a_daemon_with_one_output_lets_it_hold_for_its_write_and_not_with_two(
+    tmp_path: Path,
+) -> None:
+    """`Driver.alone` is the daemon's: one output may hold the GIL for its write (nothing
+    else ticks), each of two may not (it would hold up the other's tick)."""
+    assert [o.thread.alone for o in _daemon(tmp_path).outputs] == [True]
+    c2 = OutputConfig(protocol="c2-16b", port="loop://", rate_hz=50)
+    two = Config(outputs=(c2, OutputConfig(protocol="sumd", port="loop://", channels=("node0.x",))))
+    assert [o.thread.alone for o in Daemon(two, ReplayBackend(tmp_path)).outputs] == [False] * 2

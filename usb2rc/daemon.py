@@ -193,8 +193,9 @@ class Daemon:
         """The protocol's build function (`usb2rc.wiring`) makes its pieces."""
         assert out.port
         name = f"output{index + 1}-{out.protocol}"
+        alone = len(self.output_configs) == 1
         context = OutputContext(
-            name, out, self.mapping, self.table, self._tick, self._first_write, self.version
+            name, out, self.mapping, self.table, self._tick, self._first_write, self.version, alone
         )
         built = build(context)
         return _Output(out, built.link, built.thread, built.rx)

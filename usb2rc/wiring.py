@@ -50,6 +50,7 @@ class OutputContext:
     on_tick: Callable[[], None] | None = None
     on_first_write: Callable[[], None] | None = None
     version: str = ""
+    alone: bool = False  # the daemon's only output (`Driver.alone`)
 
 
 @dataclass
@@ -75,6 +76,7 @@ def _running(ctx: OutputContext, link: Link, session: LineSession, period_s: flo
         period_s,
         ctx.on_tick,
         ctx.on_first_write,
+        alone=ctx.alone,
     )
     rx = LinkReader(f"{ctx.name}-rx", link) if isinstance(link, SerialLink) else None
     return BuiltOutput(link, driver, rx)
