@@ -255,11 +255,11 @@ def test_the_node_clock_steps_where_no_output_ticks() -> None:
 def test_the_node_clock_steps_halfway_between_two_grid_ticks() -> None:
     """The drivers tick on the multiples of the period; the clock steps half a period off
     them, so its wake-up and step never make a tick wait."""
-    from usb2rc.nodes.step import NodeClock
+    from usb2rc.nodes.step import GRID_EPOCH_S, NodeClock
 
     period = 0.020
     node_clock = NodeClock(lambda: None, Clock(), period)
-    tick = 5000 * period  # a grid tick on the monotonic clock
+    tick = GRID_EPOCH_S + 5000 * period  # a grid tick on the monotonic clock
     halfway = tick + period / 2
     assert tick + node_clock.until_next_step(tick) == pytest.approx(halfway)
     assert node_clock.until_next_step(halfway) == pytest.approx(period)  # on time: the next

@@ -333,12 +333,14 @@ def test_a_session_and_its_engine_are_written_by_the_driver_thread_only() -> Non
     assert writers and all(who == {"driver"} for who in writers.values()), writers
 
 
-def test_a_daemon_with_one_output_lets_it_hold_for_its_write_and_not_with_two(
+def test_a_daemon_with_one_output_reads_on_its_deadline_and_with_two_each_leads(
     tmp_path: Path,
 ) -> None:
-    """`Driver.alone` is the daemon's: one output may hold the GIL for its write (nothing
-    else ticks), each of two may not (it would hold up the other's tick)."""
-    assert [o.thread.alone for o in _daemon(tmp_path).outputs] == [True]
+    """`Driver.alone` is the daemon's: its only output has no lead (nothing else ticks, and
+    a lead ages every frame's records); each of two makes its bytes ahead, so its write
+    does not wait for the other's tick."""
+    assert [o.thread.lead for o in _daemon(tmp_path).outputs] == [None]
     c2 = OutputConfig(protocol="c2-16b", port="loop://", rate_hz=50)
     two = Config(outputs=(c2, OutputConfig(protocol="sumd", port="loop://", channels=("node0.x",))))
-    assert [o.thread.alone for o in Daemon(two, ReplayBackend(tmp_path)).outputs] == [False] * 2
+    leads = [o.thread.lead for o in Daemon(two, ReplayBackend(tmp_path)).outputs]
+    assert len(leads) == 2 and all(lead is not None for lead in leads)

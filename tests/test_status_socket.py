@@ -82,21 +82,24 @@ def test_each_client_gets_every_line_and_what_it_sends_is_ignored(served: Status
 
 def test_lines_go_out_on_the_node_clocks_steps_where_no_output_ticks() -> None:
     """The daemon's status lines ride on the node clock's grid (a whole number of its steps
-    near 0.1 s apart, at its phase), so a line's work does not fall on an output's tick."""
+    near 0.1 s apart, at its phase from the grid's epoch), so a line's work does not fall on
+    an output's tick."""
     from usb2rc.daemon import status_grid
-    from usb2rc.nodes.step import clock_phase
+    from usb2rc.nodes.step import GRID_EPOCH_S, clock_phase
 
-    assert status_grid(0.020, 0.010) == (pytest.approx(0.100), 0.010)  # C2-16B alone
+    epoch = GRID_EPOCH_S
+    alone = status_grid(0.020, 0.010)  # C2-16B alone
+    assert alone == (pytest.approx(0.100), pytest.approx(epoch + 0.010))
     five = [1 / 50, 1 / 100, 1 / 250, 1 / 100, 1 / 50]
     period, phase = status_grid(0.004, clock_phase(0.004, five))
-    assert period == pytest.approx(0.100) and phase == pytest.approx(0.001)
+    assert period == pytest.approx(0.100) and phase == pytest.approx(epoch + 0.001)
     assert status_grid(0.008, 0.004)[0] == pytest.approx(0.096)  # 12 steps of 8 ms
     server = StatusServer("unused", dict, period_s=0.1, phase_s=0.01)
     assert server.line_after(1000.0) == pytest.approx(1000.01)
     assert server.line_after(1000.01) == pytest.approx(1000.11)  # strictly after
     late = 1000.01 + 0.35  # a line that ran late: the next one on the grid, no burst
     assert server.line_after(late) == pytest.approx(1000.41)
-    ticks = [k * 0.004 for k in range(250)] + [k * 0.010 for k in range(100)]
+    ticks = [epoch + k * 0.004 for k in range(250)] + [epoch + k * 0.010 for k in range(100)]
     for k in range(10):  # over a second of lines, each at least 1 ms from any tick
         at = k * period + phase
         assert min(abs(at - tick) for tick in ticks) == pytest.approx(0.001)

@@ -33,7 +33,7 @@ from usb2rc.lines.link import Link
 from usb2rc.lines.rx import LinkReader
 from usb2rc.nodes.lifecycle import DeviceLifecycle
 from usb2rc.nodes.mapping import Mapping, compile_mapping, match_text
-from usb2rc.nodes.step import NodeClock, clock_period, clock_phase
+from usb2rc.nodes.step import GRID_EPOCH_S, NodeClock, clock_period, clock_phase
 from usb2rc.nodes.table import Expected, ExpectedEntry, NodeTable
 from usb2rc.runtime import stats_text
 from usb2rc.status_socket import PERIOD_S as STATUS_PERIOD_S
@@ -54,9 +54,10 @@ GIL_SWITCH_S = 0.0005
 
 def status_grid(clock_period_s: float, clock_phase_s: float) -> tuple[float, float]:
     """The status socket's period and phase: its lines ride on the node clock's steps, a
-    whole number of them near STATUS_PERIOD_S apart, where no output ticks."""
+    whole number of them near STATUS_PERIOD_S apart, where no output ticks (the phase
+    from 0 on the monotonic clock: the grid's epoch and the clock's phase in it)."""
     steps = max(1, round(STATUS_PERIOD_S / clock_period_s))
-    return steps * clock_period_s, clock_phase_s
+    return steps * clock_period_s, GRID_EPOCH_S + clock_phase_s
 
 
 class NoPortError(ValueError):

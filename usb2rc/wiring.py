@@ -50,7 +50,7 @@ class OutputContext:
     on_tick: Callable[[], None] | None = None
     on_first_write: Callable[[], None] | None = None
     version: str = ""
-    alone: bool = False  # the daemon's only output (`Driver.alone`)
+    alone: bool = False  # the daemon's only output: no lead (`lines.driver.Driver`)
 
 
 @dataclass

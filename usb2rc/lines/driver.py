@@ -11,14 +11,18 @@ Once a tick, on absolute monotonic deadlines, the driver
 It knows no protocol: what to send, when to stall, when to flush, when the next tick is due
 (`session.next_due`) are the session's. A late tick is counted, never caught up with a burst.
 
-Ready before, written on the moment: a tick starts `Lead.s` before its deadline (the tick's
-own recent cost, `Lead`), and its bytes wait for the deadline, so they go out on the grid
-whatever the node step and the session cost this time, as a transmitter's mixer runs ahead
-of its frame timer. The readers pace on that start (`Pace.deadline`), so the records are
-as fresh as before; only the write waits.
+The daemon's only output (`alone`) wakes on its deadline, reads the records and writes its
+bytes as soon as they are made: nothing else ticks then. Outputs due together queue for
+one interpreter, so the write of the one that comes last would move with the others' work
+(C2-16B's p99 period error 0.9-1.1 ms beside four more outputs): each of several makes its
+bytes `Lead.s` before its deadline (its own recent cost) and writes them on it, as a
+transmitter's mixer runs ahead of its frame timer. The lead costs every frame's records
+that much age (0.3-0.45 ms on the latency), which the only output has no reason to pay
+(bench/README.md, "Issue 21: the grid half a kernel tick off the kernel's").
 
-One clock: a driver's ticks fall on the multiples of its period on the monotonic clock, the
-node clock's epoch (`aligned`), whenever it starts. Outputs whose periods are multiples of
+One clock: a driver's ticks fall on the multiples of its period from the grid's epoch on the
+monotonic clock (`aligned`, `nodes.step.GRID_EPOCH_S`: half a kernel tick, off the kernel's
+own), whenever it starts. Outputs whose periods are multiples of
 one another (the defaults: 20, 10, 4 ms) tick together, on the 4 ms grid of the node step
 (`nodes.step.BASE_PERIOD_S`), so a reader that paces on them (`Daemon._next_tick`, through
 `earliest`) wakes once for all of them. A CRSF output that follows its module's timing
@@ -39,6 +43,7 @@ from typing import Any
 
 from usb2rc.lines.link import LineEvent, Link, Written
 from usb2rc.lines.session import Ask, LineSession
+from usb2rc.nodes.step import GRID_EPOCH_S
 from usb2rc.nodes.table import NodeSnapshot
 from usb2rc.runtime.worker import Worker
 
@@ -52,21 +57,20 @@ LEAD_MARGIN_S = 0.0002  # over the tick's recent cost (its p95): a wake-up is of
 LEAD_MAX_SHARE = 0.25  # never more than a quarter period: the records' age
 LEAD_WINDOW = 50  # ticks measured between two updates of the lead
 SAME_TICK_S = 0.0005  # starts this close are one tick for the readers (< half of 1 kHz)
-# The only output holds the GIL through at most this share of its period before its write
-# (`Driver._wait_for_deadline`): 0.4 ms at 50 Hz, 40 µs at 500 Hz; 2 % of a core at most.
-HOLD_MAX_SHARE = 0.02
 
 
 def aligned(now: float, period_s: float) -> float:
-    """The first multiple of `period_s` at or after `now` (monotonic clock, epoch 0)."""
-    return math.ceil(now / period_s - 1e-9) * period_s
+    """The first multiple of `period_s` from the grid's epoch at or after `now` (monotonic
+    clock, `nodes.step.GRID_EPOCH_S`: half a kernel tick, off the kernel's own ticks)."""
+    return GRID_EPOCH_S + math.ceil((now - GRID_EPOCH_S) / period_s - 1e-9) * period_s
 
 
 @dataclass(frozen=True)
 class Pace:
-    """When a driver's next tick starts (monotonic: its deadline less its lead, when it
-    reads the records) and its period now: one value, so a reader pacing on it never pairs
-    one tick's start with another's period. Only the driver's own thread replaces it, whole."""
+    """When a driver's next tick starts (monotonic: its deadline less its lead, if it has
+    one: when it reads the records) and its period now: one value, so a reader pacing on it
+    never pairs one tick's start with another's period. Only the driver's own thread
+    replaces it, whole."""
 
     deadline: float
     period_s: float
@@ -135,9 +139,9 @@ class OutputStats:
     tick_errors: int = 0
     stalls: int = 0
     periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
-    # how long each tick took, wake-up to written (its wait for the deadline left out): what
-    # a tick costs, whatever the wake-up's jitter (other threads' work, a status client, shows
-    # here)
+    # how long each tick took, wake-up to written (a wait for the deadline left out): what
+    # a tick costs, whatever the wake-up's jitter (other threads' work, a status client,
+    # shows here)
     ticks_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
     _periods_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
@@ -194,11 +198,11 @@ class Driver(Worker):
         self.session = session
         self.snapshot = snapshot
         self.pace = Pace(0.0, period_s)  # deadline 0: not ticking yet
-        self.lead = Lead(period_s)
+        # the daemon's only output has no lead: it reads the records on its deadline
+        self.lead = None if alone else Lead(period_s)
         self.stats = OutputStats()
         self.on_tick = on_tick
         self.on_first_write = on_first_write
-        self.alone = alone  # the daemon's only output: it may hold the GIL until its write
         self.last_tick_monotonic = 0.0
         self._last_write = 0.0
         self._waited_s = 0.0  # this tick's wait for its deadline, bytes ready
@@ -217,7 +221,7 @@ class Driver(Worker):
     def run(self) -> None:
         deadline = aligned(time.monotonic(), self.period_s)
         while not self.stopping:
-            start = deadline - self.lead.s
+            start = deadline - (self.lead.s if self.lead else 0.0)
             self.pace = Pace(start, self.period_s)
             delay = start - time.monotonic()
             if delay > 0 and self._wait(delay):
@@ -280,41 +284,28 @@ class Driver(Worker):
 
     def tick(self, deadline: float | None = None, start: float = 0.0) -> None:
         """One tick: the link followed, the bytes made, then written at `deadline` (None:
-        at once, as the final ticks are). `start`: when it was planned to begin."""
+        at once, as the final ticks are; at once too without a lead: its start was the
+        deadline). `start`: when it was planned to begin."""
         self._follow_link()
         self._follow_backpressure()
         was_stalled = self.session.stalled
         data = self.session.tick(time.monotonic(), self.snapshot())
         self._waited_s = 0.0
-        if deadline is not None:
-            self._until(deadline, start, bool(data))
+        if deadline is not None and self.lead is not None:
+            self._until(self.lead, deadline, start, bool(data))
         written = self._send(data)
         if self.session.stalled and not was_stalled:
             self._stall_began(written, len(data))
 
-    def _until(self, deadline: float, start: float, writing: bool) -> None:
-        """The bytes are ready: the lead learns what that took; they wait for the deadline.
-        A stop during the wait still writes them (the final ticks follow)."""
+    def _until(self, lead: Lead, deadline: float, start: float, writing: bool) -> None:
+        """The bytes are ready: the lead learns what that took; they wait for the deadline
+        (asleep: a wait awake would hold the GIL from the other outputs' ticks). A stop
+        during the wait still writes them (the final ticks follow)."""
         ready = time.monotonic()
-        self.lead.took(ready - start, self.period_s)
+        lead.took(ready - start, self.period_s)
         if writing and deadline > ready:
             self._waited_s = deadline - ready
-            self._wait_for_deadline(deadline)
-
-    def _wait_for_deadline(self, deadline: float) -> None:
-        """Sleep until `deadline`; the daemon's only output sleeps until the last
-        HOLD_MAX_SHARE of its period and reads the clock from there, holding the GIL. A
-        thread that wakes must take the GIL back, and with four 1 kHz readers that
-        hand-over made 1-2 % of writes 1-4 ms late on a 2-vCPU VM (bench/README.md,
-        "Issue 21: the readers' wake-ups, and the write's wake-up"). Holding it delays
-        only the readers, whose reports go with the next tick whatever; with other outputs
-        it would delay their ticks, so they sleep."""
-        hold_s = HOLD_MAX_SHARE * self.period_s if self.alone else 0.0
-        now = time.monotonic()
-        if deadline - hold_s > now and self.sleep(deadline - hold_s - now):
-            return  # stopping: the bytes go out at once, the final ticks follow
-        while hold_s and time.monotonic() < deadline and not self.stopping:
-            pass
+            self.sleep(deadline - ready)
 
     def _follow_link(self) -> None:
         """The line's events, in this thread only: a new port is adopted (and the session

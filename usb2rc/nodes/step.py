@@ -26,6 +26,8 @@ Decisions:
 from __future__ import annotations
 
 import math
+import sys
+import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 
@@ -45,6 +47,32 @@ PHASE_CANDIDATES = 20
 PHASE_HORIZON_S = 1.0
 PHASE_HORIZON_STEPS = 250
 EARLY_WAKE_S = 0.0001  # the node clock's wake-up may come this much early (float rounding)
+CLOCK_MONOTONIC_COARSE = 6  # Linux's id for it (uapi/linux/time.h); `time` does not name it
+MAX_KERNEL_TICK_S = 0.01  # HZ is at least 100: a coarser resolution is not the tick
+
+
+def kernel_tick_s() -> float:
+    """The kernel's timer tick, 1/HZ (4 ms at HZ=250, 10 ms on a 100 Hz kernel), where the
+    platform tells it: on Linux the resolution of CLOCK_MONOTONIC_COARSE, which that tick
+    advances. 0 where it is not known (another OS)."""
+    if not sys.platform.startswith("linux"):
+        return 0.0
+    try:
+        tick = time.clock_getres(CLOCK_MONOTONIC_COARSE)
+    except OSError:
+        return 0.0
+    return tick if 0.0 < tick <= MAX_KERNEL_TICK_S else 0.0
+
+
+# The grid's epoch: every output's ticks and the node steps fall on the multiples of their
+# period counted from here on the monotonic clock. Half a kernel tick, not 0: Linux aligns
+# its tick to the multiples of 1/HZ on the same clock (kernel/time/tick-sched.c,
+# `tick_init_jiffy_update`), and the tick wakes the kernel's timer-wheel work there
+# (`schedule_timeout` sleepers, delayed work: kworkers, kdamond). A write on a multiple of
+# 20 ms woke the far end's reader onto a CPU that such a thread held for up to 2.8 ms,
+# 1-5 frames in 1,000 (bench/README.md, "Issue 21: the grid half a kernel tick off the
+# kernel's"). Half a tick is as far as a write can be from the ticks on both sides.
+GRID_EPOCH_S = kernel_tick_s() / 2
 
 
 @dataclass(frozen=True)
@@ -229,10 +257,10 @@ def clock_phase(period_s: float, output_periods: Iterable[float]) -> float:
 class NodeClock(Worker):
     """The clock that keeps the snapshot live whether or not an output reads: `step`
     (NodeTable.step_if_due) once per `period_s` (`clock_period`), `phase_s` (`clock_phase`)
-    off its multiples on the monotonic clock, where the outputs' ticks are not: the clock's
-    wake-up and step keep away from every tick. (On the grid, they fell on every tick; just
-    before it, next to the readers' last call: bench/README.md, "Issue 21, the period
-    error".)"""
+    off its multiples from the grid's epoch (GRID_EPOCH_S), where the outputs' ticks are
+    not: the clock's wake-up and step keep away from every tick. (On the grid, they fell
+    on every tick; just before it, next to the readers' last call: bench/README.md,
+    "Issue 21, the period error".)"""
 
     def __init__(
         self,
@@ -258,6 +286,6 @@ class NodeClock(Worker):
         such moment more than EARLY_WAKE_S away (a wake-up a hair early, or a float's
         rounding, must not step twice for one period; a step taken late waits for the next
         one)."""
-        period, phase = self.period_s, self.phase_s
+        period, phase = self.period_s, GRID_EPOCH_S + self.phase_s
         step = (math.floor((now - phase + EARLY_WAKE_S) / period) + 1) * period + phase
         return step - now

@@ -31,6 +31,7 @@ from usb2rc.nodes.binding import DeviceBinding, NodeInputs
 from usb2rc.nodes.guard import RestWatch
 from usb2rc.nodes.step import (
     BASE_PERIOD_S,
+    GRID_EPOCH_S,
     DeviceView,
     NodeView,
     TableSnapshot,
@@ -416,7 +417,7 @@ class NodeTable:
         # each reader's record read once: the step uses these (values and liveness agree)
         nodes = [self._nodes[node_id] for node_id in sorted(self._nodes)]
         records = tuple(a.source.record for node in nodes for a in node.attached)
-        period = int(now // BASE_PERIOD_S)
+        period = int((now - GRID_EPOCH_S) // BASE_PERIOD_S)  # the drivers' grid
         last = self._stepped
         same = last is not None and last[:2] == (period, self._layout) and _same(last[2], records)
         if same and not any(rest.rested_by(now) for rest in self._resting):
