@@ -180,7 +180,10 @@ class Driver(Worker):
 
     `snapshot`: the node table's latest step (`NodeTable.step_if_due`); `on_tick` after every
     tick (the watchdog hook), `on_first_write` once, after the first write that went out.
-    Every field is written by this thread only; `pace` and `stats` are read by others."""
+    `alone`: the daemon's only output, which has no lead (`lead` is None) and writes as soon
+    as its bytes are made; one of several makes them `lead.s` ahead and writes on the
+    deadline. Every field is written by this thread only; `pace` and `stats` are read by
+    others."""
 
     def __init__(
         self,

@@ -9,6 +9,9 @@ Decisions:
 - the base period is fixed, BASE_PERIOD_S (4 ms, 250 Hz): the grid steps are memoised on
   (at most one per period and set of reader records), faster than every output's default
   rate;
+- the grid (these steps, every output's ticks, the node clock, the status socket) counts
+  its multiples from GRID_EPOCH_S, half a kernel tick, so that no tick falls on the
+  kernel's own (bench/README.md, "Issue 21: the grid half a kernel tick off the kernel's");
 - the step for a period runs exactly once, whoever triggers it: each driver before each of
   its ticks (so a frame carries the newest records), or the `NodeClock` thread once per
   fastest output's period, at a phase away from every output's ticks (so arming and trims
