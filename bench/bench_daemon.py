@@ -28,7 +28,8 @@ daemon's) and prints one JSON line per decoded frame. What is measured:
   daemon in this process: p50/p99 |period error| of each driver's own write-to-write periods
   over --crsf-seconds, CRSF's missed and late (> 1 ms) ticks from its own counters.
 - start: spawning `python -m usb2rc run ...` (one replayed device) -> the startup frame
-  (service 8) and the first data frame on the pty; median of --starts.
+  (service 8) and the first data frame on the pty; median of --starts, after one untimed
+  start that writes the bytecode (as installing the wheel does).
 - stop: SIGTERM -> the process has exited (every start trial and the cpu run).
 
 A readable table, then one JSON line ({"bench": "daemon", ...}). --runs N repeats everything
@@ -421,7 +422,12 @@ STATS_BUSY_RE = re.compile(r"\((replay-[^)]*)\): .*, backend busy ([0-9.]+) ms")
 
 class DaemonProcess:
     def __init__(
-        self, replay_dir: Path, port: str, log_path: Path, extra: Sequence[str] = ()
+        self,
+        replay_dir: Path,
+        port: str,
+        log_path: Path,
+        extra: Sequence[str] = (),
+        env: dict[str, str] | None = None,
     ) -> None:
         self.log_path = log_path
         self._log = open(log_path, "wb")  # noqa: SIM115 - closed in stop()
@@ -433,7 +439,7 @@ class DaemonProcess:
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
             cwd=ROOT,
-            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+            env=dict(env or os.environ, PYTHONUNBUFFERED="1"),
         )  # fmt: skip
 
     def log(self) -> str:
@@ -718,6 +724,16 @@ def percentile(values: Sequence[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, int(len(ordered) * q))]
 
 
+def installed_bytecode(workdir: Path) -> dict[str, str]:
+    """The environment for a start timed as an installed usb2rc starts: with the bytecode
+    written (pip compiles it when it installs the wheel), in a cache of this run's own, so
+    the tree stays clean. PYTHONDONTWRITEBYTECODE, set in some shells and containers, made
+    every timed start compile usb2rc's source first (+0.1 s)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env["PYTHONPYCACHEPREFIX"] = str(workdir / "bytecode")
+    return env
+
+
 def run_starts(workdir: Path, starts: int) -> dict[str, Any]:
     replay_dir = workdir / "start"
     replay_dir.mkdir()
@@ -725,9 +741,13 @@ def run_starts(workdir: Path, starts: int) -> dict[str, Any]:
     (replay_dir / "stick.hid").write_text(recording(states, hold_s=0.02))
     reader = PtyReader(workdir)
     firsts, datas, stops = [], [], []
+    env = installed_bytecode(workdir)
     try:
+        warm_up = DaemonProcess(replay_dir, reader.path, workdir / "start-warm-up.log", env=env)
+        reader.wait_for(lambda f: f or None, 20, "a frame from the warm-up start")
+        warm_up.terminate()
         for i in range(starts):
-            daemon = DaemonProcess(replay_dir, reader.path, workdir / f"start{i}.log")
+            daemon = DaemonProcess(replay_dir, reader.path, workdir / f"start{i}.log", env=env)
             t0 = daemon.spawned_at
             try:
                 startup = reader.wait_for(

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from cli_harness import usb2rc
 
-from usb2rc.cli import COMMANDS
+from usb2rc.cli import COMMANDS, command_of
 from usb2rc.config.port_url import url_problem
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -128,6 +128,46 @@ def test_a_misspelt_command_gets_a_suggestion() -> None:
 def test_options_alone_still_mean_run() -> None:
     result = usb2rc("--replay", str(DEMO), "--port", "foo://bar")
     assert result.returncode == 2 and "usb2rc run: error: argument --port" in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("argv", "command"),
+    [
+        ([], "run"),
+        (["--config", "x.yaml"], "run"),
+        (["check", "--config", "x.yaml"], "check"),
+        (["run", "-h"], "run"),
+        (["-h"], None),
+        (["--version"], None),
+        (["chek"], None),
+    ],
+)
+def test_a_command_line_names_the_one_command_it_needs(
+    argv: list[str], command: str | None
+) -> None:
+    assert command_of(argv) == command
+
+
+def test_a_command_imports_its_own_module_and_not_the_others() -> None:
+    """`usb2rc run` must not wait for `monitor`'s or `web`'s imports before its first frame;
+    `usb2rc --help` lists them all."""
+    probe = (
+        "import sys; from usb2rc import cli; import contextlib, io\n"
+        "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+        "    cli.main(sys.argv[1:])\n"
+        "print(sorted(m for m in sys.modules if m.startswith('usb2rc.commands.')))"
+    )
+
+    def imported(*argv: str) -> set[str]:
+        result = subprocess.run(
+            [sys.executable, "-c", probe, *argv], capture_output=True, text=True, check=True
+        )
+        return set(json.loads(result.stdout.strip().replace("'", '"')))
+
+    alone = imported("icd", "--help")
+    assert "usb2rc.commands.icd" in alone
+    assert not alone & {"usb2rc.commands.monitor", "usb2rc.commands.web"}
+    assert {f"usb2rc.commands.{module}" for module in COMMANDS.values()} <= imported("--help")
 
 
 # --- decode that finds nothing ----------------------------------------------------------

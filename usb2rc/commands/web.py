@@ -113,8 +113,8 @@ def run(args: argparse.Namespace) -> int:
         level=getattr(logging, args.log_level.upper()), format="%(levelname)s %(message)s"
     )
     path = args.socket or status_socket.default_path() or SERVICE_SOCKET
-    # Here, not at the top: every usb2rc command imports this module (cli.build_parser), and
-    # only this one needs starlette and uvicorn (~0.1 s to import).
+    # Here, not at the top: `usb2rc --help` imports every command's module (cli.build_parser),
+    # and only this one needs starlette and uvicorn (~0.1 s to import).
     from usb2rc.web.server import serve
 
     log.info("usb2rc web: http://%s:%d/ (status socket %s)", host, port, path)
