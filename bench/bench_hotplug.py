@@ -1,6 +1,9 @@
 """Hot-plug latency over the replay backend.
 
-- plug: a recording renamed into the replay directory -> HotplugMonitor's on_added
+- plug: a recording renamed into the replay directory -> HotplugMonitor's on_added; each
+  plug at a random moment of the monitor's poll period, as a user's plug comes (right after
+  the unplug, the plug's phase followed how fast the unplug was seen: a faster unplug put
+  every plug just after a poll, and showed a whole poll period)
 - unplug: the file removed -> the DeviceReader's on_exit (the reader notices it, not the monitor)
 
     .venv/bin/python bench/bench_hotplug.py [--trials 20] [--poll 0.1]
@@ -9,6 +12,7 @@
 from __future__ import annotations
 
 import argparse
+import random
 import statistics
 import tempfile
 import threading
@@ -39,8 +43,11 @@ class Timings:
         pass
 
 
-def one_trial(directory: Path, backend: ReplayBackend, timings: Timings, text: str) -> tuple:
+def one_trial(
+    directory: Path, backend: ReplayBackend, timings: Timings, text: str, phase_s: float
+) -> tuple:
     timings.added.clear()
+    time.sleep(phase_s)  # the plug's moment within the monitor's poll period
     t_plug = time.monotonic()
     path = install_file(directory / "stick.hid", text)
     if not timings.added.wait(10):
@@ -84,9 +91,11 @@ def main() -> None:
         timings = Timings()
         monitor = HotplugMonitor(backend, timings.on_added, timings.on_removed, args.poll)
         monitor.start()
+        phases = random.Random(21)
         try:
             for _ in range(args.trials):
-                plug_s, unplug_s = one_trial(directory, backend, timings, text)
+                phase_s = phases.uniform(0.0, args.poll)
+                plug_s, unplug_s = one_trial(directory, backend, timings, text, phase_s)
                 plugs.append(plug_s)
                 unplugs.append(unplug_s)
         finally:
