@@ -20,11 +20,13 @@ from usb2rc.lines.driver import (
     LEAD_MARGIN_S,
     LEAD_MAX_SHARE,
     LEAD_WINDOW,
+    WRITE_SPACING_S,
     Driver,
     Lead,
     Pace,
     aligned,
     earliest,
+    write_offset,
 )
 from usb2rc.lines.rx import LinkReader
 from usb2rc.lines.serial_link import SerialLink
@@ -240,7 +242,7 @@ def test_a_driver_in_its_tick_paces_the_readers_on_its_next_tick() -> None:
     assert tick is not None and reader_pause(tick, now) == pytest.approx(1.0035 - LAST_CALL_S - now)
 
 
-def timed_writes(alone: bool) -> tuple[Driver, list[dict[str, Any]]]:
+def timed_writes(alone: bool, write_offset_s: float = 0.0) -> tuple[Driver, list[dict[str, Any]]]:
     """A C2-16B driver at 100 Hz over a pty, 60 ticks or more; per write: the tick's
     deadline and planned start, the pace the readers saw, when it woke, made its bytes and
     wrote them, and whether it was a final tick (at once, on stop)."""
@@ -249,7 +251,9 @@ def timed_writes(alone: bool) -> tuple[Driver, list[dict[str, Any]]]:
     table.add_device(0, info("k0", "1-0"), BINDING, Source.of(StickState()), "JOYSTICK")
     link = SerialLink(far.path, 921600)
     session = C2Line(far.path, C2Settings(rate_hz=100, baudrate=921600, version="0.1.0"))
-    driver = Driver("c2", link, session, table.step_if_due, 0.01, alone=alone)
+    driver = Driver(
+        "c2", link, session, table.step_if_due, 0.01, alone=alone, write_offset_s=write_offset_s
+    )
     this_tick: dict[str, Any] = {}
     written: list[dict[str, Any]] = []
     session_tick, link_write, tick = session.tick, link.write, driver.tick
@@ -297,6 +301,36 @@ def test_one_of_several_outputs_makes_its_bytes_ahead_and_writes_them_on_its_dea
         assert w["made"] <= w["written"] and on_the_grid(w["deadline"], 0.01)
         assert w["pace"].deadline == w["start"]  # what the readers pace on
     assert driver.lead is not None and 0.0 < driver.lead.s <= 0.01 * LEAD_MAX_SHARE
+
+
+def test_an_output_listed_after_others_reads_with_them_and_writes_its_offset_later() -> None:
+    """Outputs due together start together (the readers wake once for all of them) but
+    write apart: this one's write waits for its deadline and its offset, never less."""
+    offset = write_offset(2, 5)
+    driver, on_grid = timed_writes(alone=False, write_offset_s=offset)
+    assert len(on_grid) >= 60 and driver.write_offset_s == offset > 0.0
+    for w in on_grid:
+        assert w["pace"].deadline == w["start"] < w["deadline"] and on_the_grid(w["deadline"], 0.01)
+        assert w["made"] < w["deadline"] + offset <= w["written"]
+
+
+def test_outputs_write_in_their_config_order_within_half_a_kernel_tick_of_the_grid(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The first listed writes on the grid; each other WRITE_SPACING_S after the one before,
+    closer together where that would reach the kernel's next tick (half a tick after the
+    grid, `nodes.step.GRID_EPOCH_S`)."""
+    from usb2rc.lines import driver as driver_module
+
+    for hz, count in [(250, 5), (100, 8), (1000, 2), (1000, 5), (250, 12)]:
+        monkeypatch.setattr(driver_module, "kernel_tick_s", lambda hz=hz: 1 / hz)
+        offsets = [write_offset(i, count) for i in range(count)]
+        assert offsets[0] == 0.0 and offsets == sorted(set(offsets))
+        assert offsets[-1] < 1 / hz / 2  # before the kernel's next tick
+        spacing = offsets[1] - offsets[0]
+        assert spacing == pytest.approx(min(WRITE_SPACING_S, 1 / hz / 2 / count))
+    monkeypatch.setattr(driver_module, "kernel_tick_s", lambda: 0.0)  # not Linux: no tick known
+    assert write_offset(3, 5) == pytest.approx(3 * WRITE_SPACING_S)
 
 
 def test_the_only_output_reads_the_records_on_its_deadline_and_writes_them_at_once() -> None:

@@ -218,13 +218,18 @@ def test_the_node_clock_runs_at_the_fastest_outputs_period_on_the_base_grid() ->
     assert clock_period([]) == pytest.approx(LIVENESS_PERIOD_S)  # monitor: no output
 
 
-def clearance_ms(phase: float, period: float, output_periods: list[float]) -> float:
-    """How close the clock's steps (phase + k periods, over 2 s) come to any output's tick."""
+def clearance_ms(
+    phase: float, period: float, output_periods: list[float], writes: list[float] | None = None
+) -> float:
+    """How close the clock's steps (phase + k periods, over 2 s) come to any output's tick
+    or, given each output's write offset, its write."""
     closest = period
     for k in range(round(2.0 / period)):
         at = k * period + phase
-        for p in output_periods:
-            closest = min(closest, at % p, p - at % p)
+        for i, p in enumerate(output_periods):
+            for moment in (0.0, writes[i] if writes else 0.0):
+                left = (at - moment) % p
+                closest = min(closest, left, p - left)
     return round(closest * 1000, 6)
 
 
@@ -242,6 +247,12 @@ def test_the_node_clock_steps_where_no_output_ticks() -> None:
     phase = clock_phase(period, five)
     assert phase in (pytest.approx(0.001), pytest.approx(0.003))
     assert clearance_ms(phase, period, five) == pytest.approx(1.0)
+    # written apart (lines.driver.write_offset, 0.4 ms at HZ=250): 1 ms after the grid is
+    # between two writes; the step keeps as far from the writes as from the ticks
+    writes = [i * 0.0004 for i in range(5)]
+    phase = clock_phase(period, five, writes)
+    assert clearance_ms(phase, period, five, writes) >= 0.4
+    assert clearance_ms(0.001, period, five, writes) == pytest.approx(0.2)
     # CRSF at 500 Hz ticks on every 2 ms: the clock (4 ms) steps between two of them
     assert clock_phase(0.004, [1 / 50, 1 / 500]) == pytest.approx(0.001)
     # rates that share no grid (SBUS at 70 Hz): no phase misses every tick, the best is taken

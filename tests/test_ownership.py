@@ -20,7 +20,7 @@ from usb2rc.configfile import Config, OutputConfig
 from usb2rc.daemon import Daemon
 from usb2rc.hid.reader import READ_AHEAD_S, reader_pause
 from usb2rc.hid.replay import ReplayBackend
-from usb2rc.lines.driver import Driver, Pace
+from usb2rc.lines.driver import Driver, Pace, write_offset
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.protocols.crsf import codec as crsf
@@ -344,3 +344,17 @@ def test_a_daemon_with_one_output_reads_on_its_deadline_and_with_two_each_leads(
     two = Config(outputs=(c2, OutputConfig(protocol="sumd", port="loop://", channels=("node0.x",))))
     leads = [o.thread.lead for o in Daemon(two, ReplayBackend(tmp_path)).outputs]
     assert len(leads) == 2 and all(lead is not None for lead in leads)
+
+
+def test_outputs_due_together_write_apart_in_their_config_order(tmp_path: Path) -> None:
+    """Each output's write offset is the daemon's (`write_offset`, by its place in the
+    config): the first listed writes on its deadline, each other later than the one before;
+    the only output writes on its deadline."""
+    assert [o.thread.write_offset_s for o in _daemon(tmp_path).outputs] == [0.0]
+    c2 = OutputConfig(protocol="c2-16b", port="loop://", rate_hz=50)
+    sumd = OutputConfig(protocol="sumd", port="loop://", channels=("node0.x",))
+    sbus = OutputConfig(protocol="sbus", port="loop://", channels=("node0.x",))
+    three = Config(outputs=(c2, sumd, sbus))
+    offsets = [o.thread.write_offset_s for o in Daemon(three, ReplayBackend(tmp_path)).outputs]
+    assert offsets == [write_offset(i, 3) for i in range(3)]
+    assert offsets[0] == 0.0 < offsets[1] < offsets[2]

@@ -28,7 +28,7 @@ from usb2rc.hid.backend import Backend, Device
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, GridTick, OnExit
-from usb2rc.lines.driver import Driver, Pace, earliest
+from usb2rc.lines.driver import Driver, Pace, earliest, write_offset
 from usb2rc.lines.link import Link
 from usb2rc.lines.rx import LinkReader
 from usb2rc.nodes.lifecycle import DeviceLifecycle
@@ -164,9 +164,10 @@ class Daemon:
         self.outputs = [self._make_output(i, out) for i, out in enumerate(self.output_configs)]
         # the clock that steps the nodes whether or not an output reads, on the drivers' grid
         periods = [out.thread.period_s for out in self.outputs]
+        writes = [out.thread.write_offset_s for out in self.outputs]
         period = clock_period(periods)
         self.node_clock = NodeClock(
-            self.table.step_if_due, time.monotonic, period, clock_phase(period, periods)
+            self.table.step_if_due, time.monotonic, period, clock_phase(period, periods, writes)
         )
         self.lifecycle = DeviceLifecycle(
             backend, self.table, self.mapping, self._make_reader, forget=self._forget
@@ -194,9 +195,17 @@ class Daemon:
         """The protocol's build function (`usb2rc.wiring`) makes its pieces."""
         assert out.port
         name = f"output{index + 1}-{out.protocol}"
-        alone = len(self.output_configs) == 1
+        count = len(self.output_configs)
         context = OutputContext(
-            name, out, self.mapping, self.table, self._tick, self._first_write, self.version, alone
+            name,
+            out,
+            self.mapping,
+            self.table,
+            self._tick,
+            self._first_write,
+            self.version,
+            alone=count == 1,
+            write_offset_s=write_offset(index, count),
         )
         built = build(context)
         return _Output(out, built.link, built.thread, built.rx)

@@ -51,6 +51,7 @@ class OutputContext:
     on_first_write: Callable[[], None] | None = None
     version: str = ""
     alone: bool = False  # the daemon's only output: no lead (`lines.driver.Driver`)
+    write_offset_s: float = 0.0  # after its deadline (`lines.driver.write_offset`)
 
 
 @dataclass
@@ -77,6 +78,7 @@ def _running(ctx: OutputContext, link: Link, session: LineSession, period_s: flo
         ctx.on_tick,
         ctx.on_first_write,
         alone=ctx.alone,
+        write_offset_s=ctx.write_offset_s,
     )
     rx = LinkReader(f"{ctx.name}-rx", link) if isinstance(link, SerialLink) else None
     return BuiltOutput(link, driver, rx)

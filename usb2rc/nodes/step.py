@@ -233,24 +233,34 @@ def clock_period(output_periods: Iterable[float]) -> float:
     return max(1, int(fastest / BASE_PERIOD_S + 1e-9)) * BASE_PERIOD_S
 
 
-def clock_phase(period_s: float, output_periods: Iterable[float]) -> float:
+def clock_phase(
+    period_s: float, output_periods: Iterable[float], write_offsets: Iterable[float] = ()
+) -> float:
     """Where in its period the node clock steps: of PHASE_CANDIDATES offsets from the grid,
     the one whose steps stay farthest from every output's ticks (each output ticks on the
-    multiples of its own period) over PHASE_HORIZON_S; of equal ones, the nearest to half
+    multiples of its own period, and writes its offset after them: `write_offsets`, in the
+    same order, 0 where not given) over PHASE_HORIZON_S; of equal ones, the nearest to half
     the period. Half the period when the outputs tick only on the clock's own grid (one
     output: always). With SUMD's 10 ms beside CRSF's 4 ms, half of 4 ms falls on every
     other SUMD tick; 1 ms off the grid falls on none."""
     periods = list(output_periods)
+    offsets_given = list(write_offsets)
+    moments = [
+        (period, offsets_given[i] if i < len(offsets_given) else 0.0)
+        for i, period in enumerate(periods)
+    ]
     steps = max(1, min(PHASE_HORIZON_STEPS, round(PHASE_HORIZON_S / period_s)))
 
     def clearance(phase: float) -> float:
-        """The step's closest approach to any tick (rounded: a float's residue is no gap)."""
+        """The step's closest approach to any tick or write (rounded: a float's residue is
+        no gap)."""
         closest = period_s
         for k in range(steps):
             at = k * period_s + phase
-            for period in periods:
-                left = at % period
-                closest = min(closest, left, period - left)
+            for period, write_offset in moments:
+                for moment in {0.0, write_offset}:
+                    left = (at - moment) % period
+                    closest = min(closest, left, period - left)
         return round(closest, 7)
 
     offsets = [period_s * i / PHASE_CANDIDATES for i in range(PHASE_CANDIDATES)]
