@@ -311,7 +311,8 @@ def test_an_output_listed_after_others_reads_with_them_and_writes_its_offset_lat
     assert len(on_grid) >= 60 and driver.write_offset_s == offset > 0.0
     for w in on_grid:
         assert w["pace"].deadline == w["start"] < w["deadline"] and on_the_grid(w["deadline"], 0.01)
-        assert w["made"] < w["deadline"] + offset <= w["written"]
+        # bytes ready late (the host held the tick) go at once: never before their moment
+        assert w["made"] <= w["written"] and w["deadline"] + offset <= w["written"]
 
 
 def test_outputs_write_in_their_config_order_within_half_a_kernel_tick_of_the_grid(

@@ -329,8 +329,9 @@ class Driver(Worker):
         lead.took(ready - start, self.period_s)
         write_at = deadline + self.write_offset_s
         if writing and write_at > ready:
-            self._waited_s = write_at - ready
             self.sleep(write_at - ready)
+            # a stop ends the wait early: only what was waited is left out of the tick's time
+            self._waited_s = min(write_at, time.monotonic()) - ready
 
     def _follow_link(self) -> None:
         """The line's events, in this thread only: a new port is adopted (and the session
