@@ -304,7 +304,7 @@ def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[
             time.sleep(seconds)
         finally:
             t_end = time.monotonic()
-            stats = daemon.outputs[0].thread.stats
+            stats = daemon.outputs[0].driver.stats
             late, missed, ticks = stats.late_ticks, stats.missed_ticks, stats.ticks
             # the driver's own write-to-write periods after the first second: its wake-up
             # and tick, without the pty's and the far end's (PtyReader) own jitter
@@ -383,7 +383,7 @@ def run_crsf500(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
     daemon = Daemon(config, ReplayBackend(replay_dir, loop=True))
     daemon.start()
     try:
-        c2, crsf = (output.thread for output in daemon.outputs)
+        c2, crsf = (output.driver for output in daemon.outputs)
         deadline = time.monotonic() + 20
         while crsf.stats.writes < CRSF500_HZ // 10:  # the nodes armed: CRSF sends
             if time.monotonic() > deadline:

@@ -161,7 +161,7 @@ def run(seconds: float, rounds: int) -> dict[str, Any]:
         daemon = Daemon(Config.default(), backend, port_override=reader.path, status_socket=sock)
         daemon.start()
         try:
-            stats = daemon.outputs[0].thread.stats
+            stats = daemon.outputs[0].driver.stats
             reader.wait_for(lambda f: reader.data(), timeout=20, what="the first data frames")
             windows: list[tuple[str, float, float]] = []
             for kind in [k for _ in range(rounds) for k in KINDS]:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import pytest
 import serial
@@ -20,13 +20,12 @@ from usb2rc.lines.driver import (
     LEAD_MARGIN_S,
     LEAD_MAX_SHARE,
     LEAD_WINDOW,
-    WRITE_SPACING_S,
     Driver,
+    Drivers,
     Lead,
     Pace,
     aligned,
     earliest,
-    write_offset,
 )
 from usb2rc.lines.rx import LinkReader
 from usb2rc.lines.serial_link import SerialLink
@@ -39,6 +38,8 @@ from usb2rc.protocols.c2_16b.session import C2Line
 from usb2rc.protocols.channels import RC11_SCALE, OutputChannels
 from usb2rc.protocols.crsf import codec as crsf
 from usb2rc.protocols.crsf.session import CrsfLine, CrsfSession
+from usb2rc.protocols.sumd.channels import SumdChannels
+from usb2rc.protocols.sumd.session import SumdLine
 
 WAIT_S = 10.0  # a safety net: every wait ends on its condition
 Service = c2_16b.Service
@@ -83,8 +84,9 @@ def test_a_c2_line_on_a_pty_stalls_starts_over_when_read_again_and_stops_failsaf
     link = SerialLink(far.path, 921600)
     session = C2Line(far.path, C2Settings(rate_hz=200, baudrate=921600, version="0.1.0"))
     driver = Driver("c2", link, session, table.step_if_due, 1 / 200)
+    thread = Drivers("drivers", [driver])
     assert link.open_now()
-    driver.start()
+    thread.start()
     try:
         far.wait_for(lambda frames: ">" in names(frames), WAIT_S)
         far.reads.clear()  # the far end stops reading: the pty fills, the line stalls
@@ -105,9 +107,9 @@ def test_a_c2_line_on_a_pty_stalls_starts_over_when_read_again_and_stops_failsaf
         far.wait_for(restarted, WAIT_S)
         assert link.stats.flushes >= 1
     finally:
-        driver.stop()
-        driver.join(WAIT_S)
-    assert not driver.is_alive()
+        thread.stop()
+        thread.join(WAIT_S)
+    assert not thread.is_alive()
     last = [f for f in far.wait_for(lambda frames: frames) if isinstance(f, c2_16b.DataFrame)]
     assert last[-1].status == c2_16b.FAILSAFE  # the stop's `!` went out before the close
     far.close()
@@ -151,9 +153,10 @@ def test_a_crsf_line_on_loop_reads_its_far_end_and_comes_back_after_a_lost_port(
     session = CrsfLine("crsf", channels, CrsfSession(0.01))
     link = SerialLink("loop://", 400000, reopen_interval_s=0.05)
     driver = Driver("crsf", link, session, table.step_if_due, 0.01)
+    thread = Drivers("drivers", [driver])
     reader = LinkReader("crsf-rx", link)
     assert link.open_now()
-    driver.start()
+    thread.start()
     reader.start()
     try:
         until(lambda: session.engine.decoder.frames >= 5, "the far end's frames")
@@ -163,9 +166,9 @@ def test_a_crsf_line_on_loop_reads_its_far_end_and_comes_back_after_a_lost_port(
         until(lambda: session.engine.decoder.frames >= heard + 5, "frames on the new port")
         assert session.line_open and len(opener.ports) == 2
     finally:
-        driver.stop()
+        thread.stop()
         reader.stop()
-        driver.join(WAIT_S)
+        thread.join(WAIT_S)
         reader.join(WAIT_S)
     assert driver.stats.tick_errors == 0
     took = driver.stats.tick_durations()  # one per tick, what `tick_p99_ms` reads
@@ -173,23 +176,26 @@ def test_a_crsf_line_on_loop_reads_its_far_end_and_comes_back_after_a_lost_port(
     assert driver.stats.tick_p99_ms() == sorted(took)[int(len(took) * 0.99)] * 1000
 
 
-def test_every_tick_falls_half_a_kernel_tick_off_the_kernels_own_ticks() -> None:
+def test_no_tick_falls_on_the_kernels_own_ticks() -> None:
     """Linux runs its tick, and the timer-wheel work that tick wakes (kworkers, kdamond), on
     the multiples of 1/HZ on the monotonic clock; a write there waited for such a thread
     (bench/README.md, "Issue 21: the grid half a kernel tick off the kernel's"). Every tick
     of a period that is a whole number of kernel ticks (20 ms at HZ 100, 250, 300, 1000)
-    falls halfway between two of them, wherever the output started."""
+    falls three quarters of the way to the next, and of a period of an odd number of half
+    ticks (SUMD's 10 ms and CRSF's 2 ms at HZ 250) a quarter tick from one, wherever the
+    output started. (From half a tick, every other of the latter fell on one.)"""
     tick = kernel_tick_s()
     if not tick:
         pytest.skip("the kernel's tick is not known on this platform")
     assert round(1 / tick) in {100, 250, 300, 1000}
-    assert tick / 2 == pytest.approx(GRID_EPOCH_S)
-    for period in {0.02, tick, 2 * tick, 5 * tick}:
+    assert tick * 3 / 4 == pytest.approx(GRID_EPOCH_S)
+    for period in {0.02, tick, 2 * tick, 5 * tick, tick / 2, 1.5 * tick, 2.5 * tick}:
         for now in (0.0, 123.4567, 98765.4321, 5000.0 + tick / 2 + 1e-7):
             first = aligned(now, period)
             for k in range(50):
                 into_the_kernel_tick = (first + k * period) % tick
-                assert into_the_kernel_tick == pytest.approx(tick / 2, abs=1e-6)
+                off_the_kernel_tick = min(into_the_kernel_tick, tick - into_the_kernel_tick)
+                assert off_the_kernel_tick == pytest.approx(tick / 4, abs=1e-6)
 
 
 def test_every_driver_ticks_on_multiples_of_its_period_from_one_epoch() -> None:
@@ -242,47 +248,79 @@ def test_a_driver_in_its_tick_paces_the_readers_on_its_next_tick() -> None:
     assert tick is not None and reader_pause(tick, now) == pytest.approx(1.0035 - LAST_CALL_S - now)
 
 
-def timed_writes(alone: bool, write_offset_s: float = 0.0) -> tuple[Driver, list[dict[str, Any]]]:
-    """A C2-16B driver at 100 Hz over a pty, 60 ticks or more; per write: the tick's
-    deadline and planned start, the pace the readers saw, when it woke, made its bytes and
-    wrote them, and whether it was a final tick (at once, on stop)."""
-    far = PtyLine("c2-16b")
+class TimedWrites(NamedTuple):
+    drivers: list[Driver]
+    writes: list[dict[str, Any]]  # per write: see `timed_writes`
+    steps: list[float]  # when the node table was asked for a step (a snapshot)
+
+
+def timed_writes(outputs: int) -> TimedWrites:
+    """`outputs` C2-16B drivers at 100 Hz, each over its own pty, on one drivers' thread,
+    60 ticks or more; per write: which output, the tick's deadline and planned start, the
+    pace the readers saw, when the tick began, made its bytes (from which snapshot) and
+    wrote them. The final ticks (at once, on stop) are left out."""
     table = NodeTable()
     table.add_device(0, info("k0", "1-0"), BINDING, Source.of(StickState()), "JOYSTICK")
-    link = SerialLink(far.path, 921600)
-    session = C2Line(far.path, C2Settings(rate_hz=100, baudrate=921600, version="0.1.0"))
-    driver = Driver(
-        "c2", link, session, table.step_if_due, 0.01, alone=alone, write_offset_s=write_offset_s
-    )
-    this_tick: dict[str, Any] = {}
+    fars = [PtyLine("c2-16b") for _ in range(outputs)]
+    drivers = []
     written: list[dict[str, Any]] = []
-    session_tick, link_write, tick = session.tick, link.write, driver.tick
+    steps: list[float] = []
+    stopping = threading.Event()
 
-    def recorded_tick(deadline: float | None = None, start: float = 0.0) -> None:
+    def step_if_due() -> Any:
+        steps.append(time.monotonic())
+        return table.step_if_due()
+
+    for index, far in enumerate(fars):
+        link = SerialLink(far.path, 921600)
+        session = C2Line(far.path, C2Settings(rate_hz=100, baudrate=921600, version="0.1.0"))
+        driver = Driver(f"c2-{index}", link, session, step_if_due, 0.01, alone=outputs == 1)
+        drivers.append(driver)
+        _timed(driver, index, written, stopping)
+        assert link.open_now()
+    thread = Drivers("drivers", drivers)
+    thread.start()
+    try:
+        until(lambda: len(written) >= 60 * outputs, f"{60 * outputs} written ticks")
+    finally:
+        stopping.set()
+        thread.stop()
+        thread.join(WAIT_S)
+        for far in fars:
+            far.close()
+    return TimedWrites(drivers, [w for w in written if not w["final"]], steps)
+
+
+def _timed(
+    driver: Driver, index: int, written: list[dict[str, Any]], stopping: threading.Event
+) -> None:
+    """Notes on `written` when each of `driver`'s ticks began, made its bytes, wrote them."""
+    this_tick: dict[str, Any] = {}
+    begin, session_tick, link_write = driver.begin, driver.session.tick, driver.link.write
+
+    def timed_begin(snapshot: Any, step_s: float = 0.0) -> None:
         this_tick.clear()
-        this_tick.update(deadline=deadline, start=start, pace=driver.pace, woke=time.monotonic())
-        tick(deadline, start)
+        this_tick.update(
+            output=index,
+            deadline=driver._deadline,
+            start=driver._start,
+            pace=driver.pace,
+            began=time.monotonic(),
+            snapshot=snapshot,
+        )
+        begin(snapshot, step_s)
 
     def timed_session_tick(now: float, snapshot: Any) -> bytes:
         this_tick["made"] = time.monotonic()
         return session_tick(now, snapshot)
 
     def timed_write(data: bytes) -> Any:
-        written.append({**this_tick, "written": time.monotonic()})
+        written.append({**this_tick, "written": time.monotonic(), "final": stopping.is_set()})
         return link_write(data)
 
-    driver.tick = recorded_tick  # type: ignore[method-assign]
-    session.tick = timed_session_tick  # type: ignore[method-assign]
-    link.write = timed_write  # type: ignore[method-assign]
-    assert link.open_now()
-    driver.start()
-    try:
-        until(lambda: len(written) >= 60, "60 written ticks")
-    finally:
-        driver.stop()
-        driver.join(WAIT_S)
-        far.close()
-    return driver, [w for w in written if w["deadline"] is not None]  # not the final ticks
+    driver.begin = timed_begin  # type: ignore[method-assign]
+    driver.session.tick = timed_session_tick  # type: ignore[method-assign]
+    driver.link.write = timed_write  # type: ignore[method-assign]
 
 
 def on_the_grid(deadline: float, period_s: float) -> bool:
@@ -290,48 +328,31 @@ def on_the_grid(deadline: float, period_s: float) -> bool:
     return round(steps) == pytest.approx(steps, abs=1e-6)
 
 
-def test_one_of_several_outputs_makes_its_bytes_ahead_and_writes_them_on_its_deadline() -> None:
-    """The records are read and the frame made `lead` before the deadline; the write waits
-    for the deadline, so frames go out on the grid whatever the step, the session and the
-    other outputs' ticks cost. The readers pace on the tick's start, not on its write."""
-    driver, on_grid = timed_writes(alone=False)
-    assert len(on_grid) >= 60
+def test_outputs_due_together_are_made_ahead_from_one_snapshot_and_written_in_config_order() -> (
+    None
+):
+    """Several outputs on the drivers' thread: each has its lead; the ticks due together
+    start on the earliest of their starts (the readers pace on it, and wake once for all),
+    are made from one step of the node table, asked for once, and are written on their
+    deadline, never before it, in config order, after all of them were made."""
+    drivers, on_grid, steps = timed_writes(outputs=3)
+    for driver in drivers:
+        assert driver.lead is not None and 0.0 < driver.lead.s <= 0.01 * LEAD_MAX_SHARE
+    ticks: dict[float, list[dict[str, Any]]] = {}
     for w in on_grid:
-        assert w["start"] < w["deadline"] <= w["written"]  # never before its moment
-        assert w["made"] <= w["written"] and on_the_grid(w["deadline"], 0.01)
-        assert w["pace"].deadline == w["start"]  # what the readers pace on
-    assert driver.lead is not None and 0.0 < driver.lead.s <= 0.01 * LEAD_MAX_SHARE
-
-
-def test_an_output_listed_after_others_reads_with_them_and_writes_its_offset_later() -> None:
-    """Outputs due together start together (the readers wake once for all of them) but
-    write apart: this one's write waits for its deadline and its offset, never less."""
-    offset = write_offset(2, 5)
-    driver, on_grid = timed_writes(alone=False, write_offset_s=offset)
-    assert len(on_grid) >= 60 and driver.write_offset_s == offset > 0.0
-    for w in on_grid:
-        assert w["pace"].deadline == w["start"] < w["deadline"] and on_the_grid(w["deadline"], 0.01)
-        # bytes ready late (the host held the tick) go at once: never before their moment
-        assert w["made"] <= w["written"] and w["deadline"] + offset <= w["written"]
-
-
-def test_outputs_write_in_their_config_order_within_half_a_kernel_tick_of_the_grid(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    """The first listed writes on the grid; each other WRITE_SPACING_S after the one before,
-    closer together where that would reach the kernel's next tick (half a tick after the
-    grid, `nodes.step.GRID_EPOCH_S`)."""
-    from usb2rc.lines import driver as driver_module
-
-    for hz, count in [(250, 5), (100, 8), (1000, 2), (1000, 5), (250, 12)]:
-        monkeypatch.setattr(driver_module, "kernel_tick_s", lambda hz=hz: 1 / hz)
-        offsets = [write_offset(i, count) for i in range(count)]
-        assert offsets[0] == 0.0 and offsets == sorted(set(offsets))
-        assert offsets[-1] < 1 / hz / 2  # before the kernel's next tick
-        spacing = offsets[1] - offsets[0]
-        assert spacing == pytest.approx(min(WRITE_SPACING_S, 1 / hz / 2 / count))
-    monkeypatch.setattr(driver_module, "kernel_tick_s", lambda: 0.0)  # not Linux: no tick known
-    assert write_offset(3, 5) == pytest.approx(3 * WRITE_SPACING_S)
+        assert w["start"] < w["deadline"] <= w["written"] and on_the_grid(w["deadline"], 0.01)
+        assert w["pace"].deadline == w["start"] and w["began"] <= w["made"] <= w["written"]
+        ticks.setdefault(round(w["deadline"], 6), []).append(w)
+    together = [tick for tick in ticks.values() if len(tick) == 3]
+    assert len(together) >= 50
+    for tick in together:
+        assert [w["output"] for w in tick] == [0, 1, 2]  # written in config order
+        first_start = min(w["start"] for w in tick)
+        assert first_start <= min(w["began"] for w in tick)  # on the earliest start
+        made = max(w["made"] for w in tick)
+        assert made <= min(w["written"] for w in tick)
+        assert sum(first_start <= at <= made for at in steps) == 1  # one step asked for
+        assert len({id(w["snapshot"]) for w in tick}) == 1  # one step's values
 
 
 def test_the_only_output_reads_the_records_on_its_deadline_and_writes_them_at_once() -> None:
@@ -339,11 +360,11 @@ def test_the_only_output_reads_the_records_on_its_deadline_and_writes_them_at_on
     frame from the records then and writes it at once: never before the deadline, never
     from records read ahead of it (a lead would age every frame's records by itself). The
     readers pace on that deadline."""
-    driver, on_grid = timed_writes(alone=True)
+    (driver,), on_grid, _ = timed_writes(outputs=1)
     assert len(on_grid) >= 60 and driver.lead is None
     for w in on_grid:
         assert w["pace"].deadline == w["start"] == w["deadline"] and on_the_grid(w["start"], 0.01)
-        assert w["deadline"] <= w["woke"] <= w["made"] <= w["written"]
+        assert w["deadline"] <= w["began"] <= w["made"] <= w["written"]
 
 
 def test_the_lead_is_the_ticks_recent_cost_and_one_held_up_tick_does_not_move_it() -> None:
@@ -360,3 +381,40 @@ def test_the_lead_is_the_ticks_recent_cost_and_one_held_up_tick_does_not_move_it
         lead.took(0.00001, 0.02)
     assert lead.s == pytest.approx(0.00001 + LEAD_MARGIN_S)
     assert Lead(0.001).s == pytest.approx(0.001 * LEAD_MAX_SHARE)  # CRSF at 1 kHz
+
+
+def test_an_output_whose_far_end_stops_reading_does_not_hold_the_others() -> None:
+    """One thread drives every output: C2-16B's far end stops reading, its pty fills and its
+    line stalls (the thread waits on that pty between ticks), and SUMD's frames go on at
+    their rate meanwhile; when it reads again, C2-16B starts over and SUMD never stopped."""
+    c2_far, sumd_far = StallingPty(), PtyLine("sumd")
+    table = NodeTable()
+    for node in range(4):  # 4 frames a tick at 200 Hz: the pty's ~20 KB fill in a second
+        stick = info(f"k{node}", f"1-{node}")
+        table.add_device(node, stick, BINDING, Source.of(StickState()), "JOYSTICK")
+    c2_link, sumd_link = SerialLink(c2_far.path, 921600), SerialLink(sumd_far.path, 115200)
+    c2_session = C2Line(c2_far.path, C2Settings(rate_hz=200, baudrate=921600, version="0.1.0"))
+    channels = SumdChannels.of([ChannelSource(0, "axis", 0), ChannelSource(0, "axis", 1)])
+    sumd_session = SumdLine(sumd_far.path, channels, channels.frame_length, 100.0)
+    c2 = Driver("c2", c2_link, c2_session, table.step_if_due, 1 / 200)
+    sumd_out = Driver("sumd", sumd_link, sumd_session, table.step_if_due, 1 / 100)
+    thread = Drivers("drivers", [c2, sumd_out])
+    assert c2_link.open_now() and sumd_link.open_now()
+    thread.start()
+    try:
+        c2_far.wait_for(lambda frames: ">" in names(frames), WAIT_S)
+        c2_far.reads.clear()  # C2-16B's far end stops reading
+        until(lambda: c2.stats.stalls >= 1, "C2-16B's line stalled")
+        heard = len(sumd_far.frames())
+        until(lambda: len(sumd_far.frames()) >= heard + 50, "SUMD's frames while C2 stalls")
+        assert c2_session.stalled and sumd_out.stats.stalls == 0
+        c2_far.reads.set()
+        until(lambda: not c2_session.stalled, "C2-16B's line taking bytes again")
+        heard = len(sumd_far.frames())
+        until(lambda: len(sumd_far.frames()) >= heard + 10, "SUMD's frames after")
+    finally:
+        thread.stop()
+        thread.join(WAIT_S)
+        c2_far.close()
+        sumd_far.close()
+    assert c2.stats.tick_errors == sumd_out.stats.tick_errors == 0

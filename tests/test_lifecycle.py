@@ -217,4 +217,4 @@ def test_a_daemon_that_never_started_stops_cleanly(tmp_path: Path) -> None:
 
     daemon = Daemon(Config.default(), ReplayBackend(tmp_path), port_override="loop://")
     daemon.stop()
-    assert not any(out.thread.is_alive() for out in daemon.outputs)
+    assert not daemon.drivers.is_alive()

@@ -23,7 +23,7 @@ from usb2rc.config.mavlink import MavlinkOptions
 from usb2rc.config.model import ChannelRef
 from usb2rc.configfile import ConfigError, load_config, load_config_text
 from usb2rc.lines import udp_link as transport_udp
-from usb2rc.lines.driver import Driver
+from usb2rc.lines.driver import Driver, Drivers
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.lines.udp_link import UdpLink, parse_udp_url
@@ -518,18 +518,19 @@ def test_the_registry_builds_a_serial_output_whose_far_end_is_read() -> None:
     (out,) = config.outputs
     context = OutputContext("mav", out, compile_mapping(config), NodeTable())
     built = build(context)
-    assert isinstance(built.thread, Driver) and isinstance(built.rx, LinkReader)
+    assert isinstance(built.driver, Driver) and isinstance(built.rx, LinkReader)
     assert built.link.open_now()
-    built.thread.start()
+    thread = Drivers("drivers", [built.driver])
+    thread.start()
     built.rx.start()
     try:
-        wait_until(lambda: built.thread.session.engine.far_end.heartbeats >= 1)
-        assert built.thread.session.engine.far_end.last_heartbeat_from == (255, 190)
-        stats = built.thread.protocol_stats()
+        wait_until(lambda: built.driver.session.engine.far_end.heartbeats >= 1)
+        assert built.driver.session.engine.far_end.last_heartbeat_from == (255, 190)
+        stats = built.driver.protocol_stats()
         assert stats["far_end_heartbeats"] >= 1 and stats["releases"] >= 1  # node 0 absent
     finally:
-        built.thread.stop()
+        thread.stop()
         built.rx.stop()
-        built.thread.join(5)
+        thread.join(5)
         built.rx.join(5)
         built.link.close()

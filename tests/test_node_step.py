@@ -75,7 +75,7 @@ def test_a_udpin_output_nobody_called_does_not_delay_arming(tmp_path: Path) -> N
         while daemon.table.describe().get("0", {}).get("failsafe", True):
             assert time.monotonic() < deadline, daemon.table.describe()
             threading.Event().wait(0.02)
-        assert daemon.outputs[0].thread.stats.writes == 0  # nobody called: nothing sent
+        assert daemon.outputs[0].driver.stats.writes == 0  # nobody called: nothing sent
         assert not daemon.table.snapshot().nodes[0].frame.failsafe
         first = first_override_once_called(vehicle, port)
         centre = {pwm_of_int16(scale(x, 0, 16383)) for x in (8192, 8193)}
@@ -218,18 +218,13 @@ def test_the_node_clock_runs_at_the_fastest_outputs_period_on_the_base_grid() ->
     assert clock_period([]) == pytest.approx(LIVENESS_PERIOD_S)  # monitor: no output
 
 
-def clearance_ms(
-    phase: float, period: float, output_periods: list[float], writes: list[float] | None = None
-) -> float:
-    """How close the clock's steps (phase + k periods, over 2 s) come to any output's tick
-    or, given each output's write offset, its write."""
+def clearance_ms(phase: float, period: float, output_periods: list[float]) -> float:
+    """How close the clock's steps (phase + k periods, over 2 s) come to any output's tick."""
     closest = period
     for k in range(round(2.0 / period)):
         at = k * period + phase
-        for i, p in enumerate(output_periods):
-            for moment in (0.0, writes[i] if writes else 0.0):
-                left = (at - moment) % p
-                closest = min(closest, left, p - left)
+        for p in output_periods:
+            closest = min(closest, at % p, p - at % p)
     return round(closest * 1000, 6)
 
 
@@ -247,12 +242,6 @@ def test_the_node_clock_steps_where_no_output_ticks() -> None:
     phase = clock_phase(period, five)
     assert phase in (pytest.approx(0.001), pytest.approx(0.003))
     assert clearance_ms(phase, period, five) == pytest.approx(1.0)
-    # written apart (lines.driver.write_offset, 0.4 ms at HZ=250): 1 ms after the grid is
-    # between two writes; the step keeps as far from the writes as from the ticks
-    writes = [i * 0.0004 for i in range(5)]
-    phase = clock_phase(period, five, writes)
-    assert clearance_ms(phase, period, five, writes) >= 0.4
-    assert clearance_ms(0.001, period, five, writes) == pytest.approx(0.2)
     # CRSF at 500 Hz ticks on every 2 ms: the clock (4 ms) steps between two of them
     assert clock_phase(0.004, [1 / 50, 1 / 500]) == pytest.approx(0.001)
     # rates that share no grid (SBUS at 70 Hz): no phase misses every tick, the best is taken
@@ -277,3 +266,21 @@ def test_the_node_clock_steps_halfway_between_two_grid_ticks() -> None:
     assert node_clock.until_next_step(halfway - 0.00005) == pytest.approx(period + 0.00005)
     late = halfway + 0.6 * period  # a step that ran late waits for the next halfway point
     assert late + node_clock.until_next_step(late) == pytest.approx(halfway + period)
+
+
+def test_the_node_clock_does_not_step_again_what_a_driver_stepped_within_its_period() -> None:
+    """`step_if_stale(age)`, the node clock's call: no step when one ran in the last `age`
+    (a driver's, before its tick: the snapshot is that fresh already), the step when none
+    did (no output ticks, or none in that long)."""
+    from usb2rc.nodes.step import GRID_EPOCH_S
+
+    now = [GRID_EPOCH_S + 1000 * 0.004 + 0.001]
+    table = NodeTable(clock=lambda: now[0])
+    driver_step = table.step_if_due()  # a driver, before its tick
+    now[0] += 0.003
+    assert table.step_if_stale(0.004) is driver_step  # 3 ms old: not stepped again
+    assert table.step_if_due() is not driver_step  # (a new period: a driver would step)
+    stepped = table.snapshot()
+    now[0] += 0.0045
+    assert table.step_if_stale(0.004) is not stepped  # 4.5 ms old: the clock steps
+    assert table.step_if_stale(0.004) is table.snapshot()  # and not twice

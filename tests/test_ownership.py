@@ -20,7 +20,7 @@ from usb2rc.configfile import Config, OutputConfig
 from usb2rc.daemon import Daemon
 from usb2rc.hid.reader import READ_AHEAD_S, reader_pause
 from usb2rc.hid.replay import ReplayBackend
-from usb2rc.lines.driver import Driver, Pace, write_offset
+from usb2rc.lines.driver import Driver, Drivers, Pace
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.protocols.crsf import codec as crsf
@@ -105,7 +105,7 @@ def test_the_readers_pace_on_one_deadline_and_period(tmp_path: Path) -> None:
         def pace(self) -> Pace:
             return next(paces)
 
-    daemon.outputs[0].thread = Replacing()  # type: ignore[assignment]
+    daemon.outputs[0].driver = Replacing()  # type: ignore[assignment]
     pause = reader_pause(daemon._next_tick(), time.monotonic())
     assert 0 < pause <= 0.010 - READ_AHEAD_S  # the first value's wake-up, whole
 
@@ -129,27 +129,27 @@ def _watch_pace(thread: Driver, writes: _PaceWrites) -> None:
     thread.__class__ = type("Watched", (type(thread),), {"__setattr__": setattr_watched})
 
 
-def test_only_the_output_thread_writes_its_pace_and_follows_the_module(
+def test_only_the_drivers_thread_writes_a_pace_and_follows_the_module(
     tmp_path: Path,
 ) -> None:
     daemon = _daemon(tmp_path, protocol="crsf")
-    thread = daemon.outputs[0].thread
+    thread = daemon.outputs[0].driver
     assert isinstance(thread, Driver) and isinstance(thread.session, CrsfLine)
     writes = _PaceWrites()
     _watch_pace(thread, writes)
     # the module asks for 10 ms (0.1 µs units): next_due follows it from the first tick
     thread.session.received(crsf.encode_timing_sync(100_000, 0), time.monotonic())
-    thread.start()
+    daemon.drivers.start()
     try:
         for _ in range(int(WAIT_S / 0.01)):
             if thread.stats.ticks >= 3:
                 break
             threading.Event().wait(0.01)
     finally:
-        thread.stop()
-        thread.join(WAIT_S)
+        daemon.drivers.stop()
+        daemon.drivers.join(WAIT_S)
     assert thread.stats.ticks >= 3
-    assert writes.writers == {thread.name}
+    assert writes.writers == {daemon.drivers.name}
     assert writes.loose == []
     assert thread.pace.period_s == 0.010
 
@@ -309,10 +309,11 @@ def test_a_session_and_its_engine_are_written_by_the_driver_thread_only() -> Non
     link = SerialLink("loop://", 400000)
     from usb2rc.nodes.table import NodeTable
 
-    driver = Driver("driver", link, session, NodeTable().step_if_due, 0.004)
+    driver = Driver("crsf", link, session, NodeTable().step_if_due, 0.004)
+    thread = Drivers("driver", [driver])
     reader = LinkReader("reader", link)
     assert link.open_now()
-    driver.start()
+    thread.start()
     reader.start()
     try:
         for _ in range(int(WAIT_S / 0.01)):  # loop:// echoes the frames: the module "talks"
@@ -325,9 +326,9 @@ def test_a_session_and_its_engine_are_written_by_the_driver_thread_only() -> Non
                 break
             threading.Event().wait(0.01)
     finally:
-        driver.stop()
+        thread.stop()
         reader.stop()
-        driver.join(WAIT_S)
+        thread.join(WAIT_S)
         reader.join(WAIT_S)
     assert session.engine.decoder.frames >= 20 and session.engine.timing_frames == 1
     assert writers and all(who == {"driver"} for who in writers.values()), writers
@@ -339,22 +340,8 @@ def test_a_daemon_with_one_output_reads_on_its_deadline_and_with_two_each_leads(
     """`Driver.alone` is the daemon's: its only output has no lead (nothing else ticks, and
     a lead ages every frame's records); each of two makes its bytes ahead, so its write
     does not wait for the other's tick."""
-    assert [o.thread.lead for o in _daemon(tmp_path).outputs] == [None]
+    assert [o.driver.lead for o in _daemon(tmp_path).outputs] == [None]
     c2 = OutputConfig(protocol="c2-16b", port="loop://", rate_hz=50)
     two = Config(outputs=(c2, OutputConfig(protocol="sumd", port="loop://", channels=("node0.x",))))
-    leads = [o.thread.lead for o in Daemon(two, ReplayBackend(tmp_path)).outputs]
+    leads = [o.driver.lead for o in Daemon(two, ReplayBackend(tmp_path)).outputs]
     assert len(leads) == 2 and all(lead is not None for lead in leads)
-
-
-def test_outputs_due_together_write_apart_in_their_config_order(tmp_path: Path) -> None:
-    """Each output's write offset is the daemon's (`write_offset`, by its place in the
-    config): the first listed writes on its deadline, each other later than the one before;
-    the only output writes on its deadline."""
-    assert [o.thread.write_offset_s for o in _daemon(tmp_path).outputs] == [0.0]
-    c2 = OutputConfig(protocol="c2-16b", port="loop://", rate_hz=50)
-    sumd = OutputConfig(protocol="sumd", port="loop://", channels=("node0.x",))
-    sbus = OutputConfig(protocol="sbus", port="loop://", channels=("node0.x",))
-    three = Config(outputs=(c2, sumd, sbus))
-    offsets = [o.thread.write_offset_s for o in Daemon(three, ReplayBackend(tmp_path)).outputs]
-    assert offsets == [write_offset(i, 3) for i in range(3)]
-    assert offsets[0] == 0.0 < offsets[1] < offsets[2]

@@ -9,7 +9,7 @@ from usb2rc.daemon import Daemon
 from usb2rc.hid.replay import ReplayBackend
 
 
-def test_watchdog_starves_when_one_output_stops_ticking(tmp_path):
+def test_watchdog_starves_when_one_output_stops_ticking(tmp_path, monkeypatch):
     config = Config(
         outputs=(
             OutputConfig(protocol="c2-16b", port="loop://"),
@@ -23,9 +23,12 @@ def test_watchdog_starves_when_one_output_stops_ticking(tmp_path):
     daemon.start()
     try:
         assert fed.wait(5), "never fed while both outputs tick"
-        c2, sumd_out = (out.thread for out in daemon.outputs)
-        sumd_out.stop()  # the SUMD scheduler "hangs": it ticks no more
-        sumd_out.join(5)
+        c2, sumd_out = (out.driver for out in daemon.outputs)
+
+        def hung(now, snapshot):
+            raise RuntimeError("the SUMD session hangs")
+
+        monkeypatch.setattr(sumd_out.session, "tick", hung)  # SUMD ticks no more
         ticks_before = c2.stats.ticks
         # once the SUMD output has been silent for a second, the C2 ticks stop feeding
         deadline_ticks = ticks_before + 60  # 1.2 s of 20 ms ticks
@@ -37,7 +40,7 @@ def test_watchdog_starves_when_one_output_stops_ticking(tmp_path):
         while c2.stats.ticks < ticks_mark + 10:
             threading.Event().wait(0.02)
         assert not fed.is_set(), "fed although one output stopped ticking"
-        assert c2.is_alive()
+        assert daemon.drivers.is_alive() and sumd_out.stats.tick_errors > 0
     finally:
         daemon.stop()
 
@@ -51,10 +54,10 @@ def test_a_failing_tick_is_counted_not_fatal_and_starves_the_watchdog(tmp_path, 
     daemon = Daemon(config, ReplayBackend(tmp_path), on_tick=fed.set)
     daemon.start()
     try:
-        sumd_out = daemon.outputs[0].thread
+        sumd_out = daemon.outputs[0].driver
         while sumd_out.stats.tick_errors < 20:
             threading.Event().wait(0.02)
-        assert sumd_out.is_alive()
+        assert daemon.drivers.is_alive()
         assert not fed.is_set()
     finally:
         daemon.stop()

@@ -8,7 +8,8 @@ The outputs are one per config `outputs:` entry, in any protocol of the registry
 (usb2rc.outputs: C2-16B, SUMD, CRSF, SBUS, iBus, MAVLink), built by usb2rc.wiring.
 
 Devices come and go only on the lifecycle thread (usb2rc.nodes.lifecycle); readers publish records
-that the table reads without waiting; the output threads never wait on a device.
+that the table reads without waiting; the drivers' thread (every output's ticks) never waits on
+a device.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from usb2rc.hid.backend import Backend, Device
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, GridTick, OnExit
-from usb2rc.lines.driver import Driver, Pace, earliest, write_offset
+from usb2rc.lines.driver import Driver, Drivers, Pace, earliest
 from usb2rc.lines.link import Link
 from usb2rc.lines.rx import LinkReader
 from usb2rc.nodes.lifecycle import DeviceLifecycle
@@ -45,7 +46,7 @@ log = logging.getLogger("usb2rc")
 JOIN_TIMEOUT_S = 0.5
 # A thread that wants the GIL asks the running one to drop it after this long (Python's
 # default: 5 ms). Plugging a device runs Python for milliseconds on the lifecycle and hot-plug
-# threads (descriptor parse, decoder plan, a replayed recording); the output threads need
+# threads (descriptor parse, decoder plan, a replayed recording); the drivers' thread needs
 # the GIL after its wake-up and after each system call of a tick (~3 times), and may wait a
 # whole slice each time: up to ~15 ms late with 5 ms slices (bench/bench_daemon.py, plug
 # figures). Busy readers hold the GIL ~0.1 ms per wake-up: they are not sliced more often.
@@ -68,7 +69,7 @@ class NoPortError(ValueError):
 class _Output:
     config: OutputConfig
     link: Link
-    thread: Driver
+    driver: Driver
     rx: LinkReader | None = None
 
 
@@ -162,12 +163,15 @@ class Daemon:
         self._ready_once = threading.Event()  # set once, under _ready_lock; read anywhere
         self._ready_lock = threading.Lock()
         self.outputs = [self._make_output(i, out) for i, out in enumerate(self.output_configs)]
+        self.drivers = Drivers("drivers", [out.driver for out in self.outputs])
         # the clock that steps the nodes whether or not an output reads, on the drivers' grid
-        periods = [out.thread.period_s for out in self.outputs]
-        writes = [out.thread.write_offset_s for out in self.outputs]
+        periods = [out.driver.period_s for out in self.outputs]
         period = clock_period(periods)
         self.node_clock = NodeClock(
-            self.table.step_if_due, time.monotonic, period, clock_phase(period, periods, writes)
+            lambda: self.table.step_if_stale(period),
+            time.monotonic,
+            period,
+            clock_phase(period, periods),
         )
         self.lifecycle = DeviceLifecycle(
             backend, self.table, self.mapping, self._make_reader, forget=self._forget
@@ -205,10 +209,9 @@ class Daemon:
             self._first_write,
             self.version,
             alone=count == 1,
-            write_offset_s=write_offset(index, count),
         )
         built = build(context)
-        return _Output(out, built.link, built.thread, built.rx)
+        return _Output(out, built.link, built.driver, built.rx)
 
     def _first_write(self) -> None:
         self._status("running: frames on " + ", ".join(o.link.url for o in self.outputs))
@@ -249,14 +252,15 @@ class Daemon:
         (`hid/reader.py: reader_pause`). One read of each output's pace: its deadline and
         period are one value (the driver may replace it meanwhile; never half of it). The
         drivers tick on one grid; before any ticks, a past tick: read as reports come."""
-        paces = [o.thread.pace for o in self.outputs]
+        paces = [o.driver.pace for o in self.outputs]
         return earliest(paces, time.monotonic()) or Pace(0.0, 0.0)
 
     def all_outputs_ticking(self, within_s: float = 1.0) -> bool:
-        """True while every output thread has ticked in the last `within_s` seconds: one hung
-        output thread stops the watchdog being fed; a stuck device cannot (it has no say here)."""
+        """True while every output has ticked in the last `within_s` seconds: one whose ticks
+        fail, or a hung drivers' thread, stops the watchdog being fed; a stuck device cannot
+        (it has no say here)."""
         now = time.monotonic()
-        return all(now - out.thread.last_tick_monotonic < within_s for out in self.outputs)
+        return all(now - out.driver.last_tick_monotonic < within_s for out in self.outputs)
 
     # --- devices ---------------------------------------------------------------------------
 
@@ -283,8 +287,9 @@ class Daemon:
             self.lifecycle.plugged(info)
         self.lifecycle.handle_queued()  # before the outputs start: no thread owns them yet
         self.node_clock.start()
+        if self.outputs:
+            self.drivers.start()
         for out in self.outputs:
-            out.thread.start()
             if out.rx is not None:
                 out.rx.start()
         self.lifecycle.start()
@@ -305,15 +310,15 @@ class Daemon:
         self.monitor.stop()
         self.table.stop()  # every node `!` from here; each output sends it before it closes
         readers = self.lifecycle.shutdown(JOIN_TIMEOUT_S)
+        self.drivers.stop()
         for out in self.outputs:
-            out.thread.stop()
             if out.rx is not None:
                 out.rx.stop()
         self.monitor.join(JOIN_TIMEOUT_S)
         for reader in readers:
             reader.join(JOIN_TIMEOUT_S)
+        self.drivers.join(JOIN_TIMEOUT_S)
         for out in self.outputs:
-            out.thread.join(JOIN_TIMEOUT_S)
             if out.rx is not None:
                 out.rx.join(JOIN_TIMEOUT_S)
             out.link.close()
@@ -377,15 +382,15 @@ class Daemon:
         }
 
     def _output_stats(self, out: _Output) -> dict[str, Any]:
-        st, link = out.thread.stats, out.link.stats
+        st, link = out.driver.stats, out.link.stats
         record: dict[str, Any] = {
-            "name": out.thread.name,
+            "name": out.driver.name,
             "url": out.link.url,
             "writes": st.writes,
             "ticks": st.ticks,
             "late_ticks": st.late_ticks,
             "missed_ticks": st.missed_ticks,
-            "period_p99_error_ms": st.period_p99_error_ms(out.thread.period_s),
+            "period_p99_error_ms": st.period_p99_error_ms(out.driver.period_s),
             "tick_p99_ms": st.tick_p99_ms(),
             "bytes_written": link.bytes_written,
             "queue_full_skips": link.writes_skipped_queue_full,  # UDP: refused datagrams
@@ -396,7 +401,7 @@ class Daemon:
             "line_losses": link.losses,
             "tick_errors": st.tick_errors,
         }
-        record.update(out.thread.protocol_stats())
+        record.update(out.driver.protocol_stats())
         record["queue_full_skips"] += record.pop("queue_full_ticks", 0)
         if out.rx is not None:  # a far end faster than its line loses the excess
             record["rx_dropped_bytes"] = out.rx.budget.dropped_bytes

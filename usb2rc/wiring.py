@@ -40,7 +40,7 @@ from usb2rc.protocols.sumd.session import SumdLine
 
 @dataclass(frozen=True)
 class OutputContext:
-    """What a build function gets: the output's thread name and config, the compiled
+    """What a build function gets: the output's name and config, the compiled
     mapping, the node table, the daemon's hooks and version."""
 
     name: str
@@ -51,19 +51,18 @@ class OutputContext:
     on_first_write: Callable[[], None] | None = None
     version: str = ""
     alone: bool = False  # the daemon's only output: no lead (`lines.driver.Driver`)
-    write_offset_s: float = 0.0  # after its deadline (`lines.driver.write_offset`)
 
 
 @dataclass
 class BuiltOutput:
     """A running output's pieces: its link, its driver and, when the link is read on its
     own thread (a serial link), the reader. The daemon uses of `link` its `Link` side
-    (`open_now()`, `is_open`, `url`, `last_error`, `stats`, `close()`), of `thread` a
-    `Driver`'s `start`, `stop`, `join`, `stats`, `period_s`, `pace`, `last_tick_monotonic`
-    and `protocol_stats()`."""
+    (`open_now()`, `is_open`, `url`, `last_error`, `stats`, `close()`), of `driver` (run by
+    the drivers' thread, `lines.driver.Drivers`) its `stats`, `period_s`, `pace`,
+    `last_tick_monotonic` and `protocol_stats()`."""
 
     link: Link
-    thread: Driver
+    driver: Driver
     rx: LinkReader | None = None
 
 
@@ -78,7 +77,6 @@ def _running(ctx: OutputContext, link: Link, session: LineSession, period_s: flo
         ctx.on_tick,
         ctx.on_first_write,
         alone=ctx.alone,
-        write_offset_s=ctx.write_offset_s,
     )
     rx = LinkReader(f"{ctx.name}-rx", link) if isinstance(link, SerialLink) else None
     return BuiltOutput(link, driver, rx)

@@ -52,9 +52,9 @@ LAST_CALL_S = 0.00025  # and once more this long before it, for what came in mea
 # A tick at most this far from the drain before it gets one wake-up, its last call: a bulk
 # wake-up would fall on or next to that drain, for a few reports (CRSF at 250 or 500 Hz,
 # SUMD's tick 2 ms after CRSF's). Two read-aheads, and 0.5 ms (`lines.driver.SAME_TICK_S`,
-# not imported: `hid` does not depend on `lines`) for the spread of the ticks' starts: with
-# several outputs each starts its own lead before the grid (`lines.driver.Lead`), so
-# CRSF's 4 ms after C2-16B's measures 4 ms give or take the difference of their leads.
+# not imported: `hid` does not depend on `lines`) for the spread of the ticks' starts: the
+# drivers begin the starts that close together, and a CRSF module that sets its own phase
+# puts CRSF's anywhere, so two starts 4 ms apart may measure a little less.
 ONE_WAKE_GAP_S = 2 * READ_AHEAD_S + 0.0005
 
 

@@ -1,6 +1,6 @@
-"""The one driver: a thread that pumps any line session over any link (python-can's `Notifier`).
+"""The one driver: every output's session pumped over its link (python-can's `Notifier`).
 
-Once a tick, on absolute monotonic deadlines, the driver
+Once a tick, on absolute monotonic deadlines, a `Driver`
 - follows the link: a new port (`session.line_opened()`) before anything is written on it, a
   lost one (`line_lost()`); what the far end sent (`session.received(data, now)`: a serial
   link's reader thread queued it, a UDP link is polled here);
@@ -11,22 +11,18 @@ Once a tick, on absolute monotonic deadlines, the driver
 It knows no protocol: what to send, when to stall, when to flush, when the next tick is due
 (`session.next_due`) are the session's. A late tick is counted, never caught up with a burst.
 
-The daemon's only output (`alone`) wakes on its deadline, reads the records and writes its
-bytes as soon as they are made: nothing else ticks then. Outputs due together queue for
-one interpreter, so the write of the one that comes last would move with the others' work
-(C2-16B's p99 period error 0.9-1.1 ms beside four more outputs): each of several makes its
-bytes `Lead.s` before its deadline (its own recent cost) and writes them on it, as a
-transmitter's mixer runs ahead of its frame timer. The lead costs every frame's records
-that much age (0.3-0.45 ms on the latency), which the only output has no reason to pay
-(bench/README.md, "Issue 21: the grid half a kernel tick off the kernel's"). Outputs due
-together still woke together for their writes, and the writes queued: each of several
-writes `write_offset` after its deadline, WRITE_SPACING_S per output listed before it, so
-that the first listed writes on the grid with no write before it, and each other alone
-(bench/README.md, "Issue 21: outputs due together write apart"). Their starts, where the
-records are read, stay together: the readers wake once for all of them.
+One thread drives every output (`Drivers`). The daemon's only output (`alone`) wakes on its
+deadline, reads the records and writes its bytes as soon as they are made. Several make
+their bytes `Lead.s` before their deadline (what their ticks took together, recently) and
+write them on it, as a transmitter's mixer runs ahead of its frame timer; the lead costs
+every frame's records that much age, which the only output has no reason to pay
+(bench/README.md, "Issue 21: the grid half a kernel tick off the kernel's"). Ticks due
+together are made together, from one snapshot, and written in config order: with a thread
+per output, they queued for one interpreter, and C2-16B's write moved with the others'
+work (bench/README.md, "Issue 21: one thread for every output").
 
 One clock: a driver's ticks fall on the multiples of its period from the grid's epoch on the
-monotonic clock (`aligned`, `nodes.step.GRID_EPOCH_S`: half a kernel tick, off the kernel's
+monotonic clock (`aligned`, `nodes.step.GRID_EPOCH_S`: 3/4 of a kernel tick, off the kernel's
 own), whenever it starts. Outputs whose periods are multiples of
 one another (the defaults: 20, 10, 4 ms) tick together, on the 4 ms grid of the node step
 (`nodes.step.BASE_PERIOD_S`), so a reader that paces on them (`Daemon._next_tick`, through
@@ -42,13 +38,13 @@ import threading
 import time
 import traceback
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from usb2rc.lines.link import LineEvent, Link, Written
 from usb2rc.lines.session import Ask, LineSession
-from usb2rc.nodes.step import GRID_EPOCH_S, kernel_tick_s
+from usb2rc.nodes.step import GRID_EPOCH_S
 from usb2rc.nodes.table import NodeSnapshot
 from usb2rc.runtime.worker import Worker
 
@@ -62,25 +58,12 @@ LEAD_MARGIN_S = 0.0002  # over the tick's recent cost (its p95): a wake-up is of
 LEAD_MAX_SHARE = 0.25  # never more than a quarter period: the records' age
 LEAD_WINDOW = 50  # ticks measured between two updates of the lead
 SAME_TICK_S = 0.0005  # starts this close are one tick for the readers (< half of 1 kHz)
-WRITE_SPACING_S = 0.0005  # outputs due together write this far apart, in config order
-
-
-def write_offset(index: int, count: int) -> float:
-    """How long after its deadline output `index` of `count` writes: WRITE_SPACING_S per
-    output listed before it, so that outputs due together never write together (their
-    writes queued behind one another, each moved by the others' work: C2-16B, due with four
-    outputs, wrote 0.14-0.15 ms after its deadline at p50 and 0.42-0.56 ms at p99, written
-    first 0.11 and 0.34-0.35 ms). All of them stay within half a kernel tick of the grid
-    (`nodes.step.GRID_EPOCH_S`): closer together on a 1000 Hz kernel. The only output
-    writes on its deadline."""
-    tick_s = kernel_tick_s()
-    spacing = min(WRITE_SPACING_S, tick_s / 2 / count) if tick_s else WRITE_SPACING_S
-    return index * spacing
+SAME_DEADLINE_S = 1e-6  # deadlines this close are one (each driver adds its own periods)
 
 
 def aligned(now: float, period_s: float) -> float:
     """The first multiple of `period_s` from the grid's epoch at or after `now` (monotonic
-    clock, `nodes.step.GRID_EPOCH_S`: half a kernel tick, off the kernel's own ticks)."""
+    clock, `nodes.step.GRID_EPOCH_S`: 3/4 of a kernel tick, off the kernel's own ticks)."""
     return GRID_EPOCH_S + math.ceil((now - GRID_EPOCH_S) / period_s - 1e-9) * period_s
 
 
@@ -125,9 +108,10 @@ def _start_after(pace: Pace, moment: float) -> float:
 class Lead:
     """How long before its deadline a tick starts, so that its bytes are ready on time:
     the p95 of what the last LEAD_WINDOW ticks took from their planned start to their bytes
-    (the wake-up's lateness included), plus LEAD_MARGIN_S, at most a quarter period. It
-    follows the machine (a Pi, a VM) and the load (devices, outputs), and a single tick held
-    up by the host moves it by nothing. One driver thread owns it."""
+    and those of the ticks due with them (the wake-up's lateness included), plus
+    LEAD_MARGIN_S, at most a quarter period. It follows the machine (a Pi, a VM) and the
+    load (devices, outputs), and a single tick held up by the host moves it by nothing. The
+    drivers' thread owns it."""
 
     def __init__(self, period_s: float) -> None:
         self.s = min(LEAD_FIRST_S, period_s * LEAD_MAX_SHARE)
@@ -194,15 +178,18 @@ def _p99_ms(values_s: list[float]) -> float:
     return values_s[min(len(values_s) - 1, int(len(values_s) * 0.99))] * 1000.0
 
 
-class Driver(Worker):
-    """One output: `session` over `link`, ticked on the grid until stopped.
+class Driver:
+    """One output: `session` over `link`, ticked on the grid by the drivers' thread
+    (`Drivers`), whose loop calls `begin` at each tick's start, `write` on its deadline and
+    `finish` after the writes due with it.
 
     `snapshot`: the node table's latest step (`NodeTable.step_if_due`); `on_tick` after every
     tick (the watchdog hook), `on_first_write` once, after the first write that went out.
     `alone`: the daemon's only output, which has no lead (`lead` is None) and writes as soon
-    as its bytes are made; one of several makes them `lead.s` ahead and writes
-    `write_offset_s` after the deadline (`write_offset`). Every field is written by this
-    thread only; `pace` and `stats` are read by others."""
+    as its bytes are made; each of several makes them `lead.s` ahead (or with a tick due
+    on the same deadline that leads more, `Drivers`) and writes them on its deadline.
+    Every field is written by the drivers' thread only; `pace` and `stats` are read by
+    others."""
 
     def __init__(
         self,
@@ -214,22 +201,26 @@ class Driver(Worker):
         on_tick: Callable[[], None] | None = None,
         on_first_write: Callable[[], None] | None = None,
         alone: bool = False,
-        write_offset_s: float = 0.0,
     ) -> None:
-        super().__init__(name)
+        self.name = name
         self.link = link
         self.session = session
         self.snapshot = snapshot
         self.pace = Pace(0.0, period_s)  # deadline 0: not ticking yet
         # the daemon's only output has no lead: it reads the records on its deadline
         self.lead = None if alone else Lead(period_s)
-        self.write_offset_s = 0.0 if alone else write_offset_s
         self.stats = OutputStats()
         self.on_tick = on_tick
         self.on_first_write = on_first_write
         self.last_tick_monotonic = 0.0
         self._last_write = 0.0
-        self._waited_s = 0.0  # this tick's wait for its deadline, bytes ready
+        # the tick in progress (this thread only): due, started, made, held for the write
+        self._deadline = 0.0
+        self._start = 0.0
+        self._cost_s = 0.0
+        self._ok = True
+        self._was_stalled = False
+        self._held: bytes | None = None
         self._logged_errors: set[str] = set()
         self._stalled_since = 0.0
         self._stall_logged_at = -STALL_LOG_QUIET_S
@@ -242,59 +233,108 @@ class Driver(Worker):
 
     # --- the loop ----------------------------------------------------------------------------
 
-    def run(self) -> None:
-        deadline = aligned(time.monotonic(), self.period_s)
-        while not self.stopping:
-            start = deadline - (self.lead.s if self.lead else 0.0)
-            self.pace = Pace(start, self.period_s)
-            delay = start - time.monotonic()
-            if delay > 0 and self._wait(delay):
-                break
-            started = time.monotonic()
-            if started - start > self.period_s / 2:
-                self.stats.late_ticks += 1
-            if self._safe_tick(deadline, start):
-                self.stats.ticks += 1
-                self.last_tick_monotonic = time.monotonic()
-                self.stats.add_tick(self.last_tick_monotonic - started - self._waited_s)
-                self._safe_call(self.on_tick)
-            now = time.monotonic()
-            following = self.session.next_due(deadline, now)
-            period = self.session.period(now)
-            deadline = following
-            behind = time.monotonic() - deadline
-            if behind >= 0:  # a whole tick lost: skip it, never burst to catch up
-                missed = int(behind // period) + 1
-                self.stats.missed_ticks += missed
-                deadline += missed * period
-            self.pace = Pace(deadline, period)  # readers sample for it
-        self._final_ticks()
-        self.link.close()
+    def plan(self, deadline: float, period_s: float) -> None:
+        """The next tick is due at `deadline`, `period_s` before the one after it (the
+        session's: a CRSF module may change it); it starts its lead before it (the readers
+        pace on that start)."""
+        self._deadline = deadline
+        self._start = deadline - (self.lead.s if self.lead else 0.0)
+        self.pace = Pace(self._start, period_s)
 
-    def _wait(self, delay_s: float) -> bool:
-        """Between ticks; True when stopped. While the line is stalled, wait on the link
-        itself and tell the session the moment it takes bytes: the far end reads what a
-        pty holds in well under a tick, and the stale part must be dropped before it does."""
-        end = time.monotonic() + delay_s
-        if self.session.stalled and self.link.wait_writable(delay_s):
-            self._follow_backpressure()
-        return self.sleep(max(0.0, end - time.monotonic()))
+    @property
+    def deadline(self) -> float:
+        """When the next tick, or the one in progress, writes."""
+        return self._deadline
 
-    def _safe_tick(self, deadline: float | None = None, start: float = 0.0) -> bool:
-        """One tick; a bug in it is logged (once per kind) and counted, never kills the
-        thread. A failed tick does not count as alive, so a driver that keeps failing
-        starves the watchdog and systemd restarts it."""
+    @property
+    def start(self) -> float:
+        """When the next tick, or the one in progress, was planned to start."""
+        return self._start
+
+    @property
+    def holding(self) -> bool:
+        """Between a tick's start and its write: its bytes are made."""
+        return self._held is not None
+
+    @property
+    def next_moment(self) -> float:
+        """When this driver has something to do next: its write if it holds bytes, else
+        its next start."""
+        return self._deadline if self._held is not None else self._start
+
+    def begin(self, snapshot: NodeSnapshot, step_s: float = 0.0) -> None:
+        """A tick's start: the link followed, the bytes made from `snapshot` and held for
+        the write (an empty tick holds b''). A failure is counted and logged; the tick then
+        writes nothing and does not count as alive. `step_s`: what getting the snapshot
+        took, counted in this tick's cost (`OutputStats.ticks_s`) as when each output
+        stepped the table itself."""
+        started = time.monotonic()
+        if started - self._start > self.period_s / 2:
+            self.stats.late_ticks += 1
+        self._ok = True
+        self._was_stalled = self.session.stalled
         try:
-            self.tick(deadline, start)
+            self._held = self._make(snapshot)
         except Exception as exc:
-            self.stats.tick_errors += 1
-            frame = traceback.extract_tb(exc.__traceback__)[-1]
-            kind = f"{type(exc).__name__} at {frame.filename}:{frame.lineno}"
-            if kind not in self._logged_errors:
-                self._logged_errors.add(kind)
-                log.exception("%s: tick failed (%s: %s); going on", self.name, kind, exc)
-            return False
-        return True
+            self._failed(exc)
+            self._held = b""
+        self._cost_s = step_s + time.monotonic() - started
+
+    def write(self) -> None:
+        """The tick's write, on its moment (`finish` does the rest: the writes due together
+        go out one right after another)."""
+        data, self._held = self._held or b"", None
+        sent_at = time.monotonic()
+        if self._ok:
+            try:
+                self._write(data, self._was_stalled)
+            except Exception as exc:
+                self._failed(exc)
+        self._cost_s += time.monotonic() - sent_at
+
+    def finish(self) -> None:
+        """After the write: the tick counted, then the next one planned (a whole tick lost
+        is skipped, never caught up with a burst)."""
+        if self._ok:
+            self.stats.ticks += 1
+            self.last_tick_monotonic = time.monotonic()
+            self.stats.add_tick(self._cost_s)
+            self._safe_call(self.on_tick)
+        now = time.monotonic()
+        deadline = self.session.next_due(self._deadline, now)
+        period = self.session.period(now)
+        behind = time.monotonic() - deadline
+        if behind >= 0:
+            missed = int(behind // period) + 1
+            self.stats.missed_ticks += missed
+            deadline += missed * period
+        self.plan(deadline, period)
+
+    def _failed(self, exc: Exception) -> None:
+        """A bug in a tick is logged (once per kind) and counted, never kills the thread. A
+        failed tick does not count as alive, so a driver that keeps failing starves the
+        watchdog and systemd restarts it."""
+        self._ok = False
+        self.stats.tick_errors += 1
+        frame = traceback.extract_tb(exc.__traceback__)[-1]
+        kind = f"{type(exc).__name__} at {frame.filename}:{frame.lineno}"
+        if kind not in self._logged_errors:
+            self._logged_errors.add(kind)
+            log.exception("%s: tick failed (%s: %s); going on", self.name, kind, exc)
+
+    def wait_while_stalled(self, timeout_s: float) -> None:
+        """While the line is stalled, wait on the link itself (up to `timeout_s`) and tell
+        the session the moment it takes bytes: the far end reads what a pty holds in well
+        under a tick, and the stale part must be dropped before it does."""
+        if self.session.stalled and self.link.wait_writable(timeout_s):
+            self._follow_backpressure()
+
+    def final_tick(self) -> None:
+        """One tick at once while usb2rc stops; a failure is logged and counted."""
+        try:
+            self.tick()
+        except Exception as exc:
+            self._failed(exc)
 
     def _safe_call(self, hook: Callable[[], object] | None) -> None:
         if hook is None:
@@ -306,33 +346,25 @@ class Driver(Worker):
 
     # --- one tick ----------------------------------------------------------------------------
 
-    def tick(self, deadline: float | None = None, start: float = 0.0) -> None:
-        """One tick: the link followed, the bytes made, then written at `deadline` (None:
-        at once, as the final ticks are; at once too without a lead: its start was the
-        deadline). `start`: when it was planned to begin."""
+    def tick(self) -> None:
+        """One tick at once: the link followed, the bytes made and written (the final
+        ticks, and a test's own pace)."""
+        was_stalled = self.session.stalled
+        self._write(self._make(None), was_stalled)
+
+    def _make(self, snapshot: NodeSnapshot | None) -> bytes:
+        """The link followed, the backpressure reported, the session's bytes for now from
+        `snapshot` (None: the latest step, read after the link was followed)."""
         self._follow_link()
         self._follow_backpressure()
-        was_stalled = self.session.stalled
-        data = self.session.tick(time.monotonic(), self.snapshot())
-        self._waited_s = 0.0
-        if deadline is not None and self.lead is not None:
-            self._until(self.lead, deadline, start, bool(data))
+        return self.session.tick(
+            time.monotonic(), self.snapshot() if snapshot is None else snapshot
+        )
+
+    def _write(self, data: bytes, was_stalled: bool) -> None:
         written = self._send(data)
         if self.session.stalled and not was_stalled:
             self._stall_began(written, len(data))
-
-    def _until(self, lead: Lead, deadline: float, start: float, writing: bool) -> None:
-        """The bytes are ready: the lead learns what that took; they wait for the deadline
-        and this output's write offset (asleep: a wait awake would hold the GIL from the
-        other outputs' ticks). A stop during the wait still writes them (the final ticks
-        follow)."""
-        ready = time.monotonic()
-        lead.took(ready - start, self.period_s)
-        write_at = deadline + self.write_offset_s
-        if writing and write_at > ready:
-            self.sleep(write_at - ready)
-            # a stop ends the wait early: only what was waited is left out of the tick's time
-            self._waited_s = min(write_at, time.monotonic()) - ready
 
     def _follow_link(self) -> None:
         """The line's events, in this thread only: a new port is adopted (and the session
@@ -438,22 +470,112 @@ class Driver(Worker):
 
     # --- stop ---------------------------------------------------------------------------------
 
-    def _final_ticks(self) -> None:
-        """usb2rc stops: the protocol's failsafe before the port closes (docs/ICD.md,
-        "Stop"). Ticks go on at the tick rate until the session says its failsafe went
-        out, or the line cannot take it, and for at most FINAL_TICKS_S: a stalled line
-        never holds the stop."""
-        session = self.session
-        session.stopping()
-        end = time.monotonic() + FINAL_TICKS_S
-        while session.line_open and not session.stop_done:
-            self._safe_tick()
-            if session.stop_done or time.monotonic() + self.period_s > end:
-                break
-            time.sleep(self.period_s)  # `sleep()` returns at once now: the worker is stopping
-        if session.line_open and not session.stop_done:
-            log.warning("%s: stopped before every node's failsafe frame went out", self.name)
+    @property
+    def stopped(self) -> bool:
+        """Its failsafe went out, or the line cannot take it: no final tick is owed."""
+        return not self.session.line_open or self.session.stop_done
 
     def protocol_stats(self) -> dict[str, Any]:
         """The session's record and the link's counters (labels: `usb2rc.runtime.stats_text`)."""
         return {**self.session.stats(time.monotonic()), **self.link.counters()}
+
+
+class Drivers(Worker):
+    """The drivers' thread: every output's ticks, on one thread, in one loop (as
+    python-can's `Notifier` serves every bus). A tick starts its lead before its deadline
+    (`begin`: the bytes made) and writes on it (`write`, then `finish`). Ticks due
+    together, the default outputs' every 20 ms, start together from one snapshot, so the
+    readers wake once for all of them, and write on their deadline in config order, one
+    right after another (each counted after all of them went out): no write
+    waits for another thread's work (bench/README.md, "Issue 21: one thread for every
+    output"). Each of several outputs has its own lead, which learns what its ticks took
+    with those due together; ticks due together start on the earliest of their starts.
+    The only output has none (`Driver`'s `alone`)."""
+
+    def __init__(self, name: str, drivers: Sequence[Driver]) -> None:
+        super().__init__(name)
+        self.drivers = list(drivers)
+
+    def run(self) -> None:
+        """Until stopped: the next moment's writes, else its starts; then the final ticks
+        and the links closed. A write comes before a start due with it: its moment is the
+        one that matters."""
+        drivers = self.drivers
+        if not drivers:
+            return
+        now = time.monotonic()
+        for driver in drivers:
+            driver.plan(aligned(now, driver.period_s), driver.period_s)
+        while not self.stopping:
+            moment = min(driver.next_moment for driver in drivers)
+            delay = moment - time.monotonic()
+            if delay > 0 and self._wait(delay):
+                break
+            now = time.monotonic()
+            due = [d for d in drivers if d.holding and d.next_moment <= now]
+            for driver in due:
+                driver.write()
+            for driver in due:
+                driver.finish()
+            if not due:
+                self._begin(now)
+        self._final_ticks()
+        for driver in drivers:
+            driver.link.close()
+
+    def _begin(self, now: float) -> None:
+        """The ticks that start now, those within SAME_TICK_S after (one tick for the
+        readers: one wake-up), and those due on the same deadline as any of them (due
+        together: they start with the one that leads most), made in config order from one
+        snapshot: outputs due together send one step's values, and a record a reader
+        publishes meanwhile does not step the table again. Each that started on its own
+        start teaches its lead what the whole batch took."""
+        waiting = [driver for driver in self.drivers if not driver.holding]
+        starting = [driver for driver in waiting if driver.next_moment <= now + SAME_TICK_S]
+        if not starting:
+            return
+        due = [driver.deadline for driver in starting]
+        batch = [d for d in waiting if any(abs(d.deadline - at) <= SAME_DEADLINE_S for at in due)]
+        stepping = time.monotonic()
+        snapshot = batch[0].snapshot()
+        step_s = time.monotonic() - stepping
+        for driver in batch:
+            driver.begin(snapshot, step_s)
+        ready = time.monotonic()
+        for driver in starting:
+            if driver.lead is not None:
+                driver.lead.took(ready - driver.start, driver.period_s)
+
+    def _wait(self, delay_s: float) -> bool:
+        """Asleep until the next moment (awake would hold the GIL from the readers); True
+        when stopped. A stalled line is waited on itself: the first for the whole wait,
+        any other looked at when it ends (and at every tick)."""
+        end = time.monotonic() + delay_s
+        for driver in self.drivers:
+            if driver.session.stalled:
+                driver.wait_while_stalled(max(0.0, end - time.monotonic()))
+        return self.sleep(max(0.0, end - time.monotonic()))
+
+    def _final_ticks(self) -> None:
+        """usb2rc stops: each protocol's failsafe before its port closes (docs/ICD.md,
+        "Stop"). Each output ticks on at its own rate until its session says its failsafe
+        went out, or its line cannot take it, for at most FINAL_TICKS_S in all: a stalled
+        line never holds the stop."""
+        for driver in self.drivers:
+            driver.session.stopping()
+        start = time.monotonic()
+        end = start + FINAL_TICKS_S
+        next_at = {driver.name: start for driver in self.drivers}
+        owed = [driver for driver in self.drivers if not driver.stopped]
+        while owed:
+            now = time.monotonic()
+            for driver in owed:
+                if next_at[driver.name] <= now:
+                    driver.final_tick()
+                    next_at[driver.name] = now + driver.period_s
+            owed = [d for d in owed if not d.stopped and next_at[d.name] <= end]
+            if owed:  # `sleep()` returns at once now: the worker is stopping
+                time.sleep(max(0.0, min(next_at[d.name] for d in owed) - time.monotonic()))
+        for driver in self.drivers:
+            if not driver.stopped:
+                log.warning("%s: stopped before every node's failsafe frame went out", driver.name)

@@ -10,7 +10,7 @@ Decisions:
   (at most one per period and set of reader records), faster than every output's default
   rate;
 - the grid (these steps, every output's ticks, the node clock, the status socket) counts
-  its multiples from GRID_EPOCH_S, half a kernel tick, so that no tick falls on the
+  its multiples from GRID_EPOCH_S, three quarters of a kernel tick, so that no tick falls on the
   kernel's own (bench/README.md, "Issue 21: the grid half a kernel tick off the kernel's");
 - the step for a period runs exactly once, whoever triggers it: each driver before each of
   its ticks (so a frame carries the newest records), or the `NodeClock` thread once per
@@ -68,14 +68,18 @@ def kernel_tick_s() -> float:
 
 
 # The grid's epoch: every output's ticks and the node steps fall on the multiples of their
-# period counted from here on the monotonic clock. Half a kernel tick, not 0: Linux aligns
-# its tick to the multiples of 1/HZ on the same clock (kernel/time/tick-sched.c,
+# period counted from here on the monotonic clock. Three quarters of a kernel tick, not 0:
+# Linux aligns its tick to the multiples of 1/HZ on the same clock (kernel/time/tick-sched.c,
 # `tick_init_jiffy_update`), and the tick wakes the kernel's timer-wheel work there
 # (`schedule_timeout` sleepers, delayed work: kworkers, kdamond). A write on a multiple of
 # 20 ms woke the far end's reader onto a CPU that such a thread held for up to 2.8 ms,
 # 1-5 frames in 1,000 (bench/README.md, "Issue 21: the grid half a kernel tick off the
-# kernel's"). Half a tick is as far as a write can be from the ticks on both sides.
-GRID_EPOCH_S = kernel_tick_s() / 2
+# kernel's"). Not half a tick: the periods that are an odd number of half ticks (SUMD's
+# 10 ms, CRSF's 2 ms at 500 Hz, at HZ=250) then fell on every other kernel tick; from three
+# quarters, every multiple of half a tick is a quarter tick off the kernel's, and a whole
+# number of ticks is the longest after the tick's work began (bench/README.md, "Issue 21:
+# one thread for every output").
+GRID_EPOCH_S = kernel_tick_s() * 3 / 4
 
 
 @dataclass(frozen=True)
@@ -233,34 +237,24 @@ def clock_period(output_periods: Iterable[float]) -> float:
     return max(1, int(fastest / BASE_PERIOD_S + 1e-9)) * BASE_PERIOD_S
 
 
-def clock_phase(
-    period_s: float, output_periods: Iterable[float], write_offsets: Iterable[float] = ()
-) -> float:
+def clock_phase(period_s: float, output_periods: Iterable[float]) -> float:
     """Where in its period the node clock steps: of PHASE_CANDIDATES offsets from the grid,
     the one whose steps stay farthest from every output's ticks (each output ticks on the
-    multiples of its own period, and writes its offset after them: `write_offsets`, in the
-    same order, 0 where not given) over PHASE_HORIZON_S; of equal ones, the nearest to half
+    multiples of its own period) over PHASE_HORIZON_S; of equal ones, the nearest to half
     the period. Half the period when the outputs tick only on the clock's own grid (one
     output: always). With SUMD's 10 ms beside CRSF's 4 ms, half of 4 ms falls on every
     other SUMD tick; 1 ms off the grid falls on none."""
     periods = list(output_periods)
-    offsets_given = list(write_offsets)
-    moments = [
-        (period, offsets_given[i] if i < len(offsets_given) else 0.0)
-        for i, period in enumerate(periods)
-    ]
     steps = max(1, min(PHASE_HORIZON_STEPS, round(PHASE_HORIZON_S / period_s)))
 
     def clearance(phase: float) -> float:
-        """The step's closest approach to any tick or write (rounded: a float's residue is
-        no gap)."""
+        """The step's closest approach to any tick (rounded: a float's residue is no gap)."""
         closest = period_s
         for k in range(steps):
             at = k * period_s + phase
-            for period, write_offset in moments:
-                for moment in {0.0, write_offset}:
-                    left = (at - moment) % period
-                    closest = min(closest, left, period - left)
+            for period in periods:
+                left = at % period
+                closest = min(closest, left, period - left)
         return round(closest, 7)
 
     offsets = [period_s * i / PHASE_CANDIDATES for i in range(PHASE_CANDIDATES)]
@@ -269,7 +263,8 @@ def clock_phase(
 
 class NodeClock(Worker):
     """The clock that keeps the snapshot live whether or not an output reads: `step`
-    (NodeTable.step_if_due) once per `period_s` (`clock_period`), `phase_s` (`clock_phase`)
+    (the daemon's: `NodeTable.step_if_stale(period_s)`, no step when a driver's ran within
+    the period) once per `period_s` (`clock_period`), `phase_s` (`clock_phase`)
     off its multiples from the grid's epoch (GRID_EPOCH_S), where the outputs' ticks are
     not: the clock's wake-up and step keep away from every tick. (On the grid, they fell
     on every tick; just before it, next to the readers' last call: bench/README.md,

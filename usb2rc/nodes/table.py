@@ -16,6 +16,7 @@ already have given to another device.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -371,6 +372,7 @@ class NodeTable:
         self._log = EMPTY_LOG  # replaced whole by `_broadcast`, published by each step
         self._layout = 0  # bumped whenever devices, entries or bindings change
         self._stepped: tuple[int, int, tuple[ReaderRecord, ...]] | None = None
+        self._stepped_at = -math.inf  # when the step last ran (the table's clock)
         # devices resting, not long enough yet at the last step: a step when one has
         self._resting: list[RestWatch] = []
         self._attachments = 0  # device ids handed out
@@ -394,6 +396,18 @@ class NodeTable:
         snapshot."""
         with self._lock:
             changes = self._step_if_due_locked()
+            snapshot = self._snapshot
+        _log_changes(changes)
+        return snapshot
+
+    def step_if_stale(self, age_s: float) -> NodeSnapshot:
+        """The node clock's call: the step (as `step_if_due`) unless one ran in the last
+        `age_s`, a driver's before its tick. The snapshot is never older than `age_s`, and
+        a clock beside outputs that step the table as often does not step it again for
+        nobody (the five default outputs: a second step every 4 ms, ~3 % of a core)."""
+        with self._lock:
+            stale = self._clock() - self._stepped_at >= age_s
+            changes = self._step_if_due_locked() if stale else []
             snapshot = self._snapshot
         _log_changes(changes)
         return snapshot
@@ -423,6 +437,7 @@ class NodeTable:
         if same and not any(rest.rested_by(now) for rest in self._resting):
             return []
         self._stepped = (period, self._layout, records)
+        self._stepped_at = now
         return self._step_locked(period, now, nodes, iter(records))
 
     def _step_locked(
