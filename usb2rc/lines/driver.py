@@ -537,7 +537,7 @@ class Drivers(Worker):
         due = [driver.deadline for driver in starting]
         batch = [d for d in waiting if any(abs(d.deadline - at) <= SAME_DEADLINE_S for at in due)]
         stepping = time.monotonic()
-        snapshot = batch[0].snapshot()
+        snapshot = batch[0].snapshot()  # the daemon's drivers all read its one node table
         step_s = time.monotonic() - stepping
         for driver in batch:
             driver.begin(snapshot, step_s)
