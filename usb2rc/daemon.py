@@ -34,7 +34,13 @@ from usb2rc.lines.link import Link
 from usb2rc.lines.rx import LinkReader
 from usb2rc.nodes.lifecycle import DeviceLifecycle
 from usb2rc.nodes.mapping import Mapping, compile_mapping, match_text
-from usb2rc.nodes.step import GRID_EPOCH_S, NodeClock, clock_period, clock_phase
+from usb2rc.nodes.step import (
+    GRID_EPOCH_S,
+    NodeClock,
+    clock_period,
+    clock_phase,
+    clock_stale_after,
+)
 from usb2rc.nodes.table import Expected, ExpectedEntry, NodeTable
 from usb2rc.runtime import stats_text
 from usb2rc.status_socket import PERIOD_S as STATUS_PERIOD_S
@@ -167,8 +173,9 @@ class Daemon:
         # the clock that steps the nodes whether or not an output reads, on the drivers' grid
         periods = [out.driver.period_s for out in self.outputs]
         period = clock_period(periods)
+        stale_after = clock_stale_after(period, (o.driver.lead is not None for o in self.outputs))
         self.node_clock = NodeClock(
-            lambda: self.table.step_if_stale(period),
+            lambda: self.table.step_if_stale(stale_after),
             time.monotonic,
             period,
             clock_phase(period, periods),
