@@ -52,6 +52,7 @@ RUN = {
     "usb2rc install-system --print 70-usb2rc.rules",
     "usb2rc check --config hotas.yaml --json",
     "usb2rc icd --config hotas.yaml --json",
+    "usb2rc check --config hotas.yaml --port /dev/ttyUSB1",
 }
 
 # Shown with sudo, they write or read the system's files: here they run in this order
@@ -87,19 +88,19 @@ PARSE_ONLY = {
     "usb2rc monitor --config hotas.yaml": PLACEHOLDER,
     "usb2rc monitor --replay recordings/ --replay-loop": PLACEHOLDER + "; runs until Ctrl-C",
     "usb2rc record 044f:b10a --seconds 10": HARDWARE,
-    "usb2rc --config hotas.yaml --port /dev/ttyUSB0": HARDWARE,
+    "usb2rc --config hotas.yaml --port /dev/ttyUSB1": HARDWARE,
     "usb2rc init --port /dev/serial0 -o my.yaml": HARDWARE,
     "usb2rc calibrate --config my.yaml": HARDWARE + "; interactive (tests/test_calibrate_tmux.py)",
     "usb2rc calibrate --config demo.yaml --replay demo --replay-loop": (
         "interactive; tests/test_calibrate_tmux.py drives it in tmux"
     ),
     "usb2rc --config my.yaml": PLACEHOLDER,
-    "usb2rc --config hotas.yaml --port /dev/ttyUSB0 --stats-interval 10": HARDWARE,
+    "usb2rc --config hotas.yaml --port /dev/ttyUSB1 --stats-interval 10": HARDWARE,
     "usb2rc --config hotas.yaml --stats-interval 10 --stats-format json": PLACEHOLDER
     + "; runs until stopped",
     "usb2rc --config hotas.yaml --port /dev/cu.usbserial-A10K1B2C": HARDWARE + " (macOS)",
     "usb2rc --config hotas.yaml --port COM3": HARDWARE + " (Windows)",
-    "usb2rc --config hotas.yaml --port 'spy:///dev/ttyUSB0?file=/tmp/usb2rc-spy.txt'": HARDWARE,
+    "usb2rc --config hotas.yaml --port 'spy:///dev/ttyUSB1?file=/tmp/usb2rc-spy.txt'": HARDWARE,
 }
 
 FENCE = re.compile(r"^\s*(```|~~~)")

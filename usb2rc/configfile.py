@@ -12,7 +12,8 @@ saving it (truncate, then write) must not switch a running daemon's mapping on a
 
 `load_runnable(path, port_override)` is the one verdict `usb2rc run` starts with, a reload
 (SIGHUP) takes and `usb2rc check` prints: the file's own problems, then what would fail when
-the outputs open (a port per output, a port that can be a serial line). A file above
+the outputs open with `--port` applied (`config/ports.py`: a port per output, a port that
+can be a serial line, one output per line). A file above
 MAX_CONFIG_BYTES or with more than MAX_DEVICE_ENTRIES entries is refused before it is read
 further: parsing holds the interpreter, and a reload parses while the outputs tick.
 
@@ -27,6 +28,7 @@ for the commands (the stages below import them from where they are defined):
   `config/output_options.py`: the keys only some protocols take;
 - this module: the top level and `outputs:`;
 - `config/devices.py`: `devices:`; `config/checks.py`: clashes and channel sources;
+  `config/ports.py`: the ports the outputs will use, `--port` applied;
   `config/controls.py`: switches, mixes, throttle cuts.
 """
 
@@ -37,13 +39,7 @@ from typing import Any
 
 from yaml.nodes import MappingNode, Node, SequenceNode
 
-from usb2rc.config.checks import (
-    channel_problem,
-    check_channels,
-    check_clashes,
-    device_claims,
-    port_problems,
-)
+from usb2rc.config.checks import channel_problem, check_channels, check_clashes, device_claims
 from usb2rc.config.controls import check_controls, read_mix, read_switches, read_throttle_cuts
 from usb2rc.config.controls_model import MixRef
 from usb2rc.config.devices import read_devices
@@ -68,6 +64,7 @@ from usb2rc.config.model import (
     OutputConfig,
 )
 from usb2rc.config.port_url import url_problem
+from usb2rc.config.ports import port_problems
 from usb2rc.config.status import check_handovers
 from usb2rc.config.yamlnodes import (
     ConfigError,
@@ -132,8 +129,9 @@ MAX_DEVICE_ENTRIES = 128
 def load_runnable(path: str | None, port_override: str | None) -> Config:
     """The config at `path` (zero config for None) as the daemon would run it with
     `--port port_override`: raises ConfigError with every problem of the file, or else with
-    every output that could not open (no port, a port that is no serial line). The one check
-    shared by `run`, a reload and `check`. OSError when the file cannot be read."""
+    every output that could not open (no port, a port that is no serial line, a line an
+    earlier output has). The one check shared by `run`, a reload and `check`. OSError when
+    the file cannot be read."""
     config = Config.default() if path is None else load_config(path)
     problems = port_problems(config, port_override)
     if problems:

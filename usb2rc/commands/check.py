@@ -7,8 +7,10 @@ stays the verdict when whoever reads stdout has gone (`usb2rc check | head -1`).
 
 The config is judged by `config.load_runnable`, the function `usb2rc run` starts with and a
 reload (SIGHUP) takes: what `check --port PORT` passes, a daemon started with `--port PORT`
-takes on a reload. So an output without a port, or with one that exists but cannot be a
-serial line (`/dev/null`, a file, a directory), is an error here too.
+takes on a reload. So an output without a port, with one that exists but cannot be a
+serial line (`/dev/null`, a file, a directory), or on the line of another output (`--port`
+included) is an error here too. The summary and `--json` give each output the port it
+will open (`config.ports.used_ports`: `--port` applied), not the file's.
 
 Warnings (on stderr, `file:line: key: warning: ...`) do not change the exit code: what the
 SUMD decoders of PX4, ArduPilot and Betaflight would not take of a SUMD output, SUMD channels
@@ -31,6 +33,7 @@ from typing import Any
 from usb2rc.commands.arguments import replay_dir
 from usb2rc.config.mavlink import MavlinkOptions, baud_needed
 from usb2rc.config.port_url import port_argument
+from usb2rc.config.ports import UsedPort, used_ports
 from usb2rc.config.udp_url import is_udp_url
 from usb2rc.configfile import (
     Config,
@@ -145,10 +148,12 @@ def _bind_one(
 # --------------------------------------------------------------------------- summary
 
 
-def describe_output(output: OutputConfig) -> str:
-    port = output.port or "(port from --port)"
-    baud = "" if is_udp_url(port) else f"  {output.baudrate} baud"
-    text = f"{output.protocol:<7} {port}{baud}  {output.rate_hz:g} Hz"
+def describe_output(output: OutputConfig, used: UsedPort | None = None) -> str:
+    """One line: protocol, the port it will open (`used`, --port applied), baud, rate and
+    what the protocol sends."""
+    opened = used.port if used is not None else output.port
+    baud = "" if opened and is_udp_url(opened) else f"  {output.baudrate} baud"
+    text = f"{output.protocol:<7} {port_text(output, used)}{baud}  {output.rate_hz:g} Hz"
     if output.protocol == "c2-16b":
         lf = "line feed" if output.line_feed else "no line feed"
         return f"{text}  {lf}, service status {output.service_status}"
@@ -163,6 +168,14 @@ def describe_output(output: OutputConfig) -> str:
         return f"{text}  {mavlink_text(output)}"
     note = protocol(output.protocol).note
     return f"{text}  {note}" if note else text
+
+
+def port_text(output: OutputConfig, used: UsedPort | None) -> str:
+    """The port the output will open, and where it comes from when --port gave it."""
+    if used is None or not used.from_option:
+        return output.port or "(port from --port)"
+    config_port = f"the config's {used.replaced}" if used.replaced else "the config gives none"
+    return f"{used.port} (from --port; {config_port})"
 
 
 def mavlink_text(output: OutputConfig) -> str:
@@ -193,11 +206,12 @@ def describe_device(device: DeviceConfig) -> str:
     return f"{device.name}: " + ", ".join(parts or ["nothing mapped"])
 
 
-def summary(config: Config, mapping: Mapping) -> list[str]:
-    """What the config does; the verdict line (`verdict_line`) comes after everything."""
+def summary(config: Config, mapping: Mapping, port_override: str | None = None) -> list[str]:
+    """What the config does, with `--port` applied; the verdict line comes after everything."""
     lines = ["outputs:"]
-    for output in config.outputs:
-        lines.append(f"  {describe_output(output)}")
+    for used in used_ports(config, port_override):
+        output = used.output
+        lines.append(f"  {describe_output(output, used)}")
         if protocol(output.protocol).channels:
             names = [c.name for c in mapping.sumd_channels(output)]
             lines.append(f"    {len(names)} channels: {' '.join(names)}")
@@ -276,14 +290,14 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         errors, count = exc.errors, len(exc.problems)  # errors: the same problem once
         return _printed(lambda: print_errors(errors, count), 2)
-    verdict = judge(config, args.replay)
+    verdict = judge(config, args.replay, args.port)
     return _printed(lambda: print_verdict(verdict), 2 if verdict.errors else 0)
 
 
-def judge(config: Config, directory: str | None) -> Verdict:
+def judge(config: Config, directory: str | None, port_override: str | None = None) -> Verdict:
     mapping = compile_mapping(config)
     found = warnings(config, mapping) + sandbox_warnings(config)
-    verdict = Verdict(config, summary(config, mapping), found, 0)
+    verdict = Verdict(config, summary(config, mapping, port_override), found, 0)
     if directory:
         devices, problems = bind_replay(mapping, directory)
         verdict.out += replay_lines(devices, problems)
@@ -325,7 +339,10 @@ def _printed(write: Callable[[], None], code: int) -> int:
 #
 #     {"config": FILE | null, "ok": bool,
 #      "problems": [{"file", "line", "key", "message", "severity", "allowed", "suggestion"}],
-#      "outputs": [...], "replay": [...]}   # replay: with --replay DIR only
+#      "outputs": [{"protocol", "port", "config_port", "port_from", "baudrate", "rate_hz"}],
+#      "replay": [...]}   # replay: with --replay DIR only
+#
+# An output's `port` is the one it will open (--port applied); `config_port` is the file's.
 #
 # Every config problem is an `error` (exit 2, as without --json); with `--replay DIR`, a device
 # that cannot be bound is an `error` too (at the config line it names, `recording`: which
@@ -345,16 +362,20 @@ def problem_record(problem: Problem, severity: str = "error") -> dict[str, Any]:
     }
 
 
-def output_records(config: Config) -> list[dict[str, Any]]:
+def output_records(config: Config, port_override: str | None = None) -> list[dict[str, Any]]:
+    """Each output with the port it will open (`port`, --port applied), the config's own
+    (`config_port`) and which of the two gave it (`port_from`: "config" or "--port")."""
     return [
         {
-            "protocol": out.protocol,
-            "port": out.port,
+            "protocol": used.output.protocol,
+            "port": used.port,
+            "config_port": used.output.port,
+            "port_from": "--port" if used.from_option else "config",
             # a UDP port has no baud rate: null, as `icd` prints "- (UDP)"
-            "baudrate": None if out.port and is_udp_url(out.port) else out.baudrate,
-            "rate_hz": out.rate_hz,
+            "baudrate": None if used.port and is_udp_url(used.port) else used.output.baudrate,
+            "rate_hz": used.output.rate_hz,
         }
-        for out in config.outputs
+        for used in used_ports(config, port_override)
     ]
 
 
@@ -396,7 +417,7 @@ def json_document(args: argparse.Namespace) -> dict[str, Any]:
         document["ok"] = False
         document["problems"] = [problem_record(p) for p in exc.problems]
         return document
-    document["outputs"] = output_records(config)
+    document["outputs"] = output_records(config, args.port)
     if args.replay:
         mapping = compile_mapping(config)
         devices, problems = bind_replay(mapping, args.replay)
@@ -411,10 +432,11 @@ def json_document(args: argparse.Namespace) -> dict[str, Any]:
     return document
 
 
-def check_record(config: Config) -> dict[str, Any]:
-    """`usb2rc check`'s verdict on the running config: its summary and warnings (it has no
-    errors: a config with errors is refused at start and on a reload)."""
-    verdict = judge(config, None)
+def check_record(config: Config, port_override: str | None = None) -> dict[str, Any]:
+    """`usb2rc check --port port_override`'s verdict on the running config: its summary
+    (the ports the daemon opens) and warnings (it has no errors: a config with errors is
+    refused at start and on a reload)."""
+    verdict = judge(config, None, port_override)
     return {
         "source": config.source,
         "ok": not verdict.errors,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import atexit
 import contextlib
+import functools
 import json
 import logging
 import os
@@ -340,7 +341,7 @@ def run(args: argparse.Namespace) -> int:
             on_tick=_WatchdogFeeder(notifier),
             on_status=notifier.status,
             status_socket=status_socket_path(args),
-            judge=check_record,
+            judge=functools.partial(check_record, port_override=args.port),
         )
     except NoPortError as exc:
         print(f"usb2rc: {exc}", file=sys.stderr)

@@ -1,19 +1,17 @@
-"""Cross-checks over a read config: clashes on a node, SUMD channels nobody feeds, ports.
+"""Cross-checks over a read config: clashes on a node, SUMD channels nobody feeds.
 
 Part of the config file's schema (docs/CONFIG.md): two sources on one axis slot or node bit, a
 default-layout entry sharing its node, and a SUMD channel whose node / slot / button no
-device feeds are problems naming both places. `port_problems` is what would fail when the
-outputs open: an output without a port, a port that exists but is no serial line.
+device feeds are problems naming both places. (What would fail when the outputs open is
+`config/ports.py`'s.)
 """
 
 from __future__ import annotations
 
-import os
-import stat
 from dataclasses import dataclass, field
 
 from usb2rc.config.model import ChannelRef, Config, DeviceConfig
-from usb2rc.config.yamlnodes import NodeReader, Problem, Where
+from usb2rc.config.yamlnodes import NodeReader, Where
 
 
 @dataclass
@@ -121,70 +119,3 @@ def channel_problem(config: Config, ref: ChannelRef) -> str | None:
     if any(bit == f"button {ref.index}" for _, bits in claims for bit, _ in bits):
         return None
     return f"{name}: no device feeds button {ref.index} of node {node_id}"
-
-
-# --------------------------------------------------------------------------- ports
-# What would fail when the outputs open, found before: `load_runnable` (usb2rc.configfile)
-# adds these to the file's own problems, for `run`, a reload and `check` alike.
-
-
-def port_problems(config: Config, port_override: str | None) -> list[Problem]:
-    """Every output without a port once `--port` replaced the first one's, and every port
-    that exists but cannot be a serial line. A path that does not exist is no problem: the
-    adapter may be plugged later, and the output retries it every second."""
-    problems = []
-    for index, output in enumerate(config.outputs):
-        overridden = index == 0 and bool(port_override)
-        port = port_override if overridden else output.port
-        reason = _NO_PORT if not port else serial_line_problem(port)
-        if reason is None:
-            continue
-        if overridden:
-            problems.append(Problem("--port", None, None, f"{port}: {reason}"))
-        else:
-            message = reason if not port else f"{port}: {reason}"
-            problems.append(_port_problem(config, output.where, index, message))
-    return problems
-
-
-_NO_PORT = (
-    "no port: set `port:` here, or give the first output's with --port PORT "
-    "(to `usb2rc run` and to `usb2rc check` alike)"
-)
-
-
-def _port_problem(config: Config, where: Where | None, index: int, message: str) -> Problem:
-    """At the output's `port:` in the file; zero config has no line."""
-    if where is not None:
-        return where.problem(message, key_suffix=".port")
-    return Problem(config.source, None, f"outputs[{index}].port", message)
-
-
-def serial_line_problem(port: str) -> str | None:
-    """Why an existing `port` path cannot be a serial line, or None (URLs and absent paths
-    are not judged here). Opens nothing: opening a serial port can reset what is on it."""
-    if "://" in port:
-        return None
-    try:
-        mode = os.stat(port)
-    except OSError:
-        return None  # absent (plugged later), a UDP address, or a name only pyserial knows
-    if stat.S_ISDIR(mode.st_mode):
-        return "is a directory, not a serial line"
-    if stat.S_ISREG(mode.st_mode):
-        return "is a regular file, not a serial line"
-    if not stat.S_ISCHR(mode.st_mode):
-        return "is not a character device, so not a serial line"
-    device_class = _char_device_class(mode.st_rdev)
-    if device_class not in (None, "tty"):
-        return f"is a {device_class} device, not a serial line (tty)"
-    return None
-
-
-def _char_device_class(rdev: int) -> str | None:
-    """The kernel's class of a character device ("tty", "mem", ...), from sysfs; None when
-    sysfs does not list it (pseudo-terminals, other systems)."""
-    link = f"/sys/dev/char/{os.major(rdev)}:{os.minor(rdev)}/subsystem"
-    if not os.path.exists(link):
-        return None
-    return os.path.basename(os.path.realpath(link))

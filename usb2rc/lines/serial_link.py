@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import enum
+import errno
 import logging
 import os
 import queue
@@ -48,6 +49,7 @@ import serial
 from serial.urlhandler import protocol_socket
 
 from usb2rc.lines.link import LineEvent, LinkStats, Written
+from usb2rc.lines.port_holders import holders_text
 from usb2rc.lines.rx import RX_CHUNKS_QUEUED, Handoff
 from usb2rc.lines.session import LinkState
 
@@ -57,6 +59,9 @@ SOCKET_SEND_BUFFER = 4096  # bytes: what a stalled TCP bridge can hold back from
 PTY_SLAVE_DIR = "/dev/pts/"  # where Linux names UNIX98 pty slaves (os.ttyname)
 PROC_DEVICES = "/proc/devices"  # the kernel's character majors, by driver name
 PTY_SLAVE_DRIVERS = ("pts", "ttyp")  # UNIX98 and legacy BSD pty slaves
+# While another process holds the port, who it is is looked up (all of /proc) this often:
+# once a retry would cost a few ms of Python every second, beside the outputs' ticks.
+HOLDERS_RESCAN_S = 30.0
 
 
 @dataclass(frozen=True)
@@ -157,18 +162,35 @@ def _in_waiting(port: Any) -> int:
 
 
 def _describe_open_error(url: str, exc: Exception) -> str:
+    """What failed and what to do, as the log line's first part (it goes on with
+    "; retrying every 1 s", so no full stop at the end)."""
     text = str(exc)
     if "Permission denied" in text or "Errno 13" in text:
         return (
             f"serial port {url}: permission denied. Add the user to the 'dialout' group "
-            "(sudo usermod -aG dialout $USER, then log in again) or run as the usb2rc service."
+            "(sudo usermod -aG dialout $USER, then log in again) or run as the usb2rc service"
         )
     if "No such file" in text or "Errno 2" in text or "could not open port" in text:
         return (
             f"serial port {url} is not there ({text}). Check the cable / adapter, the path "
-            "(ls /dev/serial* /dev/ttyUSB* /dev/ttyACM*) or give another one with --port."
+            "(ls /dev/serial* /dev/ttyUSB* /dev/ttyACM*) or give another one with --port"
         )
     return f"serial port {url}: {text}"
+
+
+def is_held(exc: Exception) -> bool:
+    """The open failed because another process has the port: its exclusive lock (flock:
+    EAGAIN, pyserial's "Could not exclusively lock port") or the port's own (TIOCEXCL: EBUSY)."""
+    number = getattr(exc, "errno", None)
+    return number in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EBUSY) or (
+        "exclusively lock" in str(exc)
+    )
+
+
+def device_path(url: str) -> str:
+    """The device a port URL opens: the path itself, or the one under `spy://`."""
+    scheme, sep, rest = url.partition("://")
+    return rest.partition("?")[0] if sep and scheme.lower() == "spy" else url
 
 
 class SerialLink:
@@ -208,6 +230,7 @@ class SerialLink:
         self._closing = False  # close() only
         self._lock = threading.Lock()  # guards the offer slot, not I/O
         self._offer: _Opened | None = None  # opener -> writer
+        self._held_by: tuple[float, str] | None = None  # opener: who holds the port, when seen
         self._opener: threading.Thread | None = None  # writer thread
         self._handle: _Handle | None = None  # the adopted port (writer thread)
         self._port_lock = threading.Lock()  # a read holds it; a close takes it
@@ -274,7 +297,7 @@ class SerialLink:
                 exclusive=True,
             )
         except Exception as exc:  # whatever a URL handler raises: logged, retried
-            opened = _Opened(None, _describe_open_error(self.url, exc))
+            opened = _Opened(None, self._open_error(exc))
         else:
             if self._closing:
                 port.close()
@@ -282,6 +305,21 @@ class SerialLink:
             opened = _Opened(port)
         with self._lock:
             self._offer = opened  # one step: the writer takes it whole, or not yet
+
+    def _open_error(self, exc: Exception) -> str:
+        """The opener's description of a failed open; a held port names who holds it
+        (looked up at most every HOLDERS_RESCAN_S)."""
+        if not is_held(exc):
+            return _describe_open_error(self.url, exc)
+        now = time.monotonic()
+        if self._held_by is None or now - self._held_by[0] >= HOLDERS_RESCAN_S:
+            self._held_by = (now, holders_text(device_path(self.url)))
+        number = getattr(exc, "errno", None)
+        reason = f"[Errno {number}] {os.strerror(number)}" if number else str(exc)
+        return (
+            f"serial port {self.url} is in use by another process (it cannot be locked: "
+            f"{reason}): {self._held_by[1]}"
+        )
 
     def _take_offer(self) -> _Opened | None:
         with self._lock:

@@ -23,7 +23,7 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("short_writes", "short writes {}"),
     ("stalls", "stalls {}"),
     ("stale_flushes", "stale flushes {}"),
-    ("line_losses", "line lost {}x"),
+    ("line_losses", "line losses {}"),
     ("tick_errors", "tick errors {}"),
     ("data_frames", "data frames {}"),
     ("service_frames", "service frames {}"),
