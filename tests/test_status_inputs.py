@@ -118,13 +118,16 @@ def test_the_node_frame_carries_the_handover_and_the_battery():
     table.add_device(3, PAD, binding, source, "GAMEPAD")
     (unknown,) = table.frames()  # no report yet: failsafe values, no buttons, no battery
     assert (unknown.failsafe, unknown.handover, unknown.low_battery) == (True, None, False)
-    decoder.feed(pad_report(buttons=0x01, battery=5))
+    decoder.feed(pad_report(buttons=0x00, battery=5))
     source.record = ReaderRecord(decoder.state(), reports=1)
+    (frame,) = table.frames()  # live: a press from now on asks for the handover
+    assert frame.failsafe is False and frame.low_battery is True and frame.handover is None
+    decoder.feed(pad_report(buttons=0x01, battery=5))
+    source.record = ReaderRecord(decoder.state(), reports=2, presses=((1, 0x01),), press_serial=1)
     (frame,) = table.frames()
-    assert frame.failsafe is False and frame.low_battery is True
     assert frame.handover is not None and frame.handover.destination == 200
     decoder.feed(pad_report(buttons=0x00, battery=50))
-    source.record = ReaderRecord(decoder.state(), reports=2)
+    source.record = ReaderRecord(decoder.state(), reports=3, presses=((1, 0x01),), press_serial=1)
     (frame,) = table.frames()
     assert (frame.handover, frame.low_battery) == (None, False)
 

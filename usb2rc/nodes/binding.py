@@ -309,6 +309,24 @@ class DeviceBinding:
         while the device is live). A reload that changes this re-arms the neutral guard."""
         return _sent_axes(self) == _sent_axes(other)
 
+    def same_buttons(self, other: DeviceBinding) -> bool:
+        """Whether both map the device's buttons and hats onto the same node buttons, with
+        the same handover button and trim switches. A reload that changes this makes every
+        button held then a held-over one (usb2rc.nodes.presses)."""
+        mine = (self.button_runs, self._hats, self.handover, self.trim_switches)
+        return mine == (other.button_runs, other._hats, other.handover, other.trim_switches)
+
+    def button_groups(self, buttons: int) -> tuple[int, int]:
+        """The node buttons these HID buttons feed (its button runs; hats aside)."""
+        groups = [0, 0]
+        for shift, mask, group, dest in self._runs:
+            groups[group] |= ((buttons >> shift) & mask) << dest
+        return groups[0], groups[1]
+
+    def holds_handover(self, buttons: int) -> bool:
+        """Whether the handover button is among these HID buttons."""
+        return bool(buttons & self._handover_mask)
+
     def _masks(self) -> tuple[int, int]:
         masks = [0, 0]
         for _shift, mask, group, dest in self._runs:

@@ -96,6 +96,11 @@ class NodeFrame:
     # the node's switches: (name, int16 value), by name (outputs built before a reload
     # read them by name, usb2rc.nodes.switches)
     switches: tuple[tuple[str, int], ...] = ()
+    # What may act as a press (docs/ICD.md, "A held button is not a press"): the node
+    # buttons held now that went down while the node was live, and the switches a press set
+    # since then. Group bits above show every held button; a held-over one is not here.
+    pressed: tuple[int, int] = (0, 0)
+    pressed_switches: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -109,6 +114,16 @@ class DeviceView:
     known: bool  # its state is from a report (its taps count, live or not)
     record: ReaderRecord  # the reader's record the step read (its press log)
     trims: tuple[tuple[int, float], ...] = ()  # stepped trims of its trim-switch slots
+    # usb2rc.nodes.presses: node buttons held since before its node went live (shown, never
+    # a press), and the press serial after which its presses count
+    held_over: tuple[int, int] = (0, 0)
+    counts_from: int = 0
+
+    @property
+    def pressed(self) -> tuple[int, int]:
+        """Its node buttons held now that went down while its node was live."""
+        inputs, held = self.inputs, self.held_over
+        return inputs.group1 & ~held[0], inputs.group2 & ~held[1]
 
     def tapped_since(self, serial: int) -> int:
         """HID buttons pressed after press `serial` and already released."""
@@ -118,6 +133,12 @@ class DeviceView:
         """Its inputs with the buttons in `taps` shown pressed."""
         state = self.record.state
         inputs = self.binding.apply(InputState(state.values, state.buttons | taps))
+        if (
+            inputs.handover
+            and not self.inputs.handover
+            and self.binding.holds_handover(state.buttons)
+        ):  # held over, not tapped (usb2rc.nodes.presses): no `&`
+            inputs = replace(inputs, handover=False)
         return trimmed(inputs, dict(self.trims), self.binding) if self.trims else inputs
 
 
@@ -157,8 +178,10 @@ def compose(
     base_axes: Sequence[int],
     base_unsigned: int,
     devices: Sequence[tuple[DeviceBinding, NodeInputs]],
+    pressed: tuple[int, int] = (0, 0),
 ) -> NodeFrame:
-    """A node's frame from its devices' inputs, merged in order onto the base axes."""
+    """A node's frame from its devices' inputs, merged in order onto the base axes;
+    `pressed`: what of it may act as a press (`NodeFrame.pressed`)."""
     axes = list(base_axes)
     group1 = group2 = 0
     unsigned = base_unsigned
@@ -173,7 +196,15 @@ def compose(
             handover = binding.handover
         low_battery = low_battery or inputs.low_battery
     return NodeFrame(
-        node_id, failsafe, tuple(axes), group1, group2, unsigned, handover, low_battery
+        node_id,
+        failsafe,
+        tuple(axes),
+        group1,
+        group2,
+        unsigned,
+        handover,
+        low_battery,
+        pressed=pressed,
     )
 
 
@@ -219,13 +250,18 @@ class TapLatch:
         if not tapped:
             return node.frame
         frame = node.frame
-        latched = compose(frame.node_id, frame.failsafe, node.base_axes, node.base_unsigned, inputs)
+        latched = compose(
+            frame.node_id, frame.failsafe, node.base_axes, node.base_unsigned, inputs, frame.pressed
+        )
         if not node.overrides and not frame.switches:
             return latched
         axes = list(latched.axes)
         for slot, value in node.overrides:  # the step's switches and cuts win over the taps
             axes[slot] = value
-        return replace(latched, axes=tuple(axes), switches=frame.switches)
+        switches, pressed_switches = frame.switches, frame.pressed_switches
+        return replace(
+            latched, axes=tuple(axes), switches=switches, pressed_switches=pressed_switches
+        )
 
 
 def clock_period(output_periods: Iterable[float]) -> float:

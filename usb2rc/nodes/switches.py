@@ -11,7 +11,13 @@ node's buttons held now, and steps every switch once (docs/CONFIG.md, "Switches"
   a reload (`configure`) keep them; a reload clamps them to the new `positions`, and only a
   switch's `reset` button (or a restart) puts it back to `initial`;
 - a node in failsafe shows each of its switches at its configured `failsafe` position (held
-  where it was without one), and presses of devices that are not live do not step them.
+  where it was without one), and presses of devices that are not live do not step them;
+- a held button is not a press (usb2rc.nodes.presses): a switch steps only on presses made
+  while its node is live, and a latch or hat switch reads only buttons pressed then
+  (`NodeFrame.pressed`), so a button held at the plug moves no switch until it is
+  released and pressed again. `NodeFrame.pressed_switches` names the switches a press
+  moved since their node last went live (or a reload changed them): a MAVLink action
+  fires on those only.
 
 The step writes the switches' int16 values onto the node's frame (`NodeFrame.switches`, the
 channels `switch.<name>` read), into an axis slot where a switch has `slot:`, and holds a
@@ -102,11 +108,15 @@ class SwitchBank:
         self.positions: dict[str, int] = {}
         self.cut_on: dict[str, bool] = {}  # by the cut channel's name
         self._seen: dict[int, int] = {}  # device_id -> the press serial stepped on
+        self._pressed: set[str] = set()  # switches a press moved since their node went live
 
     def configure(self, switches: Sequence[SwitchConfig], cuts: Sequence[ThrottleCut]) -> None:
         """The config's switches (start and reload): positions kept by name, within the new
         `positions`; a new switch starts at `initial`."""
+        before_plans = {plan.config.name: plan.config for plan in self._plans}
         self._plans = tuple(_Plan.of(s) for s in switches)
+        # a switch the reload changed must be moved by a new press before an action fires
+        self._pressed = {s.name for s in switches if before_plans.get(s.name) == s} & self._pressed
         self._by_node = {}
         for plan in self._plans:
             self._by_node.setdefault(plan.config.node_id, []).append(plan)
@@ -135,10 +145,15 @@ class SwitchBank:
         seen: dict[int, int] = {}
         for view in views:
             presses = self._presses(view.devices, seen)
-            held = (view.frame.group1, view.frame.group2)
+            held, failsafe = view.frame.pressed, view.frame.failsafe
             for plan in self._by_node.get(view.frame.node_id, ()):
                 name = plan.config.name
-                self.positions[name] = plan.step(self.positions[name], presses, held)
+                before = self.positions[name]
+                self.positions[name] = plan.step(before, presses, held)
+                if failsafe:
+                    self._pressed.discard(name)
+                elif self.positions[name] != before:
+                    self._pressed.add(name)
         self._seen = seen
         return tuple(self._applied(view) for view in views)
 
@@ -151,7 +166,8 @@ class SwitchBank:
             seen[device.device_id] = record.press_serial if device.known else before
             if not device.live:
                 continue  # presses while not live are consumed, never applied later
-            new = [mask for serial, mask in record.presses if serial > before]
+            after = max(before, device.counts_from)  # and those before its node went live
+            new = [mask for serial, mask in record.presses if serial > after]
             if not new:
                 continue  # the common step: no binding applied
             values = record.state.values
@@ -171,10 +187,13 @@ class SwitchBank:
 
     def _applied(self, view: NodeView) -> NodeView:
         frame = view.frame
-        named, overrides = [], []
+        named, overrides, pressed = [], [], []
         for plan in self._by_node.get(frame.node_id, ()):
+            name = plan.config.name
             value = plan.values[self.shown(plan, frame.failsafe)]
-            named.append((plan.config.name, value))
+            named.append((name, value))
+            if name in self._pressed:
+                pressed.append(name)
             if plan.slot is not None:
                 overrides.append((plan.slot, value))
         overrides += self._cut_overrides(frame, overrides)
@@ -187,7 +206,7 @@ class SwitchBank:
                 changed[slot] = value
             axes = tuple(changed)
         # `replace` (not a new NodeFrame): fields added to the frame later are kept
-        frame = replace(frame, axes=axes, switches=tuple(named))
+        frame = replace(frame, axes=axes, switches=tuple(named), pressed_switches=tuple(pressed))
         return replace(view, frame=frame, overrides=tuple(overrides))
 
     def _cut_overrides(

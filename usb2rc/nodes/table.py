@@ -30,6 +30,7 @@ from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.nodes.binding import DeviceBinding, NodeInputs
 from usb2rc.nodes.guard import RestWatch
+from usb2rc.nodes.presses import SINCE_RELOAD, PressGate, button_mapping_changed
 from usb2rc.nodes.step import (
     BASE_PERIOD_S,
     GRID_EPOCH_S,
@@ -164,6 +165,7 @@ class _Attached:
     trim_serial: int = 0  # the press serial the trims have stepped on
     bad_spells_seen: int = 0  # the reader's runs of bad reports this device has answered
     trim_positions: dict[int, int] = field(default_factory=dict)  # hat switches: slot -> -1/0/1
+    gate: PressGate = field(default_factory=PressGate)  # which held buttons are presses
 
     @property
     def live(self) -> bool:
@@ -215,7 +217,18 @@ class _Attached:
     ) -> DeviceView:
         known = self._known(record)
         own_trims = tuple(sorted(trims.items())) if trims else ()
-        return DeviceView(self.device_id, self.binding, inputs, live, known, record, own_trims)
+        gate = self.gate
+        return DeviceView(
+            self.device_id,
+            self.binding,
+            inputs,
+            live,
+            known,
+            record,
+            own_trims,
+            gate.held_groups,
+            gate.counts_from,
+        )
 
     def _bad_reports_began(self, record: ReaderRecord) -> None:
         """The device refused BAD_REPORTS_LIMIT reports in a row (docs/ICD.md "Device error
@@ -237,11 +250,14 @@ class _Attached:
 
     def step_trims(self, node_id: int, store: TrimStore, record: ReaderRecord) -> None:
         """Step the node's trims from this device's trim switches: a button press steps once
-        (every press, from the reader's press log), a hat steps when pushed (sampled)."""
+        (every press, from the reader's press log), a hat steps when pushed (sampled). Only
+        while the node is live, from presses after it went live (usb2rc.nodes.presses): a
+        hat or button held since before is not a step."""
         switches = self.binding.trim_switches
         if not switches or not self._known(record):
             return
-        rising = [mask for serial, mask in record.presses if serial > self.trim_serial]
+        after = max(self.trim_serial, self.gate.counts_from)
+        rising = [mask for serial, mask in record.presses if serial > after]
         self.trim_serial = record.press_serial
         for switch in switches:
             if switch.hat_index >= 0:
@@ -251,7 +267,7 @@ class _Attached:
                 steps = [position] if position and position != before else []
             else:
                 steps = switch.presses(rising)  # one step per press, in order
-            if steps and self.armed:
+            if steps and self.gate.is_open:
                 for step in steps:  # each within the limit, as a transmitter's trim
                     value = store.step(node_id, switch, step)
                 log.info("node %d: %s trim %+.3f", node_id, AXIS_NAMES[switch.slot], value)
@@ -283,9 +299,11 @@ class _Node:
             return True
         return bool(self.expected) or not all(a.live for a in self.attached)
 
-    def step(self, trims: TrimStore, now: float, records: Iterator[ReaderRecord]) -> NodeView:
-        """The node in this step: each device stepped once (trims, guard) on its next
-        record from `records`, then merged."""
+    def step(
+        self, trims: TrimStore, now: float, records: Iterator[ReaderRecord]
+    ) -> tuple[NodeView, list[str]]:
+        """The node in this step: each device stepped once (trims, guard, press gate) on its
+        next record from `records`, then merged; the log lines of its press gates."""
         base = [0] * AXIS_COUNT
         base_unsigned = 0
         for entry in self.expected.values():
@@ -301,10 +319,23 @@ class _Node:
             devices.append(attached.step(record, own_trims, now))
         # as `failsafe` says
         failsafe = not self.attached or bool(self.expected) or not all(d.live for d in devices)
+        devices, notes = self._gated(devices, not failsafe)
         merged = [(d.binding, d.inputs) for d in devices]
-        frame = compose(self.node_id, failsafe, base, base_unsigned, merged)
+        pressed = _pressed(devices)
+        frame = compose(self.node_id, failsafe, base, base_unsigned, merged, pressed)
         waiting = tuple(text for _, text in self.reasons()) if failsafe else ()
-        return NodeView(frame, tuple(devices), tuple(base), base_unsigned, waiting)
+        return NodeView(frame, tuple(devices), tuple(base), base_unsigned, waiting), notes
+
+    def _gated(self, devices: list[DeviceView], live: bool) -> tuple[list[DeviceView], list[str]]:
+        """Each device's press gate stepped (usb2rc.nodes.presses): its view with what is held
+        over, and the log lines of gates that opened on held buttons."""
+        gated, notes = [], []
+        for attached, view in zip(self.attached, devices, strict=True):
+            view, note = attached.gate.step(view, live)
+            gated.append(view)
+            if note:
+                notes.append(f"node {self.node_id}: {note}")
+        return gated, notes
 
     def reasons(self) -> list[tuple[str, str]]:
         """Why the node is `!`: (kind, text) per device or entry it waits for."""
@@ -344,6 +375,15 @@ class _Node:
         if before is None or before[0]:  # still `!`, for another reason: it must rest
             return f"node {self.node_id} waits for {texts}"
         return f"node {self.node_id} enters failsafe: waiting for {texts}"
+
+
+def _pressed(devices: Sequence[DeviceView]) -> tuple[int, int]:
+    group1 = group2 = 0
+    for device in devices:
+        pressed = device.pressed
+        group1 |= pressed[0]
+        group2 |= pressed[1]
+    return group1, group2
 
 
 def _not_plugged(name: str, entry: ExpectedEntry) -> str:
@@ -448,11 +488,12 @@ class NodeTable:
         failsafe)."""
         views, changes = [], []
         for node in nodes:
-            view = node.step(self._trims, now, records)
+            view, notes = node.step(self._trims, now, records)
             views.append(view)
             change = None if self._stopping else node.failsafe_change(view.frame.failsafe)
             if change:
                 changes.append(change)
+            changes += notes
         stepped = self._switches.step(views)
         positions = tuple(sorted(self._switches.positions.items()))
         self._snapshot = NodeSnapshot(
@@ -720,6 +761,8 @@ def _rebind_attached(node_id: int, attached: _Attached, binding: DeviceBinding, 
             attached.info.product or "device",
             binding.guard.describe(),
         )
+    if button_mapping_changed(attached.binding, binding):
+        attached.gate.close(SINCE_RELOAD)  # a held button must be released first
     attached.binding = binding
 
 

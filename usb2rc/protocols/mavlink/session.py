@@ -158,7 +158,7 @@ class MavlinkChannels:
         self.sources = tuple(sources)
         self.message = message
         self.readings = tuple(channel_reading(source) for source in self.sources)
-        self.triggers = tuple((int16_value(source), target) for source, target in triggers)
+        self.triggers = tuple(trigger_value(source, target) for source, target in triggers)
 
     def __len__(self) -> int:
         return len(self.readings)
@@ -170,12 +170,12 @@ class MavlinkChannels:
         return self._values(nodes)
 
     def _triggers(self, nodes: Nodes) -> dict[str, Any]:
-        """Each action's trigger (usb2rc.protocols.mavlink.actions): a button down (target None), or
-        a switch at its position's value."""
+        """Each action's trigger (usb2rc.protocols.mavlink.actions), and whether a trigger's
+        node is in failsafe."""
         active, failsafe = [], False
-        for value, target in self.triggers:
-            int16, node_failsafe = value(nodes)
-            active.append(int16 > 0 if target is None else int16 == target)
+        for trigger in self.triggers:
+            is_active, node_failsafe = trigger(nodes)
+            active.append(is_active)
             failsafe = failsafe or node_failsafe
         return {"triggers": tuple(active), "triggers_failsafe": failsafe}
 
@@ -195,6 +195,36 @@ class MavlinkChannels:
             pressed = value if isinstance(value, bool) else value > 0  # an axis: past centre
             buttons |= int(pressed) << bit
         return ControlValues(failsafe, axes=(axes[0], axes[1], axes[2], axes[3]), buttons=buttons)
+
+
+TriggerValue = Callable[[Nodes], tuple[bool, bool]]  # the frames -> (active, failsafe)
+
+
+def trigger_value(source: ChannelSource, target: int | None) -> TriggerValue:
+    """An action's trigger: a node button pressed while its node was live (target None), or
+    a switch that such a press moved to the position of int16 value `target`. A button held
+    since before its node went live is never active (docs/ICD.md, "A held button is not a
+    press"), though its channels show it held."""
+    node_id = source.node_id
+    if target is None:
+        group, bit = node_button_bit(source.index)
+
+        def button(nodes: Nodes) -> tuple[bool, bool]:
+            frame = nodes.get(node_id)
+            if frame is None:
+                return False, True
+            return bool(frame.pressed[group] >> bit & 1), frame.failsafe
+
+        return button
+    value, name = int16_value(source), source.name.removeprefix("switch.")
+
+    def switch(nodes: Nodes) -> tuple[bool, bool]:
+        int16, failsafe = value(nodes)
+        frame = nodes.get(node_id)
+        moved = frame is not None and name in frame.pressed_switches
+        return moved and int16 == target, failsafe
+
+    return switch
 
 
 def release_channels(count: int = OVERRIDE_MAX_CHANNELS) -> list[int]:
