@@ -288,3 +288,26 @@ def test_a_mode_and_a_toggle_held_at_the_plug_do_not_fire(bench: Bench) -> None:
     wait_quiet(lambda: bench.commands(SET_MODE), "the mode after its press")
     only_after(bench.commands(SET_MODE), pressed)
     assert flipped.time < pressed.time
+
+
+def test_monitor_says_once_that_the_held_button_must_be_released(tmp_path: Path) -> None:
+    """`usb2rc monitor --plain` on a stick plugged with button 2 held: its log lines say
+    once that button 2 must be released first."""
+    import subprocess
+    import sys
+
+    replay = tmp_path / "replay"
+    replay.mkdir()
+    install(replay / "stick.hid", held((0, 30.0, 2), until=30.0))
+    result = subprocess.run(
+        [sys.executable, "-m", "usb2rc", "monitor", "--plain", "--replay", str(replay)]
+        + ["--seconds", "3"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    note = "button 2 held since the plug: release it first"
+    assert result.returncode == 0, result.stderr
+    # each plain snapshot prints the log lines that came since the one before
+    lines = [line for line in result.stdout.splitlines() if note in line]
+    assert len(lines) == 1, result.stdout
