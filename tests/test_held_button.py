@@ -299,9 +299,9 @@ def test_monitor_says_once_that_the_held_button_must_be_released(tmp_path: Path)
     replay = tmp_path / "replay"
     replay.mkdir()
     install(replay / "stick.hid", held((0, 30.0, 2), until=30.0))
+    monitor = [sys.executable, "-m", "usb2rc", "monitor", "--plain", "--replay", str(replay)]
     result = subprocess.run(
-        [sys.executable, "-m", "usb2rc", "monitor", "--plain", "--replay", str(replay)]
-        + ["--seconds", "3"],
+        [*monitor, "--seconds", "3"],
         capture_output=True,
         text=True,
         timeout=120,
