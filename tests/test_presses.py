@@ -5,8 +5,9 @@ handover, a reload)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
-from daemon_harness import T16000M_DESCRIPTOR, RecordSource
+from daemon_harness import HAT_NULL, T16000M_DESCRIPTOR, RecordSource, StickState
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -14,7 +15,7 @@ from usb2rc.config.channel_ref import ChannelRef
 from usb2rc.config.controls_model import SwitchConfig
 from usb2rc.configfile import load_config_text
 from usb2rc.hid.backend import DeviceInfo
-from usb2rc.hid.descriptor import InputState, parse_descriptor
+from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.nodes.binding import DeviceBinding, default_binding
 from usb2rc.nodes.mapping import compile_mapping
@@ -43,16 +44,18 @@ def bound(entry: str) -> DeviceBinding:
 
 @dataclass
 class Reader:
-    """A reader's press log as usb2rc.hid.reader.DeviceReader keeps it: each report's
-    rising edges get the next serial."""
+    """A T.16000M's reader: its reports decoded by the device's descriptor, and the press
+    log as usb2rc.hid.reader.DeviceReader keeps it (each report's rising edges get the next
+    serial)."""
 
     buttons: int = 0
     reports: int = 0
     presses: tuple[tuple[int, int], ...] = ()
     serial: int = 0
-    values: tuple[int, ...] = field(default_factory=lambda: LAYOUT.initial_state().values)
+    decoder: Any = field(default_factory=LAYOUT.make_decoder)
 
-    def report(self, buttons: int) -> None:
+    def report(self, buttons: int, hat: int = HAT_NULL) -> None:
+        self.decoder.feed(StickState(buttons=buttons, hat=hat).report())
         rising = buttons & ~self.buttons
         self.buttons, self.reports = buttons, self.reports + 1
         if rising:
@@ -60,7 +63,7 @@ class Reader:
             self.presses = (*self.presses, (self.serial, rising))[-64:]
 
     def record(self) -> ReaderRecord:
-        state = InputState(self.values, self.buttons)
+        state = self.decoder.state()
         return ReaderRecord(state, self.reports, 0, 0.0, self.presses, self.serial)
 
 
@@ -138,8 +141,8 @@ class Stick:
         self.table = table
         table.add_device(0, INFO, binding, self.source, "JOYSTICK")
 
-    def report(self, buttons: int) -> None:
-        self.reader.report(buttons)
+    def report(self, buttons: int, hat: int = HAT_NULL) -> None:
+        self.reader.report(buttons, hat)
         self.source.record = self.reader.record()
 
 
@@ -247,3 +250,56 @@ def test_a_reload_that_remaps_the_buttons_holds_over_one_that_does_not_keeps_the
     table.rebind(lambda info: remapped, {})
     node = step(table, clock)
     assert (node.frame.group1 & 0b10, node.frame.pressed) == (0b10, (0, 0))
+
+
+def test_a_hat_pushed_at_the_plug_moves_no_hat_switch_until_centred_and_pushed_again() -> None:
+    """A hat routed to node buttons 41-48 (UP first) feeds a hat switch; pushed UP from the
+    plug: shown held, no position; centred and pushed UP again: position 0 -> the push."""
+    hat = bound("    hats: [{usage: HatSwitch, to: [41, 42, 43, 44, 45, 46, 47, 48]}]\n")
+    view = SwitchConfig(
+        "view", "hat_switch", tuple(button_ref(f"node0.button{b}") for b in (41, 45))
+    )
+    clock = Clock()
+    table = NodeTable(clock=clock)
+    table.set_controls([view], [])
+    stick = Stick(table, hat)
+    down = 4  # the T.16000M's hat: 0 UP .. 7 UP-LEFT, 4 DOWN
+    for _ in range(30):
+        clock.now += 0.004
+        stick.report(0, hat=down)
+        table.step_if_due()
+    node = table.snapshot().nodes[0]
+    assert not node.frame.failsafe and node.frame.group2 != 0  # DOWN shown held
+    assert dict(table.snapshot().switches) == {"view": 0} and node.frame.pressed == (0, 0)
+    stick.report(0)  # centred
+    step(table, clock)
+    stick.report(0, hat=down)
+    node = step(table, clock)
+    assert dict(table.snapshot().switches) == {"view": 1}
+    assert node.frame.pressed_switches == ("view",)
+
+
+def test_a_mavlink_action_reads_only_presses_and_switches_a_press_moved() -> None:
+    """The MAVLink output's triggers (usb2rc.protocols.mavlink.session.trigger_value): a
+    button shown held but held over is not active; a switch at the action's position is
+    active only once a press moved it there."""
+    from usb2rc.nodes.mapping import ChannelSource
+    from usb2rc.nodes.step import NodeFrame
+    from usb2rc.protocols.mavlink.session import trigger_value
+
+    button = trigger_value(ChannelSource(0, "button", 2, False, "node0.button2"), None)
+    switch = trigger_value(ChannelSource(0, "switch", -1, False, "switch.gear", 0), 32767)
+    axes = (0,) * 10
+    held_over = NodeFrame(0, False, axes, 0b10, 0, switches=(("gear", 32767),))
+    pressed = NodeFrame(
+        0,
+        False,
+        axes,
+        0b10,
+        0,
+        switches=(("gear", 32767),),
+        pressed=(0b10, 0),
+        pressed_switches=("gear",),
+    )
+    assert (button({0: held_over}), switch({0: held_over})) == ((False, False), (False, False))
+    assert (button({0: pressed}), switch({0: pressed})) == ((True, False), (True, False))
