@@ -8,6 +8,7 @@ what a `pip install usb2rc` on a Pi does, without a clone.
 from __future__ import annotations
 
 import os
+import shlex
 import shutil
 import stat
 import subprocess
@@ -383,3 +384,39 @@ def test_an_edited_drop_in_is_kept(tmp_path: Path) -> None:
     again = run_here("install-system", "--root", str(tmp_path / "r"))
     assert again.returncode == 1 and drop_in.read_text() == narrowed
     assert "-IPAddressAllow=192.168.4.2\n+IPAddressAllow=any\n" in again.stderr
+
+
+# --------------------------------------------------------------------------- issue 39 point 5
+
+
+def test_install_ends_with_the_next_steps_that_make_its_config_pass_check(tmp_path: Path) -> None:
+    root = tmp_path / "pi"
+    result = run_here("install-system", "--root", str(root))
+    assert result.returncode == 0, result.stderr
+    config = installed(root, "/etc/usb2rc/usb2rc.yaml")
+    steps = result.stdout.split("next:\n", 1)[1].splitlines()  # before: nothing under --root
+    assert steps[0].startswith(f"  set the serial port in {config}: `port:` under `outputs:`")
+    assert "outputs[0] has none" in steps[0]
+    check = next(step.strip() for step in steps if " check --config " in step)
+    assert check.endswith(f"check --config {config}")
+    assert steps.index(f"  {check}") < steps.index(
+        "  sudo systemctl daemon-reload && sudo systemctl enable --now usb2rc"
+    )
+    master, slave = os.openpty()
+    try:
+        port = os.ttyname(slave)
+        given = run_here("check", "--config", str(config), "--port", port)
+        assert given.returncode == 0, given.stderr  # the config passes once a port is given
+        text = config.read_text()
+        assert "# port: /dev/serial0" in text  # where the step says the port goes
+        config.write_text(text.replace("# port: /dev/serial0", f"port: {port}"))
+        as_printed = subprocess.run(
+            shlex.split(check), capture_output=True, text=True, timeout=60, check=False
+        )
+        assert as_printed.returncode == 0, as_printed.stderr
+        assert as_printed.stdout.endswith(f"{config}: OK\n")
+    finally:
+        os.close(master)
+        os.close(slave)
+    again = run_here("install-system", "--root", str(root))  # the kept config has its port
+    assert "set the serial port" not in again.stdout and "next:" in again.stdout

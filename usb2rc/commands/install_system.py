@@ -78,9 +78,15 @@ UNITS = ("usb2rc.service", WEB_UNIT.name)  # ExecStart= names the usb2rc that in
 DROP_IN = SystemFile("network.conf", "", service_sandbox.DROP_IN, 0o644, generated=True)
 BY_NAME = {f.name: f for f in (*FILES, *EXAMPLES, DROP_IN, WEB_UNIT)}
 
-NEXT_STEPS = (
+# What is left after the files are in place, in order; the config's port comes first when
+# an output has none (the unit runs `usb2rc run --config`, without --port).
+SET_PORT_STEP = (
+    "set the serial port in {config}: `port:` under `outputs:` (e.g. `port: /dev/serial0`; "
+    "{missing} has none, and the service gives no --port)"
+)
+CHECK_STEP = "{sudo}{program} check --config {config}"
+SYSTEM_STEPS = (
     "sudo udevadm control --reload && sudo udevadm trigger --subsystem-match=hidraw",
-    "sudo {program} check --config " + CONFIG_TARGET,
     "sudo systemctl daemon-reload && sudo systemctl enable --now usb2rc",
 )
 WEB_NEXT_STEP = "sudo systemctl enable --now usb2rc-web  # then http://127.0.0.1:8080/"
@@ -469,9 +475,35 @@ def _print_advice(root: Path, program: list[str], problems: list[str], web: bool
         )
     for problem in problems:
         print(f"usb2rc install-system: {problem}", file=sys.stderr)
-    if root == Path("/"):
-        print(f"next: edit {CONFIG_TARGET} (the serial port: `port:` under `outputs:`), then")
-        command = shlex.join(program)
-        print("\n".join(f"  {step.format(program=command)}" for step in NEXT_STEPS))
-        if web:
-            print(f"  {WEB_NEXT_STEP}")
+    print("\n".join(next_steps(root, program, web)))
+
+
+def next_steps(root: Path, program: list[str], web: bool = False) -> list[str]:
+    """What is left to do, one command or task a line: the port (when the installed config
+    has an output without one), `check`, then the udev rule and the service. Under
+    `--root DIR` the config is named where it is now; the system's commands come after."""
+    config = under_root(root, CONFIG_TARGET)
+    missing = outputs_without_port(config)
+    lines = ["next:"]
+    if missing:
+        lines.append("  " + SET_PORT_STEP.format(config=config, missing=", ".join(missing)))
+    sudo = "sudo " if root == Path("/") else ""
+    lines.append("  " + CHECK_STEP.format(sudo=sudo, program=shlex.join(program), config=config))
+    if root != Path("/"):
+        lines.append(f"then, on the system that runs from {root}:")
+    lines += [f"  {step}" for step in SYSTEM_STEPS]
+    if web:
+        lines.append(f"  {WEB_NEXT_STEP}")
+    return lines
+
+
+def outputs_without_port(path: Path) -> list[str]:
+    """`outputs[0]`, ... of the config at path that have no `port:` (the service passes no
+    --port); none when it cannot be read or does not pass `check` (its step says why)."""
+    from usb2rc.configfile import ConfigError, load_config
+
+    try:
+        config = load_config(str(path))
+    except (ConfigError, OSError, UnicodeDecodeError):
+        return []
+    return [f"outputs[{i}]" for i, output in enumerate(config.outputs) if not output.port]
