@@ -2,7 +2,9 @@
 
 A replayed T.16000M pinned to node 4 comes in while the page is open: its X bar moves when
 the recording moves the stick, the node shows failsafe when the file goes (unplug), and the
-page comes back by itself with live data after the daemon is stopped and started again."""
+page comes back by itself with live data after the daemon is stopped and started again. The
+header's badge says the daemon's state all along: all live, 1 node in failsafe, daemon not
+running."""
 
 from __future__ import annotations
 
@@ -31,8 +33,11 @@ return {status: card.dataset.status, failsafe: card.dataset.failsafe,
         value: axis ? Number(axis.dataset.value) : null,
         width: axis ? parseFloat(axis.querySelector('.fill').style.width) : null,
         connected: document.getElementById('connection').dataset.connected,
-        connects: Number(document.getElementById('connection').dataset.connects)};
+        connects: Number(document.getElementById('connection').dataset.connects),
+        state: document.getElementById('connection').dataset.state,
+        badge: document.getElementById('connection').textContent};
 """
+BADGE = "const b = document.getElementById('connection'); return [b.dataset.state, b.textContent];"
 
 
 def stick_moves() -> str:
@@ -65,19 +70,23 @@ def plug_and_see_the_bar_move(driver: Any, stick: Path) -> None:
     )
     moved = wait_page(driver, lambda n: n["value"] > 30000, "node 4's X bar to move right")
     assert moved["width"] > 45.0  # the bar's fill: half the track, from the centre
+    assert (moved["state"], moved["badge"]) == ("all-live", "all live")
 
 
 def test_page_follows_the_stick_an_unplug_and_a_daemon_restart(tmp_path: Path) -> None:
     replay, sock = tmp_path / "replay", tmp_path / "run" / "status.sock"
     replay.mkdir()
     stick = replay / "stick.hid"
-    daemon = start_daemon(tmp_path, replay, sock, "daemon1.log")
-    web = WebProcess(sock, tmp_path / "web.log")
+    daemon: DaemonProcess | None = None
+    web: WebProcess | None = None
     try:
+        daemon = start_daemon(tmp_path, replay, sock, "daemon1.log")
+        web = WebProcess(sock, tmp_path / "web.log")
         with browser() as driver:
             driver.get(web.url + "/")
             first = wait_page(driver, lambda n: n["connected"] == "true", "the page to go live")
             assert first["failsafe"] == "true"  # pinned, no device yet: `!`
+            assert (first["state"], first["badge"]) == ("failsafe", "1 node in failsafe")
 
             plug_and_see_the_bar_move(driver, stick)
             status = web.get("/api/status")
@@ -85,27 +94,28 @@ def test_page_follows_the_stick_an_unplug_and_a_daemon_restart(tmp_path: Path) -
             assert [n["status"] for n in status["nodes"] if n["node_id"] == 4] == [">"]
 
             stick.unlink()  # unplug
-            wait_page(driver, lambda n: n["failsafe"] == "true" and n["status"] == "!", "failsafe")
+            gone = wait_page(
+                driver, lambda n: n["failsafe"] == "true" and n["status"] == "!", "failsafe"
+            )
+            assert (gone["state"], gone["badge"]) == ("failsafe", "1 node in failsafe")
 
             assert daemon.stop() == 0
             assert not sock.exists()  # SIGTERM removed the socket
             wait_until(
-                lambda: (
-                    driver.execute_script(
-                        "return document.getElementById('connection').dataset.connected"
-                    )
-                    == "false"
-                ),
+                lambda: driver.execute_script(BADGE) == ["no-daemon", "daemon not running"],
                 "the page to say the daemon is gone",
             )
+            daemon = None
             daemon = start_daemon(tmp_path, replay, sock, "daemon2.log")
             wait_page(
                 driver, lambda n: n["connected"] == "true" and n["connects"] == 2, "reconnect"
             )
             plug_and_see_the_bar_move(driver, stick)
     finally:
-        web.stop()
-        daemon.stop()
+        if web is not None:
+            web.stop()
+        if daemon is not None:
+            daemon.stop()
 
 
 def test_with_a_token_the_page_goes_live_through_its_cookie(tmp_path: Path) -> None:
@@ -113,10 +123,11 @@ def test_with_a_token_the_page_goes_live_through_its_cookie(tmp_path: Path) -> N
     daemon here: the stream says so)."""
     token = "0123456789abcdef0123"
     (tmp_path / "token").write_text(token)
-    web = WebProcess(
-        tmp_path / "s.sock", tmp_path / "web.log", "--token-file", str(tmp_path / "token")
-    )
+    web: WebProcess | None = None
     try:
+        web = WebProcess(
+            tmp_path / "s.sock", tmp_path / "web.log", "--token-file", str(tmp_path / "token")
+        )
         with browser() as driver:
             driver.get(f"{web.url}/?token={token}")
             badge = "return document.getElementById('connection').textContent"
@@ -127,4 +138,5 @@ def test_with_a_token_the_page_goes_live_through_its_cookie(tmp_path: Path) -> N
             driver.get(web.url + "/")  # the cookie alone
             wait_until(lambda: "daemon not running" in driver.execute_script(badge), "again")
     finally:
-        web.stop()
+        if web is not None:
+            web.stop()

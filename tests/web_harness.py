@@ -14,7 +14,7 @@ import subprocess
 import sys
 import urllib.error
 import urllib.request
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -32,21 +32,30 @@ def free_port() -> int:
 
 
 class WebProcess:
-    """`python -m usb2rc web --socket PATH` on 127.0.0.1:<free port>; log in log_path."""
+    """`python -m usb2rc web --socket PATH` on 127.0.0.1:<free port>; log in log_path.
+    socket_path None: no `--socket` (the default `usb2rc run` shares); `prefix`: a command
+    that runs it (another user, another mount namespace)."""
 
-    def __init__(self, socket_path: Path, log_path: Path, *extra: str) -> None:
+    def __init__(
+        self,
+        socket_path: Path | None,
+        log_path: Path,
+        *extra: str,
+        prefix: Sequence[str] = (),
+    ) -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.log_path = log_path
         self._log = open(log_path, "wb")  # noqa: SIM115 - closed in stop()
+        socket_args = [] if socket_path is None else ["--socket", str(socket_path)]
         self.proc = subprocess.Popen(
             [
+                *prefix,
                 sys.executable,
                 "-m",
                 "usb2rc",
                 "web",
-                "--socket",
-                str(socket_path),
+                *socket_args,
                 "--listen",
                 f"127.0.0.1:{self.port}",
                 *extra,
@@ -107,7 +116,7 @@ def _browser_or_skip() -> tuple[str, str]:
 
 @contextmanager
 def browser(width: int = 900, height: int = 1000) -> Iterator[Any]:
-    """A headless chromium session (selenium WebDriver)."""
+    """A headless chromium session (selenium WebDriver), its viewport `width` px wide."""
     webdriver = pytest.importorskip("selenium.webdriver")
     from selenium.webdriver.chrome.service import Service
 
@@ -119,6 +128,9 @@ def browser(width: int = 900, height: int = 1000) -> Iterator[Any]:
     options.add_argument(f"--window-size={width},{height}")
     driver = webdriver.Chrome(service=Service(driver_path), options=options)
     try:
+        # headless chromium keeps a window at least 500 px wide from --window-size; set
+        # again, the viewport is what was asked (a phone's 390 px)
+        driver.set_window_size(width, height)
         yield driver
     finally:
         driver.quit()

@@ -20,7 +20,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from usb2rc import __version__
@@ -41,10 +41,17 @@ from usb2rc.nodes.step import (
     clock_phase,
     clock_stale_after,
 )
-from usb2rc.nodes.table import Expected, ExpectedEntry, NodeTable
+from usb2rc.nodes.table import Expected, ExpectedEntry, NodeFrame, NodeTable
+from usb2rc.outputs import protocol
 from usb2rc.runtime import stats_text
 from usb2rc.status_socket import PERIOD_S as STATUS_PERIOD_S
-from usb2rc.status_socket import StatusServer, StatusSource
+from usb2rc.status_socket import (
+    FailsafeWatch,
+    StatusServer,
+    StatusSource,
+    os_reason,
+    port_record,
+)
 from usb2rc.wiring import OutputContext, build
 
 log = logging.getLogger("usb2rc")
@@ -77,6 +84,9 @@ class _Output:
     link: Link
     driver: Driver
     rx: LinkReader | None = None
+    failsafe: FailsafeWatch = field(default_factory=FailsafeWatch)  # for the stats
+    port_from: str = "config"  # or "--port": where its port came from
+    config_port: str | None = None  # the config file's (--port may have replaced it)
 
 
 @dataclass(frozen=True)
@@ -218,7 +228,19 @@ class Daemon:
             alone=count == 1,
         )
         built = build(context)
-        return _Output(out, built.link, built.driver, built.rx)
+        reads = self.mapping.sumd_channels(out) if protocol(out.protocol).channels else None
+        replaced = index == 0 and bool(self.port_override)
+        in_file = self.config.outputs[index] if index < len(self.config.outputs) else None
+        config_port = None if in_file is None else in_file.port
+        return _Output(
+            out,
+            built.link,
+            built.driver,
+            built.rx,
+            FailsafeWatch.of(reads),
+            "--port" if replaced else "config",
+            config_port,
+        )
 
     def _first_write(self) -> None:
         self._status("running: frames on " + ", ".join(o.link.url for o in self.outputs))
@@ -310,7 +332,12 @@ class Daemon:
         try:
             self.status_server.start()
         except OSError as exc:
-            log.error("status socket %s: %s; running without it", self.status_server.path, exc)
+            log.error(
+                "status socket %s: %s; running without it: `usb2rc web` cannot see this "
+                "daemon (--status-socket PATH puts the socket elsewhere)",
+                self.status_server.path,
+                os_reason(exc),
+            )
             self.status_server = None
 
     def stop(self) -> None:
@@ -377,10 +404,11 @@ class Daemon:
         values, so `run --stats-format json` prints it as it is."""
         now = time.monotonic()
         uptime = max(1e-9, now - self.started_at)
+        frames = {view.frame.node_id: view.frame for view in self.table.snapshot().nodes}
         return {
             # µs: two dumps asked for back to back can be under a millisecond apart
             "uptime_s": round(uptime, 6),
-            "outputs": [self._output_stats(out) for out in self.outputs],
+            "outputs": [self._output_stats(out, frames) for out in self.outputs],
             "devices": [
                 self._device_stats(reader, now, uptime) for reader in self.lifecycle.readers
             ],
@@ -388,11 +416,16 @@ class Daemon:
             "missing_devices": [m.record() for m in self.table.missing_entries()],
         }
 
-    def _output_stats(self, out: _Output) -> dict[str, Any]:
+    def _output_stats(self, out: _Output, frames: dict[int, NodeFrame]) -> dict[str, Any]:
         st, link = out.driver.stats, out.link.stats
         record: dict[str, Any] = {
             "name": out.driver.name,
             "url": out.link.url,
+            "protocol": out.config.protocol,
+            "port_from": out.port_from,
+            "config_port": out.config_port,
+            **port_record(out.link),
+            **out.failsafe.record(frames),
             "writes": st.writes,
             "ticks": st.ticks,
             "late_ticks": st.late_ticks,

@@ -1,7 +1,10 @@
 """The daemon's status socket: a read-only live view for `usb2rc web` and scripts.
 
 An AF_UNIX stream socket (`/run/usb2rc/status.sock` under the service, 0660 so group usb2rc
-can connect). Each connected client gets one JSON object per line, about 10 a second:
+can connect). Where it is by default, `usb2rc run` and `usb2rc web` work out the same way
+(`default_path`): the runtime directory systemd or the login session gives, else root's
+/run/usb2rc, else a folder of the user's own in /tmp that must stay private
+(`check_private`). Each connected client gets one JSON object per line, about 10 a second:
 
     {"at": ..., "stats": <run --stats-format json's record>, "nodes": [...],
      "devices": [...], "events": [...], "check": {...}}
@@ -26,15 +29,18 @@ import selectors
 import socket
 import stat
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from usb2rc.config.layout import AXIS_NAMES
 from usb2rc.hid.backend import DeviceInfo
+from usb2rc.lines.link import Link
+from usb2rc.nodes.mapping import ChannelSource
 from usb2rc.nodes.step import NodeView, TableSnapshot
-from usb2rc.nodes.table import EventKind, NodeTable, ServiceEvent
+from usb2rc.nodes.table import EventKind, NodeFrame, NodeTable, ServiceEvent
 from usb2rc.protocols.c2_16b.receiver import NodeView as ReceivedNode
+from usb2rc.protocols.channels import RC11_SCALE, OutputChannels
 from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger("usb2rc.status")
@@ -45,24 +51,82 @@ MAX_CLIENTS = 16  # connections beyond this are closed at once (counted)
 EVENTS_KEPT = 50  # the service events each line carries (the latest)
 SOCKET_MODE = 0o660  # owner and group usb2rc (docs/PI.md, "Phone access at the field")
 SOCKET_NAME = "status.sock"
+SERVICE_DIRECTORY = "/run/usb2rc"  # the unit's RuntimeDirectory=, and root's default
+SERVICE_SOCKET = os.path.join(SERVICE_DIRECTORY, SOCKET_NAME)
+PRIVATE_MODE = 0o700  # a user's own folder: nobody else may put a socket there or connect
 
 Record = Callable[[], dict[str, Any]]
 
 
-def default_path(environ: dict[str, str] | None = None) -> str | None:
-    """Where the socket goes when no --status-socket is given: the service's runtime
-    directory (systemd sets RUNTIME_DIRECTORY for `RuntimeDirectory=usb2rc`), else the
-    user's ($XDG_RUNTIME_DIR/usb2rc); None (no socket) when neither is set."""
+def default_path(environ: Mapping[str, str] | None = None, uid: int | None = None) -> str:
+    """Where the socket is when no path is given, for `usb2rc run` and `usb2rc web` alike:
+    the service's runtime directory (systemd sets RUNTIME_DIRECTORY for
+    `RuntimeDirectory=usb2rc`), else the login session's ($XDG_RUNTIME_DIR/usb2rc), else
+    root's /run/usb2rc, else the user's own `user_directory`. `uid`: the effective one."""
     env = os.environ if environ is None else environ
     if env.get("RUNTIME_DIRECTORY"):
         return os.path.join(env["RUNTIME_DIRECTORY"].split(":")[0], SOCKET_NAME)
     if env.get("XDG_RUNTIME_DIR"):
         return os.path.join(env["XDG_RUNTIME_DIR"], "usb2rc", SOCKET_NAME)
-    return None
+    uid = os.geteuid() if uid is None else uid
+    return SERVICE_SOCKET if uid == 0 else os.path.join(user_directory(uid), SOCKET_NAME)
+
+
+def user_directory(uid: int) -> str:
+    """A user's folder for the socket without a runtime directory (sudo -u, cron, a
+    container): in /tmp, not $TMPDIR, so that a daemon and a `web` started from different
+    shells agree. Anyone may make a folder in /tmp: `check_private` guards it."""
+    return f"/tmp/usb2rc-{uid}"
 
 
 class SocketInUseError(OSError):
     """Another process answers on the socket path: a second daemon must not take it over."""
+
+
+class NotPrivateError(OSError):
+    """The user's socket folder is not theirs alone: refused, the message says the fix."""
+
+
+def is_user_directory(directory: str) -> bool:
+    return os.path.abspath(directory) == user_directory(os.geteuid())
+
+
+def check_private(directory: str) -> None:
+    """Raise NotPrivateError unless `directory` is a real folder of this user's with no
+    access for group or others: whoever else made it (/tmp is everyone's) could put a socket
+    of their own there, or read ours."""
+    info = os.lstat(directory)
+    uid = os.geteuid()
+    if not stat.S_ISDIR(info.st_mode):
+        raise NotPrivateError(
+            errno.ENOTDIR, f"{directory} is not a folder (a link or a file): remove it"
+        )
+    if info.st_uid != uid:
+        raise NotPrivateError(
+            errno.EPERM,
+            f"{directory} is owned by uid {info.st_uid}, not by this user (uid {uid}): "
+            "someone else made it; remove it",
+        )
+    if info.st_mode & 0o077:
+        mode = stat.S_IMODE(info.st_mode)
+        raise NotPrivateError(
+            errno.EPERM,
+            f"{directory} is open to others (mode {mode:04o}, it must be 0700): "
+            f"`chmod 700 {directory}`",
+        )
+
+
+def os_reason(exc: OSError) -> str:
+    """An OSError in words: its message and the file it names, without `[Errno N]`."""
+    text = exc.strerror or str(exc)
+    return f"{text}: {exc.filename}" if exc.filename else text
+
+
+def make_private(directory: str) -> None:
+    """The user's socket folder, made 0700 if missing, then checked (`check_private`)."""
+    with contextlib.suppress(FileExistsError):
+        os.mkdir(directory, PRIVATE_MODE)
+    check_private(directory)
 
 
 # --------------------------------------------------------------------------- the record
@@ -115,6 +179,45 @@ def event_record(event: ServiceEvent, at: float) -> dict[str, Any]:
     if event.info is not None:
         record["device"] = event.info.product or event.info.path
     return record
+
+
+def port_record(link: Link) -> dict[str, Any]:
+    """Whether an output's port is open and, while it is not, why (the link's last error)."""
+    if link.is_open:
+        return {"port_open": True}
+    return {"port_open": False, "port_error": link.last_error or "not opened yet"}
+
+
+@dataclass(frozen=True)
+class FailsafeWatch:
+    """Whether an output sends failsafe, and for which nodes, from the nodes' frames: a
+    channel output when a channel it reads is (`OutputChannels.evaluate`, as its ticks
+    decide); C2-16B (no channels) for each node in failsafe, as it sends every node."""
+
+    sources: tuple[ChannelSource, ...] | None = None
+    channels: OutputChannels | None = None
+
+    @classmethod
+    def of(cls, sources: Sequence[ChannelSource] | None) -> FailsafeWatch:
+        if sources is None:
+            return cls()
+        return cls(tuple(sources), OutputChannels.scaled(sources, RC11_SCALE))
+
+    def record(self, frames: Mapping[int, NodeFrame]) -> dict[str, Any]:
+        if self.sources is None or self.channels is None:
+            nodes = sorted(node_id for node_id, frame in frames.items() if frame.failsafe)
+            return {"failsafe": bool(nodes), "failsafe_nodes": nodes}
+        _values, failsafe = self.channels.evaluate(frames.values())
+        failing = {n for source in self.sources for n in failing_nodes(source, frames)}
+        return {"failsafe": failsafe, "failsafe_nodes": sorted(failing) if failsafe else []}
+
+
+def failing_nodes(source: ChannelSource, frames: Mapping[int, NodeFrame]) -> set[int]:
+    """The nodes a channel reads that are in failsafe or do not exist (a mix: its lines')."""
+    if source.kind == "mix":
+        return {n for line in source.mix for n in failing_nodes(line.source, frames)}
+    frame = frames.get(source.node_id)
+    return {source.node_id} if frame is None or frame.failsafe else set()
 
 
 def snapshot_record(snapshot: TableSnapshot, table: NodeTable) -> dict[str, Any]:
@@ -186,7 +289,7 @@ class StatusServer(Worker):
         self._listener.setblocking(False)
         self._selector.register(self._listener, selectors.EVENT_READ)
         super().start()
-        log.info("status socket: %s", self.path)
+        log.info("status socket: %s (`usb2rc web` reads it)", self.path)
 
     def shutdown(self, timeout: float = 0.5) -> None:
         """Stop the thread, close every client and the socket, and remove its file."""
@@ -307,10 +410,13 @@ class StatusServer(Worker):
 
 
 def bind_unix(path: str) -> socket.socket:
-    """A listening socket at `path`, mode 0660, its directory made if missing. A socket file
-    nobody answers on (a daemon that was killed) is replaced; one that answers is not."""
+    """A listening socket at `path`, mode 0660, its directory made if missing (the user's
+    own folder in /tmp: 0700, and refused when not private). A socket file nobody answers on
+    (a daemon that was killed) is replaced; one that answers is not."""
     directory = os.path.dirname(path)
-    if directory:
+    if directory and is_user_directory(directory):
+        make_private(directory)
+    elif directory:
         os.makedirs(directory, mode=0o750, exist_ok=True)
     _remove_stale(path)
     listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)

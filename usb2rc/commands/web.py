@@ -13,8 +13,10 @@ give the link to (docs/PI.md, "Phone access at the field"; the traffic is plain 
 from __future__ import annotations
 
 import argparse
+import errno
 import ipaddress
 import logging
+import socket
 import sys
 
 from usb2rc import status_socket
@@ -22,7 +24,6 @@ from usb2rc import status_socket
 log = logging.getLogger("usb2rc.web")
 
 DEFAULT_LISTEN = "127.0.0.1:8080"
-SERVICE_SOCKET = "/run/usb2rc/status.sock"
 MIN_TOKEN_CHARS = 16
 
 
@@ -43,8 +44,10 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
     parser.add_argument(
         "--socket",
         metavar="PATH",
-        help="the daemon's status socket (default: as `usb2rc run` picks it, else "
-        f"{SERVICE_SOCKET})",
+        help="the daemon's status socket (default: where `usb2rc run` puts it, run by this "
+        "user: $RUNTIME_DIRECTORY/status.sock, else $XDG_RUNTIME_DIR/usb2rc/status.sock, "
+        f"else {status_socket.SERVICE_SOCKET} for root and /tmp/usb2rc-UID/status.sock "
+        "for another user; `usb2rc run` logs where its socket is)",
     )
     parser.add_argument(
         "--token-file",
@@ -102,6 +105,24 @@ def read_token(path: str | None, host: str) -> str | None:
     return token
 
 
+def listen_problem(listen: str, exc: OSError) -> str:
+    """Why `--listen` cannot be served, and the fix (a usage error: exit 2)."""
+    if exc.errno == errno.EADDRINUSE:
+        why = "the address is already in use (another `usb2rc web`, or another server)"
+    elif exc.errno == errno.EACCES:
+        why = "ports below 1024 need root"
+    elif exc.errno == errno.EADDRNOTAVAIL:
+        why = "this machine has no such address"
+    elif isinstance(exc, socket.gaierror):
+        why = f"unknown host ({exc.strerror})"
+    else:
+        why = exc.strerror or str(exc)
+    return (
+        f"cannot listen on {listen}: {why}: give another address with --listen HOST:PORT, "
+        f"such as --listen 127.0.0.1:8081"
+    )
+
+
 def run(args: argparse.Namespace) -> int:
     try:
         host, port = parse_listen(args.listen)
@@ -112,15 +133,20 @@ def run(args: argparse.Namespace) -> int:
     logging.basicConfig(
         level=getattr(logging, args.log_level.upper()), format="%(levelname)s %(message)s"
     )
-    path = args.socket or status_socket.default_path() or SERVICE_SOCKET
+    path = args.socket or status_socket.default_path()
     # Here, not at the top: `usb2rc --help` imports every command's module (cli.build_parser),
     # and only this one needs starlette and uvicorn (~0.1 s to import).
-    from usb2rc.web.server import serve
+    from usb2rc.web.feed import StatusFeed
+    from usb2rc.web.server import listen, serve
 
-    log.info("usb2rc web: http://%s:%d/ (status socket %s)", host, port, path)
     try:
-        started = serve(path, token, host, port)
+        sockets = listen(host, port)
     except OSError as exc:
-        print(f"usb2rc web: {args.listen}: {exc.strerror or exc}", file=sys.stderr)
-        return 1
+        print(f"usb2rc web: {listen_problem(args.listen, exc)}", file=sys.stderr)
+        return 2
+    whence = "--socket" if args.socket else "the default of `usb2rc run` for this user"
+    log.info(
+        "usb2rc web: http://%s:%d/, reading the status socket %s (%s)", host, port, path, whence
+    )
+    started = serve(StatusFeed(path, default=not args.socket), token, sockets)
     return 0 if started else 1

@@ -11,6 +11,7 @@ import asyncio
 import contextlib
 import hmac
 import json
+import socket
 from collections.abc import AsyncIterator, Awaitable, Callable
 from importlib import resources
 from types import FrameType
@@ -140,17 +141,37 @@ class _Server(uvicorn.Server):
         super().handle_exit(sig, frame)
 
 
-def serve(socket_path: str, token: str | None, host: str, port: int) -> bool:
-    """Serve until SIGTERM/SIGINT; False when the server could not start (address in use)."""
-    feed = StatusFeed(socket_path)
+def listen(host: str, port: int) -> list[socket.socket]:
+    """Listening sockets on every address `host` names, bound as asyncio's create_server
+    binds them (SO_REUSEADDR; an IPv6 socket IPv6 only). Bound here, before uvicorn runs,
+    so that a taken address is an OSError the command can word (uvicorn logs it, exits 3).
+    Raises OSError (socket.gaierror for an unknown host name)."""
+    infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    sockets: list[socket.socket] = []
+    try:
+        for family, kind, proto, _name, address in infos:
+            sock = socket.socket(family, kind, proto)
+            sockets.append(sock)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if family == socket.AF_INET6:
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            sock.bind(address)
+            sock.listen(128)
+    except OSError:
+        for sock in sockets:
+            sock.close()
+        raise
+    return sockets
+
+
+def serve(feed: StatusFeed, token: str | None, sockets: list[socket.socket]) -> bool:
+    """Serve on `sockets` (`listen`) until SIGTERM/SIGINT; False when it could not start."""
     config = uvicorn.Config(
         create_app(feed, token),
-        host=host,
-        port=port,
         log_level="warning",
         access_log=False,
         timeout_graceful_shutdown=1,  # a stream that did not end by itself
     )
     server = _Server(config, feed)
-    server.run()
+    server.run(sockets=sockets)
     return bool(server.started)

@@ -1,8 +1,11 @@
 // usb2rc's status page: renders each record of the live stream (/api/events, server-sent
 // events). Text from devices (names) only ever goes in as textContent, never as HTML.
+// The header badge is the daemon's state (its nodes and outputs), not the page's own link.
 "use strict";
 
 const AXIS_MIN = -32768, AXIS_SPAN = 65535;
+// The C2-16B status byte a node sends, in words (docs/ICD.md, "Status priority").
+const STATUS_WORDS = { ">": "live", "!": "failsafe", "&": "handover", "%": "low battery" };
 const heartbeats = new Map(); // output name -> [count, time it last changed]
 
 function el(tag, attrs, ...children) {
@@ -17,6 +20,10 @@ function el(tag, attrs, ...children) {
   return node;
 }
 
+function count(n, noun) {
+  return n + " " + noun + (n === 1 ? "" : "s");
+}
+
 function axisRow(nodeId, name, value) {
   const frac = (value - AXIS_MIN) / AXIS_SPAN;           // 0..1
   const left = Math.min(frac, 0.5), width = Math.abs(frac - 0.5);
@@ -27,13 +34,25 @@ function axisRow(nodeId, name, value) {
     el("span", {}, name), el("div", { class: "track" }, fill), el("span", { class: "num" }, value));
 }
 
+function buttonsRow(node) {
+  const row = el("div", { class: "buttons" });
+  if (!node.buttons.length) {
+    row.append(el("span", { class: "dim" }, "no button pressed"));
+  } else {
+    row.append(el("span", { class: "dim" }, "pressed "));
+    for (const b of node.buttons) row.append(el("span", { class: "chip", "data-button": b }, "button " + b));
+  }
+  row.append(el("span", { class: "dim" }, " · hat "), node.hat);
+  return row;
+}
+
 function nodeCard(node) {
   const card = el("article", {
     class: "node" + (node.failsafe ? " failsafe" : ""),
     "data-node": node.node_id, "data-status": node.status, "data-failsafe": node.failsafe,
   });
-  const label = node.failsafe ? "! FAILSAFE" : node.status;
-  card.append(el("h3", {}, "Node " + node.node_id, el("span", { class: "status" }, label)));
+  const words = node.failsafe ? "failsafe" : (STATUS_WORDS[node.status] || "");
+  card.append(el("h3", {}, "Node " + node.node_id, el("span", { class: "status" }, node.status + " " + words)));
   for (const why of node.waiting_for) card.append(el("div", { class: "waits" }, "waits for " + why));
   for (const dev of node.devices) {
     card.append(el("div", { class: "dim" }, dev.name + " " + dev.vid_pid + (dev.present ? "" : " (unplugged)")));
@@ -41,16 +60,8 @@ function nodeCard(node) {
   for (const [name, value] of Object.entries(node.axes)) {
     if (value !== 0 || ["x", "y", "z", "rz", "slider"].includes(name)) card.append(axisRow(node.node_id, name, value));
   }
-  const buttons = node.buttons.length ? node.buttons.join(" ") : "none";
-  card.append(el("div", {}, el("span", { class: "dim" }, "buttons "), buttons,
-    el("span", { class: "dim" }, "  hat "), node.hat));
+  card.append(buttonsRow(node));
   return card;
-}
-
-function table(id, head, rows) {
-  const target = document.getElementById(id);
-  target.replaceChildren(el("tr", {}, ...head.map((h) => el("th", {}, h))),
-    ...rows.map((row) => el("tr", {}, ...row.map((cell) => el("td", {}, cell)))));
 }
 
 function linkText(out, now) {
@@ -63,51 +74,115 @@ function linkText(out, now) {
     const seen = out.far_end_heartbeats ? ((now - heartbeats.get(out.name)[1]) / 1000).toFixed(1) + " s ago" : "none yet";
     parts.push("heartbeat " + seen);
   }
-  return parts.join(", ") || "-";
+  return parts.join(", ");
 }
 
-function render(record) {
-  const badge = document.getElementById("connection");
-  const live = record.web && record.web.connected;
-  badge.className = "badge " + (live ? "on" : "off");
-  badge.dataset.connected = String(Boolean(live));
-  badge.dataset.connects = record.web ? record.web.connects : 0;
-  badge.textContent = live ? "live" : "daemon not running: retrying (" + (record.web ? record.web.error : "") + ")";
-  if (!live) {
-    document.getElementById("nodes").replaceChildren(el("p", { class: "dim" }, "no data from the daemon"));
-    return;
-  }
-  const now = Date.now();
-  const stats = record.stats;
-  document.getElementById("uptime").textContent = "up " + Math.round(stats.uptime_s) + " s";
-  document.getElementById("nodes").replaceChildren(...record.nodes.map(nodeCard));
-  table("outputs", ["output", "port", "ticks", "late", "stalls", "queue full", "link"],
-    stats.outputs.map((o) => [o.name, o.url, o.ticks, o.late_ticks, o.stalls, o.queue_full_skips, linkText(o, now)]));
-  const reports = new Map(stats.devices.map((d) => [d.name, d]));
-  table("devices", ["device", "vid:pid", "node", "entry", "reports/s"],
-    record.devices.map((d) => [d.name + (d.present ? "" : " (unplugged)"), d.vid_pid, d.node_id, d.entry,
-      reports.has(d.name) ? reports.get(d.name).reports_per_s.toFixed(0) : "-"]));
-  document.getElementById("events").replaceChildren(...record.events.slice().reverse().map((e) =>
-    el("li", {}, "node " + e.node_id + ": " + e.kind + (e.device ? " " + e.device : "") +
-      (e.error_code !== undefined ? " 0x" + e.error_code.toString(16) : ""))));
+function failsafeText(out) {
+  const nodes = out.failsafe_nodes.length ? " for node " + out.failsafe_nodes.join(", ") : "";
+  return "sending failsafe" + nodes;
+}
+
+function outputCard(out, now) {
+  const open = out.port_open !== false;
+  const state = !open ? "port not open" : out.failsafe ? "FAILSAFE" : "sending";
+  const card = el("article", {
+    class: "output" + (open && !out.failsafe ? "" : " bad"),
+    "data-output": out.name, "data-open": open, "data-failsafe": out.failsafe, "data-writes": out.writes,
+  });
+  card.append(el("h3", {}, out.name, el("span", { class: "state" }, state)));
+  card.append(el("div", { class: "port" }, el("span", { class: "dim" }, "port "), out.url,
+    out.port_from === "--port" ? el("span", { class: "dim" }, " (from --port)") : null));
+  if (!open) card.append(el("div", { class: "problem" }, "not open: " + out.port_error));
+  else if (out.failsafe) card.append(el("div", { class: "problem" }, failsafeText(out)));
+  card.append(el("div", { class: "counters" },
+    "writes " + out.writes + " · ticks " + out.ticks + " · late " + out.late_ticks +
+    " · stalls " + out.stalls + " · queue full " + out.queue_full_skips));
+  const link = linkText(out, now);
+  if (link) card.append(el("div", { class: "dim" }, link));
+  return card;
+}
+
+function devicesTable(record) {
+  const reports = new Map(record.stats.devices.map((d) => [d.name, d]));
+  const head = ["device", "vid:pid", "node", "entry", "reports/s"];
+  const rows = record.devices.map((d) => [d.name + (d.present ? "" : " (unplugged)"), d.vid_pid, d.node_id, d.entry,
+    reports.has(d.name) ? reports.get(d.name).reports_per_s.toFixed(0) : "-"]);
+  document.getElementById("devices").replaceChildren(el("tr", {}, ...head.map((h) => el("th", {}, h))),
+    ...rows.map((row) => el("tr", {}, ...row.map((cell, i) => el("td", { "data-label": head[i] }, cell)))));
+}
+
+function portLine(out) {
+  const whence = out.port_from === "--port"
+    ? " (from --port" + (out.config_port ? "; the config says " + out.config_port : "") + ")" : "";
+  return out.name + ": " + out.url + whence;
+}
+
+function checkPanel(record) {
   const check = record.check;
   document.getElementById("check").replaceChildren(
     el("div", {}, check.source + ": " + (check.ok ? "OK" : "errors")),
+    el("div", { class: "ports" }, el("span", { class: "dim" }, "ports in use"),
+      ...record.stats.outputs.map((o) => el("div", {}, portLine(o)))),
     ...check.warnings.map((w) => el("div", { class: "warning" },
       (w.file || "") + ":" + (w.line || "") + ": " + (w.key || "") + ": warning: " + w.message)),
     el("pre", {}, check.summary.join("\n")));
 }
 
+// The daemon's state for the header: [data-state, words]. Worst first in data-state.
+function daemonState(record) {
+  const failsafe = record.nodes.filter((n) => n.failsafe).length;
+  const closed = record.stats.outputs.filter((o) => o.port_open === false).length;
+  const parts = [];
+  if (failsafe) parts.push(count(failsafe, "node") + " in failsafe");
+  if (closed) parts.push(count(closed, "output") + " not sending (port not open)");
+  if (!record.nodes.length) parts.push("no nodes yet");
+  const state = failsafe ? "failsafe" : closed ? "not-sending" : record.nodes.length ? "all-live" : "no-nodes";
+  return [state, parts.join(" · ") || "all live"];
+}
+
+function setBadge(state, text, connected, connects) {
+  const badge = document.getElementById("connection");
+  badge.className = "badge " + state;
+  badge.dataset.state = state;
+  badge.dataset.connected = String(connected);
+  if (connects !== undefined) badge.dataset.connects = connects;
+  badge.textContent = text;
+}
+
+function renderAway(web) {
+  setBadge("no-daemon", "daemon not running", false, web ? web.connects : 0);
+  document.getElementById("uptime").textContent = "";
+  const why = web && web.error ? web.error + ": " : "";
+  document.getElementById("nodes").replaceChildren(
+    el("p", { class: "problem" }, "no data from the daemon (" + why + "retrying)"),
+    el("p", { class: "dim", id: "hint" }, web ? web.hint : ""));
+  for (const id of ["outputs", "devices", "events", "check"]) document.getElementById(id).replaceChildren();
+}
+
+function render(record) {
+  const web = record.web;
+  if (!web || !web.connected) {
+    renderAway(web);
+    return;
+  }
+  const [state, text] = daemonState(record);
+  setBadge(state, text, true, web.connects);
+  const now = Date.now();
+  document.getElementById("uptime").textContent = "up " + Math.round(record.stats.uptime_s) + " s";
+  document.getElementById("nodes").replaceChildren(...record.nodes.map(nodeCard));
+  document.getElementById("outputs").replaceChildren(...record.stats.outputs.map((o) => outputCard(o, now)));
+  devicesTable(record);
+  document.getElementById("events").replaceChildren(...record.events.slice().reverse().map((e) =>
+    el("li", {}, "node " + e.node_id + ": " + e.kind + (e.device ? " " + e.device : "") +
+      (e.error_code !== undefined ? " 0x" + e.error_code.toString(16) : ""))));
+  checkPanel(record);
+}
+
 function connect() {
   const stream = new EventSource("/api/events");
   stream.onmessage = (event) => render(JSON.parse(event.data));
-  stream.onerror = () => {
-    // the web server itself is gone: EventSource retries by itself; say so meanwhile
-    const badge = document.getElementById("connection");
-    badge.className = "badge off";
-    badge.dataset.connected = "false";
-    badge.textContent = "web server unreachable: retrying";
-  };
+  // the web server itself is gone: EventSource retries by itself; say so meanwhile
+  stream.onerror = () => setBadge("no-web", "web server unreachable: retrying", false);
 }
 
 connect();
