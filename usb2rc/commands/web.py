@@ -1,9 +1,11 @@
 """`usb2rc web [--listen 127.0.0.1:8080] [--socket PATH] [--token-file F]`: the status page.
 
-A separate process from the daemon: it reads the daemon's read-only status socket and serves
-a page (one card per node, the devices, the outputs and their link, the service events, the
-`check` verdict of the running config), `GET /api/status` (the `run --stats-format json`
-record plus the node snapshot) and a live stream to the page. It has no control actions.
+A separate process from the daemon: it reads the daemon's read-only status socket (where
+`usb2rc run` puts it by default, unless --socket says otherwise) and serves a page (the
+daemon's state; one card per node; the devices; one card per output: its port, open or not
+and why, whether it sends failsafe, its link; the service events; the `check` verdict of the
+running config), `GET /api/status` (the `run --stats-format json` record plus the node
+snapshot) and a live stream to the page. It has no control actions.
 
 It listens on localhost unless told otherwise. Any other address needs `--token-file`: the
 page shows your sticks and links to whoever can reach it, so a token keeps it to those you
