@@ -4,6 +4,7 @@ not take, and about SUMD channels on unpinned nodes: exit 0, warnings on stderr
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -11,6 +12,8 @@ from pathlib import Path
 import pytest
 
 from usb2rc.commands.check import warnings
+from usb2rc.config.unfed import DeviceFeed, unfed_slot_warnings
+from usb2rc.config.yamlnodes import Where
 from usb2rc.configfile import load_config_text
 from usb2rc.nodes.mapping import compile_mapping
 
@@ -108,3 +111,107 @@ def test_check_exits_0_and_prints_the_warnings_on_stderr(tmp_path: Path):
 
 def test_c2_16b_outputs_get_no_sumd_warnings():
     assert warned("outputs:\n  - protocol: c2-16b\n    port: /dev/ttyUSB9\n") == []
+
+
+# --- channels that read an axis slot no device of their node feeds (issue 39, point 7) -----
+
+ROOT = Path(__file__).resolve().parent.parent
+STICK_RECORDING = ROOT / "usb2rc" / "data" / "demo" / "stick.hid"  # a T.16000M: no Z
+USB2RC = [sys.executable, "-m", "usb2rc"]
+T16000M_HAS = "Thrustmaster T.16000M (044f:b10a) has axes x, y, slider, rz"
+
+
+def check_replay(tmp_path: Path, config_text: str, *extra: str) -> subprocess.CompletedProcess:
+    """`usb2rc check --config FILE --replay DIR` with DIR holding only the T.16000M."""
+    replay = tmp_path / "stick"
+    replay.mkdir(exist_ok=True)
+    (replay / "stick.hid").write_text(STICK_RECORDING.read_text())
+    config = tmp_path / "crsf.yaml"
+    config.write_text(config_text)
+    return subprocess.run(
+        [*USB2RC, "check", "--config", config.name, "--replay", replay.name, *extra],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
+
+
+CRSF_ON_T16000M = (
+    "outputs:\n  - protocol: crsf\n    port: /dev/ttyUSB9\n"
+    "    channels: [node0.x, node0.y, node0.z, node0.rz]\n"
+)
+
+
+def test_a_channel_reading_a_slot_the_replayed_device_lacks_is_warned(tmp_path: Path):
+    result = check_replay(tmp_path, CRSF_ON_T16000M)
+    assert result.returncode == 0, result.stderr  # a warning: the config is still good
+    assert result.stdout.endswith("crsf.yaml: OK\n")
+    unfed = [line for line in result.stderr.splitlines() if "no device of node 0" in line]
+    assert unfed == [
+        "crsf.yaml:4: outputs[0].channels[2]: warning: node0.z reads axis z of node 0, which "
+        f"no device of node 0 feeds: {T16000M_HAS}. Channel 3 never moves (it sends the "
+        "slot's 0, the centre)"
+    ]  # before: OK and no warning, while channel 3 sent a constant centre
+    document = json.loads(check_replay(tmp_path, CRSF_ON_T16000M, "--json").stdout)
+    (record,) = [p for p in document["problems"] if "no device of node 0" in p["message"]]
+    assert (record["line"], record["key"], record["severity"]) == (
+        4,
+        "outputs[0].channels[2]",
+        "warning",
+    )
+
+
+def test_mix_inputs_and_default_lists_are_warned_and_fed_slots_are_not(tmp_path: Path):
+    mixed = (
+        "outputs:\n  - protocol: sumd\n    port: /dev/ttyUSB9\n"
+        "    channels: [node0.x, node0.y, node0.rz, {mix: [{source: node0.ry}, "
+        "{source: node0.slider}]}, node0.aux1]\n"
+        "switches:\n  gear: {toggle: node0.button1, slot: aux1}\n"
+    )
+    lines = check_replay(tmp_path, mixed).stderr.splitlines()
+    unfed = [line for line in lines if "no device of node 0" in line]
+    assert len(unfed) == 1 and "node0.ry (in the mix of channel 4)" in unfed[0]
+    assert "Its part of the mix never moves" in unfed[0]  # aux1 is the switch's: fed
+    default = "outputs:\n  - protocol: sumd\n    port: /dev/ttyUSB9\n"
+    lines = check_replay(tmp_path, default).stderr.splitlines()
+    unfed = [line for line in lines if "no device of node 0" in line]
+    assert unfed == [
+        "crsf.yaml:2: outputs[0].channels: warning: the default channels node0.z, node0.rx, "
+        "node0.ry, node0.dial (channels 3, 6, 7, 8) read axes no device of node 0 feeds: "
+        f"{T16000M_HAS}. They never move (they send the slot's 0, the centre): list the "
+        "channels you want with `channels:`"
+    ]
+    c2 = "outputs:\n  - protocol: c2-16b\n    port: /dev/ttyUSB9\n"
+    assert "no device of node" not in check_replay(tmp_path, c2).stderr  # sends whole nodes
+
+
+def unfed(text: str, feeds: list[DeviceFeed], nodes: set[int] | None = None) -> list[str]:
+    config = load_config_text(text, "crsf.yaml")
+    found = unfed_slot_warnings(config, feeds, lambda name: name != "c2-16b", nodes)
+    return [str(problem) for problem in found]
+
+
+def t16000m(node_id: int, entry: Where | None = None) -> DeviceFeed:
+    return DeviceFeed(
+        "T.16000M", 0x044F, 0xB10A, node_id, frozenset({"x", "y", "slider", "rz"}), entry
+    )
+
+
+def test_a_slot_an_absent_pinned_entry_lists_is_awaited_not_unfed():
+    text = CRSF_ON_T16000M + (
+        "devices:\n"
+        "  - {name: stick, match: {pid: 0xb10a}, node_id: 0, axes: {x: X, y: Y, rz: Rz}}\n"
+        "  - {name: throttle, match: {pid: 0xb687}, node_id: 0, axes: {z: Z}}\n"
+    )
+    stick_entry = load_config_text(text, "crsf.yaml").devices[0].where
+    assert unfed(text, [t16000m(0, stick_entry)]) == []  # the throttle's z: it warns itself
+    assert len(unfed(CRSF_ON_T16000M, [t16000m(0)])) == 1
+
+
+def test_only_the_nodes_asked_for_are_judged():
+    text = CRSF_ON_T16000M.replace("node0.rz]", "node1.z]")
+    assert len(unfed(text, [t16000m(0), t16000m(1)])) == 2
+    (only,) = unfed(text, [t16000m(0), t16000m(1)], nodes={1})  # the daemon: the plugged one
+    assert "node1.z reads axis z of node 1" in only
+    assert unfed(text, [t16000m(2)]) == []  # nodes no device became: not judged

@@ -14,7 +14,8 @@ will open (`config.ports.used_ports`: `--port` applied), not the file's.
 
 Warnings (on stderr, `file:line: key: warning: ...`) do not change the exit code: what the
 SUMD decoders of PX4, ArduPilot and Betaflight would not take of a SUMD output, SUMD channels
-on a node no entry pins and, with `--replay DIR`, entries no device in DIR matches. With
+on a node no entry pins and, with `--replay DIR`, entries no device in DIR matches and
+channels that read an axis slot no device of its node in DIR feeds (`config.unfed`). With
 `--replay DIR`, each hid-recorder file in DIR is bound as the daemon would bind that device:
 its node and any usage it lacks.
 """
@@ -35,6 +36,7 @@ from usb2rc.config.mavlink import MavlinkOptions, baud_needed
 from usb2rc.config.port_url import port_argument
 from usb2rc.config.ports import UsedPort, used_ports
 from usb2rc.config.udp_url import is_udp_url
+from usb2rc.config.unfed import DeviceFeed, unfed_slot_warnings
 from usb2rc.configfile import (
     Config,
     ConfigError,
@@ -271,6 +273,27 @@ def unmatched_entries(
     ]
 
 
+def unfed_warnings(config: Config, devices: list[BoundDevice]) -> list[Problem]:
+    """A warning at each channel that reads an axis slot no replayed device of its node
+    feeds (`config.unfed`), naming the devices and the axes they have."""
+    feeds = [device_feed(d) for d in devices if d.binding is not None and d.node_id is not None]
+    return unfed_slot_warnings(config, feeds, carries_channels)
+
+
+def device_feed(device: BoundDevice) -> DeviceFeed:
+    assert device.binding is not None and device.node_id is not None
+    info = device.info
+    binding = device.binding
+    return DeviceFeed(
+        info.product, info.vid, info.pid, device.node_id, binding.axis_slots, binding.where
+    )
+
+
+def carries_channels(name: str) -> bool:
+    """Whether outputs of this protocol send channels (C2-16B sends whole nodes)."""
+    return protocol(name).channels is not None
+
+
 @dataclass
 class Verdict:
     """Everything `check` found, worked out before a line is printed."""
@@ -302,6 +325,7 @@ def judge(config: Config, directory: str | None, port_override: str | None = Non
         devices, problems = bind_replay(mapping, directory)
         verdict.out += replay_lines(devices, problems)
         verdict.warnings += unmatched_entries(mapping, devices, directory)
+        verdict.warnings += unfed_warnings(config, devices)
         verdict.errors = sum(1 for d in devices if d.error)
     return verdict
 
@@ -427,6 +451,7 @@ def json_document(args: argparse.Namespace) -> dict[str, Any]:
             [bind_problem(d) for d in devices if d.error]
             + [problem_record(Problem(args.replay, None, None, p), "warning") for p in problems]
             + [problem_record(p, "warning") for p in unmatched]
+            + [problem_record(p, "warning") for p in unfed_warnings(config, devices)]
         )
         document["ok"] = not any(d.error for d in devices)
     return document
