@@ -11,9 +11,7 @@ prepared ones, so the figure is the session's and the codec's, not the bench's:
   failsafe)` with 16 (iBus 14) channel values;
 - `mavlink_override`: `MavlinkSession.tick` with RC_CHANNELS_OVERRIDE (pymavlink packs it).
 
-The codecs' caches, for the sessions to call (`c2_node_unchanged_4`: `NodeEncoder.encode` of
-4 unchanged nodes, a tick whose sticks rest; `sbus_last_frame`: `LastFrame` of an unchanged
-SBUS frame) next to `c2_encode_data_4` (4 `encode_data` calls: what a session does today).
+`c2_encode_data_4`: 4 `encode_data` calls, the C2-16B codec alone.
 
 `tick_us_*`: the mean over `--ticks` ticks back to back (thread CPU), median of `--runs`.
 `alloc_peak_b_*`: tracemalloc, the most memory a tick held at once beyond what it started
@@ -66,7 +64,6 @@ from usb2rc.hid.reader import DeviceReader
 from usb2rc.hid.replay import ReplayBackend, ReplayDevice, install_file
 from usb2rc.nodes.step import NodeFrame
 from usb2rc.protocols.c2_16b import codec as c2_16b
-from usb2rc.protocols.sbus import codec as sbus
 
 GRID_S = 0.020
 
@@ -142,31 +139,6 @@ def encode_data_case(inputs: int, rng: random.Random) -> Tick:
     return tick
 
 
-def node_unchanged_case(inputs: int, rng: random.Random) -> Tick:
-    still = node_frames(4, 1, rng)[0]
-    encoders = [c2_16b.NodeEncoder(f.node_id) for f in still]
-
-    def tick(k: int) -> object:
-        return [
-            encoder.encode(c2_16b.LIVE, k & 0xFF, f.axes, f.group1, f.group2)
-            for encoder, f in zip(encoders, still, strict=True)
-        ]
-
-    return tick
-
-
-def last_frame_case(inputs: int, rng: random.Random) -> Tick:
-    from usb2rc.protocols.last_frame import LastFrame
-
-    memo = LastFrame(sbus.encode_sbus)
-    still = channel_lists(16, 172, 1811, 1, rng)[0]
-
-    def tick(k: int) -> object:
-        return memo(still, frame_lost=False, failsafe=False)
-
-    return tick
-
-
 def cases(inputs: int) -> dict[str, Tick]:
     rng = random.Random(22)
     return {
@@ -177,15 +149,6 @@ def cases(inputs: int) -> dict[str, Tick]:
         "ibus_14": channel_case(IbusSession(), channel_lists(14, 1000, 2000, inputs, rng)),
         "mavlink_override": mavlink_case(inputs, rng),
         "c2_encode_data_4": encode_data_case(inputs, rng),
-        # the codecs' caches (issue 22): not in older commits, for an A/B against one
-        **(
-            {
-                "c2_node_unchanged_4": node_unchanged_case(inputs, rng),
-                "sbus_last_frame": last_frame_case(inputs, rng),
-            }
-            if hasattr(c2_16b, "NodeEncoder")
-            else {}
-        ),
     }
 
 

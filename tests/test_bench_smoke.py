@@ -73,7 +73,7 @@ def test_hot_paths() -> None:
 
 
 def test_tick_budget() -> None:
-    """Every protocol's tick, the codecs' cached paths, their allocations, the readers."""
+    """Every protocol's tick, the C2-16B codec alone, their allocations, the readers."""
     out = run(
         sys.executable, "bench/bench_tick_budget.py", "--ticks", "20", "--runs", "1",
         "--devices", "2", "--seconds", "0.5",
@@ -82,7 +82,7 @@ def test_tick_budget() -> None:
     assert result["bench"] == "tick_budget"
     figures = result["figures"]
     cases = ("c2_4_nodes", "sumd_16", "crsf_16", "sbus_16", "ibus_14", "mavlink_override",
-             "c2_encode_data_4", "c2_node_unchanged_4", "sbus_last_frame")  # fmt: skip
+             "c2_encode_data_4")  # fmt: skip
     for case in cases:
         for figure in ("tick_us", "alloc_peak_b", "retained_b"):
             assert isinstance(figures[f"{figure}_{case}"], float | int), (figure, case)

@@ -15,9 +15,7 @@ from hypothesis import strategies as st
 from usb2rc.protocols import crc, rc11
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.crsf import codec as crsf
-from usb2rc.protocols.last_frame import LastFrame
 from usb2rc.protocols.sbus import codec as sbus
-from usb2rc.protocols.sumd import codec as sumd
 
 VECTORS = Path(__file__).parent / "data" / "vectors"
 
@@ -100,69 +98,6 @@ def test_encode_data_fails_as_the_old_encoder(
     assert outcome(c2_16b.encode_data, *args) == outcome(legacy.encode_data, *args)
 
 
-# One tick of a node: its values, or the last tick's (unchanged), with a new status and code.
-ticks = st.lists(
-    st.tuples(statuses, bytes_, st.one_of(st.none(), st.tuples(axes, groups, groups))),
-    min_size=1,
-    max_size=12,
-)
-
-
-@settings(max_examples=300)
-@given(bytes_, st.booleans(), st.tuples(axes, groups, groups), ticks)
-def test_node_encoder_sends_the_old_encoders_frames_tick_after_tick(
-    node: int, lf: bool, first: tuple[list[int], int, int], steps: list[Any]
-) -> None:
-    encoder = c2_16b.NodeEncoder(node, line_feed=lf)
-    values, changes = first, 1
-    for status, code, new_values in [(c2_16b.LIVE, 0, first), *steps]:
-        if new_values is not None and new_values != values:
-            values, changes = new_values, changes + 1
-        axes_, g1, g2 = values
-        frame = encoder.encode(status, code, axes_, g1, g2)
-        assert frame == legacy.encode_data(status, node, code, axes_, g1, g2, line_feed=lf)
-    assert encoder.bodies_packed == changes  # an unchanged node is not packed again
-
-
-def test_node_encoder_reproduces_the_shared_data_vectors() -> None:
-    for vector in json.loads((VECTORS / "c2-16b-data.json").read_text()):
-        encoder = c2_16b.NodeEncoder(vector["node_id"])
-        values = (vector["axes"], vector["group1"], vector["group2"])
-        for _ in range(2):  # packed, then from its cached body
-            frame = encoder.encode(vector["status"], vector["message_code"], *values)
-            assert frame.hex() == vector["hex"], vector["name"]
-
-
-@given(
-    st.one_of(statuses, odd_values),
-    st.one_of(bytes_, odd_values),
-    st.one_of(axes, st.lists(st.one_of(st.integers(-32768, 65535), odd_values), max_size=11)),
-    st.one_of(groups, odd_values),
-)
-def test_node_encoder_fails_as_the_old_encoder_and_keeps_its_last_body(
-    status: Any, code: Any, axes_: Any, g1: Any
-) -> None:
-    good = ([1, 2, 3, 4, 5, 6, 7, 8, 9, 10], 5, 6)
-    encoder = c2_16b.NodeEncoder(7)
-    encoder.encode(c2_16b.LIVE, 0, *good)
-    args = (status, 7, code, axes_, g1, 0)
-    new = outcome(encoder.encode, status, code, axes_, g1, 0)
-    old = outcome(legacy.encode_data, *args)
-    if old[0] == "bytes":
-        assert new == old
-    else:
-        assert new[0] == old[0] and (new[0] != "ValueError" or new[1] == old[1])
-    # whatever it refused, the next frame is right (a refused body is not cached)
-    assert encoder.encode(c2_16b.FAILSAFE, 1, *good) == legacy.encode_data(
-        c2_16b.FAILSAFE, 7, 1, *good
-    )
-
-
-def test_node_encoder_refuses_a_bad_node_id() -> None:
-    with pytest.raises(ValueError, match=r"node_id must be an int in 0\.\.255"):
-        c2_16b.NodeEncoder(256)
-
-
 @given(
     st.sampled_from(list(c2_16b.Service)),
     bytes_,
@@ -233,31 +168,3 @@ def _wire(entry: dict[str, Any]) -> bytes:
     if "hex" in entry:
         return bytes.fromhex(entry["hex"].replace(" ", ""))
     return bytes(entry["bytes"])
-
-
-# --- a line's last frame -------------------------------------------------------------------
-
-
-@given(
-    st.lists(st.tuples(st.one_of(st.none(), channels11), st.booleans()), min_size=1, max_size=10)
-)
-def test_last_frame_sends_the_encoders_bytes_and_packs_only_changes(steps: list[Any]) -> None:
-    memo = LastFrame(sbus.encode_sbus)
-    values: list[int] = [992] * 16
-    last: tuple[tuple[int, ...], bool] | None = None
-    packs = 0
-    for new_values, failsafe in steps:
-        values = new_values if new_values is not None else values
-        packs += (tuple(values), failsafe) != last
-        last = (tuple(values), failsafe)
-        frame = memo(values, frame_lost=failsafe, failsafe=failsafe)
-        assert frame == legacy.encode_sbus(values, frame_lost=failsafe, failsafe=failsafe)
-    assert memo.encoded == packs
-
-
-def test_last_frame_does_not_remember_a_refused_call() -> None:
-    memo = LastFrame(sumd.encode_sumd)
-    with pytest.raises(ValueError, match="channel 2"):
-        memo([0x2EE0, 70000])
-    assert memo([0x2EE0, 0x2EE0]) == legacy.encode_sumd([0x2EE0, 0x2EE0])
-    assert memo.encoded == 1

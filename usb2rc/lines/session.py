@@ -72,7 +72,6 @@ class Backpressure:
         self.cap = QUEUE_TICKS * max(1, tick_bytes)
         self.drops_unread_each_tick = drops_unread_each_tick
         self.held_queue_full = 0  # ticks that added nothing: the reported queue was full
-        self.flushes_asked = 0
         self.state = LinkState()
 
     def ask(self, stalled: bool, line_open: bool, state: LinkState) -> Ask:
@@ -82,17 +81,13 @@ class Backpressure:
             return Ask.NOTHING
         if stalled:
             if state.flushable and not state.hides_queue:
-                return self._flush()  # a serial port: its queue is as old as the stall
+                return Ask.FLUSH  # a serial port: its queue is as old as the stall
             if self.drained(state):
-                return self._flush() if state.flushable else Ask.NOTHING
+                return Ask.FLUSH if state.flushable else Ask.NOTHING
             return Ask.NOTHING
         if state.hides_queue and self.drops_unread_each_tick:
             return Ask.DROP_UNREAD
         return Ask.NOTHING
-
-    def _flush(self) -> Ask:
-        self.flushes_asked += 1
-        return Ask.FLUSH
 
     def drained(self, state: LinkState) -> bool:
         """A stalled line may take bytes again: its queue is back to half the cap, or (a

@@ -9,12 +9,12 @@
 - CRSF: CRC-8/DVB-S2 (polynomial 0xD5, init 0, not reflected, no final XOR) over the frame's
   type and payload. Check value: `crc8_dvb_s2(b"123456789")` is 0xBC.
 
-Speed (issue 22): every CRC here is linear (init 0, no final XOR): for two messages of one
-length, the CRC of `a XOR b` is `crc(a) XOR crc(b)`. So a frame's CRC can be put together
-from parts computed once: each header byte's share at its position (`arc_position_table`),
-XOR the CRC of the part that changed (`usb2rc.protocols.c2_16b.codec.NodeEncoder`). Tables of two
-bytes per lookup (64 K entries) were measured and left out: a hot loop ran ~2x faster on
-CRC-16, slower on CRC-8, and a tick every 20 ms finds such a table out of the CPU's caches.
+Speed: every CRC here is linear (init 0, no final XOR): for two messages of one length,
+the CRC of `a XOR b` is `crc(a) XOR crc(b)`. So a frame's CRC can be put together from parts
+computed once: each header byte's share at its position (`arc_position_table`: C2-16B's
+header bytes are one lookup each), XOR the CRC of the rest. Tables of two bytes per lookup
+(64 K entries) were measured and left out: a hot loop ran ~2x faster on CRC-16, slower on
+CRC-8, and a tick every 20 ms finds such a table out of the CPU's caches.
 """
 
 from __future__ import annotations

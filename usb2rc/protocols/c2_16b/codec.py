@@ -261,10 +261,7 @@ def encode_data(
     *,
     line_feed: bool = True,
 ) -> bytes:
-    """A data frame. Axes take int16 or uint16 values (-32768..65535), packed little-endian.
-
-    A session that sends one node a frame every tick: `NodeEncoder` (the node's body packed
-    once per change)."""
+    """A data frame. Axes take int16 or uint16 values (-32768..65535), packed little-endian."""
     body = _checked_body(status, node_id, code, axes, group1, group2)
     return _frame(status, node_id, code, body, line_feed)
 
@@ -282,52 +279,6 @@ def _checked_body(
         _check_int("group1", group1, 0, 0xFFFFFFFF)
         _check_int("group2", group2, 0, 0xFFFFFFFF)
     return _DATA_BODY.pack(*_wire_axes(axes), group1, group2)
-
-
-class NodeEncoder:
-    """One node's data frames, for a session that sends the node a frame every tick.
-
-    Bytes 5-32 (the axes and button groups) and their CRC are packed when the node's values
-    change; an unchanged node's frame is that cached body with this tick's status and
-    message code, and a CRC from three table lookups. Its frames are `encode_data`'s, byte
-    for byte (tests/test_codec_packing.py). Values are checked when they change: axes equal
-    (==) to the last ones checked are those. Not thread-safe: one session owns it.
-    """
-
-    def __init__(self, node_id: int, *, line_feed: bool = True) -> None:
-        self.node_id = _check_int("node_id", node_id, 0, 255)
-        self.line_feed = line_feed
-        self.bodies_packed = 0  # times the values changed (a figure for the bench and tests)
-        self._axes: tuple[int, ...] | None = None
-        self._group1 = self._group2 = -1
-        self._body = bytes(PAYLOAD_LEN)
-        self._body_crc = 0
-
-    def encode(
-        self, status: int, code: int, axes: Sequence[int], group1: int, group2: int
-    ) -> bytes:
-        """The node's data frame (`encode_data`'s arguments but the node ID)."""
-        axes = tuple(axes)
-        if axes != self._axes or group1 != self._group1 or group2 != self._group2:
-            self._pack(status, code, axes, group1, group2)
-        elif not _data_checks_pass(status, self.node_id, code):
-            _check_data_status(status)
-            _check_int("code", code, 0, 255)
-        node_id = self.node_id
-        crc = _HEADER_CRC ^ _STATUS_CRC[status] ^ _NODE_CRC[node_id] ^ _CODE_CRC[code]
-        crc ^= self._body_crc
-        if self.line_feed:
-            return _FRAME_LF.pack(HEADER, status, node_id, code, self._body, crc, LF)
-        return _FRAME.pack(HEADER, status, node_id, code, self._body, crc)
-
-    def _pack(
-        self, status: int, code: int, axes: tuple[int, ...], group1: int, group2: int
-    ) -> None:
-        """New values: checked (as encode_data checks them), packed, their CRC computed."""
-        body = _checked_body(status, self.node_id, code, axes, group1, group2)
-        self._body, self._body_crc = body, crc16_arc(body)
-        self._axes, self._group1, self._group2 = axes, group1, group2
-        self.bodies_packed += 1
 
 
 def encode_service(

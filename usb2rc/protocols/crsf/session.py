@@ -78,7 +78,6 @@ class CrsfSession(FrameLineSession):
         self.withheld = 0  # ticks without an RC frame because a channel is in failsafe
         self.timing_frames = 0
         self.timing_ignored = 0  # implausible or not followed
-        self.other_frames = 0
         self._shift_s = 0.0  # the phase correction still to apply to the next send
 
     def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
@@ -96,8 +95,6 @@ class CrsfSession(FrameLineSession):
                 self.link = ModuleLink(frame, now)
             elif isinstance(frame, crsf.TimingSync):
                 self._follow(frame, now)
-            else:
-                self.other_frames += 1
 
     def _follow(self, sync: crsf.TimingSync, now: float) -> None:
         self.timing_frames += 1
