@@ -330,3 +330,20 @@ def test_list_without_devices_hints_at_the_built_in_recordings() -> None:
 
     hint = no_devices_hint(None)
     assert "usb2rc list --replay demo" in hint and "usb2rc/data" not in hint
+
+
+# --- what usb2rc says it does ----------------------------------------------------------------
+
+
+def test_help_and_the_package_description_name_every_output_protocol() -> None:
+    import tomllib
+
+    from usb2rc.outputs import PROTOCOLS
+
+    result = usb2rc("--help")
+    assert result.returncode == 0, result.stderr
+    helped = " ".join(result.stdout.split()).lower()  # argparse wraps the description
+    described = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["description"]
+    for protocol in PROTOCOLS.values():
+        assert protocol.title.lower() in helped, (protocol.title, result.stdout)
+        assert protocol.title.lower() in described.lower(), (protocol.title, described)

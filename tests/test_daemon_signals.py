@@ -4,11 +4,13 @@ The real daemon runs as a subprocess (daemon_harness). A second signal follows a
 given spacing, or as a flood (one every millisecond until the process is gone), so it also
 lands in the last moments of the stop and of the interpreter's exit, where the old code had
 already given the default (fatal) actions back. Start-up moments are found from
-/proc/PID/status (SigCgt: which signals the process catches), not guessed with sleeps.
+/proc/PID/status (SigBlk, SigCgt: which signals the process blocks, catches), not guessed
+with sleeps.
 
 A signal that arrives before the interpreter runs usb2rc's code (between exec and the first
-line of `usb2rc/__main__.py` or `cli.main`) gets the default action: no test can expect
-otherwise, so they start at the first moment the process catches SIGTERM.
+line of `usb2rc/__main__.main`, which blocks the daemon's signals until their handlers are
+in) gets the default action: no test can expect otherwise, so they start at the first moment
+the process holds SIGTERM (blocks or catches it).
 """
 
 from __future__ import annotations
@@ -27,22 +29,41 @@ from daemon_harness import DaemonProcess, PtyLine, StickState, install, recordin
 EXIT_TIMEOUT_S = 15.0
 
 
-def caught(pid: int, signum: int) -> bool:
-    """Whether the process has a handler for signum (SigCgt in /proc/PID/status)."""
+def signal_sets(pid: int) -> dict[str, int]:
+    """The signal masks of /proc/PID/status (SigPnd, SigBlk, SigIgn, SigCgt); empty once it
+    is gone."""
     try:
         status = Path(f"/proc/{pid}/status").read_text()
-    except FileNotFoundError:
-        return False
-    line = next(ln for ln in status.splitlines() if ln.startswith("SigCgt:"))
-    return bool(int(line.split()[1], 16) >> (signum - 1) & 1)
+    except (FileNotFoundError, ProcessLookupError):
+        return {}
+    return {
+        key: int(value, 16)
+        for key, _, value in (ln.partition(":\t") for ln in status.splitlines())
+        if key in ("SigPnd", "SigBlk", "SigIgn", "SigCgt")
+    }
+
+
+def caught(pid: int, signum: int) -> bool:
+    """Whether the process has a handler for signum (SigCgt)."""
+    return bool(signal_sets(pid).get("SigCgt", 0) >> (signum - 1) & 1)
+
+
+def held(pid: int, signum: int) -> bool:
+    """Whether signum can no longer kill the process: it blocks it (SigBlk) or catches it."""
+    sets = signal_sets(pid)
+    return bool((sets.get("SigBlk", 0) | sets.get("SigCgt", 0)) >> (signum - 1) & 1)
+
+
+def wait_until(daemon: DaemonProcess, signum: int, holds=caught) -> None:
+    """Spin (no sleep: the point is the first moment) until the daemon holds signum."""
+    deadline = time.monotonic() + EXIT_TIMEOUT_S
+    while not holds(daemon.proc.pid, signum):
+        assert daemon.proc.poll() is None, daemon.log()
+        assert time.monotonic() < deadline, f"the daemon never {holds.__name__} the signal"
 
 
 def wait_until_caught(daemon: DaemonProcess, signum: int) -> None:
-    """Spin (no sleep: the point is the first moment) until the daemon catches signum."""
-    deadline = time.monotonic() + EXIT_TIMEOUT_S
-    while not caught(daemon.proc.pid, signum):
-        assert daemon.proc.poll() is None, daemon.log()
-        assert time.monotonic() < deadline, "the daemon never caught the signal"
+    wait_until(daemon, signum, caught)
 
 
 def wait_log(daemon: DaemonProcess, text: str) -> None:
@@ -187,7 +208,7 @@ def test_sigterm_at_the_first_moment_many_times(tmp_path, line, replay_dir):
 
 
 def test_the_usb2rc_script_too(tmp_path, line, replay_dir):
-    """The installed `usb2rc` script (what the systemd unit runs) goes through cli.main."""
+    """The installed `usb2rc` script (what the systemd unit runs) starts in usb2rc.__main__ too."""
     script = Path(sys.executable).with_name("usb2rc")
     if not script.exists():
         pytest.skip("no usb2rc script next to the interpreter (not pip-installed)")
@@ -200,7 +221,7 @@ def test_the_usb2rc_script_too(tmp_path, line, replay_dir):
     )
     try:
         deadline = time.monotonic() + EXIT_TIMEOUT_S
-        while not caught(proc.pid, signal.SIGTERM):
+        while not held(proc.pid, signal.SIGTERM):  # from the entry point's first line
             assert proc.poll() is None and time.monotonic() < deadline
         assert send(proc, signal.SIGTERM)
         flood(proc, signal.SIGHUP)
@@ -236,6 +257,26 @@ def test_sighup_while_starting_is_kept_for_later(tmp_path, line, replay_dir):
     assert_clean_stop(daemon, "SIGHUP while starting, SIGTERM later")
 
 
+def test_a_sigterm_while_the_modules_load_waits_for_the_handlers_and_exits_0(
+    tmp_path, line, replay_dir
+):
+    """From the entry point's first line the daemon's signals are blocked until their handlers
+    are in: a SIGTERM sent then (blocked, not yet caught) is a clean stop, not a death."""
+    for run in range(20):
+        (tmp_path / str(run)).mkdir()
+        daemon = run_daemon(tmp_path / str(run), line.path, replay_dir)
+        wait_until(daemon, signal.SIGTERM, held)
+        if caught(daemon.proc.pid, signal.SIGTERM):  # the handlers were in by the first look
+            assert send(daemon.proc, signal.SIGTERM)
+            assert_clean_stop(daemon, f"run {run}: a stop once caught")
+            continue
+        assert send(daemon.proc, signal.SIGTERM)
+        flood(daemon.proc, signal.SIGHUP)
+        assert_clean_stop(daemon, f"run {run}: SIGTERM while blocked, then SIGHUPs")
+        return
+    pytest.fail("20 starts, and never a moment with SIGTERM blocked before its handler")
+
+
 @pytest.mark.slow
 def test_sigterm_at_random_moments_of_start_up_then_floods_exit_0(tmp_path, line, replay_dir):
     rng = random.Random(int(os.environ.get("USB2RC_FUZZ_SEED", "20261123")))
@@ -243,9 +284,10 @@ def test_sigterm_at_random_moments_of_start_up_then_floods_exit_0(tmp_path, line
     for run in range(20):
         (tmp_path / str(run)).mkdir()
         daemon = run_daemon(tmp_path / str(run), line.path, replay_dir)
-        wait_until_caught(daemon, signal.SIGTERM)
-        delay = rng.uniform(0, 0.6)  # from the first handler to well after the first frame
+        wait_until(daemon, signal.SIGTERM, held)
+        delay = rng.uniform(0, 0.6)  # from the first block to well after the first frame
         spin(delay)
         send(daemon.proc, signal.SIGTERM)
-        flood(daemon.proc, rng.choice((signal.SIGHUP, signal.SIGINT, signal.SIGTERM)))
+        every_s = rng.choice((0.00005, 0.0002, 0.001))  # a flood into the exit's last moments
+        flood(daemon.proc, rng.choice((signal.SIGHUP, signal.SIGINT, signal.SIGTERM)), every_s)
         assert_clean_stop(daemon, f"run {run}: SIGTERM {delay * 1000:.0f} ms into start-up")

@@ -171,6 +171,34 @@ def test_a_start_up_stop_swallowed_by_a_callback_still_stops_before_the_start(mo
     assert daemon.calls == []  # never started
 
 
+def test_cpythons_race_report_while_stopping_is_one_more_ignored_signal(monkeypatch):
+    """CPython reports a signal that its C handler caught after the Python handler had gone
+    (SIG_IGN at exit) as `OSError: Signal 15 ignored due to race condition`, through the
+    unraisable hook. While stopping that is what happens to every signal: noted, no traceback.
+    Before a stop, or any other OSError, it is reported as usual."""
+    signals = DaemonSignals()
+    reported: list[object] = []
+    monkeypatch.setattr(signals, "_previous_unraisablehook", reported.append)
+    monkeypatch.setattr(sys, "unraisablehook", signals._unraisable)
+
+    def report(message: str) -> None:
+        class Dropping:
+            def __del__(self) -> None:
+                raise OSError(message)
+
+        Dropping()  # its __del__ raises now; CPython hands the OSError to the hook
+
+    report("Signal 15 ignored due to race condition")
+    assert len(reported) == 1  # not stopping: as CPython would print it
+    signals.stopping()
+    report("Signal 15 ignored due to race condition")
+    report("Signal 1 ignored due to race condition")
+    assert len(reported) == 1
+    assert signals.take_ignored() == ["SIGTERM", "SIGHUP"]
+    report("[Errno 5] Input/output error")
+    assert len(reported) == 2
+
+
 # --- a stop preempts a reload (issue 19, point 5; docs/ICD.md, "Stop") -----------------------
 
 
@@ -205,3 +233,12 @@ def test_outside_a_reload_a_stop_is_a_request_and_other_signals_never_abandon():
         signals.handle(signal.SIGUSR1)
     signals.handle(signal.SIGTERM)  # after the reload: no exception, the loop reads it
     assert [signals.requests.get_nowait() for _ in range(3)] == ["reload", "stats", "stop"]
+
+
+def test_the_entry_point_blocks_exactly_the_signals_the_daemon_handles():
+    """usb2rc/__main__.py blocks them before it can import this module; the handlers unblock
+    them. One left out there could kill a starting daemon; one too many would stay blocked."""
+    import usb2rc.__main__ as entry
+    from usb2rc.service.signals import REQUESTS
+
+    assert set(entry.HELD_UNTIL_HANDLED) == set(REQUESTS)

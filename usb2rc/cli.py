@@ -43,7 +43,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="usb2rc",
         description="USB joysticks, HOTAS and pedals to RC command streams: SERaero C2-16B, "
-        "HoTT SUMD, CRSF, SBUS and MAVLink (serial lines; MAVLink also over UDP).",
+        "HoTT SUMD, CRSF, SBUS, iBus and MAVLink (serial lines; MAVLink also over UDP).",
         epilog="Without a subcommand, usb2rc runs the daemon (same options as `usb2rc run`).",
     )
     parser.add_argument("--version", action="version", version=f"usb2rc {__version__}")
@@ -115,8 +115,9 @@ def known_in_order(known: set[str]) -> list[str]:
 def _install_early_signals(args_list: list[str]) -> None:
     """Before anything slow (build_parser imports the command's module, then the config is read).
 
-    The daemon gets its handlers for good (usb2rc.service.signals); the other commands keep the
-    usual Ctrl-C (KeyboardInterrupt) and SIGHUP, and only SIGTERM becomes a clean stop.
+    The daemon gets its handlers for good (usb2rc.service.signals; usb2rc/__main__.py, the
+    entry point, has already put them in); the other commands keep the usual Ctrl-C
+    (KeyboardInterrupt) and SIGHUP, and only SIGTERM becomes a clean stop.
     """
     if threading.current_thread() is not threading.main_thread():
         return

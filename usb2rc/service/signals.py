@@ -1,10 +1,12 @@
 """The daemon's signals, from the first line of usb2rc's code to the process's exit.
 
-`install_daemon_signals()` runs first thing: on the first line of `usb2rc/__main__.py`
-(`python -m usb2rc`, before the command is known) and of `cli.main` (the `usb2rc` script), so
-before the slow imports and the config. For `usb2rc run` SIGTERM, SIGINT, SIGHUP and SIGUSR1
-never get their default action (which is to kill the process) again; the other commands get
-theirs back from `install_command_signals()` as soon as `cli.main` knows the command.
+`usb2rc/__main__.py` (`python -m usb2rc` and the `usb2rc` script alike) blocks the four
+signals below on its first line, before any other import: one that arrives while the modules
+load waits, pending, and is handled the moment `install_daemon_signals()` has put every
+handler in (right after, before the command is even known). For `usb2rc run` SIGTERM, SIGINT,
+SIGHUP and SIGUSR1 never get their default action (which is to kill the process) again; the
+other commands get theirs back from `install_command_signals()` as soon as `cli.main` knows
+the command.
 
 - starting (until the main loop runs): SIGTERM / SIGINT stop at once with exit status 0
   (SystemExit: nothing that needs stopping has been started yet); SIGHUP and SIGUSR1 are
@@ -21,9 +23,16 @@ theirs back from `install_command_signals()` as soon as `cli.main` knows the com
   process that had already decided to exit 0; an atexit hook sets them to SIG_IGN instead,
   which finalization leaves alone.
 
-A signal that arrives before the interpreter runs usb2rc's code (while Python itself starts,
-some tens of milliseconds after exec) gets the default action: nothing in the process can
-catch it yet.
+Handlers change only while the four are blocked (`_blocked`). CPython's `signal.signal()`
+runs the pending handlers, then changes the action: a signal that lands in between is caught
+by the old C handler but finds SIG_IGN or SIG_DFL in place of a Python handler, and CPython
+reports `OSError: Signal N ignored due to race condition` (with a traceback) instead of
+handling it. Blocked, it waits; SIG_IGN discards it, SIG_DFL gives it its default action. Once
+stopping, such a report is taken as one more ignored signal, should anything else meet it.
+
+A signal that arrives before usb2rc's first line (while Python itself starts, some tens of
+milliseconds after exec on a PC) gets the default action: nothing in the process can catch or
+block it yet. The process then ends by that signal, before it opened anything.
 
 Imports stay light (no logging, no typing): this module loads before anything slow.
 """
@@ -37,7 +46,7 @@ import queue
 import signal
 import sys
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from types import FrameType
 
 __all__ = [
@@ -149,39 +158,60 @@ class DaemonSignals:
     def _unraisable(self, unraisable: sys.UnraisableHookArgs) -> None:
         if unraisable.exc_type is SystemExit and self.stop_requested:
             return  # our start-up stop, swallowed by a callback: `running()` says so later
+        dropped = _dropped_by_race(unraisable)
+        if dropped is not None and self.stop_requested:
+            self.ignored.put(dropped)  # what the stopping phase does with it anyway
+            return
         self._previous_unraisablehook(unraisable)
 
     def install(self) -> None:
         """Handle every signal in REQUESTS in this process, until it exits. Main thread only.
 
         All at once: with a SIGTERM handler but no SIGHUP one yet, a SIGTERM followed by a
-        SIGHUP would still kill the process. The signals are blocked meanwhile: they wait,
-        pending, and are handled once every handler is in.
+        SIGHUP would still kill the process. The signals are blocked meanwhile (and since
+        `usb2rc/__main__.py`'s first line when started from there): they wait, pending, and
+        are handled once every handler is in.
         """
         atexit.register(_ignore_for_good)
         self._previous_unraisablehook = sys.unraisablehook
         sys.unraisablehook = self._unraisable
-        with _blocked(REQUESTS):
+        with _blocked():
             for signum in REQUESTS:
                 signal.signal(signum, self.handle)
 
 
+def _dropped_by_race(unraisable: sys.UnraisableHookArgs) -> int | None:
+    """The signal number of CPython's `Signal 15 ignored due to race condition`, else None."""
+    head, tail = "Signal ", " ignored due to race condition"
+    text = str(unraisable.exc_value)
+    if unraisable.exc_type is not OSError or not (text.startswith(head) and text.endswith(tail)):
+        return None
+    number = text[len(head) : -len(tail)]
+    return int(number) if number.isdigit() else None
+
+
 @contextlib.contextmanager
-def _blocked(signums: Iterable[int]) -> Iterator[None]:
+def _blocked() -> Iterator[None]:
+    """The signals in REQUESTS wait while handlers change, and are unblocked after, whatever
+    the mask was before (`usb2rc/__main__.py` blocks them first thing)."""
     if not hasattr(signal, "pthread_sigmask"):  # Windows: no SIGHUP either
         yield
         return
-    before = signal.pthread_sigmask(signal.SIG_BLOCK, signums)
+    signal.pthread_sigmask(signal.SIG_BLOCK, REQUESTS)
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, REQUESTS)
 
 
 def _ignore_for_good() -> None:
-    # Runs at exit, before CPython would put the default (fatal) actions back.
-    for signum in REQUESTS:
-        signal.signal(signum, signal.SIG_IGN)
+    # Runs at exit, before CPython would put the default (fatal) actions back. Stopping
+    # first: a stop still pending must not raise SystemExit in here, half-way through.
+    if _installed is not None:
+        _installed.stopping()
+    with _blocked():
+        for signum in REQUESTS:
+            signal.signal(signum, signal.SIG_IGN)
 
 
 def stop_at_once(_signum: int, _frame: FrameType | None) -> None:
@@ -216,8 +246,10 @@ def install_command_signals() -> None:
     global _installed
     if _installed is not None:
         atexit.unregister(_ignore_for_good)
+        sys.unraisablehook = _installed._previous_unraisablehook
         _installed = None
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    for signum in REQUESTS.keys() - {signal.SIGTERM, signal.SIGINT}:
-        signal.signal(signum, signal.SIG_DFL)
-    signal.signal(signal.SIGTERM, stop_at_once)
+    with _blocked():
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        for signum in REQUESTS.keys() - {signal.SIGTERM, signal.SIGINT}:
+            signal.signal(signum, signal.SIG_DFL)
+        signal.signal(signal.SIGTERM, stop_at_once)
