@@ -14,7 +14,9 @@ from usb2rc.configfile import ChannelRef, Config, OutputConfig
 from usb2rc.nodes.curves import normalised, points_curve, position_value, to_int16
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import NodeFrame
-from usb2rc.protocols.channels import IBUS_SCALE, RC11_SCALE, int16_value
+from usb2rc.protocols.channels import int16_value
+from usb2rc.protocols.ibus import IBUS_SCALE
+from usb2rc.protocols.rc11_channels import RC11_SCALE
 from usb2rc.protocols.sumd.channels import sumd_scale
 
 MODE = SwitchConfig("rate", "steps", (ChannelRef(0, "button", 4, "node0.button4"),), 3)

@@ -22,11 +22,11 @@ from rc_reference import (
 )
 
 from usb2rc.configfile import load_config_text
-from usb2rc.nodes.scaling import axis_to_rc11, button_to_rc11
 from usb2rc.protocols import rc11 as block
 from usb2rc.protocols.crc import crc8_dvb_s2
 from usb2rc.protocols.crsf import codec as crsf
 from usb2rc.protocols.crsf.session import SYNC_STALE_S, CrsfSession, ModuleLink
+from usb2rc.protocols.rc11 import axis_to_rc11, button_to_rc11
 from usb2rc.protocols.sbus import codec as sbus
 from usb2rc.protocols.sbus.session import SbusSession
 

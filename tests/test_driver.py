@@ -35,9 +35,10 @@ from usb2rc.nodes.table import NodeTable
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.c2_16b.engine import C2Settings
 from usb2rc.protocols.c2_16b.session import C2Line
-from usb2rc.protocols.channels import RC11_SCALE, OutputChannels
+from usb2rc.protocols.channels import OutputChannels
 from usb2rc.protocols.crsf import codec as crsf
 from usb2rc.protocols.crsf.session import CrsfLine, CrsfSession
+from usb2rc.protocols.rc11_channels import RC11_SCALE
 from usb2rc.protocols.sumd.channels import SumdChannels
 from usb2rc.protocols.sumd.session import SumdLine
 

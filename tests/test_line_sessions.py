@@ -43,9 +43,10 @@ from usb2rc.nodes.table import (
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.c2_16b.engine import C2Settings
 from usb2rc.protocols.c2_16b.session import C2Line
-from usb2rc.protocols.channels import IBUS_SCALE, RC11_SCALE, OutputChannels
+from usb2rc.protocols.channels import OutputChannels
 from usb2rc.protocols.crsf import codec as crsf
 from usb2rc.protocols.crsf.session import CrsfLine, CrsfSession
+from usb2rc.protocols.ibus import IBUS_SCALE
 from usb2rc.protocols.ibus import codec as ibus
 from usb2rc.protocols.ibus.session import IbusLine
 from usb2rc.protocols.mavlink.codec import MavlinkDecoder
@@ -56,6 +57,7 @@ from usb2rc.protocols.mavlink.session import (
     heartbeat_bytes,
 )
 from usb2rc.protocols.mavlink.session import max_message_bytes as mavlink_bytes
+from usb2rc.protocols.rc11_channels import RC11_SCALE
 from usb2rc.protocols.sbus import codec as sbus
 from usb2rc.protocols.sbus.session import SbusLine
 from usb2rc.protocols.sumd import codec as sumd

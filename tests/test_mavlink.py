@@ -27,9 +27,9 @@ from usb2rc.lines.driver import Driver, Drivers
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.lines.udp_link import UdpLink, parse_udp_url
-from usb2rc.nodes.scaling import axis_to_manual, axis_to_manual_z, axis_to_pwm
 from usb2rc.nodes.table import NodeFrame, NodeTable
 from usb2rc.protocols.mavlink import session as mavlink
+from usb2rc.protocols.mavlink.codec import axis_to_manual, axis_to_manual_z, axis_to_pwm
 from usb2rc.protocols.mavlink.session import (
     HEARTBEAT_S,
     RELEASE_S,

@@ -40,7 +40,8 @@ from usb2rc.nodes.mapping import ChannelSource
 from usb2rc.nodes.step import NodeView, TableSnapshot
 from usb2rc.nodes.table import EventKind, NodeFrame, NodeTable, ServiceEvent
 from usb2rc.protocols.c2_16b.receiver import NodeView as ReceivedNode
-from usb2rc.protocols.channels import RC11_SCALE, OutputChannels
+from usb2rc.protocols.channels import OutputChannels
+from usb2rc.protocols.rc11_channels import RC11_SCALE
 from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger("usb2rc.status")

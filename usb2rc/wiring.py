@@ -30,9 +30,11 @@ from usb2rc.nodes.table import NodeTable
 from usb2rc.outputs import protocol
 from usb2rc.protocols.c2_16b.engine import C2Settings
 from usb2rc.protocols.c2_16b.session import C2Line
-from usb2rc.protocols.channels import IBUS_SCALE, RC11_SCALE, OutputChannels, WireScale
+from usb2rc.protocols.channels import OutputChannels, WireScale
 from usb2rc.protocols.crsf.session import CrsfLine, CrsfSession
+from usb2rc.protocols.ibus import IBUS_SCALE
 from usb2rc.protocols.ibus.session import IbusLine
+from usb2rc.protocols.rc11_channels import RC11_SCALE
 from usb2rc.protocols.sbus.session import SbusLine
 from usb2rc.protocols.sumd.channels import SumdChannels
 from usb2rc.protocols.sumd.session import SumdLine

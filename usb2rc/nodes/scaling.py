@@ -6,11 +6,8 @@ Python's `round`). With calibration, deadband, expo or trim set, the value goes 
 normalized x in [-1, 1] and back with
 `to_wire(x) = floor((x + 1) * 32767.5 + 0.5) - 32768`: -1 → -32768, 0 → 0, +1 → +32767.
 `unsigned: true` drops the `- 32768`. docs/CONFIG.md has the full pipeline. usb2rc.nodes.mapping
-compiles a config into closures over these.
-
-CRSF and SBUS carry 11-bit channel values: `axis_to_rc11` puts an int16 onto 172..1811
-(988..2012 µs at the receiver) on one line through both ends, centre 992 (docs/ICD.md, "CRSF
-and SBUS channel values"); `button_to_rc11` gives 172 / 1811.
+compiles a config into closures over these. Each protocol's wire values are its own, beside
+its codec (`usb2rc.protocols`).
 """
 
 from __future__ import annotations
@@ -21,7 +18,6 @@ from usb2rc.config.layout import GROUP1_BUTTONS, NODE_BUTTONS
 from usb2rc.config.model import AxisConfig
 
 INT16_MIN, INT16_MAX, UINT16_MAX = -32768, 32767, 65535
-RC11_LOW, RC11_CENTRE, RC11_HIGH = 172, 992, 1811  # 988, 1500, 2012 µs at the receiver
 
 
 def round_div(num: int, den: int) -> int:
@@ -114,60 +110,3 @@ def node_button_bit(button: int) -> tuple[int, int]:
     if not 1 <= button <= NODE_BUTTONS:
         raise ValueError(f"node button {button} is outside 1..{NODE_BUTTONS}")
     return (0, button - 1) if button <= GROUP1_BUTTONS else (1, button - GROUP1_BUTTONS - 1)
-
-
-def axis_to_rc11(value_int16: int) -> int:
-    """An int16 axis onto the CRSF / SBUS range: `172 + round((v + 32768) * 1639 / 65535)`,
-    so -32768 → 172, 0 → 992 (the line passes 0.51 of a step above 991.5), 32767 → 1811.
-    The exact quotient is never a half (the denominator is odd). Raises ValueError outside
-    int16."""
-    if not isinstance(value_int16, int) or not INT16_MIN <= value_int16 <= INT16_MAX:
-        raise ValueError(f"axis value must be an int16 (-32768..32767), got {value_int16!r}")
-    span = RC11_HIGH - RC11_LOW
-    return RC11_LOW + (2 * (value_int16 + 32768) * span + UINT16_MAX) // (2 * UINT16_MAX)
-
-
-def button_to_rc11(pressed: bool) -> int:
-    """A button as an 11-bit channel: 1811 pressed, 172 released."""
-    return RC11_HIGH if pressed else RC11_LOW
-
-
-def rc11_to_us(value: int) -> float:
-    """The pulse an ExpressLRS receiver makes of an 11-bit value: 172..1811 onto 988..2012 µs
-    on one line (992 → 1500.3 µs), for `icd` and messages."""
-    return 988.0 + (value - RC11_LOW) * 1024 / (RC11_HIGH - RC11_LOW)
-
-
-# --- MAVLink (docs/ICD.md, "MAVLink output") ---------------------------------------------
-
-PWM_MIN, PWM_CENTRE, PWM_MAX = 1000, 1500, 2000  # RC_CHANNELS_OVERRIDE, µs
-MANUAL_MIN, MANUAL_MAX = -1000, 1000  # MANUAL_CONTROL x, y, r
-MANUAL_Z_MIN, MANUAL_Z_MAX = 0, 1000  # MANUAL_CONTROL z: the range PX4 and ArduPilot read
-
-
-def _int16(value: int) -> int:
-    return INT16_MIN if value < INT16_MIN else INT16_MAX if value > INT16_MAX else value
-
-
-def axis_to_pwm(value: int) -> int:
-    """An int16 axis onto 1000..2000 µs: -32768 → 1000, 0 → 1500, 32767 → 2000 (clamped)."""
-    return PWM_MIN + round_div((_int16(value) - INT16_MIN) * (PWM_MAX - PWM_MIN), 65535)
-
-
-def button_to_pwm(pressed: bool) -> int:
-    """A button as an RC channel: 2000 µs pressed, 1000 µs released."""
-    return PWM_MAX if pressed else PWM_MIN
-
-
-def axis_to_manual(value: int) -> int:
-    """An int16 axis onto MANUAL_CONTROL's -1000..1000: -32768 → -1000, 0 → 0, 32767 → 1000
-    (each half scaled on its own, so both ends are reached and 0 stays 0)."""
-    value = _int16(value)
-    if value < 0:
-        return round_div(value * MANUAL_MAX, -INT16_MIN)
-    return round_div(value * MANUAL_MAX, INT16_MAX)
-
-
-def axis_to_manual_z(value: int) -> int:
-    """An int16 axis onto MANUAL_CONTROL z, 0..1000: -32768 → 0, 0 → 500, 32767 → 1000."""
-    return round_div((_int16(value) - INT16_MIN) * MANUAL_Z_MAX, 65535)

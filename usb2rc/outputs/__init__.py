@@ -30,9 +30,10 @@ from usb2rc.config.mavlink_check import check_mavlink_output
 from usb2rc.config.output_options import OPTIONS, Option
 from usb2rc.protocols.c2_16b import codec as c2_16b_codec
 from usb2rc.protocols.c2_16b.codec import Decoder as C2Decoder
-from usb2rc.protocols.channels import IBUS_SCALE, WireScale
+from usb2rc.protocols.channels import WireScale
 from usb2rc.protocols.crsf import codec as crsf_codec
 from usb2rc.protocols.crsf.codec import CrsfDecoder
+from usb2rc.protocols.ibus import IBUS_SCALE
 from usb2rc.protocols.ibus import codec as ibus_codec
 from usb2rc.protocols.ibus.codec import IbusDecoder
 from usb2rc.protocols.sbus import codec as sbus_codec

@@ -30,9 +30,8 @@ from dataclasses import dataclass
 from usb2rc.config.channel_ref import ChannelRef
 from usb2rc.nodes.curves import clamp, mix_line, normalised, position_value, to_int16
 from usb2rc.nodes.mapping import ChannelSource, MixLine
-from usb2rc.nodes.scaling import axis_to_rc11, button_to_rc11, node_button_bit
+from usb2rc.nodes.scaling import node_button_bit
 from usb2rc.nodes.table import NodeFrame
-from usb2rc.protocols.ibus.codec import axis_to_ibus, button_to_ibus
 
 Nodes = Mapping[int, NodeFrame]
 ChannelValue = Callable[[Nodes], tuple[int, bool]]  # the nodes' frames -> (wire, failsafe)
@@ -45,10 +44,6 @@ class WireScale:
 
     axis: Callable[[int], int]
     button: Callable[[bool], int]
-
-
-RC11_SCALE = WireScale(axis_to_rc11, button_to_rc11)  # CRSF and SBUS: 172..1811, centre 992
-IBUS_SCALE = WireScale(axis_to_ibus, button_to_ibus)  # iBus: 1000..2000 µs, centre 1500
 
 
 def _axis_wire(value: int | None, unsigned: bool, scale: WireScale) -> int:

@@ -7,6 +7,10 @@ BAD_DATA, which is counted here (`bytes_skipped`, `crc_failures`) and never rais
 signing key (MAVLink 2 signing, pymavlink's `MAVLink.signing`) only messages signed with
 it are returned; unsigned ones, bad signatures and replayed timestamps are counted
 (`bad_signatures`) and dropped.
+
+The control messages' field values (docs/ICD.md, "MAVLink output"): an int16 axis or a
+button as RC_CHANNELS_OVERRIDE's µs (`axis_to_pwm`, `button_to_pwm`), as MANUAL_CONTROL's
+x, y, r (`axis_to_manual`) and z (`axis_to_manual_z`).
 """
 
 from __future__ import annotations
@@ -15,8 +19,13 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from usb2rc.nodes.scaling import INT16_MAX, INT16_MIN, round_div
+
 SIGNING_EPOCH = 1420070400  # MAVLink signing timestamps count from 2015-01-01 00:00 UTC
 SIGNING_TICKS_PER_S = 100_000  # in units of 10 µs
+PWM_MIN, PWM_MAX = 1000, 2000  # RC_CHANNELS_OVERRIDE, µs
+MANUAL_MIN, MANUAL_MAX = -1000, 1000  # MANUAL_CONTROL x, y, r
+MANUAL_Z_MIN, MANUAL_Z_MAX = 0, 1000  # MANUAL_CONTROL z: the range PX4 and ArduPilot read
 
 
 def signing_timestamp(wall_time: float) -> int:
@@ -83,3 +92,31 @@ def message_fields(message: Any) -> dict[str, Any]:
     fields = dict(message.to_dict())
     fields.pop("mavpackettype", None)
     return fields
+
+
+def _int16(value: int) -> int:
+    return INT16_MIN if value < INT16_MIN else INT16_MAX if value > INT16_MAX else value
+
+
+def axis_to_pwm(value: int) -> int:
+    """An int16 axis onto 1000..2000 µs: -32768 → 1000, 0 → 1500, 32767 → 2000 (clamped)."""
+    return PWM_MIN + round_div((_int16(value) - INT16_MIN) * (PWM_MAX - PWM_MIN), 65535)
+
+
+def button_to_pwm(pressed: bool) -> int:
+    """A button as an RC channel: 2000 µs pressed, 1000 µs released."""
+    return PWM_MAX if pressed else PWM_MIN
+
+
+def axis_to_manual(value: int) -> int:
+    """An int16 axis onto MANUAL_CONTROL's -1000..1000: -32768 → -1000, 0 → 0, 32767 → 1000
+    (each half scaled on its own, so both ends are reached and 0 stays 0)."""
+    value = _int16(value)
+    if value < 0:
+        return round_div(value * MANUAL_MAX, -INT16_MIN)
+    return round_div(value * MANUAL_MAX, INT16_MAX)
+
+
+def axis_to_manual_z(value: int) -> int:
+    """An int16 axis onto MANUAL_CONTROL z, 0..1000: -32768 → 0, 0 → 500, 32767 → 1000."""
+    return round_div((_int16(value) - INT16_MIN) * MANUAL_Z_MAX, 65535)

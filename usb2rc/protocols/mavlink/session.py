@@ -5,7 +5,7 @@ Two pieces, both sans-IO (no thread, no socket, no clock: `now` is passed in):
 
 - `MavlinkChannels`: the configured channels (named as SUMD names them, `nodeN.<slot>` /
   `nodeN.buttonK`) evaluated once a tick from the NodeTable's frames into the message's
-  fields, with the scalings of `usb2rc.nodes.scaling` (`axis_to_pwm`, `button_to_pwm`,
+  fields, with the scalings of `protocols.mavlink.codec` (`axis_to_pwm`, `button_to_pwm`,
   `axis_to_manual`, `axis_to_manual_z`), and whether any channel's node is in failsafe.
 - `MavlinkSession`: what goes on the line each tick: a HEARTBEAT (MAV_TYPE_GCS,
   MAV_AUTOPILOT_INVALID) when one is due (the first tick of a line, then once a second), and
@@ -53,21 +53,23 @@ from usb2rc.config.mavlink import (
 )
 from usb2rc.lines.session import Backpressure, Delivered, LineBase
 from usb2rc.nodes.mapping import ChannelSource
-from usb2rc.nodes.scaling import (
+from usb2rc.nodes.scaling import node_button_bit
+from usb2rc.nodes.table import NodeFrame, NodeSnapshot
+from usb2rc.protocols.channels import int16_value
+from usb2rc.protocols.mavlink.actions import ActionRunner
+from usb2rc.protocols.mavlink.codec import (
     MANUAL_MAX,
     MANUAL_MIN,
     MANUAL_Z_MAX,
     MANUAL_Z_MIN,
+    MavlinkDecoder,
     axis_to_manual,
     axis_to_manual_z,
     axis_to_pwm,
     button_to_pwm,
-    node_button_bit,
+    set_up_signing,
+    signing_timestamp,
 )
-from usb2rc.nodes.table import NodeFrame, NodeSnapshot
-from usb2rc.protocols.channels import int16_value
-from usb2rc.protocols.mavlink.actions import ActionRunner
-from usb2rc.protocols.mavlink.codec import MavlinkDecoder, set_up_signing, signing_timestamp
 
 OVERRIDE_FIRST_CHANNELS = 8  # channels 1-8: 0 releases; 9-18 (MAVLink 2 extensions): 65534
 RELEASE_LOW, RELEASE_HIGH = 0, 65534  # common.xml: 0 / UINT16_MAX-1 "release to the RC radio"

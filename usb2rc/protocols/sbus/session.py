@@ -6,7 +6,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from usb2rc.lines.session import ChannelValues, FrameLineSession, FrameSession
-from usb2rc.nodes.scaling import RC11_CENTRE
 from usb2rc.protocols import rc11
 from usb2rc.protocols.rc11_channels import padded
 from usb2rc.protocols.sbus import codec as sbus
@@ -19,8 +18,8 @@ class SbusSession(FrameLineSession):
         digital = channels[rc11.CHANNELS :]
         return sbus.encode_sbus(
             padded(channels),
-            ch17=len(digital) > 0 and digital[0] > RC11_CENTRE,
-            ch18=len(digital) > 1 and digital[1] > RC11_CENTRE,
+            ch17=len(digital) > 0 and digital[0] > rc11.CENTRE,
+            ch18=len(digital) > 1 and digital[1] > rc11.CENTRE,
             frame_lost=failsafe,
             failsafe=failsafe,
         )
