@@ -17,10 +17,20 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from itertools import islice
 
 
 class RecordingError(ValueError):
     """A hid-recorder file that cannot be used; the message names the line."""
+
+
+# A replayed device parses its file as it plays it, a batch of this many lines at a time:
+# its lines as hid-recorder writes them in a few C loops over the batch (`_events_as_written`),
+# ~0.6 µs a line, not the ~1.6 µs of a line at a time.
+BATCH_LINES = 256
+
+# Recorded times (seconds since the recording's start) and reports, in file order.
+EventBatch = tuple[list[float], list[bytes]]
 
 
 @dataclass(frozen=True)
@@ -97,6 +107,30 @@ def _event_as_written(raw: str) -> RecordedEvent | None:
     return RecordedEvent(time_s, data)
 
 
+def _events_as_written(lines: list[str]) -> EventBatch | None:
+    """Every line of `lines` an `E:` line as `_event_as_written` takes it, parsed in C loops
+    over the batch (one Python call per step, not per line); None when any line is not,
+    and the batch takes the full parse, a line at a time. Same checks as the line's."""
+    parts = [line.rstrip().split(" ", 3) for line in lines]
+    if set(map(len, parts)) != {4}:
+        return None
+    tags, stamps, counts, texts = zip(*parts, strict=True)
+    if set(tags) != {"E:"}:
+        return None
+    try:
+        times = list(map(float, stamps))
+        lengths = list(map(int, counts))
+        reports = list(map(bytes.fromhex, texts))
+    except ValueError:
+        return None
+    if list(map(len, reports)) != lengths or not all(map(math.isfinite, times)):
+        return None
+    # each token two digits, one space apart: `length` pairs and `length - 1` spaces
+    if list(map(len, texts)) != [3 * n - 1 for n in lengths] or min(times) < 0:
+        return None
+    return times, reports
+
+
 def _parse_ids(rest: str, lineno: int, source: str) -> tuple[int, int, int]:
     parts = rest.split()
     try:
@@ -148,6 +182,31 @@ class _LineParser:
         # other tags (H:, S: ...) are informational and ignored
         return None
 
+    def batches(self, lines: Iterator[str], lineno: int) -> Iterator[EventBatch]:
+        """The events of `lines` (the first is line `lineno + 1`), BATCH_LINES lines at a
+        time; a batch with no event is not yielded. At a bad line, the events before it
+        come out first, then its RecordingError."""
+        while chunk := list(islice(lines, BATCH_LINES)):
+            written = _events_as_written(chunk) if self.device_index == 0 else None
+            if written is not None:
+                yield written
+            else:
+                yield from self._line_by_line(chunk, lineno)
+            lineno += len(chunk)
+
+    def _line_by_line(self, chunk: list[str], lineno: int) -> Iterator[EventBatch]:
+        times: list[float] = []
+        reports: list[bytes] = []
+        try:
+            for number, raw in enumerate(chunk, start=lineno + 1):
+                event = self.line(number, raw)
+                if event is not None:
+                    times.append(event.time_s)
+                    reports.append(event.report)
+        finally:  # also at a bad line: the events before it come out, then its error
+            if times:
+                yield times, reports
+
     def recording(self, events: tuple[RecordedEvent, ...]) -> Recording:
         if self.descriptor is None:
             raise RecordingError(f"{self.source}: no 'R:' report descriptor line")
@@ -170,29 +229,48 @@ def parse_recording(lines: Iterable[str], source: str = "<recording>") -> Record
 def open_recording(
     lines: Iterable[str], source: str = "<recording>"
 ) -> tuple[Recording, Iterator[RecordedEvent]]:
-    """The header (a Recording without events) now, the events as they are taken.
+    """The header (a Recording without events) now, the events as they are taken
+    (`open_recording_batches`, one event at a time)."""
+    header, batches = open_recording_batches(lines, source)
+    events = (
+        RecordedEvent(time_s, report)
+        for times, reports in batches
+        for time_s, report in zip(times, reports, strict=True)
+    )
+    return header, events
+
+
+def open_recording_batches(
+    lines: Iterable[str], source: str = "<recording>"
+) -> tuple[Recording, Iterator[EventBatch]]:
+    """The header (a Recording without events) now, the events in batches as they are
+    taken (`_LineParser.batches`).
 
     Reads the lines up to the first event only (hid-recorder writes the header first), so
     the cost of a long recording is paid as it is played, not all at once: the replay
-    backend opens devices on threads that share the GIL with the output threads. The iterator
-    raises RecordingError at the first bad line it reaches. Header lines after the first
-    event are not in the header; a file whose `R:` comes after its first event is parsed
-    whole here (and raises here if it has none)."""
+    backend opens devices on threads that share the GIL with the output threads. The
+    iterator raises RecordingError at the first bad line it reaches, after the events before
+    it. Header lines after the first event are not in the header; a file whose `R:` comes
+    after its first event is parsed whole here (and raises here if it has none)."""
     parser = _LineParser(source)
-    numbered = enumerate(lines, start=1)
-    first = next((e for n, raw in numbered if (e := parser.line(n, raw)) is not None), None)
+    rest = iter(lines)
+    first: RecordedEvent | None = None
+    lineno = 0
+    for lineno, raw in enumerate(rest, start=1):
+        if (first := parser.line(lineno, raw)) is not None:
+            break
     if parser.descriptor is None:
-        rest = [e for n, raw in numbered if (e := parser.line(n, raw)) is not None]
-        events = ([first] if first is not None else []) + rest
-        return parser.recording(()), iter(events)
+        numbered = enumerate(rest, start=lineno + 1)
+        others = [e for n, raw in numbered if (e := parser.line(n, raw)) is not None]
+        events = ([first] if first is not None else []) + others
+        header = parser.recording(())
+        times = [e.time_s for e in events]
+        return header, iter([(times, [e.report for e in events])] if events else [])
 
-    def later() -> Iterator[RecordedEvent]:
+    def later() -> Iterator[EventBatch]:
         if first is not None:
-            yield first
-        for lineno, raw in numbered:
-            event = parser.line(lineno, raw)
-            if event is not None:
-                yield event
+            yield [first.time_s], [first.report]
+        yield from parser.batches(rest, lineno)
 
     return parser.recording(()), later()
 

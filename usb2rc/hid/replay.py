@@ -7,16 +7,20 @@ once, then holds until its file goes; `loop=True` replays forever.
 
 A plug does not read the whole recording: the directory scan parses a new file's header
 only (descriptor, name, IDs: what `DeviceInfo` needs) and looks for a fault mark (a scan in
-1 MB chunks), and a device reads its events from the file as they come due, in its own
-reader thread: it holds the open file and its position, never the text nor the events it
-played (a loop reads the file again from the top each lap). A 20 MB recording cost ~5x its
-size in RSS while the whole text and every event were held (issue 19); it costs a line's
-worth now. A 4 s recording at 1 kHz is ~4000 lines and ~5-15 ms of Python:
-parsed at once on the hot-plug thread, it competed with the output threads for the GIL while the
-daemon ran (bench/bench_plug_cost.py). The price: an `E:` line that is not valid is found when it
-is played, not when the file appears. Its device's `read()` then raises `OSError(EIO)`
-naming the line (the daemon sends `3`, read failed), and from then on the file is listed in
-`problems` instead of as a device.
+1 MB chunks), and a device reads its events from the file as they come due, in its reader's
+thread: it holds the open file, its position and one batch of parsed events
+(`recording.BATCH_LINES` lines), never the text nor the events it played (a loop reads the
+file again from the top each lap). So a 20 MB recording costs a batch's memory, and a plug
+does not parse thousands of lines at once on a thread that shares the GIL with the outputs
+(bench/bench_plug_cost.py). The price: an `E:` line that is not valid is found when its
+batch is played, not when the file appears. Its device's `read()` then raises
+`OSError(EIO)` naming the line, after the events before it (the daemon sends `3`, read
+failed), and from then on the file is listed in `problems` instead of as a device.
+
+A device costs what the kernel's hidraw queue costs a real one: no thread of its own, no
+wake-up per report. `read` hands over the next report if it is due; `read_due` every
+report due, found by one bisection of the batch's due times; only when none is due does
+`read` wait (a plain timed wait on the close flag) until the next one's time.
 
 Fault injection: a comment line `# usb2rc-fault: read-error at SECONDS` makes `read()` raise
 `OSError(EIO)` once the events before SECONDS are delivered.
@@ -32,13 +36,21 @@ import os
 import re
 import threading
 import time
+from bisect import bisect_right
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from itertools import accumulate
 from pathlib import Path
 
 from usb2rc.hid.backend import DeviceGone, DeviceInfo, DeviceOpenError
 from usb2rc.hid.descriptor import top_level_usage
-from usb2rc.hid.recording import RecordedEvent, Recording, RecordingError, open_recording
+from usb2rc.hid.recording import (
+    EventBatch,
+    Recording,
+    RecordingError,
+    open_recording,
+    open_recording_batches,
+)
 from usb2rc.runtime.flag import WakeFlag
 
 log = logging.getLogger(__name__)
@@ -71,9 +83,10 @@ def _open_text(path: Path) -> io.TextIOWrapper:
 
 
 class EventFile:
-    """One device's events, read from its file as they come due: the open file and its
-    position, never the text. `restart()` reads them again from the top (a loop's next
-    lap). `next()` and `close()` may come from different threads (a reader, a closer)."""
+    """One device's events, read from its file a batch at a time as they come due: the open
+    file and its position, never the text. `restart()` reads them again from the top (a
+    loop's next lap). `next_batch()` and `close()` may come from different threads (a
+    reader, a closer)."""
 
     def __init__(self, source: ReplayFile) -> None:
         self.source = str(source.path)
@@ -86,21 +99,22 @@ class EventFile:
         if _id_of(os.fstat(self._fh.fileno())) != source.stat_id:  # replaced since its scan
             self.close()
             raise DeviceGone(f"{source.path}: replay file replaced")
-        self._events: Iterator[RecordedEvent] = iter(())
+        self._batches: Iterator[EventBatch] = iter(())
         self.restart()
 
     def restart(self) -> None:
         with self._lock:
             if self._fh is not None:
                 self._fh.seek(0)
-                self._events = open_recording(self._fh, source=self.source)[1]
+                self._batches = open_recording_batches(self._fh, source=self.source)[1]
 
-    def next(self) -> RecordedEvent | None:
-        """The next event; None at the end (or once closed). RecordingError at a bad line."""
+    def next_batch(self) -> EventBatch | None:
+        """The next events (at least one); None at the end (or once closed). RecordingError at
+        a bad line, after the events before it."""
         with self._lock:
             if self._fh is None:
                 return None
-            return next(self._events, None)
+            return next(self._batches, None)
 
     def close(self) -> None:
         with self._lock:
@@ -287,10 +301,13 @@ class ReplayBackend:
 class ReplayDevice:
     """Plays one recording; `read` sleeps until absolute monotonic deadlines (or close()).
 
-    `read` is on the daemon's hot path (a reader drains ~20 due reports per tick at 1 kHz), so
-    the next report's due time is kept ready (`_due`) and a due report costs one clock read
-    and a few attribute loads. `busy_s` is the time spent in `read` other than waiting: the
-    replay backend's own cost, which a real device (the kernel) does not put on the daemon.
+    `read` and `read_due` are on the daemon's hot path (a paced reader drains ~10-20 due
+    reports per wake-up at 1 kHz). The batch in play is held as the reports and their due
+    times (`_dues`, monotonic, never earlier than the report before: reports come out in
+    file order), and `_next` is the first not handed over: a due report costs a clock read
+    and an index, a drain one bisection and one slice. `busy_s` is the time spent in `read`
+    and `read_due` other than waiting: the replay backend's own cost, which a real device
+    (the kernel) does not put on the daemon.
     """
 
     def __init__(
@@ -306,7 +323,7 @@ class ReplayDevice:
         self._speed = speed
         self._on_broken = on_broken
         # The events are read from the file as they come due, on the reader's thread
-        # (module docstring); only the next one is held (`_report`, `_due`).
+        # (module docstring); only the batch in play is held.
         self._events = EventFile(source)
         self._want_loop = loop
         self._lap = 0
@@ -319,9 +336,11 @@ class ReplayDevice:
             math.inf if source.fault_at is None else self._t0 + source.fault_at / speed
         )
         self._fault = f"{self.info.path}: injected read error"
-        self._report = b""
-        self._due = math.inf  # when `_report` is due; inf: none left
-        self._advance()
+        self._gone: str | None = None  # once the file is seen gone, every read says so
+        self._reports: list[bytes] = []  # the batch in play
+        self._dues: list[float] = []  # when each of them is due
+        self._next = 0  # the first of them not handed over
+        self._last_due = -math.inf  # the due time of the last report taken into a batch
         self._next_gone_check = 0.0
         self._quiet_until = 0.0  # before this, read needs neither a gone check nor a fault
         self.busy_s = 0.0
@@ -336,30 +355,37 @@ class ReplayDevice:
     def report_descriptor(self) -> bytes:
         return self._source.recording.descriptor
 
-    def _advance(self) -> None:
-        """Read the next event into `_report` / `_due` (a loop's next lap starts over at the
-        file's top); `_due` is inf when none is left."""
-        event = self._read_event()
-        if event is None and self._next_lap():
-            event = self._read_event()
-        if event is None:
-            self._due = math.inf
-            return
-        self._report = event.report
+    def _refill(self) -> bool:
+        """The batch in play is all handed over: take the next one (a loop's next lap starts
+        over at the file's top). False when none is left."""
+        batch = self._read_batch()
+        if batch is None and self._next_lap():
+            batch = self._read_batch()
+        if batch is None:
+            return False
+        times, self._reports = batch
         # From t0 each time (not a running sum): a device looped for hours does not drift.
-        self._due = self._t0 + self._lap * self._lap_s + event.time_s / self._speed
+        start = self._t0 + self._lap * self._lap_s
+        speed = self._speed
+        dues = [start + t / speed for t in times]
+        if dues[0] < self._last_due or dues != sorted(dues):  # a time before the one before
+            dues = list(accumulate(dues, max, initial=self._last_due))[1:]
+        self._dues = dues
+        self._last_due = self._dues[-1]
+        self._next = 0
+        return True
 
-    def _read_event(self) -> RecordedEvent | None:
+    def _read_batch(self) -> EventBatch | None:
         try:
-            event = self._events.next()
+            batch = self._events.next_batch()
         except RecordingError as exc:
             self._events.close()
             self._bad_line(exc)
             return None
-        if event is not None and self._lap == 0:
-            self._lap_events += 1
-            self._last_time_s = event.time_s
-        return event
+        if batch is not None and self._lap == 0:
+            self._lap_events += len(batch[0])
+            self._last_time_s = batch[0][-1]
+        return batch
 
     def _next_lap(self) -> bool:
         """At the end of the events: start the next lap if looping (and there are events)."""
@@ -370,6 +396,12 @@ class ReplayDevice:
         self._lap += 1
         self._events.restart()
         return True
+
+    def _next_due(self) -> float:
+        """When the next report is due; inf when none is left."""
+        if self._next == len(self._dues) and not self._refill():
+            return math.inf
+        return self._dues[self._next]
 
     def _bad_line(self, exc: RecordingError) -> None:
         """The events before the bad line were played: the next read fails (EIO), as a
@@ -382,13 +414,18 @@ class ReplayDevice:
 
     def _check_gone(self, now: float) -> None:
         """A stat at most every GONE_CHECK_S: unplug is seen within that, and a 1 kHz device
-        does not pay a system call per report."""
-        if now < self._next_gone_check:
-            return
-        self._next_gone_check = now + GONE_CHECK_S
-        self._quiet_until = min(self._next_gone_check, self._fault_due)
-        if _stat_id_of(self._path) != self._source.stat_id:
-            raise DeviceGone(f"{self._source.path}: replay file removed or replaced")
+        does not pay a system call per report. Once gone, every read raises (as hidapi's
+        does after an unplug, even with reports still queued)."""
+        if self._gone is None:
+            if now < self._next_gone_check:
+                return
+            self._next_gone_check = now + GONE_CHECK_S
+            self._quiet_until = min(self._next_gone_check, self._fault_due)
+            if _stat_id_of(self._path) == self._source.stat_id:
+                return
+            self._gone = f"{self._source.path}: replay file removed or replaced"
+            self._quiet_until = -math.inf
+        raise DeviceGone(self._gone)
 
     def read_due(self, limit: int) -> list[bytes]:
         """The reports due now, at most `limit`, in one call: a reader's drain takes ~10 at
@@ -400,32 +437,43 @@ class ReplayDevice:
         now = time.monotonic()
         due: list[bytes] = []
         if now < self._quiet_until and not self._closed.is_set():
-            deliver = self._deliver
-            while self._due <= now and len(due) < limit:
-                due.append(deliver())
+            while len(due) < limit and (self._next < len(self._dues) or self._refill()):
+                first, dues = self._next, self._dues
+                end = bisect_right(dues, now, first, min(len(dues), first + limit - len(due)))
+                due += self._reports[first:end]
+                self._next = end
+                if end < len(dues):  # the next one is not due yet (or the limit is reached)
+                    break
         self.busy_s += time.perf_counter() - started
         return due
 
     def read(self, timeout_s: float) -> bytes | None:
         started = time.perf_counter()
         now = time.monotonic()
-        if self._due <= now < self._quiet_until and not self._closed.is_set():
-            # The drain's case: a report is due and neither a gone check nor a fault is.
-            report = self._deliver()
-            self.busy_s += time.perf_counter() - started
-            return report
+        index = self._next
+        if index < len(self._dues) and now < self._quiet_until and not self._closed.is_set():
+            # The drain's cases, when neither a gone check nor a fault is due: a report is
+            # due, or a poll finds none is.
+            if self._dues[index] <= now:
+                self._next = index + 1
+                self.busy_s += time.perf_counter() - started
+                return self._reports[index]
+            if timeout_s <= 0:
+                self.busy_s += time.perf_counter() - started
+                return None
         waited = 0.0
         try:
             end = now + timeout_s if timeout_s > 0 else now
             while True:
                 if self._closed.is_set():
                     raise OSError(errno.EBADF, f"{self.info.path}: device is closed")
-                due = self._due
+                due = self._next_due()
                 if now >= self._fault_due and due >= self._fault_due:
                     raise OSError(errno.EIO, self._fault)
                 self._check_gone(now)
                 if due <= now:
-                    return self._deliver()
+                    self._next += 1
+                    return self._reports[self._next - 1]
                 if now >= end:
                     return None
                 wake = min(end, due, self._quiet_until)
@@ -435,11 +483,6 @@ class ReplayDevice:
                 now = time.monotonic()
         finally:
             self.busy_s += time.perf_counter() - started - waited
-
-    def _deliver(self) -> bytes:
-        report = self._report
-        self._advance()
-        return report
 
     def close(self) -> None:
         self._closed.set()
