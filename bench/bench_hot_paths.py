@@ -6,7 +6,7 @@ and each reader's wake-ups, ~100 a second, each draining ~10 reports. Thread CPU
 wall-clock ones (it still evicts caches: compare runs made back to back).
 
 Tick: the real `lines.driver.Driver.tick()` of a C2-16B output (follow the link, the node
-snapshot `NodeTable.step_if_due` ("collect"), `C2Line.tick` with one data frame per node,
+snapshot `NodeTable.step_if_due` ("collect"), `C2Session.tick` with one data frame per node,
 the write) on a pty that a `cat` subprocess
 drains, `--nodes` T.16000M devices whose readers' records change every tick (as at 1 kHz):
 - `tick_hot_us`: ticks back to back, the best of `--runs` means (the code's own cost);
@@ -49,7 +49,7 @@ from usb2rc.lines.serial_link import SerialLink
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import NodeTable
 from usb2rc.protocols.c2_16b.engine import C2Settings
-from usb2rc.protocols.c2_16b.session import C2Line
+from usb2rc.protocols.c2_16b.session import C2Session
 
 PERIOD_S = 0.020
 
@@ -82,7 +82,7 @@ class Rig:
             source = Source(ReaderRecord(decoder.state(), 1, 0, time.monotonic()))
             self.table.add_device(node_id, info, binding, source, "JOYSTICK")
             self.feeds.append((source, decoder.feed, decoder.state))
-        session = C2Line("bench", C2Settings())
+        session = C2Session("bench", C2Settings())
         link = SerialLink(port, 921600)
         self.output = Driver("bench", link, session, self.table.step_if_due, PERIOD_S)
         self.output.link.open_now()

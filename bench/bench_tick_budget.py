@@ -6,10 +6,10 @@ session of each protocol as the output thread drives it once a tick, its encodin
 on an open line, fed values that change every tick (as at 1 kHz) from `--inputs` (64)
 prepared ones, so the figure is the session's and the codec's, not the bench's:
 
-- `c2_4_nodes`: `C2Session.tick` with 4 node frames (4 data frames), then `wrote`;
-- `sumd_16`, `crsf_16`, `sbus_16`, `ibus_14`: the channel sessions' `tick(channels,
+- `c2_4_nodes`: `C2Engine.tick` with 4 node frames (4 data frames), then `wrote`;
+- `sumd_16`, `crsf_16`, `sbus_16`, `ibus_14`: the channel sessions' `frame(values,
   failsafe)` with 16 (iBus 14) channel values;
-- `mavlink_override`: `MavlinkSession.tick` with RC_CHANNELS_OVERRIDE (pymavlink packs it).
+- `mavlink_override`: `MavlinkEngine.tick` with RC_CHANNELS_OVERRIDE (pymavlink packs it).
 
 `c2_encode_data_4`: 4 `encode_data` calls, the C2-16B codec alone.
 
@@ -47,11 +47,13 @@ from typing import Any
 
 from usb2rc.config import layout
 from usb2rc.lines.driver import Pace
-from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
-from usb2rc.protocols.crsf.session import CrsfSession
+from usb2rc.protocols.c2_16b.engine import C2Engine, C2Settings
+from usb2rc.protocols.channels import OutputChannels
+from usb2rc.protocols.crsf.session import CrsfModule, CrsfSession
 from usb2rc.protocols.ibus.session import IbusSession
-from usb2rc.protocols.mavlink.session import ControlValues, MavlinkSession
+from usb2rc.protocols.mavlink.session import ControlValues, MavlinkEngine
 from usb2rc.protocols.sbus.session import SbusSession
+from usb2rc.protocols.sumd import codec as sumd
 from usb2rc.protocols.sumd.session import SumdSession
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
@@ -68,6 +70,7 @@ from usb2rc.protocols.c2_16b import codec as c2_16b
 GRID_S = 0.020
 
 Tick = Callable[[int], object]  # one tick of a case, given the tick's number
+NO_CHANNELS = OutputChannels([])  # a channel session's values are given to `frame`
 
 
 # --- session ticks --------------------------------------------------------------------------
@@ -88,7 +91,7 @@ def channel_lists(count: int, low: int, high: int, inputs: int, rng: random.Rand
 
 
 def c2_case(inputs: int, rng: random.Random) -> Tick:
-    session = C2Session(C2Settings(baudrate=921600))
+    session = C2Engine(C2Settings(baudrate=921600))
     session.line_opened()
     frames = node_frames(4, inputs, rng)
     for k in range(4):  # the startup frame goes out; 4 data frames a tick from then on
@@ -106,14 +109,14 @@ def channel_case(session: Any, values: list[Any]) -> Tick:
     count = len(values)
 
     def tick(k: int) -> object:
-        data = session.tick(values[k % count], False)
+        data = session.frame(values[k % count], False)
         return session.wrote(len(data))
 
     return tick
 
 
 def mavlink_case(inputs: int, rng: random.Random) -> Tick:
-    session = MavlinkSession(MavlinkOptions())
+    session = MavlinkEngine(MavlinkOptions())
     session.line_opened()
     values = [
         ControlValues(False, channels=tuple(rng.randint(1000, 2000) for _ in range(16)))
@@ -143,10 +146,20 @@ def cases(inputs: int) -> dict[str, Tick]:
     rng = random.Random(22)
     return {
         "c2_4_nodes": c2_case(inputs, rng),
-        "sumd_16": channel_case(SumdSession(), channel_lists(16, 0x2260, 0x3B60, inputs, rng)),
-        "crsf_16": channel_case(CrsfSession(0.004), channel_lists(16, 172, 1811, inputs, rng)),
-        "sbus_16": channel_case(SbusSession(), channel_lists(16, 172, 1811, inputs, rng)),
-        "ibus_14": channel_case(IbusSession(), channel_lists(14, 1000, 2000, inputs, rng)),
+        "sumd_16": channel_case(
+            SumdSession("bench", NO_CHANNELS, sumd.frame_length(16), 100.0),
+            channel_lists(16, 0x2260, 0x3B60, inputs, rng),
+        ),
+        "crsf_16": channel_case(
+            CrsfSession("bench", NO_CHANNELS, CrsfModule(0.004)),
+            channel_lists(16, 172, 1811, inputs, rng),
+        ),
+        "sbus_16": channel_case(
+            SbusSession("bench", NO_CHANNELS, 100.0), channel_lists(16, 172, 1811, inputs, rng)
+        ),
+        "ibus_14": channel_case(
+            IbusSession("bench", NO_CHANNELS, 100.0), channel_lists(14, 1000, 2000, inputs, rng)
+        ),
         "mavlink_override": mavlink_case(inputs, rng),
         "c2_encode_data_4": encode_data_case(inputs, rng),
     }

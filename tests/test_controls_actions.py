@@ -15,7 +15,7 @@ from usb2rc.config.controls_model import ActionConfig
 from usb2rc.config.mavlink import MavlinkOptions
 from usb2rc.configfile import ChannelRef, load_config_text
 from usb2rc.protocols.mavlink.actions import TRIES
-from usb2rc.protocols.mavlink.session import ControlValues, MavlinkSession, stats_record
+from usb2rc.protocols.mavlink.session import ControlValues, MavlinkEngine, stats_record
 
 BUTTON = ChannelRef(0, "button", 2, "node0.button2")
 COPTER = (mavlink2.MAV_AUTOPILOT_ARDUPILOTMEGA, mavlink2.MAV_TYPE_QUADROTOR)
@@ -42,8 +42,8 @@ class Vehicle:
         return [m for m in messages if m.get_type() == "COMMAND_LONG"]
 
 
-def session(*actions: ActionConfig) -> MavlinkSession:
-    line = MavlinkSession(MavlinkOptions(), actions=actions)
+def session(*actions: ActionConfig) -> MavlinkEngine:
+    line = MavlinkEngine(MavlinkOptions(), actions=actions)
     line.line_opened()
     return line
 
@@ -52,7 +52,7 @@ def values(*triggers: bool, failsafe: bool = False) -> ControlValues:
     return ControlValues(failsafe, channels=(1500,), triggers=triggers)
 
 
-def run(line: MavlinkSession, ticks: list[tuple[float, ControlValues]]) -> list[bytes]:
+def run(line: MavlinkEngine, ticks: list[tuple[float, ControlValues]]) -> list[bytes]:
     sent: list[bytes] = []
     for now, tick_values in ticks:
         sent += line.tick(now, tick_values)

@@ -31,7 +31,7 @@ from rc_reference import crsf_frame
 
 from usb2rc.lines.link import BITS_PER_BYTE_ON_WIRE
 from usb2rc.lines.rx import Handoff, RxBudget
-from usb2rc.protocols.crsf.session import MAX_INTERVAL_S, MIN_INTERVAL_S, CrsfSession
+from usb2rc.protocols.crsf.session import MAX_INTERVAL_S, MIN_INTERVAL_S, CrsfModule
 
 WAIT_S = 20.0
 EPS = 1e-9  # the periods are differences of float deadlines
@@ -46,35 +46,35 @@ def timing_correction(interval_us: float, offset_us: float) -> bytes:
     return crsf_frame(0xEA, 0x3A, payload)
 
 
-def periods_followed(session: CrsfSession, corrections: list[bytes]) -> list[float]:
+def periods_followed(module: CrsfModule, corrections: list[bytes]) -> list[float]:
     """The module sends a correction before every frame; the periods the session sets."""
     due = 0.0
     periods = []
     for correction in corrections:
-        session.received(correction, due)
-        next_due = session.next_send(due, due)
+        module.received(correction, due)
+        next_due = module.next_send(due, due)
         periods.append(next_due - due)
         due = next_due
     return periods
 
 
 def test_a_negative_offset_before_every_frame_never_sends_faster_than_the_bounds():
-    session = CrsfSession(0.004, min_interval_s=LINE_FRAME_S)
-    periods = periods_followed(session, [timing_correction(1000, -500)] * 1000)
+    module = CrsfModule(0.004, min_interval_s=LINE_FRAME_S)
+    periods = periods_followed(module, [timing_correction(1000, -500)] * 1000)
     assert min(periods) >= max(MIN_INTERVAL_S, LINE_FRAME_S) - EPS  # was 0.5 ms: 1596/s
     assert sum(periods) >= 1.0 - EPS  # 1000 frames take at least a second
 
 
 def test_a_positive_offset_before_every_frame_never_sends_slower_than_the_bounds():
-    session = CrsfSession(0.004, min_interval_s=LINE_FRAME_S)
-    periods = periods_followed(session, [timing_correction(100_000, 50_000)] * 100)
+    module = CrsfModule(0.004, min_interval_s=LINE_FRAME_S)
+    periods = periods_followed(module, [timing_correction(100_000, 50_000)] * 100)
     assert max(periods) <= MAX_INTERVAL_S + EPS  # was 150 ms: 7 frames/s
 
 
 def test_a_line_slower_than_the_module_bounds_the_period_by_the_frame_time():
     frame_s = 26 * BITS_PER_BYTE_ON_WIRE / 115200  # 2.26 ms at 115200 baud
-    session = CrsfSession(0.01, min_interval_s=frame_s)
-    periods = periods_followed(session, [timing_correction(1000, -500)] * 50)
+    module = CrsfModule(0.01, min_interval_s=frame_s)
+    periods = periods_followed(module, [timing_correction(1000, -500)] * 50)
     assert min(periods) >= frame_s - EPS
 
 
@@ -89,9 +89,9 @@ def test_a_line_slower_than_the_module_bounds_the_period_by_the_frame_time():
 )
 def test_whatever_the_module_says_the_period_stays_within_the_bounds(corrections, baudrate):
     frame_s = 26 * BITS_PER_BYTE_ON_WIRE / baudrate
-    session = CrsfSession(0.004, min_interval_s=frame_s)
+    module = CrsfModule(0.004, min_interval_s=frame_s)
     frames = [timing_correction(interval, offset) for interval, offset in corrections]
-    for period in periods_followed(session, frames):
+    for period in periods_followed(module, frames):
         assert period == pytest.approx(0.004) or (
             max(MIN_INTERVAL_S, frame_s) - EPS <= period <= MAX_INTERVAL_S + EPS
         )

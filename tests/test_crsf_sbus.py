@@ -23,9 +23,10 @@ from rc_reference import (
 
 from usb2rc.configfile import load_config_text
 from usb2rc.protocols import rc11 as block
+from usb2rc.protocols.channels import OutputChannels
 from usb2rc.protocols.crc import crc8_dvb_s2
 from usb2rc.protocols.crsf import codec as crsf
-from usb2rc.protocols.crsf.session import SYNC_STALE_S, CrsfSession, ModuleLink
+from usb2rc.protocols.crsf.session import SYNC_STALE_S, CrsfModule, CrsfSession, ModuleLink
 from usb2rc.protocols.rc11 import axis_to_rc11, button_to_rc11
 from usb2rc.protocols.sbus import codec as sbus
 from usb2rc.protocols.sbus.session import SbusSession
@@ -183,23 +184,21 @@ def test_rc11_scaling_matches_the_documented_formula(value: int) -> None:
 # --- sessions -----------------------------------------------------------------------------------
 
 
-def _open_crsf(**kw) -> CrsfSession:
-    session = CrsfSession(0.004, **kw)
-    session.line_opened()
-    return session
+NO_CHANNELS = OutputChannels([])  # the tests give the sessions their values themselves
 
 
 def test_crsf_session_withholds_frames_in_failsafe_and_pads_with_low() -> None:
-    session = _open_crsf()
-    [ref] = RefCrsfReader().feed(session.tick([1811, 992], False))
+    session = CrsfSession("crsf", NO_CHANNELS, CrsfModule(0.004))
+    session.line_opened()
+    [ref] = RefCrsfReader().feed(session.frame([1811, 992], False))
     assert ref.channels == [1811, 992] + [172] * 14
-    assert session.tick([1811, 992], True) == b""
+    assert session.frame([1811, 992], True) == b""
     assert session.withheld == 1
-    assert session.tick([172, 992], False)
+    assert session.frame([172, 992], False)
 
 
 def test_crsf_session_follows_the_module_timing_then_falls_back() -> None:
-    session = _open_crsf()
+    session = CrsfModule(0.004)
     assert session.next_send(10.0, 10.0) == pytest.approx(10.004)
     sync = crsf.encode_timing_sync(20000, 3000)  # 2 ms (500 Hz), send 300 µs later
     session.received(sync[:5], 10.001)
@@ -214,20 +213,20 @@ def test_crsf_session_follows_the_module_timing_then_falls_back() -> None:
 
 
 def test_crsf_session_bounds_what_it_follows() -> None:
-    session = _open_crsf(min_interval_s=0.0025)
+    session = CrsfModule(0.004, min_interval_s=0.0025)
     session.received(crsf.encode_timing_sync(10000, 0), 1.0)  # 1000 Hz: more than the line
     assert session.interval_s(1.0) == pytest.approx(0.0025)
     session.received(crsf.encode_timing_sync(40000, 10_000_000), 1.1)  # 1 s offset: a half
     assert session.next_send(2.0, 1.1) == pytest.approx(2.0 + 0.004 + 0.002)
     session.received(crsf.encode_timing_sync(5, 0), 1.2)  # 0.5 µs: implausible
     assert session.timing_ignored == 1
-    off = _open_crsf(follow_module=False)
+    off = CrsfModule(0.004, follow_module=False)
     off.received(crsf.encode_timing_sync(20000, 0), 1.0)
     assert off.interval_s(1.0) == pytest.approx(0.004) and off.timing_ignored == 1
 
 
 def test_crsf_session_keeps_the_link_statistics() -> None:
-    session = _open_crsf()
+    session = CrsfModule(0.004)
     stats = crsf.LinkStatistics(60, 61, 87, 7, 0, 5, 2, 70, 90, 3)
     session.received(crsf.encode_link_statistics(stats), 5.0)
     assert session.link == ModuleLink(stats, 5.0)  # one value: the figures with their time
@@ -235,13 +234,13 @@ def test_crsf_session_keeps_the_link_statistics() -> None:
 
 
 def test_sbus_session_flags_and_digital_channels() -> None:
-    session = SbusSession()
+    session = SbusSession("sbus", NO_CHANNELS, 100.0)
     session.line_opened()
     values = [172 + 100 * i for i in range(16)] + [1811, 172]
-    [ref] = RefSbusReader().feed(session.tick(values, False))
+    [ref] = RefSbusReader().feed(session.frame(values, False))
     assert ref.channels == values[:16] and (ref.ch17, ref.ch18) == (True, False)
     assert not ref.frame_lost and not ref.failsafe
-    [ref] = RefSbusReader().feed(session.tick([992, 992], True))
+    [ref] = RefSbusReader().feed(session.frame([992, 992], True))
     assert ref.channels == [992, 992] + [172] * 14
     assert ref.frame_lost and ref.failsafe and not ref.ch17
 
@@ -347,11 +346,13 @@ def test_crsf_session_timing_invariants(events: list, min_interval: float) -> No
     """Whatever the module says and whenever: the next frame is always later than the one
     before (at least half an interval), the interval stays within what the line carries and
     100 ms, frames go out only while live, and a stale correction is not followed."""
-    session = _open_crsf(min_interval_s=min_interval)
+    module = CrsfModule(0.004, min_interval_s=min_interval)
+    session = CrsfSession("crsf", NO_CHANNELS, module)
+    session.line_opened()
     now = due = 0.0
     for event in events:
         if event[0] == "tick":
-            frame = session.tick([992] * 4, event[1])
+            frame = session.frame([992] * 4, event[1])
             assert bool(frame) == (not event[1])
         elif event[0] == "sync":
             session.received(crsf.encode_timing_sync(event[1], event[2]), now)
@@ -359,12 +360,12 @@ def test_crsf_session_timing_invariants(events: list, min_interval: float) -> No
             now += event[1]
         if event[0] != "send":
             continue
-        interval = session.interval_s(now)
+        interval = session.period(now)
         assert max(0.001, min_interval) <= interval <= 0.1 or interval == 0.004
-        if session.timing is None or now - session.timing.at > SYNC_STALE_S:
+        if module.timing is None or now - module.timing.at > SYNC_STALE_S:
             assert interval == 0.004
-        following = session.following(now)
-        nxt = session.next_send(due, now)
+        following = module.following(now)
+        nxt = session.next_due(due, now)
         assert nxt >= due + interval / 2 - 1e-12
         assert following or nxt == pytest.approx(due + 0.004)
         due = nxt

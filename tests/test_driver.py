@@ -34,13 +34,13 @@ from usb2rc.nodes.step import GRID_EPOCH_S, kernel_tick_s
 from usb2rc.nodes.table import NodeTable
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.c2_16b.engine import C2Settings
-from usb2rc.protocols.c2_16b.session import C2Line
+from usb2rc.protocols.c2_16b.session import C2Session
 from usb2rc.protocols.channels import OutputChannels
 from usb2rc.protocols.crsf import codec as crsf
-from usb2rc.protocols.crsf.session import CrsfLine, CrsfSession
+from usb2rc.protocols.crsf.session import CrsfModule, CrsfSession
 from usb2rc.protocols.rc11_channels import RC11_SCALE
 from usb2rc.protocols.sumd.channels import SumdChannels
-from usb2rc.protocols.sumd.session import SumdLine
+from usb2rc.protocols.sumd.session import SumdSession
 
 WAIT_S = 10.0  # a safety net: every wait ends on its condition
 Service = c2_16b.Service
@@ -83,7 +83,7 @@ def test_a_c2_line_on_a_pty_stalls_starts_over_when_read_again_and_stops_failsaf
         stick = info(f"k{node}", f"1-{node}")
         table.add_device(node, stick, BINDING, Source.of(StickState()), "JOYSTICK")
     link = SerialLink(far.path, 921600)
-    session = C2Line(far.path, C2Settings(rate_hz=200, baudrate=921600, version="0.1.0"))
+    session = C2Session(far.path, C2Settings(rate_hz=200, baudrate=921600, version="0.1.0"))
     driver = Driver("c2", link, session, table.step_if_due, 1 / 200)
     thread = Drivers("drivers", [driver])
     assert link.open_now()
@@ -151,7 +151,7 @@ def test_a_crsf_line_on_loop_reads_its_far_end_and_comes_back_after_a_lost_port(
     table = NodeTable()
     table.add_device(0, info("a", "1-1"), BINDING, Source.of(StickState()), "JOYSTICK")
     channels = OutputChannels.scaled([ChannelSource(0, "axis", 0)], RC11_SCALE, crsf.RC_FRAME_LEN)
-    session = CrsfLine("crsf", channels, CrsfSession(0.01))
+    session = CrsfSession("crsf", channels, CrsfModule(0.01))
     link = SerialLink("loop://", 400000, reopen_interval_s=0.05)
     driver = Driver("crsf", link, session, table.step_if_due, 0.01)
     thread = Drivers("drivers", [driver])
@@ -160,11 +160,11 @@ def test_a_crsf_line_on_loop_reads_its_far_end_and_comes_back_after_a_lost_port(
     thread.start()
     reader.start()
     try:
-        until(lambda: session.engine.decoder.frames >= 5, "the far end's frames")
+        until(lambda: session.module.decoder.frames >= 5, "the far end's frames")
         opener.fail.set()  # the next read fails: the driver closes the port and reopens it
         until(lambda: link.stats.losses == 1 and link.stats.opens == 2, "a reopened port")
-        heard = session.engine.decoder.frames
-        until(lambda: session.engine.decoder.frames >= heard + 5, "frames on the new port")
+        heard = session.module.decoder.frames
+        until(lambda: session.module.decoder.frames >= heard + 5, "frames on the new port")
         assert session.line_open and len(opener.ports) == 2
     finally:
         thread.stop()
@@ -274,7 +274,7 @@ def timed_writes(outputs: int) -> TimedWrites:
 
     for index, far in enumerate(fars):
         link = SerialLink(far.path, 921600)
-        session = C2Line(far.path, C2Settings(rate_hz=100, baudrate=921600, version="0.1.0"))
+        session = C2Session(far.path, C2Settings(rate_hz=100, baudrate=921600, version="0.1.0"))
         driver = Driver(f"c2-{index}", link, session, step_if_due, 0.01, alone=outputs == 1)
         drivers.append(driver)
         _timed(driver, index, written, stopping)
@@ -394,9 +394,9 @@ def test_an_output_whose_far_end_stops_reading_does_not_hold_the_others() -> Non
         stick = info(f"k{node}", f"1-{node}")
         table.add_device(node, stick, BINDING, Source.of(StickState()), "JOYSTICK")
     c2_link, sumd_link = SerialLink(c2_far.path, 921600), SerialLink(sumd_far.path, 115200)
-    c2_session = C2Line(c2_far.path, C2Settings(rate_hz=200, baudrate=921600, version="0.1.0"))
+    c2_session = C2Session(c2_far.path, C2Settings(rate_hz=200, baudrate=921600, version="0.1.0"))
     channels = SumdChannels.of([ChannelSource(0, "axis", 0), ChannelSource(0, "axis", 1)])
-    sumd_session = SumdLine(sumd_far.path, channels, channels.frame_length, 100.0)
+    sumd_session = SumdSession(sumd_far.path, channels, channels.frame_length, 100.0)
     c2 = Driver("c2", c2_link, c2_session, table.step_if_due, 1 / 200)
     sumd_out = Driver("sumd", sumd_link, sumd_session, table.step_if_due, 1 / 100)
     thread = Drivers("drivers", [c2, sumd_out])

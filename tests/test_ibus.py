@@ -15,6 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from ibus_reference import RefIbusReader, microseconds
 
+from usb2rc.protocols.channels import OutputChannels
 from usb2rc.protocols.ibus import codec as ibus
 from usb2rc.protocols.ibus.session import IbusSession
 
@@ -68,10 +69,10 @@ def test_encoder_refuses_a_wrong_count_or_value() -> None:
 
 
 def test_session_pads_and_is_silent_in_failsafe() -> None:
-    session = IbusSession()
-    frame = session.frame([1234, 2000], failsafe=False)
+    session = IbusSession("ibus", OutputChannels([]), 100.0)
+    frame = session.encode([1234, 2000], failsafe=False)
     assert RefIbusReader().feed(frame)[0].channels == [1234, 2000] + [1000] * 12
-    assert session.frame([1234, 2000], failsafe=True) == b""
+    assert session.encode([1234, 2000], failsafe=True) == b""
     assert session.withheld == 1
 
 

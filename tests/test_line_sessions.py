@@ -42,27 +42,27 @@ from usb2rc.nodes.table import (
 )
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.c2_16b.engine import C2Settings
-from usb2rc.protocols.c2_16b.session import C2Line
+from usb2rc.protocols.c2_16b.session import C2Session
 from usb2rc.protocols.channels import OutputChannels
 from usb2rc.protocols.crsf import codec as crsf
-from usb2rc.protocols.crsf.session import CrsfLine, CrsfSession
+from usb2rc.protocols.crsf.session import CrsfModule, CrsfSession
 from usb2rc.protocols.ibus import IBUS_SCALE
 from usb2rc.protocols.ibus import codec as ibus
-from usb2rc.protocols.ibus.session import IbusLine
+from usb2rc.protocols.ibus.session import IbusSession
 from usb2rc.protocols.mavlink.codec import MavlinkDecoder
 from usb2rc.protocols.mavlink.session import (
     MavlinkChannels,
-    MavlinkLine,
+    MavlinkEngine,
     MavlinkSession,
     heartbeat_bytes,
 )
 from usb2rc.protocols.mavlink.session import max_message_bytes as mavlink_bytes
 from usb2rc.protocols.rc11_channels import RC11_SCALE
 from usb2rc.protocols.sbus import codec as sbus
-from usb2rc.protocols.sbus.session import SbusLine
+from usb2rc.protocols.sbus.session import SbusSession
 from usb2rc.protocols.sumd import codec as sumd
 from usb2rc.protocols.sumd.channels import SumdChannels
-from usb2rc.protocols.sumd.session import SumdLine
+from usb2rc.protocols.sumd.session import SumdSession
 
 NODES = 3
 SOURCES = [ChannelSource(0, "axis", 0), ChannelSource(1, "axis", 1), ChannelSource(2, "button", 1)]
@@ -72,21 +72,21 @@ RELEASED = 0  # MAVLink: channels 1-8 handed back to the RC radio
 def sessions() -> dict[str, Callable[[], LineSession]]:
     def crsf_line() -> LineSession:
         channels = OutputChannels.scaled(SOURCES, RC11_SCALE, crsf.RC_FRAME_LEN)
-        return CrsfLine("crsf", channels, CrsfSession(0.004))
+        return CrsfSession("crsf", channels, CrsfModule(0.004))
 
     def mavlink_line() -> LineSession:
         tick_bytes = heartbeat_bytes() + mavlink_bytes("rc_channels_override")
-        session = MavlinkSession(MavlinkOptions())
-        return MavlinkLine("mavlink", MavlinkChannels(SOURCES), session, tick_bytes, 50.0)
+        session = MavlinkEngine(MavlinkOptions())
+        return MavlinkSession("mavlink", MavlinkChannels(SOURCES), session, tick_bytes, 50.0)
 
     return {
-        "c2-16b": lambda: C2Line("c2", C2Settings(version="0.1.0")),
-        "sumd": lambda: SumdLine("sumd", SumdChannels.of(SOURCES), sumd.frame_length(3), 100.0),
+        "c2-16b": lambda: C2Session("c2", C2Settings(version="0.1.0")),
+        "sumd": lambda: SumdSession("sumd", SumdChannels.of(SOURCES), sumd.frame_length(3), 100.0),
         "crsf": crsf_line,
-        "sbus": lambda: SbusLine(
+        "sbus": lambda: SbusSession(
             "sbus", OutputChannels.scaled(SOURCES, RC11_SCALE, sbus.FRAME_LEN), 100.0
         ),
-        "ibus": lambda: IbusLine(
+        "ibus": lambda: IbusSession(
             "ibus", OutputChannels.scaled(SOURCES, IBUS_SCALE, ibus.FRAME_LEN), 100.0
         ),
         "mavlink": mavlink_line,

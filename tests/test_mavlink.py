@@ -35,7 +35,7 @@ from usb2rc.protocols.mavlink.session import (
     RELEASE_S,
     ControlValues,
     MavlinkChannels,
-    MavlinkLine,
+    MavlinkEngine,
     MavlinkSession,
     heartbeat_bytes,
     max_message_bytes,
@@ -56,8 +56,8 @@ def parse(chunks: list[bytes]) -> list[Any]:
     return out
 
 
-def open_session(**kw: Any) -> MavlinkSession:
-    session = MavlinkSession(MavlinkOptions(**kw))
+def open_session(**kw: Any) -> MavlinkEngine:
+    session = MavlinkEngine(MavlinkOptions(**kw))
     session.line_opened()
     return session
 
@@ -226,7 +226,7 @@ def test_a_short_write_stalls_until_drained_and_a_lost_line_sends_nothing() -> N
     session = open_session()
     heartbeat, _control = session.tick(0.0, ControlValues(False, (1500,)))
     assert not session.wrote(len(heartbeat)).stalled
-    assert session.wrote(3).stalled and session.stalled and session.stalls == 1
+    assert session.wrote(3).stalled and session.line.stalled
     assert session.tick(0.02, ControlValues(False, (1500,))) == []
     session.line_drained()
     assert session.tick(0.04, ControlValues(False, (1500,)))
@@ -472,7 +472,7 @@ def test_the_driver_writes_each_tick_whole_and_counts_one_period_per_tick() -> N
     assert link.open_now()
     channels = MavlinkChannels([ChannelRef.axis(0, "x")])
     tick_bytes = heartbeat_bytes() + max_message_bytes("rc_channels_override")
-    session = MavlinkLine("mav", channels, MavlinkSession(MavlinkOptions()), tick_bytes, 50.0)
+    session = MavlinkSession("mav", channels, MavlinkEngine(MavlinkOptions()), tick_bytes, 50.0)
     out = Driver("mav", link, session, NodeTable().step_if_due, 0.02)
     try:
         out.tick()  # the line opens: a heartbeat, then (node 0 absent: failsafe) a release

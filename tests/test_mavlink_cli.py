@@ -15,13 +15,13 @@ from daemon_harness import ROOT, StickState, install, recording, scale
 from test_check_icd_cli import usb2rc
 
 from usb2rc.config.mavlink import MavlinkOptions
-from usb2rc.protocols.mavlink.session import ControlValues, MavlinkSession
+from usb2rc.protocols.mavlink.session import ControlValues, MavlinkEngine
 
 GOOD = ROOT / "usb2rc" / "data" / "config" / "mavlink.yaml"
 
 
 def session_bytes() -> list[bytes]:
-    session = MavlinkSession(MavlinkOptions(system_id=42, component_id=7))
+    session = MavlinkEngine(MavlinkOptions(system_id=42, component_id=7))
     session.line_opened()
     return session.tick(0.0, ControlValues(False, channels=(1100, 1900))) + session.tick(
         0.02, ControlValues(True, channels=(1100, 1900))

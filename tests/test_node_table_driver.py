@@ -26,7 +26,7 @@ from usb2rc.nodes.mapping import ChannelSource, compile_mapping
 from usb2rc.nodes.table import NodeFrame, NodeTable
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.c2_16b.engine import C2Settings
-from usb2rc.protocols.c2_16b.session import C2Line
+from usb2rc.protocols.c2_16b.session import C2Session
 from usb2rc.protocols.sumd.channels import SumdChannels, sumd_channel
 
 LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
@@ -183,7 +183,7 @@ def decode(chunks: list[bytes]) -> list:
 
 
 def c2_output(table: NodeTable, link: FakeLink, baudrate: int = 115200) -> Driver:
-    session = C2Line("test", C2Settings(baudrate=baudrate, version="0.1.0"))
+    session = C2Session("test", C2Settings(baudrate=baudrate, version="0.1.0"))
     return Driver("test", link, session, table.step_if_due, 0.02)
 
 

@@ -3,7 +3,7 @@ race explicitly through a seam, or checks which thread writes a field; none reli
 
 - `Daemon._become_ready`: the check and the set are one step (READY=1 goes out once);
 - `Driver.pace`: the deadline and the period are one value, written by the driver thread;
-- `CrsfSession.link`: the module's figures with their time, one value (tests/test_crsf_sbus.py).
+- `CrsfModule.link`: the module's figures with their time, one value (tests/test_crsf_sbus.py).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from usb2rc.lines.driver import Driver, Drivers, Pace
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.protocols.crsf import codec as crsf
-from usb2rc.protocols.crsf.session import CrsfLine
+from usb2rc.protocols.crsf.session import CrsfSession
 
 REAL_SERIAL_FOR_URL = serial.serial_for_url
 WAIT_S = 5.0  # a safety net only: every wait below ends on its condition
@@ -134,7 +134,7 @@ def test_only_the_drivers_thread_writes_a_pace_and_follows_the_module(
 ) -> None:
     daemon = _daemon(tmp_path, protocol="crsf")
     thread = daemon.outputs[0].driver
-    assert isinstance(thread, Driver) and isinstance(thread.session, CrsfLine)
+    assert isinstance(thread, Driver) and isinstance(thread.session, CrsfSession)
     writes = _PaceWrites()
     _watch_pace(thread, writes)
     # the module asks for 10 ms (0.1 µs units): next_due follows it from the first tick
@@ -286,13 +286,14 @@ def test_each_link_field_has_one_writer_thread(monkeypatch: Any) -> None:
 # --- a line session: the driver thread is its one writer -------------------------------------
 
 
-def test_a_session_and_its_engine_are_written_by_the_driver_thread_only() -> None:
+def test_a_session_its_module_and_its_line_are_written_by_the_driver_thread_only() -> None:
     """What a far end sends reaches the session on the driver's thread (the reader thread only
-    queues bytes): every field of the session and its protocol engine has that one writer,
-    however the module's telemetry and the ticks interleave."""
+    queues bytes): every field of the session, its module and its line's state has that one
+    writer, however the module's telemetry and the ticks interleave."""
     from usb2rc.lines.rx import LinkReader
+    from usb2rc.lines.session import LineState
     from usb2rc.protocols.channels import OutputChannels
-    from usb2rc.protocols.crsf.session import CrsfSession
+    from usb2rc.protocols.crsf.session import CrsfModule
 
     writers: dict[str, set[str]] = {}
 
@@ -302,10 +303,11 @@ def test_a_session_and_its_engine_are_written_by_the_driver_thread_only() -> Non
         if who != "MainThread":  # the constructors
             writers.setdefault(f"{type(obj).__name__}.{name}", set()).add(who)
 
-    engine_type = type("Watched", (CrsfSession,), {"__setattr__": record})
-    line_type = type("WatchedLine", (CrsfLine,), {"__setattr__": record})
+    module_type = type("Watched", (CrsfModule,), {"__setattr__": record})
+    session_type = type("WatchedSession", (CrsfSession,), {"__setattr__": record})
     channels = OutputChannels([lambda nodes: (992, False)], crsf.RC_FRAME_LEN)  # live
-    session = line_type("crsf", channels, engine_type(0.004))
+    session = session_type("crsf", channels, module_type(0.004))
+    session.line.__class__ = type("WatchedLine", (LineState,), {"__setattr__": record})
     link = SerialLink("loop://", 400000)
     from usb2rc.nodes.table import NodeTable
 
@@ -317,12 +319,12 @@ def test_a_session_and_its_engine_are_written_by_the_driver_thread_only() -> Non
     reader.start()
     try:
         for _ in range(int(WAIT_S / 0.01)):  # loop:// echoes the frames: the module "talks"
-            if session.engine.decoder.frames >= 20:
+            if session.module.decoder.frames >= 20:
                 break
             threading.Event().wait(0.01)
         link.received.put((crsf.encode_timing_sync(100_000, 0), time.monotonic()))
         for _ in range(int(WAIT_S / 0.01)):
-            if session.engine.timing_frames:
+            if session.module.timing_frames:
                 break
             threading.Event().wait(0.01)
     finally:
@@ -330,7 +332,8 @@ def test_a_session_and_its_engine_are_written_by_the_driver_thread_only() -> Non
         reader.stop()
         thread.join(WAIT_S)
         reader.join(WAIT_S)
-    assert session.engine.decoder.frames >= 20 and session.engine.timing_frames == 1
+    assert session.module.decoder.frames >= 20 and session.module.timing_frames == 1
+    assert "WatchedLine.now" in writers  # the line opened: its state is watched too
     assert writers and all(who == {"driver"} for who in writers.values()), writers
 
 

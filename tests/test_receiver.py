@@ -8,7 +8,7 @@ import pytest
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.nodes.table import EventKind, NodeFrame, ServiceEvent
 from usb2rc.protocols.c2_16b import codec as c2_16b
-from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
+from usb2rc.protocols.c2_16b.engine import C2Engine, C2Settings
 from usb2rc.protocols.c2_16b.receiver import ReceiverModel
 from usb2rc.protocols.c2_16b.session import is_request
 
@@ -46,7 +46,7 @@ def test_a_poll_is_a_poll_whatever_its_service_code(code, binary):
     wire = with_code(c2_16b.poll_request(3, binary_status=binary), code)
     (frame,) = c2_16b.Decoder().feed(wire)
     assert is_request(frame)
-    session = C2Session(C2Settings(version="0.1.0"))
+    session = C2Engine(C2Settings(version="0.1.0"))
     session.line_opened()
     info = DeviceInfo(key="k", path="k", vid=1, pid=2, product="Pad")
     session.tick([ServiceEvent(EventKind.CONNECTED, 3, info, "GAMEPAD")], [])

@@ -16,7 +16,8 @@ from usb2rc.nodes.guard import default_arm
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import EventKind, NodeFrame, NodeTable, ServiceEvent
 from usb2rc.protocols.c2_16b import codec as c2_16b
-from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
+from usb2rc.protocols.c2_16b.engine import C2Engine, C2Settings
+from usb2rc.protocols.channels import OutputChannels
 from usb2rc.protocols.sumd import codec as sumd
 from usb2rc.protocols.sumd.session import SumdSession
 
@@ -27,9 +28,9 @@ STICK = DeviceInfo(key="k", path="k", vid=0x044F, pid=0xB10A, product="T.16000M"
 # --- stopping: the sessions ---------------------------------------------------------------
 
 
-def live_session(nodes: int, baudrate: int = 115200) -> tuple[C2Session, list[NodeFrame]]:
+def live_session(nodes: int, baudrate: int = 115200) -> tuple[C2Engine, list[NodeFrame]]:
     """A C2 session whose nodes are announced and `>` on an open line."""
-    session = C2Session(C2Settings(baudrate=baudrate))
+    session = C2Engine(C2Settings(baudrate=baudrate))
     session.line_opened()
     events = [ServiceEvent(EventKind.CONNECTED, n, STICK, "JOYSTICK") for n in range(nodes)]
     frames = [NodeFrame(n, False, (0,) * 10, 0, 0) for n in range(nodes)]
@@ -78,28 +79,28 @@ def test_c2_stopping_on_a_stalled_or_closed_line_is_done_at_once() -> None:
     out = session.tick([], frames)
     session.wrote(len(out) // 2)  # the far end stopped reading
     session.stopping()
-    assert session.stalled and session.stop_done
-    closed = C2Session(C2Settings())
+    assert session.line.stalled and session.stop_done
+    closed = C2Engine(C2Settings())
     closed.stopping()
     assert closed.stop_done
 
 
 def test_sumd_stopping_sets_the_failsafe_bit() -> None:
-    session = SumdSession()
+    session = SumdSession("sumd", OutputChannels([]), sumd.frame_length(2), 100.0)
     session.line_opened()
-    assert session.tick([12000, 12000], failsafe=False)[1] == 0x01
+    assert session.frame([12000, 12000], failsafe=False)[1] == 0x01
     session.wrote(0)
     session.line_drained()
     session.stopping()
     assert not session.stop_done
-    frame = session.tick([12000, 12000], failsafe=False)
+    frame = session.frame([12000, 12000], failsafe=False)
     assert frame[1] == 0x81
     assert sumd.SumdDecoder().feed(frame)[0].failsafe
     session.wrote(len(frame))
     assert session.stop_done
-    stalled = SumdSession()
+    stalled = SumdSession("sumd", OutputChannels([]), sumd.frame_length(2), 100.0)
     stalled.line_opened()
-    stalled.tick([12000, 12000], failsafe=False)
+    stalled.frame([12000, 12000], failsafe=False)
     stalled.wrote(3)  # the far end stopped reading
     stalled.stopping()
     assert stalled.stalled and stalled.stop_done  # a far end that does not read: no wait
@@ -352,23 +353,23 @@ def test_a_hat_trim_steps_once_per_push() -> None:
 
 def test_sbus_and_crsf_stopping_send_their_failsafe() -> None:
 
-    from usb2rc.protocols.crsf.session import CrsfSession
+    from usb2rc.protocols.crsf.session import CrsfModule, CrsfSession
     from usb2rc.protocols.sbus import codec as sbus
     from usb2rc.protocols.sbus.session import SbusSession
 
-    sbus_line = SbusSession()
+    sbus_line = SbusSession("sbus", OutputChannels([]), 100.0)
     sbus_line.line_opened()
     sbus_line.stopping()
-    frame = sbus_line.tick([992] * 16, failsafe=False)
+    frame = sbus_line.frame([992] * 16, failsafe=False)
     assert sbus.parse_frame(frame).failsafe and sbus.parse_frame(frame).frame_lost
     sbus_line.wrote(len(frame))
     assert sbus_line.stop_done
-    crsf_line = CrsfSession(0.004)
+    crsf_line = CrsfSession("crsf", OutputChannels([]), CrsfModule(0.004))
     crsf_line.line_opened()
-    assert crsf_line.tick([992] * 16, failsafe=False)  # live: an RC frame
+    assert crsf_line.frame([992] * 16, failsafe=False)  # live: an RC frame
     crsf_line.wrote(26)
     crsf_line.stopping()
-    assert crsf_line.tick([992] * 16, failsafe=False) == b""  # its failsafe is silence
+    assert crsf_line.frame([992] * 16, failsafe=False) == b""  # its failsafe is silence
     assert crsf_line.stop_done
 
 
@@ -376,9 +377,9 @@ def test_mavlink_stopping_releases_the_override_in_one_tick() -> None:
 
     from usb2rc.config.mavlink import MavlinkOptions
     from usb2rc.protocols.mavlink.codec import MavlinkDecoder
-    from usb2rc.protocols.mavlink.session import ControlValues, MavlinkSession
+    from usb2rc.protocols.mavlink.session import ControlValues, MavlinkEngine
 
-    session = MavlinkSession(MavlinkOptions())
+    session = MavlinkEngine(MavlinkOptions())
     session.line_opened()
     for message in session.tick(0.0, ControlValues(False, channels=(1500,) * 8)):
         session.wrote(len(message))

@@ -1,4 +1,4 @@
-"""C2Session driven by random event sequences against a receiver model.
+"""C2Engine driven by random event sequences against a receiver model.
 
 A fake world plugs, unplugs and fails devices, opens and loses the line, asks `<` and `4`,
 and decides for every write how much of it went out (all, nothing, a cut anywhere, a cut
@@ -33,7 +33,7 @@ from hypothesis import strategies as st
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.nodes.table import EventKind, NodeFrame, ServiceEvent
 from usb2rc.protocols.c2_16b import codec as c2_16b
-from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
+from usb2rc.protocols.c2_16b.engine import C2Engine, C2Settings
 
 Service = c2_16b.Service
 CONNECT = (Service.CONNECTED, Service.VID_PID, Service.DEVICE_STRING, Service.DEVICE_TYPE)
@@ -205,7 +205,7 @@ def dropped_frames(whole: bytes, kept: int) -> dict[int, int]:
 class World:
     """The node table's side, kept tiny: one device at most per node."""
 
-    session: C2Session
+    session: C2Engine
     receiver: Receiver
     present: dict[int, DeviceInfo] = field(default_factory=dict)
     live: set[int] = field(default_factory=set)
@@ -242,7 +242,7 @@ class World:
             self.live.add(node)
 
     def open(self) -> None:
-        if self.session.line_open:
+        if self.session.line.is_open:
             return
         self.session.line_opened()
         self.receiver.opened()
@@ -253,7 +253,7 @@ class World:
         ]
 
     def lose(self) -> None:
-        if self.session.line_open:
+        if self.session.line.is_open:
             self.read()
             self.session.line_lost()
             self.receiver.lost()
@@ -272,7 +272,7 @@ class World:
     def flush(self, position: int) -> None:
         """The link drops what the OS holds after the first `keep` unread bytes (the part the
         far end's line discipline already had): the session starts the line over."""
-        if not self.session.line_open:
+        if not self.session.line.is_open:
             return
         total = sum(len(p.data) for p in self.unread if isinstance(p, Written))
         keep = position % (total + 1)
@@ -352,7 +352,7 @@ class World:
 
     def whole_tick(self) -> None:
         """A tick on a line that is well: drained, written whole, read."""
-        if self.session.stalled:
+        if self.session.line.stalled:
             self.session.line_drained()
         self.tick(("all", 0, 0))
         self.read()
@@ -361,7 +361,7 @@ class World:
         """The line is well again: open, drained, every write goes out whole."""
         self.open()
         for _ in range(80):
-            if self.session.stalled:
+            if self.session.line.stalled:
                 self.session.line_drained()
             self.tick(("all", 0, 0))
             self.read()
@@ -429,7 +429,7 @@ def run(world: World, action: tuple[str, object]) -> None:
     elif name == "lose":
         world.lose()
     elif name == "drain":
-        if world.session.stalled:
+        if world.session.line.stalled:
             world.session.line_drained()
     elif name == "read":
         world.read()
@@ -445,9 +445,9 @@ def run(world: World, action: tuple[str, object]) -> None:
         for _ in range(after):
             world.tick(("all", 0, 0))
         world.flush(position)
-    elif name == "request" and world.session.line_open:
+    elif name == "request" and world.session.line.is_open:
         world.request(arg)  # type: ignore[arg-type]
-    elif name == "flood" and world.session.line_open:
+    elif name == "flood" and world.session.line.is_open:
         requests, (repeats, ticks) = arg  # type: ignore[misc]
         world.flood(requests, repeats, ticks)
 
@@ -459,7 +459,7 @@ def run(world: World, action: tuple[str, object]) -> None:
     actions=st.lists(actions, max_size=200),
 )
 def test_every_invariant_holds_whatever_the_line_does(baudrate, line_feed, actions):
-    session = C2Session(C2Settings(baudrate=baudrate, line_feed=line_feed, version="0.1.0"))
+    session = C2Engine(C2Settings(baudrate=baudrate, line_feed=line_feed, version="0.1.0"))
     world = World(session, Receiver())
     world.open()
     for action in actions:
@@ -493,7 +493,7 @@ def names(data: bytes) -> list[str]:
 
 
 def fresh_world(baudrate: int = 115200) -> World:
-    session = C2Session(C2Settings(baudrate=baudrate, version="0.1.0"))
+    session = C2Engine(C2Settings(baudrate=baudrate, version="0.1.0"))
     world = World(session, Receiver())
     world.open()
     return world
@@ -506,7 +506,7 @@ def test_a_stall_holds_the_frames_and_resumes_with_what_is_owed():
     for _ in range(3):
         ticked(world)
     world.tick(("cut", 0, 0))  # nothing went out: a stall
-    assert world.session.stalled and world.session.stalls == 1
+    assert world.session.line.stalled
     world.unplug(0, failed=False)
     world.plug(1)
     world.report(1)
@@ -564,7 +564,7 @@ def test_frames_of_a_line_that_is_gone_are_never_written_on_the_next():
 
 @pytest.mark.parametrize("binary", [False, True])
 def test_requests_are_answered_from_the_devices_present(binary):
-    session = C2Session(C2Settings(version="0.1.0", binary_status=binary))
+    session = C2Engine(C2Settings(version="0.1.0", binary_status=binary))
     world = World(session, Receiver())
     world.open()
     world.plug(2)
@@ -625,21 +625,22 @@ def test_round_robin_serves_every_node_and_warns_once_per_node_count(caplog):
 
 def test_a_stalled_sumd_line_gets_no_frames_until_it_drains():
 
+    from usb2rc.protocols.channels import OutputChannels
     from usb2rc.protocols.sumd import codec as sumd
     from usb2rc.protocols.sumd.session import SumdSession
 
-    session = SumdSession()
-    assert session.tick([12000] * 8, False) == b""  # no line yet
+    session = SumdSession("sumd", OutputChannels([]), sumd.frame_length(8), 100.0)
+    assert session.frame([12000] * 8, False) == b""  # no line yet
     session.line_opened()
-    frame = session.tick([12000] * 8, False)
+    frame = session.frame([12000] * 8, False)
     assert sumd.SumdDecoder().feed(frame)
     assert session.wrote(len(frame)).data_frames == 1
-    cut = session.tick([12000] * 8, False)
+    cut = session.frame([12000] * 8, False)
     delivered = session.wrote(len(cut) // 2)
-    assert delivered.stalled and delivered.data_frames == 0 and session.stalls == 1
-    assert session.tick([12000] * 8, True) == b""
+    assert delivered.stalled and delivered.data_frames == 0 and session.line.stalled
+    assert session.frame([12000] * 8, True) == b""
     session.line_drained()
-    assert sumd.SumdDecoder().feed(session.tick([9000] * 8, True))[0].failsafe
+    assert sumd.SumdDecoder().feed(session.frame([9000] * 8, True))[0].failsafe
 
 
 def test_a_flush_starts_the_line_over_and_the_lost_stick_still_gets_its_2():
@@ -670,13 +671,14 @@ def test_a_flush_starts_the_line_over_and_the_lost_stick_still_gets_its_2():
 
 def test_a_flushed_sumd_line_goes_on_with_fresh_frames():
 
+    from usb2rc.protocols.channels import OutputChannels
     from usb2rc.protocols.sumd import codec as sumd
     from usb2rc.protocols.sumd.session import SumdSession
 
-    session = SumdSession()
+    session = SumdSession("sumd", OutputChannels([]), sumd.frame_length(8), 100.0)
     session.line_opened()
-    cut = session.tick([12000] * 8, False)
+    cut = session.frame([12000] * 8, False)
     assert session.wrote(len(cut) // 2).stalled
     session.line_flushed()
-    frames = sumd.SumdDecoder().feed(session.tick([9000] * 8, True))
+    frames = sumd.SumdDecoder().feed(session.frame([9000] * 8, True))
     assert frames[0].failsafe and frames[0].channels == (9000,) * 8

@@ -1,4 +1,4 @@
-"""The data statuses `!`, `&`, `%`, `>` of a C2Session (docs/ICD.md, "Status priority",
+"""The data statuses `!`, `&`, `%`, `>` of a C2Engine (docs/ICD.md, "Status priority",
 "Handover", "Low battery"), driven by random event sequences.
 
 The world of tests/test_session.py (plugs, unplugs, stalls, flushes, cut and unsure writes,
@@ -23,7 +23,7 @@ from usb2rc.config.model import HandoverConfig
 from usb2rc.lines.session import Delivered
 from usb2rc.nodes.table import NodeFrame
 from usb2rc.protocols.c2_16b import codec as c2_16b
-from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
+from usb2rc.protocols.c2_16b.engine import C2Engine, C2Settings
 
 HOLD = HandoverConfig(button=5, destination=9)
 AXES = (0,) * 10
@@ -79,8 +79,8 @@ class StatusModel:
         self.composed = []
 
 
-class CheckedSession(C2Session):
-    """A C2Session whose every tick is checked against the model."""
+class CheckedSession(C2Engine):
+    """A C2Engine whose every tick is checked against the model."""
 
     def __init__(self, settings: C2Settings) -> None:
         super().__init__(settings)
@@ -94,7 +94,7 @@ class CheckedSession(C2Session):
         super().line_lost()
         self.model.owed.clear()
 
-    def tick(self, events, frames, room_frames=None):  # C2Session.tick's
+    def tick(self, events, frames, room_frames=None):  # C2Engine.tick's
         out = super().tick(events, frames, room_frames)
         self.model.tick(frames, out, self.frame_len)
         return out

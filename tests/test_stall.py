@@ -28,10 +28,10 @@ from usb2rc.lines.serial_link import SerialLink
 from usb2rc.nodes.table import NodeTable
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.c2_16b.engine import C2Settings
-from usb2rc.protocols.c2_16b.session import C2Line
+from usb2rc.protocols.c2_16b.session import C2Session
 from usb2rc.protocols.sumd import codec as sumd
 from usb2rc.protocols.sumd.channels import SumdChannels
-from usb2rc.protocols.sumd.session import SumdLine
+from usb2rc.protocols.sumd.session import SumdSession
 
 LIVE = c2_16b.LIVE
 STARTUP = c2_16b.startup(__version__)[: c2_16b.FRAME_LEN]  # as the daemon sends it
@@ -256,7 +256,7 @@ class LoopRig:
 
 
 def c2_driver(name: str, link: SerialLink, table: NodeTable, settings: C2Settings) -> Driver:
-    return Driver(name, link, C2Line(name, settings), table.step_if_due, 1 / settings.rate_hz)
+    return Driver(name, link, C2Session(name, settings), table.step_if_due, 1 / settings.rate_hz)
 
 
 def test_loop_stalled_while_sticks_come_and_go():
@@ -332,7 +332,7 @@ def test_a_sumd_pty_holds_no_more_than_a_tick_behind_a_far_end_that_stopped_read
     link = SerialLink(os.ttyname(slave))
     value = [0x2260]
     channels = SumdChannels([lambda nodes: (value[0], False)] * 8)
-    session = SumdLine("sumd", channels, sumd.frame_length(8), 100.0)
+    session = SumdSession("sumd", channels, sumd.frame_length(8), 100.0)
     out = Driver("sumd", link, session, NodeTable().step_if_due, 0.01)
     try:
         assert link.open_now()

@@ -13,11 +13,11 @@ from usb2rc.lines.driver import Driver
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.serial_link import SOCKET_SEND_BUFFER, SerialLink
 from usb2rc.protocols.c2_16b.engine import C2Settings
-from usb2rc.protocols.c2_16b.session import C2Line
+from usb2rc.protocols.c2_16b.session import C2Session
 
 
 def c2_driver(link: SerialLink, table) -> Driver:
-    session = C2Line("test", C2Settings(version="0.1.0"))
+    session = C2Session("test", C2Settings(version="0.1.0"))
     return Driver("test", link, session, table.step_if_due, 0.02)
 
 

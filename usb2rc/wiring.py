@@ -29,15 +29,15 @@ from usb2rc.nodes.mapping import Mapping
 from usb2rc.nodes.table import NodeTable
 from usb2rc.outputs import protocol
 from usb2rc.protocols.c2_16b.engine import C2Settings
-from usb2rc.protocols.c2_16b.session import C2Line
+from usb2rc.protocols.c2_16b.session import C2Session
 from usb2rc.protocols.channels import OutputChannels, WireScale
-from usb2rc.protocols.crsf.session import CrsfLine, CrsfSession
+from usb2rc.protocols.crsf.session import CrsfModule, CrsfSession
 from usb2rc.protocols.ibus import IBUS_SCALE
-from usb2rc.protocols.ibus.session import IbusLine
+from usb2rc.protocols.ibus.session import IbusSession
 from usb2rc.protocols.rc11_channels import RC11_SCALE
-from usb2rc.protocols.sbus.session import SbusLine
+from usb2rc.protocols.sbus.session import SbusSession
 from usb2rc.protocols.sumd.channels import SumdChannels
-from usb2rc.protocols.sumd.session import SumdLine
+from usb2rc.protocols.sumd.session import SumdSession
 
 
 @dataclass(frozen=True)
@@ -94,7 +94,7 @@ def build_c2_16b(ctx: OutputContext) -> BuiltOutput:
         binary_status=out.service_status == "binary",
         version=ctx.version,
     )
-    session = C2Line(out.port, settings)
+    session = C2Session(out.port, settings)
     return _running(ctx, SerialLink(out.port, out.baudrate), session, 1.0 / out.rate_hz)
 
 
@@ -102,7 +102,7 @@ def build_sumd(ctx: OutputContext) -> BuiltOutput:
     out = ctx.config
     assert out.port
     channels = SumdChannels.of(ctx.mapping.sumd_channels(out), out.extended)
-    session = SumdLine(out.port, channels, channels.frame_length, out.rate_hz)
+    session = SumdSession(out.port, channels, channels.frame_length, out.rate_hz)
     return _running(ctx, SerialLink(out.port, out.baudrate), session, 1.0 / out.rate_hz)
 
 
@@ -117,20 +117,19 @@ def build_crsf(ctx: OutputContext) -> BuiltOutput:
     assert out.port
     channels = _scaled_channels(ctx, RC11_SCALE)
     entry = protocol("crsf")
-    engine = CrsfSession(
+    module = CrsfModule(
         1.0 / out.rate_hz,
         follow_module=bool(out.option("follow_module")),
-        address=int(out.option("address")),
         min_interval_s=entry.bits_per_second(1.0, len(channels)) / out.baudrate,
     )
-    session = CrsfLine(out.port, channels, engine)
+    session = CrsfSession(out.port, channels, module, int(out.option("address")))
     return _running(ctx, SerialLink(out.port, out.baudrate), session, 1.0 / out.rate_hz)
 
 
 def build_sbus(ctx: OutputContext) -> BuiltOutput:
     out = ctx.config
     assert out.port
-    session = SbusLine(out.port, _scaled_channels(ctx, RC11_SCALE), out.rate_hz)
+    session = SbusSession(out.port, _scaled_channels(ctx, RC11_SCALE), out.rate_hz)
     link = SerialLink(
         out.port, out.baudrate, parity=serial.PARITY_EVEN, stopbits=serial.STOPBITS_TWO
     )
@@ -140,7 +139,7 @@ def build_sbus(ctx: OutputContext) -> BuiltOutput:
 def build_ibus(ctx: OutputContext) -> BuiltOutput:
     out = ctx.config
     assert out.port
-    session = IbusLine(out.port, _scaled_channels(ctx, IBUS_SCALE), out.rate_hz)
+    session = IbusSession(out.port, _scaled_channels(ctx, IBUS_SCALE), out.rate_hz)
     return _running(ctx, SerialLink(out.port, out.baudrate), session, 1.0 / out.rate_hz)
 
 
@@ -165,8 +164,8 @@ def build_mavlink(ctx: OutputContext) -> BuiltOutput:
     else:
         link = SerialLink(out.port, out.baudrate)
     tick_bytes = mavlink.heartbeat_bytes() + mavlink.max_message_bytes(options.message)
-    engine = mavlink.MavlinkSession(options, key, time.time(), actions)
-    session = mavlink.MavlinkLine(out.port, channels, engine, tick_bytes, out.rate_hz)
+    engine = mavlink.MavlinkEngine(options, key, time.time(), actions)
+    session = mavlink.MavlinkSession(out.port, channels, engine, tick_bytes, out.rate_hz)
     return _running(ctx, link, session, 1.0 / out.rate_hz)
 
 

@@ -1,4 +1,5 @@
-"""The one line-session interface every output protocol implements, sans-IO (h11's `Connection`).
+"""The one line-session interface every output protocol implements, sans-IO (h11's
+`Connection`), and what the sessions share.
 
 A line session is everything one output knows about its line, and nothing about threads,
 ports or clocks (time is passed in). The driver (one generic loop, whatever the protocol)
@@ -22,11 +23,20 @@ only moves events and bytes:
     period(now)                           the period now (a CRSF module may set it)
     stats(now) -> dict                    what only this protocol counts (stats record)
 
+The line's state is one `LineState` per session (h11's `_state.py`): closed, open, stalled or
+flushing, and whether usb2rc is stopping; only its events change it, and the session and its
+protocol's engine read the same one.
+
 Back-pressure is decided here, by `Backpressure`, once for every protocol (docs/ICD.md,
 "A stalled line"): no tick adds bytes while the line is stalled; a serial port's queue is
 dropped when a stall begins; a channel output on a pty drops what the far end left unread
 before each tick; a C2-16B output on a pty waits for the drain, then drops the rest; a socket
 or UDP is never flushed.
+
+Each protocol has one session class, in its package (`usb2rc.protocols.<name>.session`): a
+channel output's (SUMD, CRSF, SBUS, iBus) is a `ChannelSession`, which says what its frame
+is; C2-16B's and MAVLink's are `EngineSession`s around the protocol's own state machine, its
+engine (`C2Engine`, `MavlinkEngine`).
 """
 
 from __future__ import annotations
@@ -40,6 +50,76 @@ from usb2rc.nodes.step import NodeFrame, TapLatch
 from usb2rc.nodes.table import NodeSnapshot
 
 QUEUE_TICKS = 2  # at most this many ticks of bytes wait in a queue the link reports
+
+
+class Line(enum.Enum):
+    """Where a line is."""
+
+    CLOSED = "closed"  # no port: nothing is sent, nothing is owed
+    OPEN = "open"  # ticks add bytes
+    STALLED = "stalled"  # a write went out short, or the queue the link reports is full
+    FLUSHING = "flushing"  # stalled, and the driver is asked to drop what the link holds
+
+
+class LineState:
+    """One line's state, in one place: where the line is (`now`) and whether usb2rc is
+    stopping. Only these events change it; a session and its protocol's engine read it.
+
+        event            from                to
+        opened()         any                 OPEN
+        lost()           any                 CLOSED
+        stall()          OPEN                STALLED
+        flushing()       STALLED             FLUSHING
+        resumed()        STALLED, FLUSHING   OPEN      (drained, or what it held dropped)
+        flush_failed()   FLUSHING            STALLED
+        stop()           any                 the same, stopping from now on
+
+    An event from a state the table does not list leaves it as it is: a closed line does not
+    stall, an open one has nothing to resume."""
+
+    def __init__(self) -> None:
+        self.now = Line.CLOSED
+        self.stopping = False
+
+    @property
+    def is_open(self) -> bool:
+        return self.now is not Line.CLOSED
+
+    @property
+    def stalled(self) -> bool:
+        """No tick adds bytes: stalled, or flushing."""
+        return self.now is Line.STALLED or self.now is Line.FLUSHING
+
+    def opened(self) -> None:
+        self.now = Line.OPEN
+
+    def lost(self) -> None:
+        self.now = Line.CLOSED
+
+    def stall(self) -> None:
+        if self.now is Line.OPEN:
+            self.now = Line.STALLED
+
+    def flushing(self) -> None:
+        if self.now is Line.STALLED:
+            self.now = Line.FLUSHING
+
+    def resumed(self) -> None:
+        if self.stalled:
+            self.now = Line.OPEN
+
+    def flush_failed(self) -> None:
+        if self.now is Line.FLUSHING:
+            self.now = Line.STALLED
+
+    def stop(self) -> None:
+        self.stopping = True
+
+    def stop_done(self, failsafe_out: bool) -> bool:
+        """Stopping, and the protocol's failsafe went out (`failsafe_out`), or the line
+        cannot take it: closed, or stalled (a stop never waits for a far end that does not
+        read)."""
+        return self.stopping and (failsafe_out or self.now is Line.CLOSED or self.stalled)
 
 
 @dataclass(frozen=True)
@@ -115,70 +195,6 @@ class Delivered:
     stalled: bool = False
 
 
-class FrameLineSession:
-    """A channel output's line: one frame a tick while the line is open and not stalled.
-
-    Such a protocol has no service state, so a stall only stops the frames (the values would
-    be stale); a frame cut short fails the receiver's check and is not sent again. A
-    subclass says what the frame is (`frame`); SUMD, CRSF, SBUS, iBus in
-    `usb2rc.protocols`."""
-
-    def __init__(self) -> None:
-        self.line_open = False
-        self.stalled = False
-        self.stalls = 0
-        self._last_len = 0
-        self._stopping = False
-        self._stop_sent = False
-
-    def stopping(self) -> None:
-        """usb2rc stops: every frame from now on is the protocol's failsafe frame (SUMD
-        0x81, SBUS the failsafe and frame-lost flags, CRSF none: its failsafe is silence)."""
-        self._stopping = True
-
-    @property
-    def stop_done(self) -> bool:
-        """Stopping, and a failsafe frame went out whole (or the line cannot take one)."""
-        return self._stopping and (self._stop_sent or not self.line_open or self.stalled)
-
-    def line_opened(self) -> None:
-        self.line_open, self.stalled = True, False
-
-    def line_lost(self) -> None:
-        self.line_open, self.stalled = False, False
-
-    def line_drained(self) -> None:
-        self.stalled = False
-
-    def line_flushed(self) -> None:
-        """The stale frames were dropped: nothing to announce, the next frame is fresh."""
-        self.stalled = False
-
-    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
-        """This tick's frame of the channels' wire values (b"": nothing this tick)."""
-        raise NotImplementedError
-
-    def tick(self, channels: Sequence[int], failsafe: bool) -> bytes:
-        self._last_len = 0
-        if not self.line_open or self.stalled:
-            return b""
-        frame = self.frame(channels, failsafe or self._stopping)
-        if self._stopping and not frame:
-            self._stop_sent = True  # its failsafe is silence (CRSF): nothing more to send
-        self._last_len = len(frame)
-        return frame
-
-    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
-        whole = self._last_len > 0 and sent >= self._last_len
-        self._stop_sent = self._stop_sent or (whole and self._stopping)
-        stalled = self.line_open and sent < self._last_len
-        if stalled and not self.stalled:
-            self.stalls += 1
-        self.stalled = self.stalled or stalled
-        self._last_len = 0
-        return Delivered(0, 1 if whole else 0, stalled)
-
-
 class LineSession(Protocol):
     """What the driver knows of any output's session (see the module docstring)."""
 
@@ -203,76 +219,61 @@ class LineSession(Protocol):
     def stats(self, now: float) -> dict[str, Any]: ...
 
 
-class ChannelValues(Protocol):
-    """An output's channels: wire values and failsafe from the node frames."""
-
-    def evaluate(self, frames: Iterable[NodeFrame]) -> tuple[list[int], bool]: ...
-
-
-class Engine(Protocol):
-    """A protocol's line state machine, as `LineBase` drives it."""
-
-    line_open: bool
-    stalled: bool
-    stalls: int
-
-    def line_opened(self) -> None: ...
-    def line_lost(self) -> None: ...
-    def line_drained(self) -> None: ...
-    def line_flushed(self) -> None: ...
-    def stopping(self) -> None: ...
-    @property
-    def stop_done(self) -> bool: ...
-    def wrote(self, sent: int, unsure: int = 0) -> Delivered: ...
-
-
-E = TypeVar("E", bound=Engine)
-F = TypeVar("F", bound=FrameLineSession)
-
-
-class LineBase(Generic[E]):
-    """What every session shares around its protocol engine: the line's open/stall state
-    (the engine's), the back-pressure decision, the period, the tap latch."""
+class SessionBase:
+    """What every session shares: its line's state (`line`), the back-pressure decision,
+    the period, the tap latch. The line's events move the state; a session whose protocol
+    has an engine hands them to it (`EngineSession`)."""
 
     def __init__(
-        self,
-        name: str,
-        engine: E,
-        backpressure: Backpressure,
-        period_s: float,
+        self, name: str, line: LineState, backpressure: Backpressure, period_s: float
     ) -> None:
         self.name = name
-        self.engine = engine  # the protocol's line state machine (open, stalled, wrote)
+        self.line = line
         self.backpressure = backpressure
         self.period_s = period_s
         self.latch = TapLatch()  # this output's taps: advanced by its own ticks only
 
     @property
     def line_open(self) -> bool:
-        return bool(self.engine.line_open)
+        return self.line.is_open
 
     @property
     def stalled(self) -> bool:
-        return bool(self.engine.stalled)
+        return self.line.stalled
 
     def line_opened(self) -> None:
-        self.engine.line_opened()
+        self.line.opened()
 
     def line_lost(self) -> None:
-        self.engine.line_lost()
+        self.line.lost()
+
+    def line_drained(self) -> None:
+        """After a stall, the line takes bytes again."""
+        self.line.resumed()
+
+    def line_flushed(self) -> None:
+        """After a stall, the line takes bytes again and what the link held was dropped."""
+        self.line.resumed()
+
+    def stopping(self) -> None:
+        self.line.stop()
 
     def link_state(self, state: LinkState) -> Ask:
         ask = self.backpressure.ask(self.stalled, self.line_open, state)
-        if ask is Ask.NOTHING and self.stalled and self.backpressure.drained(state):
-            self.engine.line_drained()  # nothing to drop (a socket, loop://): go on
+        if ask is Ask.FLUSH:
+            self.line.flushing()
+        elif ask is Ask.NOTHING and self.stalled and self.backpressure.drained(state):
+            self.line_drained()  # nothing to drop (a socket, loop://): go on
         return ask
 
     def flush_done(self, flushed: bool) -> None:
         """After Ask.FLUSH: what the link held is gone (start over), or it could not."""
         if flushed:
-            self.engine.line_flushed()
+            self.line_flushed()
         elif self.backpressure.drained(self.backpressure.state):
-            self.engine.line_drained()
+            self.line_drained()
+        else:
+            self.line.flush_failed()
 
     def can_add(self, size: int) -> bool:
         """Whether a tick may add `size` bytes: an open line, not stalled, with room in the
@@ -281,24 +282,8 @@ class LineBase(Generic[E]):
             return False
         if self.backpressure.room(size):
             return True
-        self._stall_now()
+        self.line.stall()
         return False
-
-    def _stall_now(self) -> None:
-        """The line stalls without a write (the reported queue is full)."""
-        if not self.engine.stalled:
-            self.engine.stalls += 1
-        self.engine.stalled = True
-
-    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
-        return self.engine.wrote(sent, unsure)
-
-    def stopping(self) -> None:
-        self.engine.stopping()
-
-    @property
-    def stop_done(self) -> bool:
-        return bool(self.engine.stop_done)
 
     def received(self, data: bytes, now: float) -> None:
         """A protocol whose far end says nothing it needs ignores what it sends."""
@@ -313,21 +298,39 @@ class LineBase(Generic[E]):
         return {"queue_full_ticks": self.backpressure.held_queue_full}
 
 
-class FrameSession(LineBase[F]):
-    """A channel output's session (SUMD, CRSF, SBUS, iBus): one frame of its channels a tick,
-    its values from the snapshot through its own tap latch."""
+class ChannelValues(Protocol):
+    """An output's channels: wire values and failsafe from the node frames."""
+
+    def evaluate(self, frames: Iterable[NodeFrame]) -> tuple[list[int], bool]: ...
+
+
+class ChannelSession(SessionBase):
+    """A channel output's session (SUMD, CRSF, SBUS, iBus): one frame of its channels a
+    tick while the line is open and not stalled, the values from the snapshot through its
+    own tap latch; the protocol says what the frame is (`encode`).
+
+    Such a protocol has no service state, so a stall only stops the frames (the values would
+    be stale); a frame cut short fails the receiver's check and is not sent again."""
 
     def __init__(
-        self,
-        name: str,
-        engine: F,
-        channels: ChannelValues,
-        frame_length: int,
-        period_s: float,
+        self, name: str, channels: ChannelValues, frame_length: int, period_s: float
     ) -> None:
-        super().__init__(name, engine, Backpressure(frame_length), period_s)
+        super().__init__(name, LineState(), Backpressure(frame_length), period_s)
         self.channels = channels
         self.frame_length = frame_length
+        self._last_len = 0
+        self._stop_sent = False
+
+    def encode(self, values: Sequence[int], failsafe: bool) -> bytes:
+        """The protocol's frame of the channels' wire values (b"": nothing this tick)."""
+        raise NotImplementedError
+
+    @property
+    def stop_done(self) -> bool:
+        """Stopping, and a failsafe frame went out whole (or the line cannot take one):
+        every frame from the stop on is the protocol's failsafe frame (SUMD 0x81, SBUS the
+        failsafe and frame-lost flags, CRSF and iBus none: their failsafe is silence)."""
+        return self.line.stop_done(self._stop_sent)
 
     def tick(self, now: float, snapshot: NodeSnapshot) -> bytes:
         # no frame on a closed or stalled line: the channels are not read, so the taps
@@ -335,4 +338,77 @@ class FrameSession(LineBase[F]):
         if not self.can_add(self.frame_length):
             return b""
         values, failsafe = self.channels.evaluate(self.latch.frames(snapshot))
-        return self.engine.tick(values, failsafe)
+        return self.frame(values, failsafe)
+
+    def frame(self, values: Sequence[int], failsafe: bool) -> bytes:
+        """This tick's frame of these wire values: b"" on a closed or stalled line, the
+        failsafe frame while stopping."""
+        self._last_len = 0
+        line = self.line
+        if not line.is_open or line.stalled:
+            return b""
+        frame = self.encode(values, failsafe or line.stopping)
+        if line.stopping and not frame:
+            self._stop_sent = True  # its failsafe is silence: nothing more to send
+        self._last_len = len(frame)
+        return frame
+
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
+        whole = self._last_len > 0 and sent >= self._last_len
+        self._stop_sent = self._stop_sent or (whole and self.line.stopping)
+        stalled = self.line.is_open and sent < self._last_len
+        if stalled:
+            self.line.stall()
+        self._last_len = 0
+        return Delivered(0, 1 if whole else 0, stalled)
+
+
+class Engine(Protocol):
+    """A protocol's own line state machine (C2-16B's, MAVLink's), as `EngineSession`
+    drives it: on each line event it moves the line's state and reacts."""
+
+    line: LineState
+
+    def line_opened(self) -> None: ...
+    def line_lost(self) -> None: ...
+    def line_drained(self) -> None: ...
+    def line_flushed(self) -> None: ...
+    def stopping(self) -> None: ...
+    @property
+    def stop_done(self) -> bool: ...
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered: ...
+
+
+E = TypeVar("E", bound=Engine)
+
+
+class EngineSession(SessionBase, Generic[E]):
+    """A session around its protocol's engine (C2-16B, MAVLink): the line's events go to
+    the engine, which moves the line's state (the same `line`) and reacts to them (C2-16B
+    starts a flushed line over from its startup frame)."""
+
+    def __init__(self, name: str, engine: E, backpressure: Backpressure, period_s: float):
+        super().__init__(name, engine.line, backpressure, period_s)
+        self.engine = engine
+
+    def line_opened(self) -> None:
+        self.engine.line_opened()
+
+    def line_lost(self) -> None:
+        self.engine.line_lost()
+
+    def line_drained(self) -> None:
+        self.engine.line_drained()
+
+    def line_flushed(self) -> None:
+        self.engine.line_flushed()
+
+    def stopping(self) -> None:
+        self.engine.stopping()
+
+    @property
+    def stop_done(self) -> bool:
+        return self.engine.stop_done
+
+    def wrote(self, sent: int, unsure: int = 0) -> Delivered:
+        return self.engine.wrote(sent, unsure)

@@ -1,7 +1,7 @@
 """Which status a C2-16B data frame gets: `!`, `&`, `%` or `>` (docs/ICD.md, "Status
 priority", "Handover", "Low battery"), sans-IO like the session that owns it.
 
-`C2Session` asks `choose(frame, live, code)` for each data frame it composes and tells
+`C2Engine` asks `choose(frame, live, code)` for each data frame it composes and tells
 `sent(node, status)` for each one that went out. In between, `follow(frames)` sees every
 tick's node frames, to find the presses of handover buttons: a button down at a tick after
 being up at the one before. With `frames: K` a press owes K `&` frames, counted in frames

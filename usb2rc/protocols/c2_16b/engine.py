@@ -1,12 +1,13 @@
-"""The C2-16B line state machine (the engine of `protocols.c2_16b.session.C2Line`), sans-IO.
+"""The C2-16B line's state machine, its engine (of `protocols.c2_16b.session.C2Session`), sans-IO.
 
-(About 550 lines on purpose: C2Session's invariants — announce state, codes, owed
+(About 550 lines on purpose: C2Engine's invariants — announce state, codes, owed
 service frames, stalls and flushes — hold only together, and are tested together.)
 
-A `C2Session` is one C2-16B output's line protocol (h11's `Connection` is the model): it owns
+A `C2Engine` is one C2-16B output's line protocol (h11's `Connection` is the model): it owns
 the startup frame, the service frames owed, the message codes, the round-robin and who is
-announced on the line. It takes events and returns the bytes to write; it has no thread, no
-port and no clock, so every interleaving can be driven from a test:
+announced on the line, and moves the line's state (`lines.session.LineState`, shared with its
+session). It takes events and returns the bytes to write; it has no thread, no port and no
+clock, so every interleaving can be driven from a test:
 
     line_opened()                        a fresh line: the startup frame goes first
     line_lost()                          the port is gone: nothing is owed to a dead line
@@ -18,12 +19,10 @@ port and no clock, so every interleaving can be driven from a test:
     received(frame)                      a frame from the far end (`<`, `4` requests,
                                          answered in the next tick)
 
-`C2Line` puts it on the one session interface (`usb2rc.lines.session`): it feeds it the
+`C2Session` puts it on the one session interface (`usb2rc.lines.session`): it feeds it the
 node snapshot's events and frames and the far end's decoded requests, and the generic driver
-(`usb2rc.lines.driver`) moves the bytes.
-
-It is not in `protocol/`: `protocol/` holds the frame codecs and knows nothing of devices,
-while a session speaks in `state.ServiceEvent` and `state.NodeFrame`.
+(`usb2rc.lines.driver`) moves the bytes. It speaks in the node table's `ServiceEvent` and
+`NodeFrame`, which the codec (`protocols.c2_16b.codec`) knows nothing of.
 
 Invariants, whatever the line does (docs/ICD.md, "Service frames" and "A stalled line"):
 - the startup frame is the first thing on every (re)opened line;
@@ -51,7 +50,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from usb2rc.lines.link import BITS_PER_BYTE_ON_WIRE
-from usb2rc.lines.session import Delivered
+from usb2rc.lines.session import Delivered, LineState
 from usb2rc.nodes.table import EventKind, NodeFrame, ServiceEvent
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.c2_16b.data_status import DataStatuses
@@ -143,19 +142,20 @@ def _announced_after(announced: set[int], owed: Iterable[_Owed]) -> set[int]:
     return result
 
 
-class C2Session:
-    """The C2-16B line session of one output. See the module docstring for the events."""
+class C2Engine:
+    """The C2-16B line of one output. See the module docstring for the events. `line`: the
+    line's state it moves (its session's; a new one when it runs alone, in a test)."""
 
-    def __init__(self, settings: C2Settings, name: str = "c2-16b") -> None:
+    def __init__(
+        self, settings: C2Settings, name: str = "c2-16b", line: LineState | None = None
+    ) -> None:
         self.settings = settings
         self.name = name  # for log lines: the port
         self.frame_len = c2_16b.FRAME_LEN + (1 if settings.line_feed else 0)
         self.capacity = frames_per_tick(settings.baudrate, settings.rate_hz, self.frame_len)
         # built once here: a version that does not fit the frame fails at start, loudly
         self._startup_frame = c2_16b.startup(settings.version, **self._kw())
-        self.line_open = False
-        self.stalled = False  # a write put out less than it was given: wait for the drain
-        self.stalls = 0
+        self.line = LineState() if line is None else line
         self.deferred_nodes = 0
         self.statuses = DataStatuses(name)  # `!` `&` `%` `>`, and the handover presses
         self._startup_due = True
@@ -175,8 +175,7 @@ class C2Session:
         self._last_len = 0
         self._round_robin = 0
         self._warned_nodes = 0
-        self._stopping = False  # usb2rc stops: every data frame is `!` from now on
-        self._stop_owed: set[int] = set()  # nodes on this line without a `!` since then
+        self._stop_owed: set[int] = set()  # stopping: nodes on this line without a `!` since
 
     # --- events from the line ------------------------------------------------------------
 
@@ -184,18 +183,18 @@ class C2Session:
         """A fresh line (or one that came back): the startup frame first, then the caller
         feeds the connect events of every device present (`NodeTable` does)."""
         self._reset_line()
-        self.line_open = True
+        self.line.opened()
         self._present.clear()  # rebuilt from the connect events that follow
 
     def line_lost(self) -> None:
         """The port is gone: nothing is owed to a dead line; the next one starts afresh."""
         self._reset_line()
-        self.line_open = False
+        self.line.lost()
 
     def line_drained(self) -> None:
         """After a stall, the line takes bytes again: the next tick sends fresh frames (the
         owed service frames are still owed: none of them was lost)."""
-        self.stalled = False
+        self.line.resumed()
 
     def line_flushed(self) -> None:
         """After a stall, the line takes bytes again and what the OS still held was dropped
@@ -208,9 +207,9 @@ class C2Session:
         Nodes keep sending `!` while they are announced again (they are not new). A device
         that left since the last tick gets its `2` ahead of that announcement when its
         event comes (`_queue_disconnect`)."""
-        if not self.line_open:
+        if not self.line.is_open:
             return
-        self.stalled = False
+        self.line.resumed()
         self._last, self._last_len = [], 0
         self._startup_due = True
         self._announced.clear()
@@ -222,7 +221,6 @@ class C2Session:
         self._announce(sorted(self._present))
 
     def _reset_line(self) -> None:
-        self.stalled = False
         self._startup_due = True
         self._owed.clear()
         self._on_line.clear()
@@ -236,14 +234,14 @@ class C2Session:
         """usb2rc stops (SIGTERM, SIGINT): from now on every data frame is `!`, so a receiver
         sees failsafe at once instead of waiting for its own timeout (docs/ICD.md, "Stop").
         `stop_done` once every node whose frames this line has carried got one."""
-        self._stopping = True
+        self.line.stop()
         self._stop_owed = set(self._on_line)
 
     @property
     def stop_done(self) -> bool:
         """Stopping, and nothing more to send: each node's `!` went out, or the line cannot
         take it (closed, or stalled: a stop never waits for a far end that does not read)."""
-        return self._stopping and (not self._stop_owed or not self.line_open or self.stalled)
+        return self.line.stop_done(not self._stop_owed)
 
     # --- events from the far end ---------------------------------------------------------
 
@@ -296,7 +294,7 @@ class C2Session:
 
     def _queue_new(self, event: ServiceEvent, owed: set[ServiceEvent]) -> None:
         """`_queue_once` with the owed events at hand (kept up to date here)."""
-        if self.line_open and event not in owed:
+        if self.line.is_open and event not in owed:
             self._owed.extend(self._owed_frames(event))
             owed.add(event)
 
@@ -314,13 +312,13 @@ class C2Session:
         self._track_presence(events)
         self.statuses.follow(frames)
         self._last, self._last_len = [], 0
-        if not self.line_open:
+        if not self.line.is_open:
             self._clear_requests()
             return b""  # nothing is queued for a dead line: it starts afresh when back
         for event in events:
             self._queue(event)
         self._answer_requests()
-        if self.stalled:
+        if self.line.stalled:
             return b""  # the service state waits; the data frames would be stale by then
         room = self.capacity if room_frames is None else max(1, room_frames)
         return self._compose(frames, room)
@@ -333,7 +331,7 @@ class C2Session:
         announced, held = self._service_frames(out, slots, len(frames), room)
         ready = [f for f in frames if f.node_id not in held] if held else list(frames)
         for frame in self._choose_nodes(ready, frames, room - len(out)):
-            live = not frame.failsafe and frame.node_id in announced and not self._stopping
+            live = not frame.failsafe and frame.node_id in announced and not self.line.stopping
             code = self._codes.get(frame.node_id, 0)
             status, byte4 = self.statuses.choose(frame, live, code)
             data = self._data_frame(frame, status, byte4)
@@ -435,10 +433,9 @@ class C2Session:
                 data += 1
         if unsure:
             self._restart_cut_sequence()
-        stalled = sent < self._last_len and self.line_open
-        if stalled and not self.stalled:
-            self.stalls += 1
-        self.stalled = self.stalled or stalled
+        stalled = sent < self._last_len and self.line.is_open
+        if stalled:
+            self.line.stall()
         self._last, self._last_len = [], 0
         return Delivered(service, data, stalled)
 

@@ -1,25 +1,25 @@
-"""The C2-16B line session on the one interface: the `c2_16b.engine.C2Session` engine (the startup
-frame, the service frames owed, codes, round-robin, announcements), fed from the node
-snapshot and the far end's bytes.
+"""The C2-16B line session on the one interface: `C2Session`, around its engine
+(`c2_16b.engine.C2Engine`: the startup frame, the service frames owed, codes, round-robin,
+announcements), fed from the node snapshot and the far end's bytes.
 
 - Service events come from the snapshot's append-only event log (`nodes.table.EventLog`): the
   session keeps its own cursor, so reading the table changes nothing. A cursor the log has
-  dropped (the line fell more than `state.EVENTS_KEPT` events behind) starts the line over
+  dropped (the line fell more than `nodes.table.EVENTS_KEPT` events behind) starts the line over
   as a reopened line does: the startup frame, then every present device's connect sequence.
 - A line that opens announces the devices present in the snapshot (`EventLog.present`); on
   the first line the events logged before it go out first (an unusable device's `3`).
 - What the far end sends is decoded here: `<` and `4` requests, at most REQUESTS_PER_TICK
-  a tick (the engine coalesces them anyway); the rest are counted, not answered.
+  a tick (the engine coalesces them anyway); nothing else is answered.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from usb2rc.lines.session import Backpressure, Delivered, LineBase
+from usb2rc.lines.session import Backpressure, Delivered, EngineSession
 from usb2rc.nodes.table import NodeSnapshot, ServiceEvent
 from usb2rc.protocols.c2_16b import codec as c2_16b
-from usb2rc.protocols.c2_16b.engine import C2Session, C2Settings
+from usb2rc.protocols.c2_16b.engine import C2Engine, C2Settings
 
 REQUESTS_PER_TICK = 512  # 2 per Node-ID: more in one tick only repeat what is asked
 
@@ -35,9 +35,12 @@ def is_request(frame: c2_16b.Frame) -> bool:
     return frame.service is c2_16b.Service.POLL
 
 
-class C2Line(LineBase[C2Session]):
+class C2Session(EngineSession[C2Engine]):
+    """A C2-16B output's session: its engine fed the snapshot's events and node frames, and
+    the far end's requests."""
+
     def __init__(self, name: str, settings: C2Settings) -> None:
-        engine = C2Session(settings, name=name)
+        engine = C2Engine(settings, name=name)
         tick_bytes = engine.capacity * engine.frame_len
         # its frames carry state: on a pty it waits for the drain, then drops the rest
         backpressure = Backpressure(tick_bytes, drops_unread_each_tick=False)
@@ -84,7 +87,7 @@ class C2Line(LineBase[C2Session]):
         if fresh is None:
             self.log_gaps += 1
             fresh = ()
-            if self.engine.line_open:
+            if self.line.is_open:
                 self.engine.line_opened()  # the receiver learns the whole picture again
                 self._announce_present = True
         if not self._announce_present:

@@ -1,15 +1,15 @@
 """The CRSF line session, sans-IO (no thread, no port, no clock: time is passed in).
 
-- `CrsfSession` (a `lines.session.FrameLineSession`: one frame a tick while the line is open
-  and not stalled, 11-bit wire values in, `protocols.channels.RC11_SCALE`): an
+- `CrsfSession` (a `lines.session.ChannelSession`: one frame a tick while the line is open
+  and not stalled, 11-bit wire values in, `protocols.rc11_channels.RC11_SCALE`): an
   RC_CHANNELS_PACKED frame every tick while every listed channel is live (to the module's
-  address 0xEE, or to a flight controller's 0xC8: `address`);
-  while any is in failsafe it sends nothing, so the ExpressLRS transmitter module stops and
-  the receiver's own failsafe fires (docs/ICD.md, "CRSF failsafe"). It decodes what the module
-  sends back (`received(data, now)`): link statistics, and the timing-correction frames with
-  which an ELRS module asks the handset to follow its packet rate and phase; `next_send(due,
-  now)` says when the next frame is due.
-- `CrsfLine`: it on the one session interface (`usb2rc.lines.session`).
+  address 0xEE, or to a flight controller's 0xC8: `address`); while any is in failsafe it
+  sends nothing, so the ExpressLRS transmitter module stops and the receiver's own failsafe
+  fires (docs/ICD.md, "CRSF failsafe").
+- `CrsfModule`: the module as the session hears it: what it sends back (`received(data,
+  now)`: link statistics, and the timing-correction frames with which an ELRS module asks the
+  handset to follow its packet rate and phase), and when the next frame is due
+  (`next_send(due, now)`).
 """
 
 from __future__ import annotations
@@ -18,12 +18,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from usb2rc.lines.session import ChannelValues, FrameLineSession, FrameSession
+from usb2rc.lines.session import ChannelSession, ChannelValues
 from usb2rc.protocols.crsf import codec as crsf
 from usb2rc.protocols.rc11_channels import padded
 
 # ELRS sends a timing correction every 200 ms while it hears the handset; after a second
-# without one the session goes back to the configured rate.
+# without one the line goes back to its configured rate.
 SYNC_STALE_S = 1.0
 MIN_INTERVAL_S = 0.001  # the module's rate is followed up to 1000 Hz, never faster
 MAX_INTERVAL_S = 0.1  # ... and down to 10 Hz; anything else is implausible and ignored
@@ -49,9 +49,9 @@ class ModuleTiming:
     offset_s: float
 
 
-class CrsfSession(FrameLineSession):
-    """CRSF to a transmitter module (or a flight controller's receiver UART): RC frames, the
-    module's telemetry, its timing."""
+class CrsfModule:
+    """The transmitter module (or flight controller) as a CRSF line hears it: its telemetry
+    and its timing."""
 
     def __init__(
         self,
@@ -59,15 +59,11 @@ class CrsfSession(FrameLineSession):
         *,
         follow_module: bool = True,
         min_interval_s: float = 0.0,
-        address: int = crsf.ADDRESS_MODULE,
     ) -> None:
         """`interval_s`: the configured period; `min_interval_s`: the shortest the line
         carries (one frame a tick at the baud rate): a faster module rate is followed only
-        down to it; `address`: the RC frames' first byte (0xEE a module, 0xC8 a flight
-        controller, which drops RC frames to any other address)."""
-        super().__init__()
+        down to it."""
         self.configured_interval_s = interval_s
-        self.address = address
         self.follow_module = follow_module
         self.min_interval_s = max(MIN_INTERVAL_S, min_interval_s)
         self.decoder = crsf.CrsfDecoder()
@@ -75,16 +71,9 @@ class CrsfSession(FrameLineSession):
         # immutable value, assigned in one step.
         self.link: ModuleLink | None = None
         self.timing: ModuleTiming | None = None
-        self.withheld = 0  # ticks without an RC frame because a channel is in failsafe
         self.timing_frames = 0
         self.timing_ignored = 0  # implausible or not followed
         self._shift_s = 0.0  # the phase correction still to apply to the next send
-
-    def frame(self, channels: Sequence[int], failsafe: bool) -> bytes:
-        if failsafe:
-            self.withheld += 1
-            return b""
-        return crsf.encode_rc_channels(padded(channels), self.address)
 
     # --- what the module sends back ------------------------------------------------------
 
@@ -128,7 +117,7 @@ class CrsfSession(FrameLineSession):
         The shifted period stays within what following allows (MIN_INTERVAL_S, and a
         frame's time on the line, up to MAX_INTERVAL_S): a module that sends a correction
         before every frame could otherwise shift every period, and a -0.5 ms offset on a
-        1 ms interval sent twice as many frames as the line carries."""
+        1 ms interval would send twice as many frames as the line carries."""
         shift, self._shift_s = self._shift_s, 0.0
         if not self.following(now):
             return due + self.configured_interval_s  # a stale correction says nothing
@@ -158,34 +147,54 @@ class CrsfSession(FrameLineSession):
         return ", ".join(parts)
 
 
-class CrsfLine(FrameSession[CrsfSession]):
-    def __init__(self, name: str, channels: ChannelValues, engine: CrsfSession) -> None:
-        super().__init__(name, engine, channels, crsf.RC_FRAME_LEN, engine.configured_interval_s)
+class CrsfSession(ChannelSession):
+    """CRSF to a transmitter module (or a flight controller's receiver UART): RC frames on
+    the module's timing while it sends corrections (`module`)."""
+
+    def __init__(
+        self,
+        name: str,
+        channels: ChannelValues,
+        module: CrsfModule,
+        address: int = crsf.ADDRESS_MODULE,
+    ) -> None:
+        """`address`: the RC frames' first byte (0xEE a module, 0xC8 a flight controller,
+        which drops RC frames to any other address)."""
+        super().__init__(name, channels, crsf.RC_FRAME_LEN, module.configured_interval_s)
+        self.module = module
+        self.address = address
+        self.withheld = 0  # ticks without an RC frame because a channel is in failsafe
+
+    def encode(self, values: Sequence[int], failsafe: bool) -> bytes:
+        if failsafe:
+            self.withheld += 1
+            return b""
+        return crsf.encode_rc_channels(padded(values), self.address)
 
     def received(self, data: bytes, now: float) -> None:
-        self.engine.received(data, now)
+        self.module.received(data, now)
 
     def next_due(self, due: float, now: float) -> float:
         """The module's interval and phase while it sends timing corrections."""
-        return self.engine.next_send(due, now)
+        return self.module.next_send(due, now)
 
     def period(self, now: float) -> float:
-        return self.engine.interval_s(now)
+        return self.module.interval_s(now)
 
     def stats(self, now: float) -> dict[str, Any]:
         """The module's link quality, timing and what was withheld."""
-        session, decoder = self.engine, self.engine.decoder
-        module_link = session.link  # one read: one report's figures
+        module, decoder = self.module, self.module.decoder
+        module_link = module.link  # one read: one report's figures
         link = None if module_link is None else module_link.stats
         return {
             **super().stats(now),
-            "module": session.link_text(now),
+            "module": module.link_text(now),
             "link_quality_up": None if link is None else link.uplink_link_quality,
             "link_quality_down": None if link is None else link.downlink_link_quality,
-            "frames_withheld": session.withheld,
+            "frames_withheld": self.withheld,
             "module_rx_frames": decoder.frames,
             "module_rx_crc_failures": decoder.crc_failures,
             "module_rx_skipped": decoder.bytes_skipped,
-            "timing_corrections": session.timing_frames,
-            "timing_corrections_ignored": session.timing_ignored,
+            "timing_corrections": module.timing_frames,
+            "timing_corrections_ignored": module.timing_ignored,
         }

@@ -7,7 +7,7 @@ Two pieces, both sans-IO (no thread, no socket, no clock: `now` is passed in):
   `nodeN.buttonK`) evaluated once a tick from the NodeTable's frames into the message's
   fields, with the scalings of `protocols.mavlink.codec` (`axis_to_pwm`, `button_to_pwm`,
   `axis_to_manual`, `axis_to_manual_z`), and whether any channel's node is in failsafe.
-- `MavlinkSession`: what goes on the line each tick: a HEARTBEAT (MAV_TYPE_GCS,
+- `MavlinkEngine`: what goes on the line each tick: a HEARTBEAT (MAV_TYPE_GCS,
   MAV_AUTOPILOT_INVALID) when one is due (the first tick of a line, then once a second), and
   the control message. MAVLink has no failsafe flag, so a failsafe is told by what is
   (not) sent:
@@ -25,9 +25,9 @@ Two pieces, both sans-IO (no thread, no socket, no clock: `now` is passed in):
   from `target_system`, signed when signing is on): `lines.udp_link.UdpLink` locks to the
   first sender that calls.
 
-- `MavlinkLine`: the session on the one interface (`usb2rc.lines.session`): a tick's messages
-  in one write (one datagram on UDP: MAVLink receivers parse the packets of a datagram back to
-  back, docs/ICD.md "MAVLink output").
+- `MavlinkSession`: the engine on the one session interface (`usb2rc.lines.session`): a
+  tick's messages in one write (one datagram on UDP: MAVLink receivers parse the packets of
+  a datagram back to back, docs/ICD.md "MAVLink output").
 
 pymavlink packs every byte (`message.pack(mav)`); nothing here writes MAVLink by hand.
 """
@@ -51,7 +51,7 @@ from usb2rc.config.mavlink import (
     RC_CHANNELS_OVERRIDE,
     MavlinkOptions,
 )
-from usb2rc.lines.session import Backpressure, Delivered, LineBase
+from usb2rc.lines.session import Backpressure, Delivered, EngineSession, LineState
 from usb2rc.nodes.mapping import ChannelSource
 from usb2rc.nodes.scaling import node_button_bit
 from usb2rc.nodes.table import NodeFrame, NodeSnapshot
@@ -243,11 +243,12 @@ class FarEnd:
     last_heartbeat_from: tuple[int, int] | None = None  # (system, component)
 
 
-class MavlinkSession:
+class MavlinkEngine:
     """The MAVLink line of one output, sans-IO: `tick(now, values)` → the messages to send,
     one `bytes` each (one datagram each on UDP), and `wrote(sent)` for each of them in
-    order. The line events are those of `lines.session.FrameLineSession`. `key`: the signing
-    key (`config.mavlink.read_signing_key`), `wall_time`: the wall clock at the start."""
+    order. The line events are `lines.session.Engine`'s; `line`: the line's state it moves
+    (its session's; a new one when it runs alone). `key`: the signing key
+    (`config.mavlink.read_signing_key`), `wall_time`: the wall clock at the start."""
 
     def __init__(
         self,
@@ -255,6 +256,7 @@ class MavlinkSession:
         key: bytes | None = None,
         wall_time: float = 0.0,
         actions: Sequence[ActionConfig] = (),
+        line: LineState | None = None,
     ) -> None:
         self.settings = settings
         self.signed = key is not None
@@ -263,9 +265,7 @@ class MavlinkSession:
         )
         if key is not None:
             set_up_signing(self.mav, key, wall_time, sign_outgoing=True)
-        self.line_open = False
-        self.stalled = False
-        self.stalls = 0
+        self.line = LineState() if line is None else line
         self.heartbeats = 0
         self.controls = 0  # override / manual_control messages sent (live values)
         self.releases = 0  # override messages releasing every channel (failsafe)
@@ -274,8 +274,7 @@ class MavlinkSession:
         self._next_heartbeat: float | None = None
         self._failsafe_since: float | None = None
         self._pending: deque[int] = deque()
-        self._stopping = False  # usb2rc stops: every tick is a failsafe one
-        self._stop_ticked = False
+        self._stop_ticked = False  # stopping: a failsafe tick's messages were made
         # --- MAVLink actions (usb2rc.protocols.mavlink.actions): the runner, fed in tick/received
         target = (settings.target_system, settings.target_component)
         self.actions = ActionRunner(actions, self.mav, target) if actions else None
@@ -283,29 +282,28 @@ class MavlinkSession:
     def stopping(self) -> None:
         """usb2rc stops (docs/ICD.md, "Stop"): from the next tick on, the values count as
         failsafe (the release of every channel, or silence)."""
-        self._stopping = True
+        self.line.stop()
 
     @property
     def stop_done(self) -> bool:
         """Stopping, and a failsafe tick's messages went out (or the line cannot take them)."""
-        sent = self._stop_ticked and not self._pending
-        return self._stopping and (sent or not self.line_open or self.stalled)
+        return self.line.stop_done(self._stop_ticked and not self._pending)
 
-    # --- line events (as SumdSession) ---------------------------------------------------
+    # --- line events (as a channel output's) -------------------------------------------
 
     def line_opened(self) -> None:
-        self.line_open, self.stalled = True, False
+        self.line.opened()
         self._next_heartbeat = None  # a new line starts with a heartbeat
 
     def line_lost(self) -> None:
-        self.line_open, self.stalled = False, False
+        self.line.lost()
         self._pending.clear()
 
     def line_drained(self) -> None:
-        self.stalled = False
+        self.line.resumed()
 
     def line_flushed(self) -> None:
-        self.stalled = False
+        self.line.resumed()
 
     # --- ticks -------------------------------------------------------------------------------
 
@@ -315,12 +313,12 @@ class MavlinkSession:
         clock (each message's is one more than the last's: they fall behind otherwise, and
         a vehicle that restarts refuses a stream more than a minute old)."""
         self._pending.clear()
-        if not self.line_open or self.stalled:
+        if not self.line.is_open or self.line.stalled:
             return []
         if self.signed:
             signing = self.mav.signing
             signing.timestamp = max(signing.timestamp, signing_timestamp(wall_time))
-        if self._stopping:
+        if self.line.stopping:
             values = replace(values, failsafe=True)
             self._stop_ticked = True
         messages: list[bytes] = []
@@ -387,12 +385,10 @@ class MavlinkSession:
         short stalls the line until it drains (the rest of the tick is not sent)."""
         length = self._pending.popleft() if self._pending else 0
         whole = length > 0 and sent >= length
-        stalled = self.line_open and length > 0 and sent < length
+        stalled = self.line.is_open and length > 0 and sent < length
         if stalled:
             self._pending.clear()
-            if not self.stalled:
-                self.stalls += 1
-        self.stalled = self.stalled or stalled
+            self.line.stall()
         return Delivered(0, 1 if whole else 0, stalled)
 
     # --- the far end ---------------------------------------------------------------------
@@ -429,7 +425,7 @@ class VehicleCall:
         return self.target_system in (0, message.get_srcSystem())
 
 
-def stats_record(session: MavlinkSession) -> dict[str, Any]:
+def stats_record(session: MavlinkEngine) -> dict[str, Any]:
     """The output's MAVLink counters, for the stats record (labels: `usb2rc.runtime.stats_text`)."""
     far = session.far_end
     record: dict[str, Any] = {
@@ -482,12 +478,15 @@ def heartbeat_bytes() -> int:
     return len(heartbeat.pack(mav))
 
 
-class MavlinkLine(LineBase[MavlinkSession]):
+class MavlinkSession(EngineSession[MavlinkEngine]):
+    """A MAVLink output's session: its channels evaluated each tick, its engine's messages in
+    one write."""
+
     def __init__(
         self,
         name: str,
         channels: MavlinkChannels,
-        engine: MavlinkSession,
+        engine: MavlinkEngine,
         tick_bytes: int,
         rate_hz: float,
         wall_clock: Callable[[], float] = time.time,
@@ -517,7 +516,7 @@ class MavlinkLine(LineBase[MavlinkSession]):
             delivered = self.engine.wrote(min(length, max(0, sent)))
             sent -= length
             data += delivered.data_frames
-            if delivered.stalled or not self.engine.line_open:
+            if delivered.stalled or not self.line.is_open:
                 stalled = delivered.stalled
                 break
         return Delivered(0, data, stalled)
