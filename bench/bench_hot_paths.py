@@ -5,7 +5,7 @@ and each reader's wake-ups, ~100 a second, each draining ~10 reports. Thread CPU
 (`time.thread_time`), so other load on the machine changes the figures less than it changes
 wall-clock ones (it still evicts caches: compare runs made back to back).
 
-Tick: the real `lines.driver.Driver.tick()` of a C2-16B output (follow the link, the node
+Tick: the real `lines.driver.LineDriver.tick()` of a C2-16B output (follow the link, the node
 snapshot `NodeTable.step_if_due` ("collect"), `C2Session.tick` with one data frame per node,
 the write) on a pty that a `cat` subprocess
 drains, `--nodes` T.16000M devices whose readers' records change every tick (as at 1 kHz):
@@ -44,7 +44,7 @@ from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import DeviceReader, ReaderRecord
 from usb2rc.hid.replay import ReplayBackend, install_file
-from usb2rc.lines.driver import Driver, Pace
+from usb2rc.lines.driver import LineDriver, Pace
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import NodeTable
@@ -84,7 +84,7 @@ class Rig:
             self.feeds.append((source, decoder.feed, decoder.state))
         session = C2Session("bench", C2Settings())
         link = SerialLink(port, 921600)
-        self.output = Driver("bench", link, session, self.table.step_if_due, PERIOD_S)
+        self.output = LineDriver("bench", link, session, self.table.step_if_due, PERIOD_S)
         self.output.link.open_now()
         self._count = 0
         for _ in range(10):  # the startup frame and the connect sequences go out

@@ -265,7 +265,7 @@ def paced_reader(backend: ReplayBackend, info: Any, next_tick: Callable[[], Pace
 
     def pause() -> float:  # daemon.Daemon._reader_pause of those commits
         tick, now = next_tick(), time.monotonic()
-        due = tick.deadline
+        due = tick.start
         for wake in (due - 0.002, due - 0.00025, due + tick.period_s - 0.002):
             if wake > now:
                 return wake - now

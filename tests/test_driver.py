@@ -1,4 +1,4 @@
-"""The one driver (`usb2rc.lines.driver.Driver`) running its own thread over real links: a pty
+"""The one driver (`usb2rc.lines.driver.LineDriver`) running its own thread over real links: a pty
 whose far end stops reading and reads again, and pyserial's `loop://` whose port fails under
 its reader thread. What is judged is what reaches the far end, decoded."""
 
@@ -20,9 +20,9 @@ from usb2rc.lines.driver import (
     LEAD_MARGIN_S,
     LEAD_MAX_SHARE,
     LEAD_WINDOW,
-    Driver,
-    Drivers,
+    DriverThread,
     Lead,
+    LineDriver,
     Pace,
     aligned,
     earliest,
@@ -84,8 +84,8 @@ def test_a_c2_line_on_a_pty_stalls_starts_over_when_read_again_and_stops_failsaf
         table.add_device(node, stick, BINDING, Source.of(StickState()), "JOYSTICK")
     link = SerialLink(far.path, 921600)
     session = C2Session(far.path, C2Settings(rate_hz=200, baudrate=921600, version="0.1.0"))
-    driver = Driver("c2", link, session, table.step_if_due, 1 / 200)
-    thread = Drivers("drivers", [driver])
+    driver = LineDriver("c2", link, session, table.step_if_due, 1 / 200)
+    thread = DriverThread("drivers", [driver])
     assert link.open_now()
     thread.start()
     try:
@@ -153,8 +153,8 @@ def test_a_crsf_line_on_loop_reads_its_far_end_and_comes_back_after_a_lost_port(
     channels = OutputChannels.scaled([ChannelSource(0, "axis", 0)], RC11_SCALE, crsf.RC_FRAME_LEN)
     session = CrsfSession("crsf", channels, CrsfModule(0.01))
     link = SerialLink("loop://", 400000, reopen_interval_s=0.05)
-    driver = Driver("crsf", link, session, table.step_if_due, 0.01)
-    thread = Drivers("drivers", [driver])
+    driver = LineDriver("crsf", link, session, table.step_if_due, 0.01)
+    thread = DriverThread("drivers", [driver])
     reader = LinkReader("crsf-rx", link)
     assert link.open_now()
     thread.start()
@@ -250,7 +250,7 @@ def test_a_driver_in_its_tick_paces_the_readers_on_its_next_tick() -> None:
 
 
 class TimedWrites(NamedTuple):
-    drivers: list[Driver]
+    drivers: list[LineDriver]
     writes: list[dict[str, Any]]  # per write: see `timed_writes`
     steps: list[float]  # when the node table was asked for a step (a snapshot)
 
@@ -275,11 +275,11 @@ def timed_writes(outputs: int) -> TimedWrites:
     for index, far in enumerate(fars):
         link = SerialLink(far.path, 921600)
         session = C2Session(far.path, C2Settings(rate_hz=100, baudrate=921600, version="0.1.0"))
-        driver = Driver(f"c2-{index}", link, session, step_if_due, 0.01, alone=outputs == 1)
+        driver = LineDriver(f"c2-{index}", link, session, step_if_due, 0.01, alone=outputs == 1)
         drivers.append(driver)
         _timed(driver, index, written, stopping)
         assert link.open_now()
-    thread = Drivers("drivers", drivers)
+    thread = DriverThread("drivers", drivers)
     thread.start()
     try:
         until(lambda: len(written) >= 60 * outputs, f"{60 * outputs} written ticks")
@@ -293,7 +293,7 @@ def timed_writes(outputs: int) -> TimedWrites:
 
 
 def _timed(
-    driver: Driver, index: int, written: list[dict[str, Any]], stopping: threading.Event
+    driver: LineDriver, index: int, written: list[dict[str, Any]], stopping: threading.Event
 ) -> None:
     """Notes on `written` when each of `driver`'s ticks began, made its bytes, wrote them."""
     this_tick: dict[str, Any] = {}
@@ -342,7 +342,7 @@ def test_outputs_due_together_are_made_ahead_from_one_snapshot_and_written_in_co
     ticks: dict[float, list[dict[str, Any]]] = {}
     for w in on_grid:
         assert w["start"] < w["deadline"] <= w["written"] and on_the_grid(w["deadline"], 0.01)
-        assert w["pace"].deadline == w["start"] and w["began"] <= w["made"] <= w["written"]
+        assert w["pace"].start == w["start"] and w["began"] <= w["made"] <= w["written"]
         ticks.setdefault(round(w["deadline"], 6), []).append(w)
     together = [tick for tick in ticks.values() if len(tick) == 3]
     assert len(together) >= 50
@@ -364,7 +364,7 @@ def test_the_only_output_reads_the_records_on_its_deadline_and_writes_them_at_on
     (driver,), on_grid, _ = timed_writes(outputs=1)
     assert len(on_grid) >= 60 and driver.lead is None
     for w in on_grid:
-        assert w["pace"].deadline == w["start"] == w["deadline"] and on_the_grid(w["start"], 0.01)
+        assert w["pace"].start == w["start"] == w["deadline"] and on_the_grid(w["start"], 0.01)
         assert w["deadline"] <= w["began"] <= w["made"] <= w["written"]
 
 
@@ -397,9 +397,9 @@ def test_an_output_whose_far_end_stops_reading_does_not_hold_the_others() -> Non
     c2_session = C2Session(c2_far.path, C2Settings(rate_hz=200, baudrate=921600, version="0.1.0"))
     channels = SumdChannels.of([ChannelSource(0, "axis", 0), ChannelSource(0, "axis", 1)])
     sumd_session = SumdSession(sumd_far.path, channels, channels.frame_length, 100.0)
-    c2 = Driver("c2", c2_link, c2_session, table.step_if_due, 1 / 200)
-    sumd_out = Driver("sumd", sumd_link, sumd_session, table.step_if_due, 1 / 100)
-    thread = Drivers("drivers", [c2, sumd_out])
+    c2 = LineDriver("c2", c2_link, c2_session, table.step_if_due, 1 / 200)
+    sumd_out = LineDriver("sumd", sumd_link, sumd_session, table.step_if_due, 1 / 100)
+    thread = DriverThread("drivers", [c2, sumd_out])
     assert c2_link.open_now() and sumd_link.open_now()
     thread.start()
     try:

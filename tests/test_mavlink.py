@@ -23,7 +23,7 @@ from usb2rc.config.mavlink import MavlinkOptions
 from usb2rc.config.model import ChannelRef
 from usb2rc.configfile import ConfigError, load_config, load_config_text
 from usb2rc.lines import udp_link as transport_udp
-from usb2rc.lines.driver import Driver, Drivers
+from usb2rc.lines.driver import DriverThread, LineDriver
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.lines.udp_link import UdpLink, parse_udp_url
@@ -473,7 +473,7 @@ def test_the_driver_writes_each_tick_whole_and_counts_one_period_per_tick() -> N
     channels = MavlinkChannels([ChannelRef.axis(0, "x")])
     tick_bytes = heartbeat_bytes() + max_message_bytes("rc_channels_override")
     session = MavlinkSession("mav", channels, MavlinkEngine(MavlinkOptions()), tick_bytes, 50.0)
-    out = Driver("mav", link, session, NodeTable().step_if_due, 0.02)
+    out = LineDriver("mav", link, session, NodeTable().step_if_due, 0.02)
     try:
         out.tick()  # the line opens: a heartbeat, then (node 0 absent: failsafe) a release
         out.tick()
@@ -518,9 +518,9 @@ def test_the_registry_builds_a_serial_output_whose_far_end_is_read() -> None:
     (out,) = config.outputs
     context = OutputContext("mav", out, compile_mapping(config), NodeTable())
     built = build(context)
-    assert isinstance(built.driver, Driver) and isinstance(built.rx, LinkReader)
+    assert isinstance(built.driver, LineDriver) and isinstance(built.rx, LinkReader)
     assert built.link.open_now()
-    thread = Drivers("drivers", [built.driver])
+    thread = DriverThread("drivers", [built.driver])
     thread.start()
     built.rx.start()
     try:

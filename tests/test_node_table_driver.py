@@ -17,7 +17,7 @@ from usb2rc.daemon import expected_nodes
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import ReaderRecord
-from usb2rc.lines.driver import Driver
+from usb2rc.lines.driver import LineDriver
 from usb2rc.lines.link import LineEvent, LinkStats, Written
 from usb2rc.lines.session import LinkState
 from usb2rc.nodes.binding import default_binding, unsigned_slots
@@ -182,9 +182,9 @@ def decode(chunks: list[bytes]) -> list:
     return [f for chunk in chunks for f in decoder.feed(chunk)]
 
 
-def c2_output(table: NodeTable, link: FakeLink, baudrate: int = 115200) -> Driver:
+def c2_output(table: NodeTable, link: FakeLink, baudrate: int = 115200) -> LineDriver:
     session = C2Session("test", C2Settings(baudrate=baudrate, version="0.1.0"))
-    return Driver("test", link, session, table.step_if_due, 0.02)
+    return LineDriver("test", link, session, table.step_if_due, 0.02)
 
 
 CONFIG_REQUEST = c2_16b.encode_data(c2_16b.CONFIG_REQUEST, 0x10, 0, (0,) * 10, 0, 0)

@@ -2,7 +2,7 @@
 race explicitly through a seam, or checks which thread writes a field; none relies on luck.
 
 - `Daemon._become_ready`: the check and the set are one step (READY=1 goes out once);
-- `Driver.pace`: the deadline and the period are one value, written by the driver thread;
+- `LineDriver.pace`: the deadline and the period are one value, written by the driver thread;
 - `CrsfModule.link`: the module's figures with their time, one value (tests/test_crsf_sbus.py).
 """
 
@@ -20,7 +20,7 @@ from usb2rc.configfile import Config, OutputConfig
 from usb2rc.daemon import Daemon
 from usb2rc.hid.reader import READ_AHEAD_S, reader_pause
 from usb2rc.hid.replay import ReplayBackend
-from usb2rc.lines.driver import Driver, Drivers, Pace
+from usb2rc.lines.driver import DriverThread, LineDriver, Pace
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.protocols.crsf import codec as crsf
@@ -118,7 +118,7 @@ class _PaceWrites:
         self.loose: list[str] = []
 
 
-def _watch_pace(thread: Driver, writes: _PaceWrites) -> None:
+def _watch_pace(thread: LineDriver, writes: _PaceWrites) -> None:
     def setattr_watched(obj: Any, name: str, value: Any) -> None:
         if name == "pace":
             writes.writers.add(threading.current_thread().name)
@@ -134,7 +134,7 @@ def test_only_the_drivers_thread_writes_a_pace_and_follows_the_module(
 ) -> None:
     daemon = _daemon(tmp_path, protocol="crsf")
     thread = daemon.outputs[0].driver
-    assert isinstance(thread, Driver) and isinstance(thread.session, CrsfSession)
+    assert isinstance(thread, LineDriver) and isinstance(thread.session, CrsfSession)
     writes = _PaceWrites()
     _watch_pace(thread, writes)
     # the module asks for 10 ms (0.1 µs units): next_due follows it from the first tick
@@ -248,7 +248,7 @@ def test_each_link_field_has_one_writer_thread(monkeypatch: Any) -> None:
         raise AssertionError("never")
 
     def follow() -> LineEvent | None:
-        """What `Driver._follow_link` does with the link each tick."""
+        """What `LineDriver._follow_link` does with the link each tick."""
         if not link.is_open:
             link.try_open()
         return link.line_event()
@@ -311,8 +311,8 @@ def test_a_session_its_module_and_its_line_are_written_by_the_driver_thread_only
     link = SerialLink("loop://", 400000)
     from usb2rc.nodes.table import NodeTable
 
-    driver = Driver("crsf", link, session, NodeTable().step_if_due, 0.004)
-    thread = Drivers("driver", [driver])
+    driver = LineDriver("crsf", link, session, NodeTable().step_if_due, 0.004)
+    thread = DriverThread("driver", [driver])
     reader = LinkReader("reader", link)
     assert link.open_now()
     thread.start()
@@ -340,7 +340,7 @@ def test_a_session_its_module_and_its_line_are_written_by_the_driver_thread_only
 def test_a_daemon_with_one_output_reads_on_its_deadline_and_with_two_each_leads(
     tmp_path: Path,
 ) -> None:
-    """`Driver.alone` is the daemon's: its only output has no lead (nothing else ticks, and
+    """`LineDriver.alone` is the daemon's: its only output has no lead (nothing else ticks, and
     a lead ages every frame's records); each of two makes its bytes ahead, so its write
     does not wait for the other's tick."""
     assert [o.driver.lead for o in _daemon(tmp_path).outputs] == [None]

@@ -23,7 +23,7 @@ from test_node_table_driver import BINDING, Source, info
 from test_stall_journeys import PTY_FAR_END_BUFFER, PTY_KERNEL_QUEUE
 
 from usb2rc import __version__
-from usb2rc.lines.driver import Driver
+from usb2rc.lines.driver import LineDriver
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.nodes.table import NodeTable
 from usb2rc.protocols.c2_16b import codec as c2_16b
@@ -255,8 +255,10 @@ class LoopRig:
             self.received += port.read(waiting)
 
 
-def c2_driver(name: str, link: SerialLink, table: NodeTable, settings: C2Settings) -> Driver:
-    return Driver(name, link, C2Session(name, settings), table.step_if_due, 1 / settings.rate_hz)
+def c2_driver(name: str, link: SerialLink, table: NodeTable, settings: C2Settings) -> LineDriver:
+    return LineDriver(
+        name, link, C2Session(name, settings), table.step_if_due, 1 / settings.rate_hz
+    )
 
 
 def test_loop_stalled_while_sticks_come_and_go():
@@ -333,7 +335,7 @@ def test_a_sumd_pty_holds_no_more_than_a_tick_behind_a_far_end_that_stopped_read
     value = [0x2260]
     channels = SumdChannels([lambda nodes: (value[0], False)] * 8)
     session = SumdSession("sumd", channels, sumd.frame_length(8), 100.0)
-    out = Driver("sumd", link, session, NodeTable().step_if_due, 0.01)
+    out = LineDriver("sumd", link, session, NodeTable().step_if_due, 0.01)
     try:
         assert link.open_now()
         frame_len = sumd.frame_length(8)

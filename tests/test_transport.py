@@ -9,16 +9,16 @@ import threading
 import serial
 
 from usb2rc.lines import serial_link as transport
-from usb2rc.lines.driver import Driver
+from usb2rc.lines.driver import LineDriver
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.serial_link import SOCKET_SEND_BUFFER, SerialLink
 from usb2rc.protocols.c2_16b.engine import C2Settings
 from usb2rc.protocols.c2_16b.session import C2Session
 
 
-def c2_driver(link: SerialLink, table) -> Driver:
+def c2_driver(link: SerialLink, table) -> LineDriver:
     session = C2Session("test", C2Settings(version="0.1.0"))
-    return Driver("test", link, session, table.step_if_due, 0.02)
+    return LineDriver("test", link, session, table.step_if_due, 0.02)
 
 
 def test_a_slow_open_runs_aside_and_is_reported_once(monkeypatch):

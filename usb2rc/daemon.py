@@ -29,7 +29,9 @@ from usb2rc.hid.backend import Backend, Device
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor
 from usb2rc.hid.reader import DeviceReader, GridTick, OnExit
-from usb2rc.lines.driver import Driver, Drivers, Pace, earliest
+from usb2rc.lines.driver import DriverThread as Drivers
+from usb2rc.lines.driver import LineDriver as Driver
+from usb2rc.lines.driver import Pace, earliest
 from usb2rc.lines.link import Link
 from usb2rc.lines.rx import LinkReader
 from usb2rc.nodes.lifecycle import DeviceLifecycle

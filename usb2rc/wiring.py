@@ -3,7 +3,7 @@
 One `build_<protocol>(context)` per protocol of the registry (`usb2rc.outputs.PROTOCOLS`),
 found by name in `BUILDERS` (tests/test_structure.py holds the two lists equal): each makes
 the protocol's session (`usb2rc.protocols.<name>.session`) and its link and hands both to
-the one generic driver (`usb2rc.lines.driver.Driver`). `usb2rc.daemon` calls `build` for
+the one generic driver (`usb2rc.lines.driver.LineDriver`). `usb2rc.daemon` calls `build` for
 each configured output and only starts and stops what comes back. It lives here, above the
 registry, which the config file reader reads and which therefore imports no session or
 driver.
@@ -19,7 +19,7 @@ import serial
 
 from usb2rc.config.mavlink import MavlinkOptions, read_signing_key
 from usb2rc.configfile import OutputConfig
-from usb2rc.lines.driver import Driver
+from usb2rc.lines.driver import LineDriver
 from usb2rc.lines.link import Link
 from usb2rc.lines.rx import LinkReader
 from usb2rc.lines.serial_link import SerialLink
@@ -52,7 +52,7 @@ class OutputContext:
     on_tick: Callable[[], None] | None = None
     on_first_write: Callable[[], None] | None = None
     version: str = ""
-    alone: bool = False  # the daemon's only output: no lead (`lines.driver.Driver`)
+    alone: bool = False  # the daemon's only output: no lead (`lines.driver.LineDriver`)
 
 
 @dataclass
@@ -60,17 +60,17 @@ class BuiltOutput:
     """A running output's pieces: its link, its driver and, when the link is read on its
     own thread (a serial link), the reader. The daemon uses of `link` its `Link` side
     (`open_now()`, `is_open`, `url`, `last_error`, `stats`, `close()`), of `driver` (run by
-    the drivers' thread, `lines.driver.Drivers`) its `stats`, `period_s`, `pace`,
+    the drivers' thread, `lines.driver.DriverThread`) its `stats`, `period_s`, `pace`,
     `last_tick_monotonic` and `protocol_stats()`."""
 
     link: Link
-    driver: Driver
+    driver: LineDriver
     rx: LinkReader | None = None
 
 
 def _running(ctx: OutputContext, link: Link, session: LineSession, period_s: float) -> BuiltOutput:
     """The driver of `session` over `link`; a serial link gets its reader thread."""
-    driver = Driver(
+    driver = LineDriver(
         ctx.name,
         link,
         session,

@@ -59,11 +59,12 @@ ONE_WAKE_GAP_S = 2 * READ_AHEAD_S + 0.0005
 
 
 class GridTick(Protocol):
-    """When the next tick is due (monotonic) and the period after it, as one value (a
-    reader never pairs one tick's deadline with another's period): `lines.driver.Pace`."""
+    """When the next tick starts (monotonic: its records are read) and the period after it,
+    as one value (a reader never pairs one tick's start with another's period):
+    `lines.driver.Pace`."""
 
     @property
-    def deadline(self) -> float: ...
+    def start(self) -> float: ...
 
     @property
     def period_s(self) -> float: ...
@@ -81,7 +82,7 @@ def reader_pause(tick: GridTick, now: float) -> float:
     that). A tick within ONE_WAKE_GAP_S of the drain, or of the tick before it
     (`tick.period_s` is the gap to the tick after, of any output), gets its last call
     only. 0 when the tick is past (the clock has not started): read as reports come."""
-    due, gap = tick.deadline, tick.period_s
+    due, gap = tick.start, tick.period_s
     if due - now > ONE_WAKE_GAP_S:
         return due - READ_AHEAD_S - now
     if due - LAST_CALL_S > now:

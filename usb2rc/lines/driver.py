@@ -1,6 +1,7 @@
-"""The one driver: every output's session pumped over its link (python-can's `Notifier`).
+"""The line drivers: every output's session pumped over its link, all on one thread
+(python-can's `Notifier`).
 
-Once a tick, on absolute monotonic deadlines, a `Driver`
+Once a tick, on absolute monotonic deadlines, an output's `LineDriver`
 - follows the link: a new port (`session.line_opened()`) before anything is written on it, a
   lost one (`line_lost()`); what the far end sent (`session.received(data, now)`: a serial
   link's reader thread queued it, a UDP link is polled here);
@@ -11,15 +12,14 @@ Once a tick, on absolute monotonic deadlines, a `Driver`
 It knows no protocol: what to send, when to stall, when to flush, when the next tick is due
 (`session.next_due`) are the session's. A late tick is counted, never caught up with a burst.
 
-One thread drives every output (`Drivers`). The daemon's only output (`alone`) wakes on its
-deadline, reads the records and writes its bytes as soon as they are made. Several make
+One thread drives every output (`DriverThread`). The daemon's only output (`alone`) wakes on
+its deadline, reads the records and writes its bytes as soon as they are made. Several make
 their bytes `Lead.s` before their deadline (what their ticks took together, recently) and
 write them on it, as a transmitter's mixer runs ahead of its frame timer; the lead costs
-every frame's records that much age, which the only output has no reason to pay
-(bench/README.md, "Issue 21: the grid half a kernel tick off the kernel's"). Ticks due
-together are made together, from one snapshot, and written in config order: with a thread
-per output, they queued for one interpreter, and C2-16B's write moved with the others'
-work (bench/README.md, "Issue 21: one thread for every output").
+every frame's records that much age, which the only output has no reason to pay. Ticks due
+together are made together, from one snapshot, and written in config order: threads of
+their own would queue for the one interpreter, and C2-16B's write would move with the
+others' work.
 
 One clock: a driver's ticks fall on the multiples of its period from the grid's epoch on the
 monotonic clock (`aligned`, `nodes.step.GRID_EPOCH_S`: 3/4 of a kernel tick, off the kernel's
@@ -69,12 +69,12 @@ def aligned(now: float, period_s: float) -> float:
 
 @dataclass(frozen=True)
 class Pace:
-    """When a driver's next tick starts (monotonic: its deadline less its lead, if it has
-    one: when it reads the records) and its period now: one value, so a reader pacing on it
-    never pairs one tick's start with another's period. Only the driver's own thread
+    """When a driver's next tick starts (`start`, monotonic: its deadline less its lead, if
+    it has one: when it reads the records) and its period now: one value, so a reader pacing
+    on it never pairs one tick's start with another's period. Only the driver's own thread
     replaces it, whole."""
 
-    deadline: float
+    start: float
     period_s: float
 
 
@@ -87,8 +87,8 @@ def earliest(paces: Iterable[Pace], now: float) -> Pace | None:
     its own lead before the deadline: starts within SAME_TICK_S of the first are one tick
     for the readers (one wake-up, not one per output). A driver between its start and its
     write still shows the start it has passed: its records are read, so its next start
-    counts (that past start had made a reader poll through the wait, a drain per report)."""
-    ticking = [pace for pace in paces if pace.deadline]
+    counts (a past start would have a reader poll through the wait, a drain per report)."""
+    ticking = [pace for pace in paces if pace.start]
     if not ticking:
         return None
     due = min(_start_after(pace, now) for pace in ticking)
@@ -98,11 +98,9 @@ def earliest(paces: Iterable[Pace], now: float) -> Pace | None:
 
 def _start_after(pace: Pace, moment: float) -> float:
     """The first start of `pace`'s output after `moment`."""
-    if pace.deadline > moment:
-        return pace.deadline
-    return (
-        pace.deadline + (math.floor((moment - pace.deadline) / pace.period_s) + 1) * pace.period_s
-    )
+    if pace.start > moment:
+        return pace.start
+    return pace.start + (math.floor((moment - pace.start) / pace.period_s) + 1) * pace.period_s
 
 
 class Lead:
@@ -178,16 +176,16 @@ def _p99_ms(values_s: list[float]) -> float:
     return values_s[min(len(values_s) - 1, int(len(values_s) * 0.99))] * 1000.0
 
 
-class Driver:
-    """One output: `session` over `link`, ticked on the grid by the drivers' thread
-    (`Drivers`), whose loop calls `begin` at each tick's start, `write` on its deadline and
-    `finish` after the writes due with it.
+class LineDriver:
+    """One output's driver: `session` over `link`, ticked on the grid by the drivers' thread
+    (`DriverThread`), whose loop calls `begin` at each tick's start, `write` on its deadline
+    and `finish` after the writes due with it.
 
     `snapshot`: the node table's latest step (`NodeTable.step_if_due`); `on_tick` after every
     tick (the watchdog hook), `on_first_write` once, after the first write that went out.
     `alone`: the daemon's only output, which has no lead (`lead` is None) and writes as soon
     as its bytes are made; each of several makes them `lead.s` ahead (or with a tick due
-    on the same deadline that leads more, `Drivers`) and writes them on its deadline.
+    on the same deadline that leads more, `DriverThread`) and writes them on its deadline.
     Every field is written by the drivers' thread only; `pace` and `stats` are read by
     others."""
 
@@ -206,7 +204,7 @@ class Driver:
         self.link = link
         self.session = session
         self.snapshot = snapshot
-        self.pace = Pace(0.0, period_s)  # deadline 0: not ticking yet
+        self.pace = Pace(0.0, period_s)  # start 0: not ticking yet
         # the daemon's only output has no lead: it reads the records on its deadline
         self.lead = None if alone else Lead(period_s)
         self.stats = OutputStats()
@@ -228,7 +226,7 @@ class Driver:
 
     @property
     def period_s(self) -> float:
-        """The period now (a CRSF module may change it; `pace` has it with its deadline)."""
+        """The period now (a CRSF module may change it; `pace` has it with its start)."""
         return self.pace.period_s
 
     # --- the loop ----------------------------------------------------------------------------
@@ -480,19 +478,18 @@ class Driver:
         return {**self.session.stats(time.monotonic()), **self.link.counters()}
 
 
-class Drivers(Worker):
+class DriverThread(Worker):
     """The drivers' thread: every output's ticks, on one thread, in one loop (as
     python-can's `Notifier` serves every bus). A tick starts its lead before its deadline
     (`begin`: the bytes made) and writes on it (`write`, then `finish`). Ticks due
     together, the default outputs' every 20 ms, start together from one snapshot, so the
     readers wake once for all of them, and write on their deadline in config order, one
-    right after another (each counted after all of them went out): no write
-    waits for another thread's work (bench/README.md, "Issue 21: one thread for every
-    output"). Each of several outputs has its own lead, which learns what its ticks took
-    with those due together; ticks due together start on the earliest of their starts.
-    The only output has none (`Driver`'s `alone`)."""
+    right after another (each counted after all of them went out): no write waits for
+    another thread's work. Each of several outputs has its own lead, which learns what its
+    ticks took with those due together; ticks due together start on the earliest of their
+    starts. The only output has none (`LineDriver`'s `alone`)."""
 
-    def __init__(self, name: str, drivers: Sequence[Driver]) -> None:
+    def __init__(self, name: str, drivers: Sequence[LineDriver]) -> None:
         super().__init__(name)
         self.drivers = list(drivers)
 

@@ -50,7 +50,7 @@ class LineEvent(enum.Enum):
 
 
 class Link(Protocol):
-    """What the driver (`lines.driver.Driver`) uses of a link, whatever its kind."""
+    """What the driver (`lines.driver.LineDriver`) uses of a link, whatever its kind."""
 
     url: str
     baudrate: int
