@@ -60,6 +60,9 @@ class Source:
     def __init__(self, record: ReaderRecord) -> None:
         self.record = record
 
+    def pull(self) -> None:
+        """The step's pull: the bench replaces the record itself."""
+
 
 class Rig:
     def __init__(self, nodes: int, directory: Path, port: str) -> None:

@@ -489,6 +489,9 @@ class RecordSource:
 
     record: Any  # usb2rc.hid.reader.ReaderRecord
 
+    def pull(self) -> None:
+        """The step's pull: a test sets the record itself."""
+
 
 def stick_record(state: StickState, reports: int = 1) -> Any:
     """The record a T.16000M reader publishes after decoding `state`'s report."""

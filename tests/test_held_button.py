@@ -158,10 +158,13 @@ def live(button2: int, button6: int = LOW, gear: int = LOW) -> tuple[bool, int, 
     return (False, button2, button6, gear)
 
 
-def only_after(commands: list[Seen], moment: Seen) -> None:
-    """Exactly one command, and it arrived after `moment` (a SUMD frame) was seen."""
+def only_after(commands: list[Seen], pressed: Seen, line: PtyLine) -> None:
+    """Exactly one command, and it arrived after the SUMD frame before `pressed` (the first
+    frame that showed the press): the output that sends it may tick before SUMD's."""
     assert len(commands) == 1, [c.frame for c in commands]
-    assert commands[0].time > moment.time
+    seen = line.seen_now()
+    before = seen[seen.index(pressed) - 1]
+    assert commands[0].time > before.time
 
 
 def wait_quiet(predicate: Callable[[], Any], what: str) -> None:
@@ -183,7 +186,7 @@ def test_a_button_held_at_the_plug_arms_only_after_a_release_and_a_real_press(
     pressed = bench.wait_sumd("the real press", live(HIGH), live(LOW), live(HIGH))
     bench.wait_sumd("its release", live(HIGH), live(LOW), live(HIGH), live(LOW))
     wait_quiet(lambda: bench.commands(ARM), "the arm after the real press")
-    only_after(bench.commands(ARM), pressed)
+    only_after(bench.commands(ARM), pressed, bench.line)
     assert bench.commands(ARM)[0].time > released.time
     note = "stick: button 2 held since the plug: release it first"
     assert daemon.log().count(note) == 1, daemon.log()
@@ -214,7 +217,7 @@ def test_a_replug_in_the_middle_of_a_hold_does_not_finish_it(bench: Bench) -> No
         timeout=30,
     )
     wait_quiet(lambda: bench.commands(ARM), "the arm after the new press")
-    only_after(bench.commands(ARM), pressed)
+    only_after(bench.commands(ARM), pressed, bench.line)
     assert back.time < released.time < pressed.time
 
 
@@ -264,7 +267,7 @@ def test_a_reload_during_a_hold_starts_it_over(bench: Bench) -> None:
     assert bench.commands(ARM) == [], "the hold went on through a reload that remapped it"
     again = bench.wait_sumd("the new press", live(LOW), live(HIGH), live(LOW), live(HIGH))
     wait_quiet(lambda: bench.commands(ARM), "the arm after the new press")
-    only_after(bench.commands(ARM), again)
+    only_after(bench.commands(ARM), again, bench.line)
     assert pressed.time < released.time
     assert "button 2 held since the reload" in daemon.log()
 
@@ -286,7 +289,7 @@ def test_a_mode_and_a_toggle_held_at_the_plug_do_not_fire(bench: Bench) -> None:
     ]
     pressed = bench.wait_sumd("the mode press", live(LOW, LOW, HIGH), live(LOW, HIGH, HIGH))
     wait_quiet(lambda: bench.commands(SET_MODE), "the mode after its press")
-    only_after(bench.commands(SET_MODE), pressed)
+    only_after(bench.commands(SET_MODE), pressed, bench.line)
     assert flipped.time < pressed.time
 
 

@@ -60,6 +60,9 @@ class FakeReader:
     def start(self) -> None:
         self.started = True
 
+    def pull(self) -> None:
+        """The step's pull: its record is fixed."""
+
     def stop(self) -> None:
         self.stopped = True
 

@@ -252,25 +252,19 @@ def test_the_node_clock_steps_where_no_output_ticks() -> None:
     assert all(clearance_ms(period * i / 40, period, odd) <= best + 0.1 for i in range(40))
 
 
-def test_the_node_clock_steps_between_the_ticks_of_an_output_without_a_lead(
+def test_the_node_clock_leaves_alone_a_table_a_driver_stepped_within_its_period(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """An output without a lead (the daemon's only one) steps the table on its write's
-    path, so the node clock steps every period between its ticks: the records that came
-    meanwhile are stepped off that path. Beside outputs with a lead, each steps ahead of its
-    write, and the clock steps only a table nobody stepped within its period."""
-    from usb2rc.nodes.step import clock_stale_after
-
-    assert clock_stale_after(0.020, [False]) == 0.0
-    assert clock_stale_after(0.004, [True, True]) == pytest.approx(0.004)
+    """Every step drains the devices (the readers are pulled): beside one output or
+    several, the node clock steps only a table no driver stepped within its period."""
     c2 = OutputConfig(protocol="c2-16b", port="loop://", rate_hz=50)
     sumd = OutputConfig(protocol="sumd", port="loop://", channels=("node0.x",))
     ages: list[float] = []
-    for outputs, leads in (((c2,), False), ((c2, sumd), True)):
+    for outputs in ((c2,), (c2, sumd)):
         daemon = Daemon(Config(outputs=outputs), ReplayBackend(tmp_path))
         monkeypatch.setattr(daemon.table, "step_if_stale", ages.append)
         daemon.node_clock._step()
-        assert ages.pop() == pytest.approx(daemon.node_clock.period_s if leads else 0.0)
+        assert ages.pop() == pytest.approx(daemon.node_clock.period_s)
 
 
 def test_the_node_clock_steps_halfway_between_two_grid_ticks() -> None:

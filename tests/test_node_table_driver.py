@@ -38,6 +38,9 @@ class Source:
 
     record: ReaderRecord
 
+    def pull(self) -> None:
+        """The step's pull: a test sets the record itself."""
+
     @classmethod
     def of(cls, state: StickState, reports: int = 1) -> Source:
         decoder = LAYOUT.make_decoder()
@@ -108,6 +111,9 @@ class PublishesOnSecondRead:
     @property
     def record(self) -> ReaderRecord:
         return self._records.pop(0) if len(self._records) > 1 else self._records[0]
+
+    def pull(self) -> None:
+        """The step's pull: the records are scripted."""
 
 
 def test_a_record_published_mid_frame_never_gives_live_held_values():

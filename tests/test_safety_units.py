@@ -212,6 +212,9 @@ class Presses:
         self.presses: tuple[tuple[int, int], ...] = ()
         self.record = stick_record(StickState())
 
+    def pull(self) -> None:
+        """The step's pull: `press` sets the record itself."""
+
     def press(self, hid_button: int) -> None:
         self.serial += 1
         self.presses = (*self.presses, (self.serial, 1 << (hid_button - 1)))

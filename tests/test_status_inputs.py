@@ -106,6 +106,9 @@ def test_a_handover_button_the_device_lacks_names_the_line():
 class Source:
     record: ReaderRecord
 
+    def pull(self) -> None:
+        """The step's pull: the test sets the record itself."""
+
 
 def test_the_node_frame_carries_the_handover_and_the_battery():
     config = ENTRY + "    node_id: 3\n    handover: {button: 1, destination: 200}\n"

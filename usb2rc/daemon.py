@@ -41,7 +41,6 @@ from usb2rc.nodes.step import (
     NodeClock,
     clock_period,
     clock_phase,
-    clock_stale_after,
 )
 from usb2rc.nodes.table import Expected, ExpectedEntry, NodeFrame, NodeTable
 from usb2rc.outputs import protocol
@@ -185,9 +184,8 @@ class Daemon:
         # the clock that steps the nodes whether or not an output reads, on the drivers' grid
         periods = [out.driver.period_s for out in self.outputs]
         period = clock_period(periods)
-        stale_after = clock_stale_after(period, (o.driver.lead is not None for o in self.outputs))
         self.node_clock = NodeClock(
-            lambda: self.table.step_if_stale(stale_after),
+            lambda: self.table.step_if_stale(period),
             time.monotonic,
             period,
             clock_phase(period, periods),
@@ -296,8 +294,7 @@ class Daemon:
     # --- devices ---------------------------------------------------------------------------
 
     def _make_reader(self, device: Device, layout: DeviceLayout, on_exit: OnExit) -> DeviceReader:
-        next_tick = self._next_tick if self.outputs else None
-        return DeviceReader(device, layout.make_decoder(), on_exit, next_tick=next_tick)
+        return DeviceReader(device, layout.make_decoder(), on_exit, pulled=True)
 
     # --- life cycle ------------------------------------------------------------------------
 

@@ -1,34 +1,38 @@
 """DeviceReader: one thread per open device, the only owner of that device.
 
-It blocks in `device.read(timeout)`, feeds each report to the device's decoder and publishes
-one immutable `ReaderRecord` (state, report count, time) by a single assignment (`record`), so
-whoever reads it never takes a lock, never waits for the device, and never sees a count that
-belongs to another state (a node goes live on the count: it must come with its state).
+It feeds each report to the device's decoder and publishes one immutable `ReaderRecord`
+(state, report count, time) by a single assignment (`record`), so whoever reads it never
+takes a lock, never waits for the device, and never sees a count that belongs to another
+state (a node goes live on the count: it must come with its state).
 On unplug it calls `on_exit(reader, None)`, on a read failure
 `on_exit(reader, ErrorCode.READ_FAILED)` — exactly once, from the reader thread — and ends.
 `stop()` ends it without calling `on_exit`. The device is closed when the thread ends.
+
+Pulled (the daemon's readers, docs/DESIGN.md "The hot path"): the node step calls `pull()`
+before it reads the records, and the pull drains what the device queued, without blocking,
+as one batch (`ReportDecoder.feed_batch` decodes only what the state shows, and every press
+is noted). A 1 kHz device then costs one short drain per step and no wake-up at all: the
+kernel (or the replay backend) queues the reports meanwhile, as hidraw does for 64 of them.
+The thread only holds the device: it waits for `stop()` or for a failure a pull met, which it
+then reports as its own read would (`on_exit`), and it closes the device; a pull and the
+close never overlap (`_device_lock`), and a pull after the close does nothing.
+
+Not pulled (`usb2rc calibrate`, tests), it blocks in `device.read(timeout)`; with a
+`next_tick` (a grid's next tick and period) it drains and sleeps until just before that tick
+(`reader_pause`).
 
 Bad reports (unknown report ID, too short): counted, and counted in a row. After
 BAD_REPORTS_LIMIT refused in a row, with no accepted report between them, the device is in
 error (`ReaderRecord.in_error`: its node sends `!`, docs/ICD.md "Device error codes", 0x06)
 until it sends a good report again; the reader calls `on_bad_reports(reader, record)` after
 it published a record that entered or left error (or began a new run of bad reports).
-
-Pacing (optional): the outputs only sample the snapshot once per tick, so with a
-`next_tick` callable (when the next tick of the grid is due, and the grid's period) the
-reader, after a report, drains what is queued without blocking and then sleeps until just
-before that tick (`reader_pause`: READ_AHEAD_S before it, then LAST_CALL_S before it). A
-1 kHz device then wakes its thread twice per tick instead of twenty times; the kernel queues
-the reports meanwhile and the drain takes every one of them, in order, before the tick reads
-the snapshot (it counts each and decodes the ones the state shows:
-`ReportDecoder.feed_batch`). Whose ticks they are is the caller's: the daemon gives the next
-tick of any output (`Daemon._next_tick`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -36,6 +40,7 @@ from typing import Protocol, runtime_checkable
 
 from usb2rc.hid.backend import Device, DeviceGone, ErrorCode
 from usb2rc.hid.descriptor import InputState
+from usb2rc.runtime.flag import WakeFlag
 from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger(__name__)
@@ -154,6 +159,7 @@ class DeviceReader(Worker):
         on_exit: OnExit,
         read_timeout_s: float = READ_TIMEOUT_S,
         next_tick: NextTick | None = None,
+        pulled: bool = False,
     ) -> None:
         self.device = device
         self.info = device.info
@@ -175,6 +181,13 @@ class DeviceReader(Worker):
         self._on_exit = on_exit
         self._read_timeout_s = read_timeout_s
         self._next_tick = next_tick
+        # Pulled: the node step drains the device (`pull`); the pull and the close are never
+        # at once, and a failure the pull meets ends this thread as a read's would.
+        self._pulled = pulled
+        self._device_lock = threading.Lock()
+        self._closed = False
+        self._pull_error: BaseException | None = None
+        self._woken = WakeFlag()  # stop(), or a failure a pull met
         super().__init__(f"hid-reader {self.info.port_path or self.info.path}")
 
     # Views of the record, for statistics and tests.
@@ -268,7 +281,40 @@ class DeviceReader(Worker):
         if edge and self.on_bad_reports is not None:
             self.on_bad_reports(self, record)
 
+    def pull(self) -> None:
+        """Pulled: decode and publish what the device has queued, without blocking (the node
+        step's call, before it reads the records: the step reads every report that came
+        before it). Not pulled: nothing (the thread reads)."""
+        if not self._pulled:
+            return
+        with self._device_lock:
+            if self._closed or self._pull_error is not None:
+                return
+            try:
+                report = self.device.read(0.0)
+                if report is not None:
+                    self._drain(report)
+                    self._publish()
+            except Exception as exc:  # the thread reports it (on_exit), as its own read would
+                self._pull_error = exc
+                self._woken.set()
+
+    def stop(self) -> None:
+        super().stop()
+        self._woken.set()
+
+    def _await_pull_failure(self) -> None:
+        """Pulled: the thread holds the device until stop() or a failure a pull met, which
+        it raises here (run() then ends it as a failed read)."""
+        while not self.stopping:
+            self._woken.wait(threading.TIMEOUT_MAX)
+            if self._pull_error is not None and not self.stopping:
+                raise self._pull_error
+
     def _loop(self) -> None:
+        if self._pulled:
+            self._await_pull_failure()
+            return
         while not self.stopping:
             report = self.device.read(self._read_timeout_s)
             if report is None:
@@ -296,7 +342,8 @@ class DeviceReader(Worker):
                 "%s: read failed: %s", self.info.path, exc, exc_info=not isinstance(exc, OSError)
             )
         finally:
-            with contextlib.suppress(Exception):
+            with self._device_lock, contextlib.suppress(Exception):
+                self._closed = True
                 self.device.close()
         if ended is not None and not self.stopping:
             self.exit_code = ended[0]

@@ -297,21 +297,11 @@ def clock_phase(period_s: float, output_periods: Iterable[float]) -> float:
     return max(offsets, key=lambda phase: (clearance(phase), -abs(phase - period_s / 2)))
 
 
-def clock_stale_after(period_s: float, leads: Iterable[bool]) -> float:
-    """How fresh a step the node clock leaves alone (`NodeTable.step_if_stale`), given
-    whether each output has a lead. Outputs with a lead step the table ahead of their
-    writes, so the clock need not step again what they stepped within its period (beside
-    CRSF every 4 ms, ~3 % of a core). An output without one (the daemon's only output)
-    steps on its write's path: the clock then steps every period, between its ticks, and
-    takes the records that came meanwhile off that path (bench/README.md, "Issue 21:
-    every figure against the commits before it")."""
-    return period_s if all(leads) else 0.0
-
-
 class NodeClock(Worker):
     """The clock that keeps the snapshot live whether or not an output reads: `step`
-    (the daemon's: `NodeTable.step_if_stale`, no step when a driver's ran within
-    `clock_stale_after`) once per `period_s` (`clock_period`), `phase_s` (`clock_phase`)
+    (the daemon's: `NodeTable.step_if_stale`, no step when a driver's ran within its
+    period: every step drains the devices, and two steps a period would drain and compute
+    twice what one frame carries) once per `period_s` (`clock_period`), `phase_s` (`clock_phase`)
     off its multiples from the grid's epoch (GRID_EPOCH_S), where the outputs' ticks are
     not: the clock's wake-up and step keep away from every tick. (On the grid, they fell
     on every tick; just before it, next to the readers' last call: bench/README.md,

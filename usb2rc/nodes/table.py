@@ -140,10 +140,13 @@ class MissingEntry:
 
 
 class SnapshotSource(Protocol):
-    """A DeviceReader, as the table sees it: its last published record, read once."""
+    """A DeviceReader, as the table sees it: its last published record, read once, after
+    `pull` (a pulled reader decodes what its device queued; otherwise nothing)."""
 
     @property
     def record(self) -> ReaderRecord: ...
+
+    def pull(self) -> None: ...
 
 
 @dataclass
@@ -467,9 +470,13 @@ class NodeTable:
 
     def _step_if_due_locked(self) -> list[str]:
         """The step, memoised: it runs once per (period, devices, records), whoever calls."""
+        nodes = [self._nodes[node_id] for node_id in sorted(self._nodes)]
+        for node in nodes:  # what every device queued until now, decoded
+            for attached in node.attached:
+                if attached.present:
+                    attached.source.pull()
         now = self._clock()
         # each reader's record read once: the step uses these (values and liveness agree)
-        nodes = [self._nodes[node_id] for node_id in sorted(self._nodes)]
         records = tuple(a.source.record for node in nodes for a in node.attached)
         period = int((now - GRID_EPOCH_S) // BASE_PERIOD_S)  # the drivers' grid
         last = self._stepped
