@@ -206,15 +206,16 @@ def test_a_tap_shows_in_exactly_one_frame_of_each_output_whoever_reads_first() -
         assert table.snapshot().frames[0].group1 & 1 == 0  # the snapshot: as it is
 
 
-def test_the_node_clock_runs_at_the_fastest_outputs_period_on_the_base_grid() -> None:
-    """Each driver steps before its ticks; the clock only keeps the snapshot live between
-    them, at the fastest output's period rounded down onto the 4 ms grid."""
+def test_the_node_clock_runs_at_the_fastest_outputs_period_but_not_faster_than_50_hz() -> None:
+    """Each driver steps before its ticks; the clock only keeps the snapshot live for what
+    reads it without ticking, at the fastest output's period rounded down onto the 4 ms
+    grid, and never more often than LIVENESS_PERIOD_S."""
     from usb2rc.nodes.step import LIVENESS_PERIOD_S, clock_period
 
     assert clock_period([1 / 50]) == pytest.approx(0.020)  # C2-16B alone: 50 wake-ups, not 250
-    assert clock_period([1 / 50, 1 / 100]) == pytest.approx(0.008)  # SUMD's 10 ms: 2 periods
-    assert clock_period([1 / 50, 1 / 250]) == pytest.approx(BASE_PERIOD_S)  # CRSF's 4 ms
-    assert clock_period([1 / 500]) == pytest.approx(BASE_PERIOD_S)  # never below the grid
+    assert clock_period([1 / 50, 1 / 100]) == pytest.approx(0.020)  # SUMD's 10 ms: no faster
+    assert clock_period([1 / 50, 1 / 250]) == pytest.approx(0.020)  # CRSF's 4 ms: no faster
+    assert clock_period([1 / 10]) == pytest.approx(0.100)  # a 10 Hz output alone: its own
     assert clock_period([]) == pytest.approx(LIVENESS_PERIOD_S)  # monitor: no output
 
 
@@ -234,14 +235,14 @@ def test_the_node_clock_steps_where_no_output_ticks() -> None:
     from usb2rc.nodes.step import clock_period, clock_phase
 
     assert clock_phase(0.020, [1 / 50]) == pytest.approx(0.010)  # C2-16B alone: halfway
-    # the default rates of all five outputs: the clock at CRSF's 4 ms; halfway (2 ms) falls
-    # on every other 10 ms tick of SUMD and SBUS, 1 ms (or 3) off the grid on none
+    # the default rates of all five outputs: the clock at 20 ms (no faster); halfway (10 ms)
+    # falls on SUMD's and SBUS's ticks, 6 ms (or 14) is 2 ms from CRSF's and 4 from theirs
     five = [1 / 50, 1 / 100, 1 / 250, 1 / 100, 1 / 50]
     period = clock_period(five)
     assert clearance_ms(period / 2, period, five) == 0.0
     phase = clock_phase(period, five)
-    assert phase in (pytest.approx(0.001), pytest.approx(0.003))
-    assert clearance_ms(phase, period, five) == pytest.approx(1.0)
+    assert phase in (pytest.approx(0.006), pytest.approx(0.014))
+    assert clearance_ms(phase, period, five) == pytest.approx(2.0)
     # CRSF at 500 Hz ticks on every 2 ms: the clock (4 ms) steps between two of them
     assert clock_phase(0.004, [1 / 50, 1 / 500]) == pytest.approx(0.001)
     # rates that share no grid (SBUS at 70 Hz): no phase misses every tick, the best is taken

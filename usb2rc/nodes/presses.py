@@ -68,7 +68,8 @@ class PressGate:
             self.counts_from = self.last_serial = record.press_serial
             self.held_hid = record.state.buttons
             self.held_groups = (view.inputs.group1, view.inputs.group2)
-        elif not self.is_open:
+            return view, None  # a node in failsafe acts on no press: its view as it is
+        if not self.is_open:
             note = self._open(view)
         elif self.held_hid or self.held_groups != NO_BUTTONS:
             self._released(view)

@@ -266,11 +266,14 @@ class TapLatch:
 
 def clock_period(output_periods: Iterable[float]) -> float:
     """The node clock's period for outputs of these periods: the fastest output's, rounded
-    down onto the base grid (a whole number of BASE_PERIOD_S, at least one); with no output,
-    LIVENESS_PERIOD_S. Every driver steps the table itself before each of its ticks, so the
-    clock only keeps the snapshot live between them: a faster clock would step for nobody."""
+    down onto the base grid (a whole number of BASE_PERIOD_S, at least one), and never
+    shorter than LIVENESS_PERIOD_S (with no output, that). Every driver steps the table
+    itself before each of its ticks, so the clock only keeps the snapshot live for those
+    that read it without ticking (`monitor`, the status socket, a `udpin` output nobody
+    called): beside CRSF's 4 ms it would wake 250 times a second to find a fresh step."""
     fastest = min(output_periods, default=LIVENESS_PERIOD_S)
-    return max(1, int(fastest / BASE_PERIOD_S + 1e-9)) * BASE_PERIOD_S
+    on_grid = max(1, int(fastest / BASE_PERIOD_S + 1e-9)) * BASE_PERIOD_S
+    return max(on_grid, LIVENESS_PERIOD_S)
 
 
 def clock_phase(period_s: float, output_periods: Iterable[float]) -> float:

@@ -144,8 +144,8 @@ class SwitchBank:
             return tuple(views)
         seen: dict[int, int] = {}
         for view in views:
-            presses = self._presses(view.devices, seen)
             held, failsafe = view.frame.pressed, view.frame.failsafe
+            presses = self._presses(view.devices, seen, failsafe)
             for plan in self._by_node.get(view.frame.node_id, ()):
                 name = plan.config.name
                 before = self.positions[name]
@@ -157,14 +157,17 @@ class SwitchBank:
         self._seen = seen
         return tuple(self._applied(view) for view in views)
 
-    def _presses(self, devices: Sequence[DeviceView], seen: dict[int, int]) -> list[Groups]:
-        """The node buttons pressed since the last step, per press, from live devices."""
+    def _presses(
+        self, devices: Sequence[DeviceView], seen: dict[int, int], failsafe: bool
+    ) -> list[Groups]:
+        """The node buttons pressed since the last step, per press, from the devices of a
+        live node."""
         presses: list[Groups] = []
         for device in devices:
             before = self._seen.get(device.device_id, 0)
             record = device.record
             seen[device.device_id] = record.press_serial if device.known else before
-            if not device.live:
+            if failsafe or not device.live:
                 continue  # presses while not live are consumed, never applied later
             after = max(before, device.counts_from)  # and those before its node went live
             new = [mask for serial, mask in record.presses if serial > after]

@@ -30,7 +30,7 @@ from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.nodes.binding import DeviceBinding, NodeInputs
 from usb2rc.nodes.guard import RestWatch
-from usb2rc.nodes.presses import SINCE_RELOAD, PressGate, button_mapping_changed
+from usb2rc.nodes.presses import NO_BUTTONS, SINCE_RELOAD, PressGate, button_mapping_changed
 from usb2rc.nodes.step import (
     BASE_PERIOD_S,
     GRID_EPOCH_S,
@@ -293,6 +293,7 @@ class _Node:
     # config entries pinned here whose device has not come yet
     expected: dict[str, ExpectedEntry] = field(default_factory=dict)
     logged: tuple[bool, tuple[str, ...]] | None = None  # state and reasons last logged
+    stepped_reasons: list[tuple[str, str]] = field(default_factory=list)  # at the last step
 
     @property
     def failsafe(self) -> bool:
@@ -324,9 +325,10 @@ class _Node:
         failsafe = not self.attached or bool(self.expected) or not all(d.live for d in devices)
         devices, notes = self._gated(devices, not failsafe)
         merged = [(d.binding, d.inputs) for d in devices]
-        pressed = _pressed(devices)
+        pressed = NO_BUTTONS if failsafe else _pressed(devices)
         frame = compose(self.node_id, failsafe, base, base_unsigned, merged, pressed)
-        waiting = tuple(text for _, text in self.reasons()) if failsafe else ()
+        self.stepped_reasons = self.reasons() if failsafe else []
+        waiting = tuple(text for _, text in self.stepped_reasons)
         return NodeView(frame, tuple(devices), tuple(base), base_unsigned, waiting), notes
 
     def _gated(self, devices: list[DeviceView], live: bool) -> tuple[list[DeviceView], list[str]]:
@@ -365,8 +367,8 @@ class _Node:
     def failsafe_change(self, now: bool) -> str | None:
         """A log line when the node entered or left failsafe (`now`: the state its frame
         just gave), or waits for something else now (the neutral guard: what must rest),
-        since the last call."""
-        reasons = self.reasons() if now else []
+        since the last call; `now` is the state of its last step (`step`)."""
+        reasons = self.stepped_reasons if now else []
         key = (now, tuple(kind for kind, _ in reasons))
         before, self.logged = self.logged, key
         guarded = any(kind.startswith("guard") for kind, _ in reasons)
