@@ -26,8 +26,9 @@ class RecordingError(ValueError):
 
 # A replayed device parses its file as it plays it, a batch of this many lines at a time:
 # its lines as hid-recorder writes them in a few C loops over the batch (`_events_as_written`),
-# ~0.6 µs a line, not the ~1.6 µs of a line at a time.
-BATCH_LINES = 256
+# ~0.6 µs a line, not the ~1.6 µs of a line at a time. 256 lines were no faster and held
+# twice the memory (bench/README.md, issue 40).
+BATCH_LINES = 64
 
 # Recorded times (seconds since the recording's start) and reports, in file order.
 EventBatch = tuple[list[float], list[bytes]]
@@ -187,12 +188,14 @@ class _LineParser:
         time; a batch with no event is not yielded. At a bad line, the events before it
         come out first, then its RecordingError."""
         while chunk := list(islice(lines, BATCH_LINES)):
+            size = len(chunk)
             written = _events_as_written(chunk) if self.device_index == 0 else None
-            if written is not None:
-                yield written
-            else:
+            if written is None:
                 yield from self._line_by_line(chunk, lineno)
-            lineno += len(chunk)
+            else:
+                del chunk  # the text is not held while its events are played
+                yield written
+            lineno += size
 
     def _line_by_line(self, chunk: list[str], lineno: int) -> Iterator[EventBatch]:
         times: list[float] = []
