@@ -15,7 +15,7 @@ from usb2rc.nodes.curves import normalised, points_curve, position_value, to_int
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import NodeFrame
 from usb2rc.protocols.channels import int16_value
-from usb2rc.protocols.ibus import IBUS_SCALE
+from usb2rc.protocols.ibus.output import IBUS_SCALE
 from usb2rc.protocols.rc11_channels import RC11_SCALE
 from usb2rc.protocols.sumd.channels import sumd_scale
 

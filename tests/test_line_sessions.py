@@ -46,8 +46,8 @@ from usb2rc.protocols.c2_16b.session import C2Session
 from usb2rc.protocols.channels import OutputChannels
 from usb2rc.protocols.crsf import codec as crsf
 from usb2rc.protocols.crsf.session import CrsfModule, CrsfSession
-from usb2rc.protocols.ibus import IBUS_SCALE
 from usb2rc.protocols.ibus import codec as ibus
+from usb2rc.protocols.ibus.output import IBUS_SCALE
 from usb2rc.protocols.ibus.session import IbusSession
 from usb2rc.protocols.mavlink.codec import MavlinkDecoder
 from usb2rc.protocols.mavlink.session import (

@@ -510,7 +510,8 @@ def test_the_registry_builds_a_serial_output_whose_far_end_is_read() -> None:
 
     from usb2rc.lines.rx import LinkReader
     from usb2rc.nodes.mapping import compile_mapping
-    from usb2rc.wiring import OutputContext, build
+    from usb2rc.outputs import build
+    from usb2rc.wiring import OutputContext
 
     config = load_config_text(
         "outputs:\n  - {protocol: mavlink, port: 'loop://', channels: [node0.x]}\n"

@@ -138,36 +138,90 @@ def reached_from(start: str) -> set[str]:
     return seen
 
 
-def test_the_output_registry_imports_no_session_link_or_driver() -> None:
-    """The registry sits above the codecs and below the config file reader (which reads
-    it): the running output is built above both, by `usb2rc.wiring`, which has a build
-    function for each entry. Nothing the registry imports, at any depth, is a session, a
-    link, the driver, the wiring or the daemon."""
+def test_the_registry_is_read_where_every_protocol_is_registered() -> None:
+    """Each protocol's `output` module registers its row (`usb2rc.protocols.registry`) when
+    it is imported, and `usb2rc.outputs` imports every one: the registry is read there.
+    Anywhere else it could be read half filled, so only the protocols' `output` modules and
+    `usb2rc.outputs` import it."""
     from usb2rc.outputs import PROTOCOLS
-    from usb2rc.wiring import BUILDERS
 
-    running = [
+    mods = modules()
+    readers = {
         name
-        for name in reached_from("usb2rc.outputs")
-        if name.startswith(("usb2rc.lines", "usb2rc.wiring", "usb2rc.daemon"))
-        or name.endswith((".session", ".engine"))
+        for name, path in mods.items()
+        if "usb2rc.protocols.registry" in imports_of(path, set(mods))
+    }
+    rows = {name for name in readers if re.fullmatch(r"usb2rc\.protocols\.\w+\.output", name)}
+    assert readers == rows | {"usb2rc.outputs"}
+    assert imports_of(mods["usb2rc.outputs"], set(mods)) >= rows
+    assert len(PROTOCOLS) == len(rows)
+
+
+def test_the_config_model_reads_no_registry() -> None:
+    """The config model sits below the codecs and sessions the registry's rows name: it
+    finds a protocol's own keys' defaults in `config/output_options.py`, which registering a
+    row fills, and imports nothing of the protocols, the registry or the running outputs."""
+    above = ("usb2rc.protocols", "usb2rc.outputs", "usb2rc.wiring", "usb2rc.lines")
+    for name in modules():
+        if name.startswith("usb2rc.config."):
+            assert not [dep for dep in reached_from(name) if dep.startswith(above)], name
+
+
+IBUS = re.compile(r"(?<![a-z])ibus", re.IGNORECASE)  # not libusb
+
+
+def names_in_code(path: Path) -> list[tuple[int, str]]:
+    """(line, text) of every name the code of `path` uses or defines, and of every string
+    that is not prose (a key, a module path); docstrings and comments are not code."""
+    tree = ast.parse(path.read_text())
+    docstrings = {
+        id(node.body[0].value)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef)
+        and node.body
+        and isinstance(node.body[0], ast.Expr)
+        and isinstance(node.body[0].value, ast.Constant)
+    }
+    found: list[tuple[int, str]] = []
+    for node in ast.walk(tree):
+        line = getattr(node, "lineno", 0)
+        if isinstance(node, ast.Name):
+            found.append((line, node.id))
+        elif isinstance(node, ast.Attribute | ast.FunctionDef | ast.ClassDef):
+            found.append((line, node.attr if isinstance(node, ast.Attribute) else node.name))
+        elif isinstance(node, ast.ImportFrom):
+            found += [(line, f"{node.module}.{a.name} {a.asname or ''}") for a in node.names]
+        elif isinstance(node, ast.Import):
+            found += [(line, f"{a.name} {a.asname or ''}") for a in node.names]
+        elif isinstance(node, ast.arg | ast.keyword) and node.arg:
+            found.append((line, node.arg))
+        elif (
+            isinstance(node, ast.Constant)
+            and isinstance(node.value, str)
+            and id(node) not in docstrings
+            and not re.search(r"\s", node.value)
+        ):
+            found.append((line, node.value))
+    return found
+
+
+def test_outside_its_package_only_the_registering_import_names_ibus() -> None:
+    """A protocol is its package plus one import line: outside `usb2rc/protocols/ibus/`, no
+    code names iBus (a module, a class, a function, a key "ibus") but `usb2rc.outputs`'
+    import of its row. Prose may name it."""
+    own = PACKAGE / "protocols" / "ibus"
+    named = [
+        f"{module_name(path)}: {text.strip()}"
+        for path in modules().values()
+        if own not in path.parents
+        for _line, text in names_in_code(path)
+        if IBUS.search(text)
     ]
-    assert running == []
-    assert list(BUILDERS) == list(PROTOCOLS)
+    assert named == ["usb2rc.outputs: usb2rc.protocols.ibus.output.IBUS"], named
 
 
 def test_no_package_level_cycle_at_all() -> None:
-    """Packages stack as the pipeline: config below the codecs and sessions, the output
-    registry above both, the config file reader (`usb2rc.configfile`) above the registry."""
+    """Packages stack as the pipeline and no import runs back up: the config below the
+    lines and the protocols, the registry's face (`usb2rc.outputs`) above the protocols, the
+    config file reader (`usb2rc.configfile`) above it, the daemon above them all."""
     assert cycles(package_graph()) == []
-
-
-def test_the_config_names_the_crsf_address_bytes_the_codec_sends() -> None:
-    """config/output_options.py sits below the codecs, so it writes the two bytes out."""
-    from usb2rc.config.output_options import CRSF_ADDRESSES
-    from usb2rc.protocols.crsf import codec
-
-    assert CRSF_ADDRESSES == {
-        "module": codec.ADDRESS_MODULE,
-        "flight_controller": codec.ADDRESS_FLIGHT_CONTROLLER,
-    }

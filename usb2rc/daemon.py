@@ -43,7 +43,7 @@ from usb2rc.nodes.step import (
     clock_phase,
 )
 from usb2rc.nodes.table import Expected, ExpectedEntry, NodeFrame, NodeTable
-from usb2rc.outputs import protocol
+from usb2rc.outputs import build, protocol
 from usb2rc.runtime import stats_text
 from usb2rc.status_socket import PERIOD_S as STATUS_PERIOD_S
 from usb2rc.status_socket import (
@@ -53,7 +53,7 @@ from usb2rc.status_socket import (
     os_reason,
     port_record,
 )
-from usb2rc.wiring import OutputContext, build
+from usb2rc.wiring import OutputContext
 
 log = logging.getLogger("usb2rc")
 

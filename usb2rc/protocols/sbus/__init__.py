@@ -1,0 +1,2 @@
+"""Futaba SBUS: its codec (`codec`), its line session (`session`), and its output (`output`:
+its registry row, how it is built)."""
