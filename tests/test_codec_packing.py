@@ -1,5 +1,6 @@
-"""Issue 22's precompiled packing, held to the encoders it replaced (tests/legacy_encoders.py)
-byte for byte and error for error, and to the shared vectors in tests/data/vectors."""
+"""The encoders' precompiled packing (CRCs from position tables, one struct per frame), held
+to the encoders it replaced (tests/legacy_encoders.py) byte for byte and error for error, and
+to the shared vectors in tests/data/vectors."""
 
 from __future__ import annotations
 

@@ -34,9 +34,9 @@ before each tick; a C2-16B output on a pty waits for the drain, then drops the r
 or UDP is never flushed.
 
 Each protocol has one session class, in its package (`usb2rc.protocols.<name>.session`): a
-channel output's (SUMD, CRSF, SBUS, iBus) is a `ChannelSession`, which says what its frame
-is; C2-16B's and MAVLink's are `EngineSession`s around the protocol's own state machine, its
-engine (`C2Engine`, `MavlinkEngine`).
+channel output's (one frame of its channels a tick) is a `ChannelSession`, which says what
+its frame is; C2-16B's and MAVLink's are `EngineSession`s around the protocol's own state
+machine, its engine (`C2Engine`, `MavlinkEngine`).
 """
 
 from __future__ import annotations
@@ -305,9 +305,9 @@ class ChannelValues(Protocol):
 
 
 class ChannelSession(SessionBase):
-    """A channel output's session (SUMD, CRSF, SBUS, iBus): one frame of its channels a
-    tick while the line is open and not stalled, the values from the snapshot through its
-    own tap latch; the protocol says what the frame is (`encode`).
+    """A channel output's session: one frame of its channels a tick while the line is
+    open and not stalled, the values from the snapshot through its own tap latch; the
+    protocol says what the frame is (`encode`).
 
     Such a protocol has no service state, so a stall only stops the frames (the values would
     be stale); a frame cut short fails the receiver's check and is not sent again."""
@@ -329,7 +329,7 @@ class ChannelSession(SessionBase):
     def stop_done(self) -> bool:
         """Stopping, and a failsafe frame went out whole (or the line cannot take one):
         every frame from the stop on is the protocol's failsafe frame (SUMD 0x81, SBUS the
-        failsafe and frame-lost flags, CRSF and iBus none: their failsafe is silence)."""
+        failsafe and frame-lost flags; none where the failsafe is silence, as CRSF's)."""
         return self.line.stop_done(self._stop_sent)
 
     def tick(self, now: float, snapshot: NodeSnapshot) -> bytes:

@@ -1,6 +1,6 @@
 """Channel outputs' channels: node frames → wire values and the failsafe flag, for any protocol.
 
-SUMD, CRSF, SBUS and iBus (and MAVLink's RC override) carry a list of channels named the same
+Every channel output (and MAVLink's RC override) carries a list of channels named the same
 way in the config: `nodeN.<slot>` (an axis slot of node N) or `nodeN.buttonK` (node button K,
 1..56); `config.channel_ref.ChannelRef` holds one, parsed once, and
 `Mapping.sumd_channels(output)` resolves an output's list (or the default one) into

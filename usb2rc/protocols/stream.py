@@ -1,8 +1,9 @@
 """The one resync-and-count loop of every serial stream decoder, sans-IO.
 
-C2-16B, SUMD, CRSF, SBUS and iBus decoders share one contract: `feed(chunk)` returns the
-frames that chunk completed, for any chunking, and never raises; `flush()` ends the stream;
-the counters `frames`, `bytes_in`, `bytes_skipped` and `crc_failures` say what was seen.
+The protocols' stream decoders (MAVLink's is pymavlink's) share one contract: `feed(chunk)`
+returns the frames that chunk completed, for any chunking, and never raises; `flush()` ends
+the stream; the counters `frames`, `bytes_in`, `bytes_skipped` and `crc_failures` say what
+was seen.
 `StreamDecoder` holds that loop once. A protocol supplies three steps:
 
 - `_find_start(buffer, pos, end)`: where the next candidate frame may start (-1: nowhere),

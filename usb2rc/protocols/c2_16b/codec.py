@@ -275,7 +275,7 @@ def _checked_body(
         _check_data_status(status)
         _check_int("node_id", node_id, 0, 255)
         _check_int("code", code, 0, 255)
-        _wire_axes(axes)  # its error comes before the groups', as it always did
+        _wire_axes(axes)  # its error before the groups', in the legacy encoder's order
         _check_int("group1", group1, 0, 0xFFFFFFFF)
         _check_int("group2", group2, 0, 0xFFFFFFFF)
     return _DATA_BODY.pack(*_wire_axes(axes), group1, group2)
