@@ -7,7 +7,7 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from dataclasses import FrozenInstanceError, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -181,7 +181,7 @@ def test_a_snapshot_is_immutable() -> None:
     table = NodeTable(clock=Clock())
     table.add_device(0, INFO, BINDING, RecordSource(ReaderRecord(LAYOUT.initial_state(), 0)), "J")
     node = table.step_if_due().nodes[0]
-    with pytest.raises(FrozenInstanceError):
+    with pytest.raises(AttributeError):
         node.frame = node.frame  # type: ignore[misc]
 
 

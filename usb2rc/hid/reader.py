@@ -35,8 +35,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import NamedTuple, Protocol, runtime_checkable
 
 from usb2rc.hid.backend import Device, DeviceGone, ErrorCode
 from usb2rc.hid.descriptor import InputState
@@ -119,8 +118,7 @@ OnExit = Callable[["DeviceReader", ErrorCode | None], None]
 OnBadReports = Callable[["DeviceReader", "ReaderRecord"], None]
 
 
-@dataclass(frozen=True, slots=True)
-class ReaderRecord:
+class ReaderRecord(NamedTuple):
     """What a reader published last, as one value: never a state from one batch with the
     count of another."""
 

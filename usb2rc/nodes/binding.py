@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 from usb2rc.config.layout import AXIS_NAMES, GROUP1_BUTTONS, HAT1_SHIFT, NODE_BUTTONS
 from usb2rc.config.model import (
@@ -74,8 +74,7 @@ class MappingError(ValueError):
 # --------------------------------------------------------------------------- value types
 
 
-@dataclass(frozen=True)
-class NodeInputs:
+class NodeInputs(NamedTuple):
     """What one device contributes to its node: axes already on the wire, button groups."""
 
     axes: tuple[int | None, ...]  # 10 slots, None: this device does not feed the slot

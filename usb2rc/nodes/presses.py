@@ -26,7 +26,7 @@ reading a node button are states, never presses.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from usb2rc.nodes.binding import DeviceBinding
 from usb2rc.nodes.step import DeviceView
@@ -101,12 +101,12 @@ class PressGate:
     def _gated(self, view: DeviceView) -> DeviceView:
         inputs = view.inputs
         if inputs.handover and view.binding.holds_handover(self.held_hid):
-            inputs = replace(inputs, handover=False)  # `&` only from a press while live
+            inputs = inputs._replace(handover=False)  # `&` only from a press while live
         same = (view.counts_from, view.held_over) == (self.counts_from, self.held_groups)
         if same and inputs is view.inputs:
             return view
-        return replace(
-            view, inputs=inputs, counts_from=self.counts_from, held_over=self.held_groups
+        return view._replace(
+            inputs=inputs, counts_from=self.counts_from, held_over=self.held_groups
         )
 
 

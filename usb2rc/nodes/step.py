@@ -32,7 +32,8 @@ import math
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
+from typing import NamedTuple
 
 from usb2rc.config.model import HandoverConfig
 from usb2rc.hid.descriptor import InputState
@@ -82,8 +83,7 @@ def kernel_tick_s() -> float:
 GRID_EPOCH_S = kernel_tick_s() * 3 / 4
 
 
-@dataclass(frozen=True)
-class NodeFrame:
+class NodeFrame(NamedTuple):
     node_id: int
     failsafe: bool
     axes: tuple[int, ...]
@@ -103,8 +103,7 @@ class NodeFrame:
     pressed_switches: tuple[str, ...] = ()
 
 
-@dataclass(frozen=True)
-class DeviceView:
+class DeviceView(NamedTuple):
     """One device feeding a node, as the step left it."""
 
     device_id: int  # the table's number for this attachment (a re-plug is a new one)
@@ -138,12 +137,11 @@ class DeviceView:
             and not self.inputs.handover
             and self.binding.holds_handover(state.buttons)
         ):  # held over, not tapped (usb2rc.nodes.presses): no `&`
-            inputs = replace(inputs, handover=False)
+            inputs = inputs._replace(handover=False)
         return trimmed(inputs, dict(self.trims), self.binding) if self.trims else inputs
 
 
-@dataclass(frozen=True)
-class NodeView:
+class NodeView(NamedTuple):
     """One node after a step: its frame, and what it is made of (for a latch's taps)."""
 
     frame: NodeFrame
@@ -220,7 +218,7 @@ def trimmed(inputs: NodeInputs, trims: dict[int, float], binding: DeviceBinding)
         value, info = axes[slot], binding.axis_info[slot]
         if value is not None and info is not None:
             axes[slot] = add_trim(value, trim, info.unsigned)
-    return replace(inputs, axes=tuple(axes))
+    return inputs._replace(axes=tuple(axes))
 
 
 class TapLatch:
@@ -259,8 +257,8 @@ class TapLatch:
         for slot, value in node.overrides:  # the step's switches and cuts win over the taps
             axes[slot] = value
         switches, pressed_switches = frame.switches, frame.pressed_switches
-        return replace(
-            latched, axes=tuple(axes), switches=switches, pressed_switches=pressed_switches
+        return latched._replace(
+            axes=tuple(axes), switches=switches, pressed_switches=pressed_switches
         )
 
 

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from usb2rc.config.controls_model import SwitchConfig, ThrottleCut
 from usb2rc.config.layout import AXIS_NAMES
@@ -209,8 +209,8 @@ class SwitchBank:
                 changed[slot] = value
             axes = tuple(changed)
         # `replace` (not a new NodeFrame): fields added to the frame later are kept
-        frame = replace(frame, axes=axes, switches=tuple(named), pressed_switches=tuple(pressed))
-        return replace(view, frame=frame, overrides=tuple(overrides))
+        frame = frame._replace(axes=axes, switches=tuple(named), pressed_switches=tuple(pressed))
+        return view._replace(frame=frame, overrides=tuple(overrides))
 
     def _cut_overrides(
         self, frame: NodeFrame, overrides: Sequence[tuple[int, int]]
