@@ -63,7 +63,7 @@ from usb2rc.config.model import (
     MatchConfig,
     OutputConfig,
 )
-from usb2rc.config.port_url import url_problem
+from usb2rc.config.port_url import port_name_problem
 from usb2rc.config.ports import port_problems
 from usb2rc.config.status import check_handovers
 from usb2rc.config.yamlnodes import (
@@ -80,6 +80,17 @@ from usb2rc.outputs import OutputProtocol, option_keys
 from usb2rc.outputs import protocol as output_protocol
 
 PROTOCOLS = tuple(OUTPUT_PROTOCOLS)
+# What users call a protocol by (a radio system, a maker) -> the protocol, and why.
+PROTOCOL_ALIASES = {
+    "elrs": ("crsf", "ExpressLRS receivers take CRSF"),
+    "expresslrs": ("crsf", "ExpressLRS receivers take CRSF"),
+    "crossfire": ("crsf", "TBS Crossfire receivers take CRSF"),
+    "tbs": ("crsf", "TBS Crossfire receivers take CRSF"),
+    "hott": ("sumd", "HoTT's serial stream is SUMD"),
+    "graupner": ("sumd", "HoTT's serial stream is SUMD"),
+    "flysky": ("ibus", "FlySky's serial stream is iBus"),
+    "futaba": ("sbus", "Futaba's serial stream is SBUS"),
+}
 DEFAULT_RATE_HZ = {name: entry.default_rate_hz for name, entry in OUTPUT_PROTOCOLS.items()}
 
 __all__ = [
@@ -218,7 +229,7 @@ def _read_output(reader: NodeReader, node: Node, path: str) -> OutputConfig | No
     if "protocol" not in items:
         reader.error(node, f"{path}.protocol", "missing", ", ".join(PROTOCOLS))
         return None
-    name = reader.choice(items["protocol"][1], f"{path}.protocol", PROTOCOLS)
+    name = reader.choice(items["protocol"][1], f"{path}.protocol", PROTOCOLS, PROTOCOL_ALIASES)
     if name is None:
         return None
     entry = output_protocol(name)
@@ -283,11 +294,12 @@ def _check_bandwidth(
 
 
 def _read_port(reader: NodeReader, node: Node, path: str) -> str | None:
-    """A port name pyserial can parse (usb2rc.config.port_url): `foo://bar` is a config error."""
+    """A port name pyserial can parse (usb2rc.config.port_url): `foo://bar` is a config
+    error, and so is a device's bare name (`ttyUSB0`: did you mean /dev/ttyUSB0?)."""
     port = reader.string(node, path)
-    problem = None if port is None else url_problem(port)
+    problem = None if port is None else port_name_problem(port)
     if problem is not None:
-        reader.error(node, path, f"{port!r} is not a port pyserial can open: {problem}")
+        reader.error(node, path, problem)
         return None
     return port
 

@@ -42,7 +42,8 @@ SCRIPT: tuple[tuple[float, str, str], ...] = (
 )
 CYCLE_S = 24.0
 JOIN_S = 1.0  # how long stop waits for each demo thread
-KEPT_LOG_LINES = 4  # the live screen's newest daemon log lines (unplug warnings and such)
+KEPT_LOG_LINES = 4  # the live screen's newest daemon log lines (unplug warnings and such),
+# each shown for monitor.LOG_SHOWN_S
 
 
 def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -203,7 +204,7 @@ def _show_live(model: ReceiverModel, receiver: PtyReceiver, port: str, until: fl
         while True:
             size = (console.size.width, console.size.height)  # the window may be resized
             with receiver.lock:
-                text = screen_text(model, port, logs.since(0)[-KEPT_LOG_LINES:], size)
+                text = screen_text(model, port, logs.recent()[-KEPT_LOG_LINES:], size)
             live.update(Text(text, no_wrap=True, overflow="ellipsis"), refresh=True)
             if time.monotonic() >= until:
                 break
@@ -226,7 +227,9 @@ def _show_plain(model: ReceiverModel, receiver: PtyReceiver, port: str, until: f
 
 
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
+    logging.basicConfig(  # the plain view's log lines, with their time as the live view's
+        level=logging.WARNING, format="%(asctime)s %(levelname)s %(message)s", datefmt="%H:%M:%S"
+    )
     master_fd, slave_fd = os.openpty()
     port = os.ttyname(slave_fd)
     model = ReceiverModel()

@@ -155,14 +155,18 @@ def row_lines(row: Row) -> list[str]:
     return lines
 
 
-def no_devices_hint(replay: str | None) -> str:
+def no_devices_hint(replay: str | None, shown_all: bool = False) -> str:
+    """What to try when nothing is listed; `shown_all`: `--all` was given (not suggested)."""
     if replay:
         return f"No devices: no usable hid-recorder files in {replay}."
+    found = "No HID devices found." if shown_all else "No HID joysticks found."
+    every = (
+        "" if shown_all else " `usb2rc list --all` shows every HID device and why it is not used."
+    )
     return (
-        "No HID joysticks found. Plug one in, or try `usb2rc list --replay demo` (the "
-        "built-in recordings; --replay DIR takes a folder of hid-recorder files). If a device is "
-        f"plugged in but missing, check its permissions: install the udev rule with {INSTALL_RULE} "
-        "(see `usb2rc list --all`)."
+        f"{found} Plug one in, or try `usb2rc list --replay demo` (the built-in recordings; "
+        "--replay DIR takes a folder of hid-recorder files). If a device is plugged in but "
+        f"missing, check its permissions: install the udev rule with {INSTALL_RULE}.{every}"
     )
 
 
@@ -193,5 +197,5 @@ def run(args: argparse.Namespace) -> int:
     for problem in problems:
         print(f"problem: {problem}")
     if not rows:
-        print(no_devices_hint(args.replay))
+        print(no_devices_hint(args.replay, args.all))
     return 0

@@ -38,6 +38,7 @@ REFRESH_S = 0.1  # the live view: ~10 Hz
 PLAIN_EVERY_S = 1.0  # --plain: one snapshot a second
 BAR_WIDTH = 24
 KEPT_LINES = 8  # events and log lines the live view keeps
+LOG_SHOWN_S = 10.0  # the live views show a log line this long (the plain ones print it once)
 PAGE_S = 4.0  # the live view shows each page of nodes this long when they do not all fit
 Preview = Callable[[list[NodeFrame]], str]  # a node snapshot -> what an output would send
 
@@ -438,23 +439,34 @@ def render_live(
 
 
 class LogLines(logging.Handler):
-    """Collects the daemon's log lines for the view (stderr would tear the live screen)."""
+    """Collects the daemon's log lines for the view (stderr would tear the live screen),
+    each with its time of day: `since(n)` for what is new (the plain views print each line
+    once), `recent()` for the live views, which keep a line LOG_SHOWN_S and then let it go
+    (a warning that was true at the plug must not stay on screen once the node is live)."""
 
     def __init__(self, level: int = logging.INFO) -> None:
         super().__init__(level)
-        self.lines: deque[str] = deque(maxlen=200)
+        self.lines: deque[tuple[float, str]] = deque(maxlen=200)  # (monotonic, text)
         self.total = 0
         self._lock_lines = threading.Lock()
 
     def emit(self, record: logging.LogRecord) -> None:
+        stamp = time.strftime("%H:%M:%S", time.localtime(record.created))
+        text = f"{stamp} {record.levelname} {record.getMessage()}"
         with self._lock_lines:
-            self.lines.append(f"{record.levelname} {record.getMessage()}")
+            self.lines.append((time.monotonic(), text))
             self.total += 1
 
     def since(self, seen: int) -> list[str]:
         with self._lock_lines:
             new = min(self.total - seen, len(self.lines))
-            return list(self.lines)[-new:] if new > 0 else []
+            return [text for _, text in list(self.lines)[-new:]] if new > 0 else []
+
+    def recent(self, now: float | None = None, shown_s: float = LOG_SHOWN_S) -> list[str]:
+        """The lines logged in the last `shown_s` seconds, oldest first."""
+        now = time.monotonic() if now is None else now
+        with self._lock_lines:
+            return [text for at, text in self.lines if now - at < shown_s]
 
 
 @contextmanager
@@ -482,7 +494,7 @@ def _show_live(side: InputSide, logs: LogLines, until: float) -> None:
         while True:
             snap = side.snapshot()
             size = (console.size.width, console.size.height)  # the window may be resized
-            live.update(render_live(snap, logs.since(0), size, time.monotonic()), refresh=True)
+            live.update(render_live(snap, logs.recent(), size, time.monotonic()), refresh=True)
             if time.monotonic() >= until:
                 break
             time.sleep(max(0.0, min(REFRESH_S, until - time.monotonic())))

@@ -18,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import re
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -44,7 +44,7 @@ class Problem:
     key: str | None  # key path such as "devices[0].axes.x"; None: not tied to a key
     message: str
     allowed: str = ""  # what the key accepts, e.g. "0..255" or "true, false"
-    suggestion: str | None = None  # the closest valid key, for an unknown one
+    suggestion: str | None = None  # the closest valid key or value, for a wrong one
 
     def format(self) -> str:
         """`file:line: key.path: message; did you mean 'k'? (allowed: ...)`."""
@@ -314,12 +314,24 @@ class NodeReader:
             return None
         return str(value)
 
-    def choice(self, node: Node, path: str, choices: Iterable[str]) -> str | None:
+    def choice(
+        self,
+        node: Node,
+        path: str,
+        choices: Iterable[str],
+        aliases: Mapping[str, tuple[str, str]] | None = None,
+    ) -> str | None:
+        """One of `choices`. A wrong value gets a did-you-mean: from `aliases` (another
+        name for a choice, lower case -> (the choice, why)), else the closest choice."""
         options = list(choices)
         value = self.string(node, path)
         if value is None:
             return None
         if value not in options:
-            self.error(node, path, f"{value!r} is not valid", ", ".join(options))
+            alias = (aliases or {}).get(value.strip().lower())
+            message = f"{value!r} is not valid" + (f": {alias[1]}" if alias else "")
+            close = difflib.get_close_matches(value, options, n=1)
+            suggestion = alias[0] if alias else close[0] if close else None
+            self.error(node, path, message, ", ".join(options), suggestion)
             return None
         return value
