@@ -76,21 +76,11 @@ from usb2rc.config.yamlnodes import (
     reject_recording,
 )
 from usb2rc.outputs import PROTOCOLS as OUTPUT_PROTOCOLS
-from usb2rc.outputs import OutputProtocol, option_keys
+from usb2rc.outputs import OutputProtocol, option_keys, protocol_aliases
 from usb2rc.outputs import protocol as output_protocol
 
 PROTOCOLS = tuple(OUTPUT_PROTOCOLS)
-# What users call a protocol by (a radio system, a maker) -> the protocol, and why.
-PROTOCOL_ALIASES = {
-    "elrs": ("crsf", "ExpressLRS receivers take CRSF"),
-    "expresslrs": ("crsf", "ExpressLRS receivers take CRSF"),
-    "crossfire": ("crsf", "TBS Crossfire receivers take CRSF"),
-    "tbs": ("crsf", "TBS Crossfire receivers take CRSF"),
-    "hott": ("sumd", "HoTT's serial stream is SUMD"),
-    "graupner": ("sumd", "HoTT's serial stream is SUMD"),
-    "flysky": ("ibus", "FlySky's serial stream is iBus"),
-    "futaba": ("sbus", "Futaba's serial stream is SBUS"),
-}
+PROTOCOL_ALIASES = protocol_aliases()  # what users call a protocol by -> (it, why)
 DEFAULT_RATE_HZ = {name: entry.default_rate_hz for name, entry in OUTPUT_PROTOCOLS.items()}
 
 __all__ = [

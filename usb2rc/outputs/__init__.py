@@ -7,9 +7,9 @@ the registry lists them (the config's messages, `usb2rc decode --protocol`). A p
 later is its package and one line here.
 
 The registry itself is `usb2rc.protocols.registry`: `PROTOCOLS` (name → `OutputProtocol`),
-`protocol(name)`, `option_keys()`, `build(context)`. Read through this module, it holds every
-protocol; the config file reader, the daemon and the commands that describe or decode an
-output (`check`, `icd`, `decode`) read it here.
+`protocol(name)`, `option_keys()`, `protocol_aliases()`, `build(context)`. Read through this
+module, it holds every protocol; the config file reader, the daemon and the commands that
+describe or decode an output (`check`, `icd`, `decode`) read it here.
 """
 
 # Each import registers its protocol's row, in this order.
@@ -22,6 +22,13 @@ from usb2rc.protocols.ibus.output import IBUS  # noqa: F401
 from usb2rc.protocols.mavlink.output import MAVLINK  # noqa: F401
 
 # isort: on
-from usb2rc.protocols.registry import PROTOCOLS, OutputProtocol, build, option_keys, protocol
+from usb2rc.protocols.registry import (
+    PROTOCOLS,
+    OutputProtocol,
+    build,
+    option_keys,
+    protocol,
+    protocol_aliases,
+)
 
-__all__ = ["PROTOCOLS", "OutputProtocol", "build", "option_keys", "protocol"]
+__all__ = ["PROTOCOLS", "OutputProtocol", "build", "option_keys", "protocol", "protocol_aliases"]

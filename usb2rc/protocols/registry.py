@@ -53,6 +53,9 @@ class OutputProtocol:
     note: str = ""
     scale: WireScale | None = None
     display_name: str = ""  # as docs write it, when not the name in capitals
+    # What users call it by (a radio system, a maker), lower case -> why it is this protocol:
+    # the config's did-you-mean for an output's `protocol:`.
+    aliases: Mapping[str, str] = field(default_factory=dict)
 
     @property
     def title(self) -> str:
@@ -113,6 +116,15 @@ def option_keys() -> tuple[str, ...]:
     for entry in PROTOCOLS.values():
         keys.update(dict.fromkeys(entry.options))
     return tuple(keys)
+
+
+def protocol_aliases() -> dict[str, tuple[str, str]]:
+    """Every protocol's aliases: alias -> (the protocol's name, why)."""
+    return {
+        alias: (entry.name, why)
+        for entry in PROTOCOLS.values()
+        for alias, why in entry.aliases.items()
+    }
 
 
 def build(context: OutputContext) -> BuiltOutput:

@@ -67,5 +67,11 @@ CRSF = register(
         channels=(1, 16),
         channels_required=True,
         options=OPTIONS,
+        aliases={
+            "elrs": "ExpressLRS receivers take CRSF",
+            "expresslrs": "ExpressLRS receivers take CRSF",
+            "crossfire": "TBS Crossfire receivers take CRSF",
+            "tbs": "TBS Crossfire receivers take CRSF",
+        },
     )
 )

@@ -40,5 +40,6 @@ IBUS = register(
         'receiver\'s own failsafe takes over (docs/ICD.md, "iBus output").',
         scale=IBUS_SCALE,
         display_name="iBus",
+        aliases={"flysky": "FlySky's serial stream is iBus"},
     )
 )

@@ -36,5 +36,6 @@ SBUS = register(
         channels=(1, 18),
         channels_required=True,
         note="8E2, axes 172..1811, frame-lost + failsafe flags while failsafe",
+        aliases={"futaba": "Futaba's serial stream is SBUS"},
     )
 )

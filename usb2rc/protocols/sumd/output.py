@@ -38,5 +38,9 @@ SUMD = register(
         build=build,
         channels=(codec.MIN_CHANNELS, codec.MAX_CHANNELS),
         options=OPTIONS,
+        aliases={
+            "hott": "HoTT's serial stream is SUMD",
+            "graupner": "HoTT's serial stream is SUMD",
+        },
     )
 )
