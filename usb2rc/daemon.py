@@ -191,7 +191,12 @@ class Daemon:
             clock_phase(period, periods),
         )
         self.lifecycle = DeviceLifecycle(
-            backend, self.table, self.mapping, self._make_reader, forget=self._forget
+            backend,
+            self.table,
+            self.mapping,
+            self._make_reader,
+            forget=self._forget,
+            carries_channels=lambda name: protocol(name).channels is not None,
         )
         self.monitor = HotplugMonitor(backend, self.lifecycle.plugged, self.lifecycle.unplugged)
         self.started_at = 0.0

@@ -33,6 +33,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from usb2rc.config.unfed import DeviceFeed, unfed_slot_warnings
 from usb2rc.hid.backend import (
     Backend,
     Device,
@@ -138,10 +139,15 @@ class DeviceLifecycle(Worker):
         make_reader: MakeReader,
         forget: Callable[[str], None] = lambda key: None,
         retry_s: float = RETRY_S,
+        carries_channels: Callable[[str], bool] | None = None,
     ) -> None:
         """`forget(key)`: make the hot-plug monitor report a device again if it is still
-        present (after its reader ended: a read error, or a replug on a reused path)."""
+        present (after its reader ended: a read error, or a replug on a reused path).
+        `carries_channels(protocol)`: whether an output of that protocol sends channels
+        (the output registry's, which sits above this package); given, a plugged device's
+        node is checked for channels that read an axis slot none of its devices feeds."""
         self.backend = backend
+        self._carries_channels = carries_channels
         self.table = table
         self.mapping = mapping
         self.allocator = NodeIdAllocator(mapping.pinned_node_ids())
@@ -427,6 +433,21 @@ class DeviceLifecycle(Worker):
         device_type = device_type_name(opened.layout.application)
         self.table.add_device(node_id, info, binding, reader, device_type)
         reader.start()
+        self._warn_unfed_slots(node_id)
+
+    def _warn_unfed_slots(self, node_id: int) -> None:
+        """The channels that read an axis slot no present device of `node_id` feeds, once
+        per plug (`check --replay DIR` says the same before the devices are plugged)."""
+        if self._carries_channels is None:
+            return
+        feeds = [
+            DeviceFeed(info.product, info.vid, info.pid, nid, binding.axis_slots, binding.where)
+            for nid, info, binding, present, _ in self.table.attachments()
+            if present and nid == node_id
+        ]
+        config = self.mapping.config
+        for problem in unfed_slot_warnings(config, feeds, self._carries_channels, {node_id}):
+            log.warning("%s", problem)
 
     def _report_unusable(
         self, info: DeviceInfo, code: ErrorCode, message: str, on_pinned: bool = True
