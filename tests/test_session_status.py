@@ -13,7 +13,7 @@ destination and uses no message code (the receiver checks the codes of the other
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -114,8 +114,7 @@ class StatusWorld(World):
 
     def frames(self) -> list[NodeFrame]:
         return [
-            replace(
-                frame,
+            frame._replace(
                 handover=HANDOVERS.get(frame.node_id) if frame.node_id in self.pressed else None,
                 low_battery=frame.node_id in self.low,
             )
