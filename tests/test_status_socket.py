@@ -173,7 +173,8 @@ def test_default_path_under_the_service_and_for_a_user() -> None:
     assert default_path({"XDG_RUNTIME_DIR": "/run/user/1000"}) == (
         "/run/user/1000/usb2rc/status.sock"
     )
-    assert default_path({}) is None
+    assert default_path({}, uid=0) == "/run/usb2rc/status.sock"
+    assert default_path({}, uid=1000) == "/tmp/usb2rc-1000/status.sock"
 
 
 def test_a_node_record_names_its_status_axes_buttons_and_hat() -> None:
