@@ -86,7 +86,9 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         metavar="PATH|off",
         help="the read-only status socket `usb2rc web` reads (default: "
         "$RUNTIME_DIRECTORY/status.sock under the service, i.e. /run/usb2rc/status.sock, "
-        "else $XDG_RUNTIME_DIR/usb2rc/status.sock; none when neither is set); off: none",
+        "else $XDG_RUNTIME_DIR/usb2rc/status.sock, else /run/usb2rc/status.sock for root "
+        "and /tmp/usb2rc-UID/status.sock (a private 0700 folder) for another user; "
+        "`usb2rc web` looks in the same place); off: none",
     )
     parser.set_defaults(func=run)
 
