@@ -279,7 +279,7 @@ def test_decoders_never_raise_and_account_for_every_byte(chunks: list[bytes]) ->
 # --- commands ----------------------------------------------------------------------------------
 
 FOUR = """outputs:
-  - {protocol: c2-16b, port: /dev/ttyUSB0}
+  - {protocol: c2-16b, port: /dev/ttyUSB1}
   - {protocol: crsf, port: /dev/ttyUSB0, channels: [node0.x, node0.y, node0.button1]}
   - {protocol: sbus, port: /dev/ttyAMA0, channels: [node0.x, node0.y, node0.button1]}
 """
