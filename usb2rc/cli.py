@@ -33,6 +33,7 @@ COMMANDS: dict[str, str] = {
     "install-system": "install_system",
     "example": "example",
     "web": "web",
+    "doctor": "doctor",
 }
 
 
