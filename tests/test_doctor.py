@@ -403,6 +403,44 @@ def test_a_vehicle_of_another_system_names_the_target_system_to_set(
     assert "target_system: 2" in far_end["fix"]
 
 
+@contextlib.contextmanager
+def calling_vehicle(port: int) -> Iterator[None]:
+    """A vehicle that calls a udpin port: its HEARTBEAT every 0.2 s (pymavlink)."""
+    stop = threading.Event()
+    mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+
+    def call() -> None:
+        with socket.socket(type=socket.SOCK_DGRAM) as sock:
+            while not stop.wait(0.2):
+                message = mav.heartbeat_encode(
+                    mavlink2.MAV_TYPE_FIXED_WING, mavlink2.MAV_AUTOPILOT_PX4, 0, 0, 0
+                )
+                sock.sendto(bytes(message.pack(mav)), ("127.0.0.1", port))
+
+    thread = threading.Thread(target=call, name="calling vehicle")
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join(10)
+
+
+def test_a_vehicle_that_calls_a_udpin_port_is_ok(scratch_root: Path, tmp_path: Path) -> None:
+    with socket.socket(type=socket.SOCK_DGRAM) as probe:  # a free port, for doctor to bind
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    config = mavlink_config(tmp_path, f"udpin:127.0.0.1:{port}")
+    with calling_vehicle(port):
+        done = doctor("--config", config, "--replay", "demo", "--root", str(scratch_root), "--json")
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert only(records(done), "far end")["facts"] == {
+        "system": 1,
+        "type": "MAV_TYPE_FIXED_WING",
+        "autopilot": "MAV_AUTOPILOT_PX4",
+    }
+
+
 # --------------------------------------------------------------------------- hidraw nodes
 
 

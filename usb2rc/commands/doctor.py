@@ -374,13 +374,17 @@ def local_port_findings(subject: str, device: str) -> Iterator[Finding]:
     if not os.path.exists(device):
         found = "not there" + (f" ({device} links to nothing)" if os.path.islink(device) else "")
         fix = f"plug the adapter in, or give its path: {PORTS_LISTING}"
+        if is_pi_uart(device):
+            fix += "; on a Pi the GPIO UART is there once enabled (the `pi uart` check below)"
         yield Finding("port", subject, False, found, fix)
         return
     if not os.access(device, os.R_OK | os.W_OK):
         port_stat = os.stat(device)
         found = f"user {user_name()} may not read and write it ({mode_text(port_stat)})"
         group = group_name(port_stat.st_gid)
-        fix = f"join group {group}: {join_group_fix(group)}; the service has it already"
+        fix = f"join group {group}: {join_group_fix(group)}"
+        if group == "dialout":
+            fix += " (the usb2rc service has dialout already: SupplementaryGroups=dialout)"
         yield Finding("port access", subject, False, found, fix)
         return
     yield Finding("port access", subject, True, f"user {user_name()} can read and write it")
@@ -403,7 +407,8 @@ def _holder_fix(holders: list[Holder]) -> str:
     if any("usb2rc" in h.command for h in holders):
         return (
             "a usb2rc has it (the service, if installed: `sudo systemctl stop usb2rc` frees "
-            "it, and `usb2rc monitor` shows what it sends meanwhile); one line carries one usb2rc"
+            "it; while it runs, its log and `usb2rc web` show the line); one line carries "
+            "one usb2rc"
         )
     if any(re.search(r"\bgetty\b|agetty", h.command) for h in holders):
         return "a login console runs on it: turn the serial console off (docs/PI.md, the UART)"
@@ -543,7 +548,10 @@ def probe_crsf(used: UsedPort, subject: str) -> Finding:
     line = _serial(used)
     try:
         for rate in rates:
-            line.set_baudrate(rate)
+            try:
+                line.set_baudrate(rate)
+            except (OSError, ValueError):  # a rate the adapter cannot make
+                continue
             listen_s = CRSF_CONFIGURED_LISTEN_S if rate == configured else CRSF_LISTEN_S
             device, frames = ping_at(line, ping, listen_s)
             if device is not None:
@@ -591,7 +599,8 @@ def _crsf_answer(subject: str, device: CrsfDevice, rate: int, configured: int) -
 
 
 def _crsf_silence(subject: str, heard: dict[int, int]) -> Finding:
-    rates = ", ".join(map(str, heard))
+    """No device info at any rate tried (the adapter's refused rates are not in `heard`)."""
+    rates = ", ".join(map(str, heard)) or "no rate (the adapter took none)"
     talking = [rate for rate, frames in heard.items() if frames]
     if talking:
         found = (
