@@ -1,16 +1,24 @@
 """What a far end sends, on a link read on its own thread: read within a budget, handed to the
 driver through a bounded queue. The driver passes the bytes to its session
 (`session.received(data, now)`) on its own thread: a session is only ever touched by one.
+
+The reader sleeps until bytes arrive: it polls the port's fd beside the link's doorbell,
+which the link rings when its port changes (adopted, lost, closed) and the reader's stop
+rings too. A far end that sends nothing costs no wake-up at all. A port whose handler has
+no fd to poll (pyserial's `loop://`, `rfc2217://`) is read with the handler's own read
+timeout instead.
 """
 
 from __future__ import annotations
 
 import logging
 import queue
+import select
 import time
 from typing import Generic, Protocol, TypeVar
 
 from usb2rc.lines.link import BITS_PER_BYTE_ON_WIRE
+from usb2rc.runtime.doorbell import Doorbell
 from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger("usb2rc.lines")
@@ -87,13 +95,21 @@ class Handoff(Generic[T]):
         return items
 
 
+RX_INVALID_FD_WAIT_S = 0.05  # an fd the OS calls invalid: a wait, not a spin, until the bell
+
+_POLL_READY = select.POLLIN | select.POLLPRI | select.POLLERR | select.POLLHUP
+
+
 class ReadableLink(Protocol):
     url: str
     baudrate: int
     received: Handoff[tuple[bytes, float]]
+    doorbell: Doorbell  # rung when the port to read changes (adopted, lost, closed)
 
     @property
     def readable(self) -> bool: ...
+    @property
+    def read_fd(self) -> int | None: ...  # polled until `read()` returns at once; None: it waits
     def read(self) -> bytes: ...
 
 
@@ -106,11 +122,17 @@ class LinkReader(Worker):
         super().__init__(name)
         self.link = link
         self.budget = RxBudget(link.baudrate)
+        self._poller = select.poll()
+        self._poller.register(link.doorbell.fileno(), select.POLLIN)
+        self._polled_fd: int | None = None  # the port's fd registered with `_poller`
+
+    def stop(self) -> None:
+        super().stop()
+        self.link.doorbell.ring()  # after the flag: the woken reader sees it
 
     def run(self) -> None:
         while not self.stopping:
-            if not self.link.readable:
-                self.sleep(0.1)
+            if not self._wait_for_bytes():
                 continue
             data = self.link.read()
             if not data:
@@ -122,6 +144,34 @@ class LinkReader(Worker):
                 self._say_dropping()
             if admitted:
                 self.link.received.put((admitted, now))
+
+    def _wait_for_bytes(self) -> bool:
+        """Asleep until the port has bytes to read (True), or the doorbell rang (False: the
+        port changed, or the stop; the caller looks again). No port: the bell alone."""
+        bell = self.link.doorbell
+        readable = self.link.readable
+        fd = self.link.read_fd if readable else None
+        if readable and fd is None:
+            return True  # no fd to poll: the handler's read waits (its read timeout)
+        self._poll_port(fd)
+        events = dict(self._poller.poll())
+        if bell.fileno() in events:
+            bell.clear()  # before the caller looks at the link: a later ring stays
+            return False
+        if fd is not None and events.get(fd, 0) & select.POLLNVAL:
+            bell.wait(RX_INVALID_FD_WAIT_S)  # closed under us: the bell rings (or rang)
+            return False
+        return True
+
+    def _poll_port(self, fd: int | None) -> None:
+        """`_poller` watches `fd` beside the bell (None: the bell only)."""
+        if fd == self._polled_fd:
+            return
+        if self._polled_fd is not None:
+            self._poller.unregister(self._polled_fd)
+        if fd is not None:
+            self._poller.register(fd, _POLL_READY)
+        self._polled_fd = fd
 
     def _say_dropping(self) -> None:
         """The first drop is logged; every dropped byte is counted (stats: rx bytes dropped)."""

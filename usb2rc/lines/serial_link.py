@@ -11,6 +11,11 @@ learns of it from `line_event()` (OPENED) before it writes anything on it, so th
 session always hears of a new line before its first byte goes out. Each field has one
 writer (`SerialLink`'s docstring); a close waits for a read in progress.
 
+The reader sleeps in `poll` on the port's fd (`read_fd`) until bytes arrive; the writer
+rings the link's `doorbell` whenever the port to read changes (adopted; un-adopted, before
+it is closed), so the reader never polls a port that is gone for long, nor waits for one
+with a timeout.
+
 A write never blocks a tick and says how many bytes went out (`Written`):
 - posix ports (serial ports, ptys) and `socket://` (whose send buffer is kept small): one
   non-blocking `os.write` on the port's `fileno()` (`plain_fd`);
@@ -52,6 +57,7 @@ from usb2rc.lines.link import LineEvent, LinkStats, Written
 from usb2rc.lines.port_holders import holders_text
 from usb2rc.lines.rx import RX_CHUNKS_QUEUED, Handoff
 from usb2rc.lines.session import LinkState
+from usb2rc.runtime.doorbell import Doorbell
 
 log = logging.getLogger("usb2rc.serial")
 
@@ -89,10 +95,29 @@ class _Handle:
     fd: int | None  # None: through `port.write` (spy://, loop://, rfc2217://)
     kind: FdKind | None
     queue_known: bool  # `port.out_waiting` says what waits (a serial port, loop://)
+    read_fd: int | None  # the reader polls it (`read_fd()`); None: it reads with a timeout
 
 
 # --- what pyserial has no public API for: one function each, held to the real handlers by
 # tests/test_pyserial_contract.py ---------------------------------------------------------
+
+# Handlers whose `read` takes the bytes from their fd as they are (pyserial's posix port and
+# the `spy://` one built on it, `socket://`): when the fd is readable, a read of what waits
+# returns at once, so the reader polls the fd. Others (`loop://`'s queue, `rfc2217://`'s
+# own reader thread) are read with their read timeout.
+FD_READS = (serial.Serial, protocol_socket.Serial)
+
+
+def read_fd(port: serial.SerialBase) -> int | None:
+    """The fd whose readability says `port.read` returns at once, or None."""
+    if not isinstance(port, FD_READS):
+        return None
+    try:
+        fd = port.fileno()
+    except (OSError, ValueError, AttributeError):  # io.UnsupportedOperation; closed
+        return None
+    return fd if isinstance(fd, int) and fd >= 0 else None
+
 
 # Handlers whose `write` puts the bytes on their fd unchanged. pyserial has no public "write
 # what the OS takes now and say how much" (its `write` with a write timeout loops until all
@@ -204,7 +229,9 @@ class SerialLink:
       a failed read (`_broken`, its only fields besides `stats.bytes_read`); the writer acts
       on it at its next tick.
     A port is closed only under `_port_lock`, which a read holds: a read never runs on a
-    closed port (at most one read timeout, 50 ms, delays a close).
+    closed port. A read on a polled fd returns at once; one through a handler's read
+    timeout (50 ms) may delay a close that long. The writer rings `doorbell` after the port
+    to read changed and before a port it gave up is closed.
     """
 
     def __init__(
@@ -227,6 +254,7 @@ class SerialLink:
         self.last_error = ""  # writer thread
         # what the reader thread read, with when (reader -> writer, bounded)
         self.received: Handoff[tuple[bytes, float]] = Handoff(RX_CHUNKS_QUEUED)
+        self.doorbell = Doorbell()  # wakes the reader: the port to read changed
         self._closing = False  # close() only
         self._lock = threading.Lock()  # guards the offer slot, not I/O
         self._offer: _Opened | None = None  # opener -> writer
@@ -255,6 +283,13 @@ class SerialLink:
     def readable(self) -> bool:
         port, broken = self._adopted, self._broken
         return port is not None and (broken is None or broken[0] is not port)
+
+    @property
+    def read_fd(self) -> int | None:
+        """The adopted port's fd for the reader to poll; None: no port, or `read()` waits
+        with the handler's read timeout."""
+        handle = self._handle
+        return None if handle is None else handle.read_fd
 
     # --- opening ---------------------------------------------------------------------------
 
@@ -342,7 +377,8 @@ class SerialLink:
         kind = None if fd is None else fd_kind(fd)
         if kind is FdKind.SOCKET and fd is not None:
             _limit_socket_buffer(fd)
-        self._handle = _Handle(port, fd, kind, _reports_queue(port, kind))
+        self._handle = _Handle(port, fd, kind, _reports_queue(port, kind), read_fd(port))
+        self.doorbell.ring()  # a reader waiting for a port polls this one now
         self.stats.opens += 1
         if self._down_logged:
             log.warning("serial port %s is back", self.url)
@@ -365,6 +401,8 @@ class SerialLink:
         if offer is None or offer.port is None:
             return None
         if adopted is not None:  # a port already adopted (never: try_open waits for a loss)
+            self._handle = None
+            self.doorbell.ring()
             self._close(adopted)
         self._adopt(offer.port)
         return LineEvent.OPENED
@@ -479,19 +517,21 @@ class SerialLink:
         log.error("%s; retrying every %.0f s", self.last_error, self.reopen_interval_s)
         self._down_logged = True
         self._next_attempt = time.monotonic() + self.reopen_interval_s
+        self.doorbell.ring()  # the reader lets go of the fd before it is closed
         self._close(handle.port)
 
     def _close(self, port: serial.SerialBase) -> None:
         """Close a port no thread reads any more: the RX thread reads only the adopted
-        port, and only while it holds `_port_lock`."""
+        port, and only while it holds `_port_lock` (it may still poll the fd: it was rung)."""
         with self._port_lock, contextlib.suppress(serial.SerialException, OSError):
             port.close()
 
     # --- the RX thread -------------------------------------------------------------------
 
     def read(self) -> bytes:
-        """Whatever arrived (waits up to the port's 50 ms timeout); b'' when closed. A
-        failed read is reported to the writer (`_broken`), which closes the port."""
+        """Whatever arrived (at once when `read_fd` polled readable, else waits up to the
+        port's 50 ms timeout); b'' when closed. A failed read is reported to the writer
+        (`_broken`), which closes the port."""
         with self._port_lock:
             port = self._adopted  # the writer un-adopts before it closes: this one is open
             if port is None or not self.readable:
@@ -512,6 +552,7 @@ class SerialLink:
             opener.join(self.reopen_interval_s)
         handle, self._handle = self._handle, None
         offer = self._take_offer()
+        self.doorbell.ring()
         if handle is not None:
             self._close(handle.port)
         if offer is not None and offer.port is not None:
