@@ -1,19 +1,83 @@
-"""Fixtures shared by the daemon tests: a pty line and a replay folder."""
+"""Fixtures shared by the tests: a pty line, a replay folder; and around every test, a private
+runtime folder and the guarantee that no process it started outlives it."""
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+import process_harness
 import pytest
 from daemon_harness import PtyLine
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    process_harness.become_subreaper()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(
+    item: pytest.Item, call: pytest.CallInfo[None]
+) -> Iterator[None] | pytest.TestReport:
+    """A failing test's report ends with the last lines of each daemon log it made: what
+    the daemon did is most of what a failure on a loaded host says."""
+    report: pytest.TestReport = yield
+    if report.failed:
+        for log in process_harness.logs:
+            report.sections.append((f"daemon log {log} (last lines)", tail(log)))
+    return report
+
+
+def tail(path: Path, lines: int = 60) -> str:
+    try:
+        return "\n".join(path.read_text(errors="replace").splitlines()[-lines:])
+    except OSError as exc:
+        return f"(unreadable: {exc})"
+
+
+@pytest.fixture(autouse=True)
+def no_process_outlives_its_test(own_environment: Path) -> Iterator[None]:
+    """After the test, pass or fail: the harness's daemons it left running are stopped, and
+    anything else it started and left running is ended and fails the test (a `finally` or a
+    fixture of its own should have stopped it). Before the runtime folder goes."""
+    before = process_harness.descendants()
+    process_harness.logs.clear()
+    yield
+    process_harness.stop_owned()
+    left = process_harness.still_running(process_harness.descendants() - before)
+    commands = {pid: process_harness.command_line(pid) for pid in left}
+    process_harness.end(left)
+    process_harness.reap(keep=before)
+    if commands:
+        listed = "\n".join(f"  pid {pid}: {command}" for pid, command in commands.items())
+        pytest.fail(f"the test left these running (now ended):\n{listed}", pytrace=False)
+
+
+@pytest.fixture(autouse=True)
+def own_environment(monkeypatch: pytest.MonkeyPatch) -> Iterator[Path]:
+    """An environment of the test's own, whichever pytest worker runs it (pytest-xdist):
+
+    - XDG_RUNTIME_DIR: a daemon's default status socket (and whatever else goes there) is
+      no other test's, nor the machine's, when tests run side by side. Short
+      (/tmp/xdg-XXXXXXXX): a unix socket's path has at most 107 bytes.
+    - no COLUMNS / LINES: xdist sets them (80 x 24) in its workers, and a command a test runs
+      in a terminal of another size (tmux) would take them over the terminal's own.
+    """
+    folder = Path(tempfile.mkdtemp(prefix="xdg-", dir="/tmp"))
+    monkeypatch.setenv("XDG_RUNTIME_DIR", str(folder))
+    monkeypatch.delenv("COLUMNS", raising=False)
+    monkeypatch.delenv("LINES", raising=False)
+    yield folder
+    shutil.rmtree(folder, ignore_errors=True)
 
 
 @pytest.fixture
 def line() -> Iterator[PtyLine]:
     pty = PtyLine()
     yield pty
-    pty.close()
+    pty.close_at_the_end()
 
 
 @pytest.fixture

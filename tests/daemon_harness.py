@@ -24,6 +24,7 @@ from fractions import Fraction
 from pathlib import Path
 from typing import Any, Protocol
 
+from process_harness import logs, owned, stop_owned
 from rc_reference import RefCrsfReader, RefSbusReader
 
 from usb2rc.protocols.c2_16b import codec as c2_16b
@@ -106,13 +107,25 @@ def expected_frame(state: StickState) -> tuple[tuple[int, ...], int, int]:
     return tuple(axes), group1, 0
 
 
+# How long a recording holds its first state at least: the state the device is plugged in at.
+# A node goes live only once the daemon has seen its stick at rest for the neutral guard's
+# 0.05 s (one that moves before that stays in failsafe, as it should), and on a loaded host
+# the daemon's first steps after a plug come late: a 0.1 s rest was missed there.
+REST_S = 0.5
+
+
 def recording(
     states: Sequence[StickState],
     hold_s: float = 0.1,
     name: str = "Thrustmaster T.16000M",
     extra: str = "",
+    rest_s: float = REST_S,
 ) -> str:
-    return timed_recording([(i * hold_s, state) for i, state in enumerate(states)], name, extra)
+    """A hid-recorder file: the first state for `rest_s` (at least `hold_s`), each next one
+    for `hold_s`; the last one held until the file goes."""
+    first = max(rest_s, hold_s)
+    events = [(0.0, states[0]), *((first + i * hold_s, s) for i, s in enumerate(states[1:]))]
+    return timed_recording(events, name, extra)
 
 
 class Reporting(Protocol):
@@ -345,6 +358,13 @@ class PtyLine:
             with contextlib.suppress(OSError):
                 os.close(fd)
 
+    def close_at_the_end(self) -> None:
+        """A fixture's close, once its test is over: the harness's daemons still running stop
+        first. One left running after its line went would open the path again, and a pty
+        that another test opens next may get the same path."""
+        stop_owned()
+        self.close()
+
 
 class DaemonProcess:
     """`python -m usb2rc run ...` as a subprocess; its log goes to a file the test can read."""
@@ -368,6 +388,8 @@ class DaemonProcess:
             cwd=ROOT,
             env=env,
         )
+        owned.add(self)  # stopped after the test if the test does not (tests/conftest.py)
+        logs.append(log_path)  # shown if the test fails
 
     def log(self) -> str:
         return self.log_path.read_text(errors="replace")
@@ -376,6 +398,7 @@ class DaemonProcess:
         self.proc.send_signal(signum)
 
     def stop(self, timeout: float = 10.0) -> int:
+        owned.discard(self)
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
         try:

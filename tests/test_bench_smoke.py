@@ -108,12 +108,13 @@ def test_plug_cost() -> None:
     assert re.search(r"^plug_first_scan_cpu_ms_median\s+[0-9.]+$", out, re.MULTILINE)
 
 
+@pytest.mark.slow  # a long journey: the fast suite keeps shorter ones of its kind
 def test_daemon(tmp_path: Path) -> None:
     json_path = tmp_path / "daemon.json"
     out = run(
         sys.executable, "bench/bench_daemon.py", "--seconds", "2", "--cpu-seconds", "1",
         "--warmup", "0.3", "--starts", "1", "--plug-seconds", "1", "--plug-rounds", "1",
-        "--crsf-seconds", "1", "--json", str(json_path),
+        "--crsf-seconds", "1", "--json", str(json_path), timeout=300,
     )  # fmt: skip
     result = last_json(out)
     assert result == json.loads(json_path.read_text())

@@ -180,6 +180,7 @@ def test_calibrate_writes_what_check_accepts_and_keeps_the_comments(tmp_path, pa
     assert "axis x      <- X (raw 0..16383, signed -32768..32767, calibration 0/" in checked.stdout
 
 
+@pytest.mark.slow  # a long journey: the fast suite keeps shorter ones of its kind
 @needs_tmux
 def test_calibrate_over_the_demo_recordings(tmp_path, pane):
     """The shipped demo never rests (circles and sweeps, looped): each axis takes its range,

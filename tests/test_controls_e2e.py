@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pytest
 from daemon_harness import (
     RELEASED,
     PtyLine,
@@ -98,6 +99,7 @@ outputs:
 """
 
 
+@pytest.mark.slow  # a long journey: the fast suite keeps shorter ones of its kind
 def test_actions_arm_with_hold_mode_by_name_once_and_nothing_in_failsafe(
     tmp_path: Path, replay_dir: Path
 ) -> None:

@@ -62,7 +62,8 @@ def test_plug_states_unplug_replug_and_sigterm(tmp_path, line, replay_dir):
         assert first[0].service == c2_16b.Service.STARTUP
         assert first[0].node_id == 0xFF and first[0].text == f"usb2rc {__version__}"
 
-        install(replay_dir / "stick.hid", recording(STATES))
+        # each state held 0.25 s: on a loaded host a 0.1 s one may pass between two steps
+        install(replay_dir / "stick.hid", recording(STATES, hold_s=0.25))
         line.wait_for(lambda fr: connect_sequence_at(fr, 0) > 0)
         frames = line.frames()
         connect = service_frames(frames, 0)[:4]

@@ -369,6 +369,7 @@ BUZZER_DESCRIPTOR = bytes.fromhex(
 )
 
 
+@pytest.mark.slow  # a long journey: the fast suite keeps shorter ones of its kind
 def test_a_button_box_with_axes_fixed_at_an_end_is_told_the_fix(
     tmp_path: Path, line: PtyLine, replay_dir: Path
 ) -> None:

@@ -219,7 +219,7 @@ def test_a_paced_reader_counts_every_report_and_shows_the_last(tmp_path: Path) -
     """With `next_tick` the reader drains what is queued as one batch (decoding only what
     shows in the state): every report is counted, and the state is the last report's."""
     states = [StickState(x=i * 50, y=16383 - i * 50, buttons=i) for i in range(200)]
-    install_file(tmp_path / "s.hid", recording(states, hold_s=0.0002))  # 200 in 40 ms
+    install_file(tmp_path / "s.hid", recording(states, hold_s=0.0002, rest_s=0))  # 200 in 40 ms
     backend = ReplayBackend(tmp_path)
     device = backend.open(backend.enumerate()[0])
     layout = parse_descriptor(device.report_descriptor())

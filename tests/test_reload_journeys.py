@@ -72,7 +72,11 @@ def started(tmp_path: Path, line: PtyLine, replay_dir: Path, config: Path, *extr
     daemon = DaemonProcess(
         ["--replay", str(replay_dir), "--config", str(config), *extra], tmp_path / "daemon.log"
     )
-    wait_x(line, INVERTED)
+    try:
+        wait_x(line, INVERTED)
+    except BaseException:
+        daemon.stop()  # the caller's `try` has not begun: the daemon is ours to stop
+        raise
     return daemon
 
 

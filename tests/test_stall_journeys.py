@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import pytest
 from daemon_harness import DECODERS, PtyLine, StickState, install, run_daemon, timed_recording
 
 from usb2rc.lines.serial_link import SOCKET_SEND_BUFFER
@@ -234,6 +235,7 @@ def on_ramp(line: RecordingLine, protocol: Protocol) -> Callable[[list[Any]], bo
     return seen
 
 
+@pytest.mark.slow  # a long journey: the fast suite keeps shorter ones of its kind
 def test_no_stale_frame_reaches_a_pty_receiver_after_a_stall(
     tmp_path: Path, replay_dir: Path, record_property: Callable[[str, Any], None]
 ) -> None:

@@ -78,18 +78,22 @@ def two_outputs(tmp_path: Path, c2: PtyLine, sumd_line: PtyLine) -> Path:
 def sumd_line():
     pty = PtyLine("sumd")
     yield pty
-    pty.close()
+    pty.close_at_the_end()
 
 
 def started(tmp_path, line, sumd_line, replay_dir, *extra: str) -> DaemonProcess:
     install(replay_dir / "stick.hid", recording(STATES))
     config = two_outputs(tmp_path, line, sumd_line)
     daemon = run_daemon(tmp_path, line.path, replay_dir, "--config", str(config), *extra)
-    final = expected_frame(STATES[-1])
-    line.wait_for(
-        lambda fr: final in [(f.axes, f.group1, f.group2) for f in data_frames(fr, 0)], WAIT_S
-    )
-    sumd_line.wait_for(lambda fr: any(isinstance(f, sumd.SumdFrame) for f in fr), WAIT_S)
+    try:
+        final = expected_frame(STATES[-1])
+        line.wait_for(
+            lambda fr: final in [(f.axes, f.group1, f.group2) for f in data_frames(fr, 0)], WAIT_S
+        )
+        sumd_line.wait_for(lambda fr: any(isinstance(f, sumd.SumdFrame) for f in fr), WAIT_S)
+    except BaseException:
+        daemon.stop()  # the caller's `try` has not begun: the daemon is ours to stop
+        raise
     return daemon
 
 
