@@ -12,7 +12,6 @@ from __future__ import annotations
 import os
 import select
 import socket
-import threading
 import time
 import tty
 from collections.abc import Callable, Iterator
@@ -20,39 +19,12 @@ from pathlib import Path
 
 import pytest
 import serial
+from thread_wakeups import QUIET_WAKEUPS_MAX, WAIT_S, until, wakeups_in_quiet_window
 
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.rx import LinkReader
 from usb2rc.lines.serial_link import SerialLink, read_fd
 from usb2rc.runtime.doorbell import Doorbell
-
-WAIT_S = 10.0
-QUIET_S = 0.5  # the window a sleeping reader is watched in (the old one woke 10 times in it)
-QUIET_WAKEUPS_MAX = 2  # a stray wake-up or two (the thread starting its poll) is not a poll
-
-
-def voluntary_switches(native_id: int) -> int:
-    """How often the thread gave up the CPU itself: blocked, or woke from a timed wait."""
-    with open(f"/proc/self/task/{native_id}/status", encoding="ascii") as status:
-        for line in status:
-            if line.startswith("voluntary_ctxt_switches:"):
-                return int(line.split()[1])
-    raise AssertionError("no voluntary_ctxt_switches in /proc")
-
-
-def wakeups_in_quiet_window(reader: LinkReader) -> int:
-    native_id = reader._thread.native_id
-    assert native_id is not None
-    before = voluntary_switches(native_id)
-    threading.Event().wait(QUIET_S)  # the window itself: nothing to wait for in it
-    return voluntary_switches(native_id) - before
-
-
-def until(condition: Callable[[], bool], what: str) -> None:
-    deadline = time.monotonic() + WAIT_S
-    while not condition():
-        assert time.monotonic() < deadline, f"never: {what}"
-        threading.Event().wait(0.005)
 
 
 def follow(link: SerialLink) -> LineEvent | None:
@@ -127,7 +99,7 @@ def test_a_quiet_far_end_costs_the_reader_no_wakeup_and_bytes_wake_it_at_once(
     reader = running(link)
     os.write(master, b"first")
     read_until(link, b"first")  # the reader polls the port now
-    assert wakeups_in_quiet_window(reader) <= QUIET_WAKEUPS_MAX
+    assert wakeups_in_quiet_window(reader._thread) <= QUIET_WAKEUPS_MAX
     os.write(master, b"second")
     read_until(link, b"second")
 
@@ -153,7 +125,7 @@ def test_with_no_port_the_reader_sleeps_until_one_is_adopted(
     link = SerialLink(str(path), 115200, reopen_interval_s=0.0)
     assert not link.open_now()
     reader = running(link)
-    assert wakeups_in_quiet_window(reader) <= QUIET_WAKEUPS_MAX
+    assert wakeups_in_quiet_window(reader._thread) <= QUIET_WAKEUPS_MAX
     path.symlink_to(pty_path)  # plugged
     until(lambda: follow(link) is LineEvent.OPENED, "the port adopted")
     os.write(master, b"hello")
@@ -172,7 +144,7 @@ def test_a_lost_port_is_let_go_and_the_new_one_is_read(
     until(lambda: reader._polled_fd == old_fd, "the reader polls the first port")
     link._lost(OSError("write failed"))  # what a failed write does, on the writer's thread
     until(lambda: reader._polled_fd is None, "the reader let go of the closed port")
-    assert wakeups_in_quiet_window(reader) <= QUIET_WAKEUPS_MAX
+    assert wakeups_in_quiet_window(reader._thread) <= QUIET_WAKEUPS_MAX
     link._next_attempt = 0.0
     until(lambda: follow(link) is LineEvent.OPENED, "the port reopened")
     os.write(master, b"again")
@@ -195,7 +167,7 @@ def test_a_far_end_that_hangs_up_is_reported_once_not_polled_in_a_loop(
     until(lambda: reader._polled_fd is not None, "the reader polls the port")
     os.close(master)  # the far end hangs up
     until(lambda: not link.readable, "the failed read reported")
-    assert wakeups_in_quiet_window(reader) <= QUIET_WAKEUPS_MAX
+    assert wakeups_in_quiet_window(reader._thread) <= QUIET_WAKEUPS_MAX
     assert follow(link) is LineEvent.LOST
 
 

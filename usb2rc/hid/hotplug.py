@@ -1,10 +1,13 @@
 """HotplugMonitor: a thread that reports devices as they come and go.
 
-It diffs `backend.enumerate()` by `DeviceInfo.key` every `poll_s`; on Linux with the hidapi
-backend a pyudev monitor on the `hidraw` subsystem wakes it at once. Devices present when it
-starts are reported in USB port-path order (natural sort: "1-1.2" < "1-1.10"), unless the
-daemon took them first with `initial_devices()`. Removals are reported here too, though a
-reader usually notices an unplug first.
+It diffs `backend.enumerate()` by `DeviceInfo.key`, each time something says the devices
+may have changed, and sleeps in between: on Linux the hidapi backend's pyudev monitor on the
+`hidraw` subsystem wakes it (its netlink socket's fd), a backend with a `change_source()`
+(the replay backend: inotify on its directory) its own fd. Without either it polls every
+`poll_s`. Devices present when it starts are reported in USB port-path order (natural sort:
+"1-1.2" < "1-1.10"), unless the daemon took them first with `initial_devices()`. Removals
+are reported here too, though a reader usually notices an unplug first. A device the
+daemon `forget`s is looked for again `poll_s` later.
 """
 
 from __future__ import annotations
@@ -15,10 +18,12 @@ import re
 import select
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterable
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 from usb2rc.hid.backend import Backend, DeviceInfo
+from usb2rc.runtime.doorbell import Doorbell
 from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger(__name__)
@@ -42,6 +47,24 @@ def initial_devices(backend: Backend) -> list[DeviceInfo]:
     return sort_by_port_path(backend.enumerate())
 
 
+class ChangeSource(Protocol):
+    """What tells the hot-plug thread that the devices may have changed: an fd that polls
+    readable then (`fileno`); `take()` reads what came, True when it is worth a scan;
+    `watch()` before each scan, False while it cannot tell (the thread polls then)."""
+
+    def fileno(self) -> int: ...
+    def watch(self) -> bool: ...
+    def take(self) -> bool: ...
+    def close(self) -> None: ...
+
+
+@runtime_checkable
+class WatchableBackend(Protocol):
+    """A backend that can say when its devices may have changed (the replay backend)."""
+
+    def change_source(self) -> ChangeSource | None: ...
+
+
 class _UdevWaker:
     """Wakes on any hidraw uevent; the caller still re-enumerates."""
 
@@ -61,11 +84,23 @@ class _UdevWaker:
             return None
         return cls(monitor)
 
+    def fileno(self) -> int:
+        fd: int = self._monitor.fileno()
+        return fd
+
+    def watch(self) -> bool:
+        return True  # the netlink socket was bound at create(): every uevent queues on it
+
+    def take(self) -> bool:
+        while self._monitor.poll(timeout=0) is not None:
+            pass  # drain: one enumerate covers them all
+        return True
+
     def wait(self, timeout_s: float) -> None:
-        ready, _, _ = select.select([self._monitor.fileno()], [], [], timeout_s)
+        """Until a uevent came (drained), or `timeout_s`."""
+        ready, _, _ = select.select([self.fileno()], [], [], timeout_s)
         if ready:
-            while self._monitor.poll(timeout=0) is not None:
-                pass  # drain: one enumerate covers them all
+            self.take()
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
@@ -90,7 +125,13 @@ class HotplugMonitor(Worker):
         self._use_udev = use_udev
         self._known: dict[str, DeviceInfo] | None = None
         self._lock = threading.Lock()  # guards _known: forget() comes from the lifecycle thread
+        self._rescan = False  # a device was forgotten since the last scan (under _lock)
+        self._doorbell = Doorbell()  # stop() and forget() wake the thread's wait
         super().__init__("hid-hotplug")
+
+    def stop(self) -> None:
+        super().stop()
+        self._doorbell.ring()
 
     def initial_devices(self) -> list[DeviceInfo]:
         """Take the present devices (port-path order); `start()` then reports only changes."""
@@ -105,6 +146,8 @@ class HotplugMonitor(Worker):
         with self._lock:
             if self._known is not None:
                 self._known.pop(key, None)
+            self._rescan = True
+        self._doorbell.ring()
 
     def _enumerate(self) -> list[DeviceInfo] | None:
         try:
@@ -121,6 +164,8 @@ class HotplugMonitor(Worker):
 
     def scan(self) -> None:
         """One diff against the last scan (the thread calls this; tests may too)."""
+        with self._lock:
+            self._rescan = False  # this scan reports a forgotten device still present
         present = self._enumerate()
         if present is None:
             return
@@ -135,15 +180,43 @@ class HotplugMonitor(Worker):
         for info in sort_by_port_path(added):
             self._call(self._on_added, info)
 
+    def _change_source(self) -> ChangeSource | None:
+        if self._use_udev:
+            return _UdevWaker.create()
+        if isinstance(self.backend, WatchableBackend):
+            return self.backend.change_source()
+        return None
+
     def run(self) -> None:
-        waker = _UdevWaker.create() if self._use_udev else None
+        source = self._change_source()
         try:
             while not self.stopping:
+                watching = source is not None and source.watch()  # before the scan's look
                 self.scan()
-                if waker is not None:
-                    waker.wait(self._poll_s)
-                else:
-                    self.sleep(self._poll_s)
+                self._wait(source if watching else None)
         finally:
-            if waker is not None:
-                waker.close()
+            if source is not None:
+                source.close()
+
+    def _wait(self, source: ChangeSource | None) -> None:
+        """Asleep until the devices may have changed: `source` says so, or `poll_s` after a
+        device was forgotten (one that cannot be opened yet is not retried in a loop), or
+        the stop; with no source, `poll_s` (a poll)."""
+        poller = select.poll()
+        bell = self._doorbell.fileno()
+        poller.register(bell, select.POLLIN)
+        if source is not None:
+            poller.register(source.fileno(), select.POLLIN)
+        due = None if source is not None else time.monotonic() + self._poll_s
+        while not self.stopping:
+            with self._lock:
+                if self._rescan and due is None:
+                    due = time.monotonic() + self._poll_s
+            timeout_ms = None if due is None else max(0.0, due - time.monotonic()) * 1000
+            ready = dict(poller.poll(timeout_ms))
+            if not ready:
+                return  # `due`: a poll, or a forgotten device's rescan
+            if bell in ready:
+                self._doorbell.clear()  # then look at `stopping` and `_rescan` again
+            elif source is not None and source.take():
+                return

@@ -1,7 +1,10 @@
 """Replay backend: every hid-recorder file in a directory is a plugged device.
 
 A file that appears is a plug, a file that goes is an unplug. Files whose names start with
-"." are ignored, so write a new file under a hidden name and rename it into place. A device
+"." are ignored, so write a new file under a hidden name and rename it into place. The
+hot-plug thread looks at the directory when inotify says an entry changed
+(`change_source()`: created, deleted, renamed, closed after a write, its attributes
+changed), or every 0.1 s where inotify is not available. A device
 plays its `E:` events with their recorded timing relative to `open()` (scaled by `speed`),
 once, then holds until its file goes; `loop=True` replays forever.
 
@@ -44,6 +47,7 @@ from pathlib import Path
 
 from usb2rc.hid.backend import DeviceGone, DeviceInfo, DeviceOpenError
 from usb2rc.hid.descriptor import top_level_usage
+from usb2rc.hid.dirwatch import DirectoryWatch
 from usb2rc.hid.recording import (
     EventBatch,
     Recording,
@@ -210,8 +214,9 @@ class ReplayBackend:
         self.speed = speed
         self.problems: list[str] = []  # files that are not usable recordings, from enumerate()
         self._lock = threading.Lock()
-        # By file name (str: the scan runs 10 times a second, and Path hashing and
-        # comparing cost more than the stat): the file read, or the problem text.
+        # By file name (str: the scan runs at every change, or 10 times a second where the
+        # directory cannot be watched, and Path hashing and comparing cost more than the
+        # stat): the file read, or the problem text.
         self._cache: dict[str, ReplayFile | str] = {}
         self._cache_ids: dict[str, StatId] = {}
         self._reported: set[str] = set()
@@ -255,6 +260,11 @@ class ReplayBackend:
         with self._lock:
             if self._cache_ids.get(name) == source.stat_id:
                 self._cache[name] = _not_a_recording(source.path, exc)
+
+    def change_source(self) -> DirectoryWatch | None:
+        """What wakes the hot-plug thread when the directory's visible entries change;
+        None where inotify is not available (it polls)."""
+        return DirectoryWatch.create(self.directory, relevant=lambda name: not name.startswith("."))
 
     def _report_problem(self, problem: str) -> None:
         if problem not in self._reported:
