@@ -67,12 +67,27 @@ JOIN_TIMEOUT_S = 0.5
 GIL_SWITCH_S = 0.0005
 
 
-def status_grid(clock_period_s: float, clock_phase_s: float) -> tuple[float, float]:
-    """The status socket's period and phase: its lines ride on the node clock's steps, a
-    whole number of them near STATUS_PERIOD_S apart, where no output ticks (the phase
-    from 0 on the monotonic clock: the grid's epoch and the clock's phase in it)."""
-    steps = max(1, round(STATUS_PERIOD_S / clock_period_s))
-    return steps * clock_period_s, GRID_EPOCH_S + clock_phase_s
+# Beside outputs the node clock is a safety net: every driver steps the table before each of
+# its ticks, so a clock step is for nobody unless the drivers stall. About this often.
+SAFETY_NET_PERIOD_S = 0.25
+
+
+def node_clock_period(grid_period_s: float, has_outputs: bool) -> float:
+    """The node clock's period: with no output it is the only step (`grid_period_s`,
+    `nodes.step.clock_period`); beside outputs, which step the table at each tick, the
+    whole number of grid periods nearest SAFETY_NET_PERIOD_S, so its steps stay on the
+    grid's points at the clock's phase, away from every tick."""
+    if not has_outputs:
+        return grid_period_s
+    return max(1, round(SAFETY_NET_PERIOD_S / grid_period_s)) * grid_period_s
+
+
+def status_grid(grid_period_s: float, clock_phase_s: float) -> tuple[float, float]:
+    """The status socket's period and phase: a whole number of the node clock's grid
+    periods near STATUS_PERIOD_S apart, at the clock's phase, where no output ticks (the
+    phase from 0 on the monotonic clock: the grid's epoch and the clock's phase in it)."""
+    steps = max(1, round(STATUS_PERIOD_S / grid_period_s))
+    return steps * grid_period_s, GRID_EPOCH_S + clock_phase_s
 
 
 class NoPortError(ValueError):
@@ -183,12 +198,11 @@ class Daemon:
         self.drivers = Drivers("drivers", [out.driver for out in self.outputs])
         # the clock that steps the nodes whether or not an output reads, on the drivers' grid
         periods = [out.driver.period_s for out in self.outputs]
-        period = clock_period(periods)
+        grid = clock_period(periods)
+        phase = clock_phase(grid, periods)
+        period = node_clock_period(grid, bool(self.outputs))
         self.node_clock = NodeClock(
-            lambda: self.table.step_if_stale(period),
-            time.monotonic,
-            period,
-            clock_phase(period, periods),
+            lambda: self.table.step_if_stale(period), time.monotonic, period, phase
         )
         self.lifecycle = DeviceLifecycle(
             backend,
@@ -203,7 +217,7 @@ class Daemon:
         self._switch_interval: float | None = None  # the GIL's, to restore on stop()
         self._judge = judge
         self._checked: tuple[Config, dict[str, Any]] | None = None  # config, its check
-        status_period, status_phase = status_grid(period, self.node_clock.phase_s)
+        status_period, status_phase = status_grid(grid, phase)
         self.status_server = (
             StatusServer(
                 status_socket,
