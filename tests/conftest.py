@@ -17,6 +17,23 @@ def pytest_configure(config: pytest.Config) -> None:
     process_harness.become_subreaper()
 
 
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Say so when usb2rc processes from elsewhere write to ptys: a test's pty may be given
+    a path one of them opens again (their frames on its line, its port locked)."""
+    if hasattr(session.config, "workerinput"):  # an xdist worker: the main process says it
+        return
+    outside = process_harness.pty_writers_outside()
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    if outside and reporter is not None:
+        reporter.write_line(
+            f"warning: {len(outside)} usb2rc process(es) outside this test run write to ptys; "
+            "a test's pty may get a path they open again (stop them if they are leftovers):",
+            yellow=True,
+        )
+        for pid, command in sorted(outside.items()):
+            reporter.write_line(f"  pid {pid}: {command}")
+
+
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_makereport(
     item: pytest.Item, call: pytest.CallInfo[None]

@@ -121,3 +121,17 @@ def reap(keep: set[int]) -> None:
         if _gone(pid):
             with contextlib.suppress(ChildProcessError):
                 os.waitpid(pid, os.WNOHANG)
+
+
+def pty_writers_outside(pid: int | None = None) -> dict[int, str]:
+    """usb2rc processes that write to a pty and are not below `pid` (this process): a test
+    run's leftover opens its port's path again, and takes over a pty a test opens next."""
+    mine = descendants(pid) | {os.getpid() if pid is None else pid}
+    found = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) in mine:
+            continue
+        command = command_line(int(entry.name))
+        if "usb2rc" in command and "/dev/pts/" in command:
+            found[int(entry.name)] = command
+    return found

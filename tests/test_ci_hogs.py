@@ -38,10 +38,11 @@ time.sleep(600)
 
 
 def start(**env: str) -> tuple[subprocess.Popen[str], int, list[int]]:
-    """The wrapper around FIND_HOGS, in a process group of its own as in a terminal;
-    FIND_HOGS's pid and the hogs it found."""
+    """The wrapper around FIND_HOGS, in a process group of its own and with Ctrl-C's default
+    action as in a terminal (a pytest started in the background ignores SIGINT, and so would
+    all it starts); FIND_HOGS's pid and the hogs it found."""
     proc = subprocess.Popen(
-        [str(WRAPPER), sys.executable, "-c", FIND_HOGS],
+        ["env", "--default-signal=INT", str(WRAPPER), sys.executable, "-c", FIND_HOGS],
         stdout=subprocess.PIPE,
         text=True,
         env=dict(os.environ, PYTHONPATH=str(ROOT / "tests"), **env),
