@@ -33,7 +33,18 @@ from usb2rc.config.usages import read_usage, read_usage_occurrence
 from usb2rc.config.yamlnodes import Items, NodeReader, show
 from usb2rc.hid.usages import GD_HAT_SWITCH
 
-DEVICE_KEYS = ("name", "match", "node_id", "axes", "buttons", "hats", "handover", "low_battery")
+DEVICE_KEYS = (
+    "name",
+    "match",
+    "node_id",
+    "axes",
+    "buttons",
+    "hats",
+    "handover",
+    "low_battery",
+    "reports",
+)
+REPORT_KINDS = ("auto", "streaming", "on_change")  # usb2rc.nodes.silence
 MATCH_KEYS = ("vid", "pid", "serial", "port", "product")
 AXIS_KEYS = (
     "usage", "occurrence", "hat", "axis", "buttons", "calibration", "deadband", "expo",
@@ -88,9 +99,22 @@ def _read_device(reader: NodeReader, node: Node, path: str) -> DeviceConfig | No
     low_battery: LowBatteryConfig | None = AUTO_LOW_BATTERY
     if "low_battery" in items:
         low_battery = read_low_battery(reader, items["low_battery"][1], f"{path}.low_battery")
+    reports = "auto"
+    if "reports" in items:
+        reports = reader.choice(items["reports"][1], f"{path}.reports", REPORT_KINDS) or "auto"
     where = reader.where(node, path)
     return DeviceConfig(
-        name, match, node_id, axes, buttons, hats, default_layout, where, handover, low_battery
+        name,
+        match,
+        node_id,
+        axes,
+        buttons,
+        hats,
+        default_layout,
+        where,
+        handover,
+        low_battery,
+        reports,
     )
 
 

@@ -140,6 +140,8 @@ class DeviceConfig:
     where: Where
     handover: HandoverConfig | None = None
     low_battery: LowBatteryConfig | None = AUTO_LOW_BATTERY  # None: `low_battery: false`
+    # how it reports (docs/ICD.md, "A device that falls silent"): `auto` learns it
+    reports: str = "auto"
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ class ErrorCode(IntEnum):
     PERMISSION_DENIED = 0x04
     CONFIG_CLASH = 0x05  # a second device matches a config entry already feeding its node
     BAD_REPORTS = 0x06  # every report of a run was refused (usb2rc.hid.reader)
+    SILENT = 0x07  # a streaming device sent no report for too long (usb2rc.nodes.silence)
 
 
 class _Plain:

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import operator
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -132,6 +133,9 @@ class ReaderRecord(NamedTuple):
     press_serial: int = 0
     refused_in_a_row: int = 0  # refused since the last accepted report
     bad_spells: int = 0  # times `refused_in_a_row` reached BAD_REPORTS_LIMIT
+    # reports byte for byte the same as the one before: a device that sends them streams
+    # (one that reports on change never does: usb2rc.nodes.silence)
+    repeats: int = 0
 
     @property
     def in_error(self) -> bool:
@@ -172,6 +176,8 @@ class DeviceReader(Worker):
         # the decoder, where its button mask can be read per report (fakes in tests: None)
         self._press_decoder = decoder if isinstance(decoder, ButtonsDecoder) else None
         self._buttons = 0  # the mask after the last report, for rising edges
+        self._last_report = b""  # the raw report before, for `repeats`
+        self._repeats = 0
         self._presses: tuple[tuple[int, int], ...] = ()
         self._press_serial = 0
         self.exit_code: ErrorCode | None = None
@@ -206,7 +212,10 @@ class DeviceReader(Worker):
         return self.record.at
 
     def _handle(self, report: bytes) -> None:
+        repeated = report == self._last_report
+        self._last_report = report
         if self.decoder.feed(report):
+            self._repeats += repeated
             self._reports += 1
             if self._press_decoder is not None:
                 self._note_buttons(self._press_decoder.buttons)
@@ -253,6 +262,9 @@ class DeviceReader(Worker):
         # every press, even one released within the batch (no lost taps)
         on_buttons = self._note_buttons if self._press_decoder is not None else None
         accepted, refused = self.decoder.feed_batch(batch, on_buttons)
+        if not refused:  # a run of the same refused report is no sign of streaming
+            self._repeats += sum(map(operator.eq, batch, [self._last_report, *batch[:-1]]))
+        self._last_report = batch[-1]
         self._reports += accepted
         self._bad_reports += refused
         self._count_refused(accepted, refused)
@@ -273,6 +285,7 @@ class DeviceReader(Worker):
             self._press_serial,
             self._refused_in_a_row,
             self._bad_spells,
+            self._repeats,
         )
         self.record = record
         edge = (record.in_error, record.bad_spells) != (last.in_error, last.bad_spells)

@@ -280,8 +280,10 @@ class DeviceBinding:
         battery: BatteryPlan | None = None,
         guard: NeutralGuard = NO_GUARD,
         trim_switches: Sequence[TrimSwitch] = (),
+        reports: str = "auto",
     ) -> None:
         self.name = name
+        self.reports = reports  # how the device reports: auto, streaming, on_change
         self.handover = handover  # what the node's `&` frames say (state.NodeFrame)
         self._handover_mask = 1 << (handover.button - 1) if handover else 0
         self.battery = battery
@@ -519,8 +521,19 @@ def default_binding(
     battery = battery_plan(layout, device.low_battery if device else AUTO_LOW_BATTERY)
     where = device.where if device else None
     guard = NeutralGuard(tuple(guarded))
+    reports = device.reports if device else "auto"
     return DeviceBinding(
-        name, node_id, axes, DEFAULT_BUTTON_RUNS, hats, notes, where, handover, battery, guard
+        name,
+        node_id,
+        axes,
+        DEFAULT_BUTTON_RUNS,
+        hats,
+        notes,
+        where,
+        handover,
+        battery,
+        guard,
+        reports=reports,
     )
 
 
@@ -605,6 +618,7 @@ def configured_binding(
         battery,
         NeutralGuard(tuple(guarded)),
         trims,
+        device.reports,
     )
 
 

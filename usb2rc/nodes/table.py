@@ -26,11 +26,12 @@ from typing import Any, Protocol
 
 from usb2rc.config.controls_model import SwitchConfig, ThrottleCut
 from usb2rc.config.layout import AXIS_COUNT, AXIS_NAMES
-from usb2rc.hid.backend import DeviceInfo
+from usb2rc.hid.backend import DeviceInfo, ErrorCode
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.nodes.binding import DeviceBinding, NodeInputs
 from usb2rc.nodes.guard import RestWatch
 from usb2rc.nodes.presses import NO_BUTTONS, SINCE_RELOAD, PressGate, button_mapping_changed
+from usb2rc.nodes.silence import SilenceWatch
 from usb2rc.nodes.step import (
     BASE_PERIOD_S,
     GRID_EPOCH_S,
@@ -169,6 +170,9 @@ class _Attached:
     bad_spells_seen: int = 0  # the reader's runs of bad reports this device has answered
     trim_positions: dict[int, int] = field(default_factory=dict)  # hat switches: slot -> -1/0/1
     gate: PressGate = field(default_factory=PressGate)  # which held buttons are presses
+    silence: SilenceWatch = field(default_factory=SilenceWatch)  # nodes/silence.py
+    silent_since: float | None = None  # when it was found silent (None: it reports)
+    silence_news: str = ""  # "silent" or "back" at the step it changed, for the node
 
     @property
     def live(self) -> bool:
@@ -198,6 +202,8 @@ class _Attached:
         time (the neutral guard's rest has a time); `record`: its reader's, read once."""
         if record.bad_spells != self.bad_spells_seen:
             self._bad_reports_began(record)
+        if self._silent(record, now):
+            return self._view(record, self.binding.failsafe(self.last_inputs), False)
         if not self._known(record):
             return self._view(record, self.binding.failsafe(self.last_inputs), False)
         inputs = self.binding.apply(record.state)
@@ -232,6 +238,20 @@ class _Attached:
             gate.held_groups,
             gate.counts_from,
         )
+
+    def _silent(self, record: ReaderRecord, now: float) -> bool:
+        """Whether the device is silent now (nodes/silence.py). Going silent it holds its
+        last values (buttons cleared) and goes back through the neutral guard; its node
+        hears of both changes (`silence_news`)."""
+        self.silence.kind = self.binding.reports
+        silent = self.present and self.silence.silent(record, now)
+        if silent and self.silent_since is None:
+            self.silent_since, self.silence_news = now, "silent"
+            self.disarm()
+            self.last_inputs = self.binding.apply(record.state)
+        elif not silent and self.silent_since is not None:
+            self.silent_since, self.silence_news = None, "back"
+        return silent
 
     def _bad_reports_began(self, record: ReaderRecord) -> None:
         """The device refused BAD_REPORTS_LIMIT reports in a row (docs/ICD.md "Device error
@@ -294,6 +314,7 @@ class _Node:
     expected: dict[str, ExpectedEntry] = field(default_factory=dict)
     logged: tuple[bool, tuple[str, ...]] | None = None  # state and reasons last logged
     stepped_reasons: list[tuple[str, str]] = field(default_factory=list)  # at the last step
+    silenced: list[_Attached] = field(default_factory=list)  # went silent, `3` not sent yet
 
     @property
     def failsafe(self) -> bool:
@@ -324,12 +345,36 @@ class _Node:
         # as `failsafe` says
         failsafe = not self.attached or bool(self.expected) or not all(d.live for d in devices)
         devices, notes = self._gated(devices, not failsafe)
+        notes += self._silence_notes()
         merged = [(d.binding, d.inputs) for d in devices]
         pressed = NO_BUTTONS if failsafe else _pressed(devices)
         frame = compose(self.node_id, failsafe, base, base_unsigned, merged, pressed)
         self.stepped_reasons = self.reasons() if failsafe else []
         waiting = tuple(text for _, text in self.stepped_reasons)
         return NodeView(frame, tuple(devices), tuple(base), base_unsigned, waiting), notes
+
+    def _silence_notes(self) -> list[str]:
+        """A line for each device that went silent or reports again at this step; the
+        silent ones are in `silenced` until the table has sent their `3`."""
+        notes = []
+        for a in self.attached:
+            news, a.silence_news = a.silence_news, ""
+            name = a.info.product or "device"
+            if news == "silent":
+                self.silenced.append(a)
+                every = (
+                    f"every {a.silence.interval_s * 1000:.0f} ms" if a.silence.interval_s else ""
+                )
+                notes.append(
+                    f"node {self.node_id}: {name} went silent: no report for "
+                    f"{a.silence.limit_s():.2f} s though it streamed {every}".rstrip()
+                    + "; `!` until it reports again (docs/ICD.md, error 0x07 SILENT)"
+                )
+            elif news == "back":
+                notes.append(
+                    f"node {self.node_id}: {name} reports again: live once its guarded axes rest"
+                )
+        return notes
 
     def _gated(self, devices: list[DeviceView], live: bool) -> tuple[list[DeviceView], list[str]]:
         """Each device's press gate stepped (usb2rc.nodes.presses): its view with what is held
@@ -349,6 +394,9 @@ class _Node:
             name = a.info.product or "device"
             if not a.present:
                 why.append(("lost", name))
+            elif a.silent_since is not None:
+                limit = a.silence.limit_s()
+                why.append(("silent", f"{name} to report again (silent for over {limit:.2f} s)"))
             elif a.source.record.in_error:
                 bad = a.source.record.refused_in_a_row
                 why.append(
@@ -503,6 +551,12 @@ class NodeTable:
             if change:
                 changes.append(change)
             changes += notes
+            for attached in node.silenced:
+                code = int(ErrorCode.SILENT)
+                self._broadcast(
+                    ServiceEvent(EventKind.ERROR, node.node_id, attached.info, "", code)
+                )
+            node.silenced.clear()
         stepped = self._switches.step(views)
         positions = tuple(sorted(self._switches.positions.items()))
         self._snapshot = NodeSnapshot(
