@@ -10,8 +10,10 @@ daemon's) and prints one JSON line per decoded frame. What is measured:
   node 0's data frames (one write per tick) over --seconds: p99 of |period - 20 ms| and the
   mean period (least-squares slope of arrival time over tick number, so a missed tick does
   not count as a long period). Late/missed ticks from the scheduler's own counters.
-- latency: the same run. The replayed device is wrapped so that its `read()` stamps the
-  monotonic time each report is handed to the daemon; every report carries a unique X (a ramp
+- latency: the same run. The replayed device is wrapped so that its `read()` stamps each
+  report with the moment it was due (its recorded time from the replay's start: when a
+  kernel would have queued it, whenever the daemon reads it); every report carries a
+  unique X (a ramp
   stepping every --report-ms, 23 ms by default: longer than a tick, so every report is
   carried by some frame, and 23 vs 20 ms walks the phase through the whole tick). Latency =
   arrival of the first frame whose X equals the report's scaled X - the report's delivery.
@@ -267,11 +269,15 @@ def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[
     deliveries: list[tuple[float, int]] = []
 
     class StampedDevice:
-        """A replayed device that notes when each report is handed to the daemon."""
+        """A replayed device that notes, for each report handed to the daemon, the moment it
+        was due (its time in the recording from the device's start): the moment a kernel
+        would have queued it, whenever the daemon reads it (a pulled reader reads at the
+        step, so the read's own moment would leave out the queue's wait)."""
 
         def __init__(self, inner: ReplayDevice) -> None:
             self.inner = inner
             self.info = inner.info
+            self.started = time.monotonic()  # the replay's own start, a moment before
 
         def report_descriptor(self) -> bytes:
             return self.inner.report_descriptor()
@@ -279,7 +285,9 @@ def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[
         def read(self, timeout_s: float) -> bytes | None:
             report = self.inner.read(timeout_s)
             if report is not None:
-                deliveries.append((time.monotonic(), report[3] | (report[4] & 0x3F) << 8))
+                x = report[3] | (report[4] & 0x3F) << 8
+                start = getattr(self.inner, "_t0", self.started)
+                deliveries.append((start + due_s.get(x, time.monotonic() - start), x))
             return report
 
         def close(self) -> None:
@@ -293,7 +301,14 @@ def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[
     replay_dir.mkdir()
     step = report_ms / 1000
     count = min(X_MAX + 1, int((seconds + 10) / step) + 1)
-    (replay_dir / "stick.hid").write_text(ramp_recording(count, step))
+    text = ramp_recording(count, step)
+    (replay_dir / "stick.hid").write_text(text)
+    due_s: dict[int, float] = {}  # X -> when its first report is due, from the start
+    for line in text.splitlines():
+        if line.startswith("E: "):
+            fields = line.split()
+            data = bytes(int(b, 16) for b in fields[3:])
+            due_s.setdefault(data[3] | (data[4] & 0x3F) << 8, float(fields[1]))
     reader = PtyReader(workdir)
     try:
         backend = StampedBackend(replay_dir, loop=True)
@@ -309,6 +324,8 @@ def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[
             # the driver's own write-to-write periods after the first second: its wake-up
             # and tick, without the pty's and the far end's (PtyReader) own jitter
             inside = stats.periods()[-max(1, int((seconds - 1.0) / PERIOD_S)) :]
+            # the daemon's own figure: from the read of a frame's newest report to its write
+            ages = stats.input_age_ms() if hasattr(stats, "input_age_ms") else None
             daemon.stop()
         time.sleep(0.2)
         frames = [f for f in reader.data(t_start) if f["t"] <= t_end]
@@ -321,6 +338,8 @@ def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[
     result.update({"ticks": ticks, "late_ticks": late, "missed_ticks": missed})
     inside_errors = [abs(period - PERIOD_S) for period in inside]
     result["period_p99_error_inside_ms"] = percentile(inside_errors, 0.99) * 1e3
+    for name, value in (ages or {}).items():  # trees before the input age have none
+        result[f"input_age_{name}_ms"] = value
     return result
 
 
@@ -828,6 +847,9 @@ ROWS = [
     ("latency_p99_ms", "latency: p99", "ms", 2),
     ("latency_max_ms", "latency: max", "ms", 2),
     ("latency_unmatched", "latency: reports never carried", "", 0),
+    ("input_age_p50_ms", "input age (read -> write): p50", "ms", 3),
+    ("input_age_p99_ms", "input age: p99", "ms", 3),
+    ("input_age_max_ms", "input age: max", "ms", 3),
     ("cpu_pct", "CPU, 4 devices x 1 kHz", "%", 2),
     ("cpu_replay_pct", "  of which the replay backend", "%", 2),
     ("cpu_without_replay_pct", "  without the replay backend", "%", 2),

@@ -147,6 +147,12 @@ def test_the_page_says_which_outputs_send_and_which_send_failsafe(
             assert "live" in live["node"]["words"]
             assert live["state"] == "not-sending" and "failsafe" not in live["badge"]
             assert live["outputs"]["output2-sumd"]["failsafe"] == "false"
+            aged = wait_page(
+                driver,
+                lambda p: "input age p50" in p["outputs"]["output2-sumd"]["text"],
+                "the SUMD output's input age",
+            )  # a frame carried the live stick's report: its age on the card
+            assert "ms" in aged["outputs"]["output2-sumd"]["text"]
             assert_nothing_cut_off(driver, 390)
             driver.save_screenshot(str(tmp_path / "live-390.png"))
     finally:

@@ -450,6 +450,9 @@ class Daemon:
             "missed_ticks": st.missed_ticks,
             "period_p99_error_ms": st.period_p99_error_ms(out.driver.period_s),
             "tick_p99_ms": st.tick_p99_ms(),
+            # p50/p99/max ms from the read of a frame's newest report to its write; None
+            # before a frame carried a live device's report
+            "input_age_ms": st.input_age_ms(),
             "bytes_written": link.bytes_written,
             "queue_full_skips": link.writes_skipped_queue_full,  # UDP: refused datagrams
             "write_timeouts": link.write_timeouts,

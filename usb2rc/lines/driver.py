@@ -144,6 +144,9 @@ class OutputStats:
     # a tick costs, whatever the wake-up's jitter (other threads' work, a status client,
     # shows here)
     ticks_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
+    # each written frame's input age: from the read of the newest report it carries (of a
+    # live device) to its write (docs/ICD.md, "Input age")
+    input_ages_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
     _periods_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def add_period(self, period_s: float) -> None:
@@ -153,6 +156,20 @@ class OutputStats:
     def add_tick(self, took_s: float) -> None:
         with self._periods_lock:
             self.ticks_s.append(took_s)
+
+    def add_input_age(self, age_s: float) -> None:
+        with self._periods_lock:
+            self.input_ages_s.append(age_s)
+
+    def input_age_ms(self) -> dict[str, float] | None:
+        """p50, p99 and max of the input age of the frames kept, in ms; None: no frame
+        carried a live device's report yet."""
+        with self._periods_lock:
+            ages = sorted(self.input_ages_s)
+        if not ages:
+            return None
+        p50, p99 = (ages[min(len(ages) - 1, int(len(ages) * share))] for share in (0.5, 0.99))
+        return {"p50": p50 * 1000.0, "p99": p99 * 1000.0, "max": ages[-1] * 1000.0}
 
     def periods(self) -> list[float]:
         with self._periods_lock:
@@ -212,6 +229,7 @@ class LineDriver:
         self.on_first_write = on_first_write
         self.last_tick_monotonic = 0.0
         self._last_write = 0.0
+        self._input_at: float | None = None  # newest report of the tick's snapshot (read at)
         # the tick in progress (this thread only): due, started, made, held for the write
         self._deadline = 0.0
         self._start = 0.0
@@ -269,6 +287,7 @@ class LineDriver:
         started = time.monotonic()
         if started - self._start > self.period_s / 2:
             self.stats.late_ticks += 1
+        self._input_at = snapshot.newest_report_at
         self._ok = True
         self._was_stalled = self.session.stalled
         try:
@@ -348,6 +367,7 @@ class LineDriver:
         """One tick at once: the link followed, the bytes made and written (the final
         ticks, and a test's own pace)."""
         was_stalled = self.session.stalled
+        self._input_at = None  # the latest step's, unknown here: no age counted
         self._write(self._make(None), was_stalled)
 
     def _make(self, snapshot: NodeSnapshot | None) -> bytes:
@@ -412,6 +432,8 @@ class LineDriver:
             self.stats.add_period(now - self._last_write)
         self._last_write = now
         self.stats.writes += 1
+        if self._input_at is not None:
+            self.stats.add_input_age(now - self._input_at)
         if self.on_first_write:
             callback, self.on_first_write = self.on_first_write, None
             self._safe_call(callback)

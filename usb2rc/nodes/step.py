@@ -166,6 +166,18 @@ class TableSnapshot:
     def frames(self) -> list[NodeFrame]:
         return [node.frame for node in self.nodes]
 
+    @property
+    def newest_report_at(self) -> float | None:
+        """When the newest report a live device published was read (monotonic): what a
+        frame made from this snapshot carries at the freshest. None: no live device."""
+        times = [
+            device.record.at
+            for node in self.nodes
+            for device in node.devices
+            if device.live and device.record.at is not None
+        ]
+        return max(times, default=None)
+
 
 EMPTY = TableSnapshot()
 

@@ -25,6 +25,7 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("stale_flushes", "stale flushes {}"),
     ("line_losses", "line losses {}"),
     ("tick_errors", "tick errors {}"),
+    ("input_age_ms", "input age p50 {p50:.2f} / p99 {p99:.2f} / max {max:.2f} ms"),
     ("data_frames", "data frames {}"),
     ("service_frames", "service frames {}"),
     ("round_robin_deferrals", "round-robin deferrals {}"),
@@ -69,8 +70,16 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
 
 
 def output_line(record: dict[str, Any]) -> str:
-    fields = [text.format(record[key]) for key, text in OUTPUT_FIELDS if key in record]
+    fields = [
+        _field(text, record[key]) for key, text in OUTPUT_FIELDS if record.get(key) is not None
+    ]
     return f"{record['name']} {record['url']}: " + ", ".join(fields)
+
+
+def _field(text: str, value: Any) -> str:
+    """A counter (`text` with one place), or a record of named figures (`{p50}`...);
+    None, a figure not measured yet, is left out by its caller."""
+    return text.format(**value) if isinstance(value, dict) else text.format(value)
 
 
 def device_line(record: dict[str, Any]) -> str:

@@ -97,6 +97,9 @@ function outputCard(out, now) {
   card.append(el("div", { class: "counters" },
     "writes " + out.writes + " · ticks " + out.ticks + " · late " + out.late_ticks +
     " · stalls " + out.stalls + " · queue full " + out.queue_full_skips));
+  const age = out.input_age_ms;
+  if (age) card.append(el("div", { class: "age", "data-age-max": age.max },
+    "input age p50 " + age.p50.toFixed(1) + " · p99 " + age.p99.toFixed(1) + " · max " + age.max.toFixed(1) + " ms"));
   const link = linkText(out, now);
   if (link) card.append(el("div", { class: "dim" }, link));
   return card;
