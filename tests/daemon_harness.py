@@ -31,6 +31,9 @@ from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.sumd import codec as sumd
 
 ROOT = Path(__file__).resolve().parent.parent
+# How long a wait for what a test expects may take before it fails: long, since a loaded host
+# (CI runs the suite beside two CPU hogs) is slow; a wait that succeeds ends at once.
+WAIT_S = 30.0
 
 # Thrustmaster T.16000M (044f:b10a), from tests/data/real-devices.json: 16 buttons, hat
 # 0..7 (4 bits, null) + 4 pad bits, X 14 bit + 2 pad, Y 14 bit + 2 pad, Rz 8 bit, Slider
@@ -332,11 +335,11 @@ class PtyLine:
         with self._cond:
             return list(self.seen)
 
-    def wait_for(self, predicate: Callable[[list[Any]], Any], timeout: float = 10.0) -> Any:
+    def wait_for(self, predicate: Callable[[list[Any]], Any], timeout: float = WAIT_S) -> Any:
         """Wait until predicate(frames) is truthy; return its value. Fails after timeout."""
         return self.wait_seen(lambda seen: predicate([s.frame for s in seen]), timeout)
 
-    def wait_seen(self, predicate: Callable[[list[Seen]], Any], timeout: float = 10.0) -> Any:
+    def wait_seen(self, predicate: Callable[[list[Seen]], Any], timeout: float = WAIT_S) -> Any:
         """wait_for with each frame's arrival time (`Seen`), for tests that time frames."""
         deadline = time.monotonic() + timeout
         with self._cond:
@@ -419,7 +422,7 @@ def run_daemon(
     )
 
 
-def wait_until(condition: Callable[[], Any], what: str, timeout: float = 10.0) -> Any:
+def wait_until(condition: Callable[[], Any], what: str, timeout: float = WAIT_S) -> Any:
     """Poll `condition` until truthy (its value is returned); fail naming `what`."""
     deadline = time.monotonic() + timeout
     while not (result := condition()):
@@ -428,7 +431,7 @@ def wait_until(condition: Callable[[], Any], what: str, timeout: float = 10.0) -
     return result
 
 
-def stats_until(daemon: DaemonProcess, pattern: str, timeout: float = 10.0) -> re.Match[str]:
+def stats_until(daemon: DaemonProcess, pattern: str, timeout: float = WAIT_S) -> re.Match[str]:
     """Ask for the stats (SIGUSR1) until the log matches `pattern`; first wait until the
     daemon runs (before, SIGUSR1's default action would kill it)."""
     wait_until(lambda: " running" in daemon.log(), "the daemon to run (its signals handled)")

@@ -26,7 +26,7 @@ from typing import Protocol
 
 PR_SET_CHILD_SUBREAPER = 36  # linux/prctl.h
 GRACE_S = 10.0  # for a SIGTERM, then for a SIGKILL: a loaded host may be slow to run them
-EXITING_S = 5.0  # for what is already on its way out when the test ends
+EXITING_S = 3.0  # for what is already on its way out when the test ends
 
 
 class Stoppable(Protocol):

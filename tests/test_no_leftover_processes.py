@@ -1,8 +1,8 @@
 """A test that fails half-way leaves nothing running (tests/conftest.py, process_harness.py).
 
 A small test suite runs in a pytest subprocess, under tests/conftest.py as the real suite has
-it: each of its tests starts a daemon and fails before it stops it, one through the daemon
-harness, one by hand, one orphaned by the shell that started it. Once that pytest has exited,
+it: each of its tests starts daemons and fails before it stops them, one through the daemon
+harness; one by hand and one orphaned by the shell that started it. Once that pytest has exited,
 no process of theirs may be left: each daemon's command line carries a folder of this test's
 own, looked for in every process of the machine.
 """
@@ -44,26 +44,17 @@ def test_a_harness_daemon_then_a_failure(tmp_path):
     assert False, "deliberately, the daemon still running"
 
 
-def test_a_daemon_by_hand_then_a_failure(tmp_path):
+def test_daemons_by_hand_then_a_failure(tmp_path):
     with open(tmp_path / "log", "wb") as log:
         subprocess.Popen(DAEMON, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT)
-    wait_until(lambda: running(tmp_path / "log"), "the daemon to run", timeout=60)
-    assert False, "deliberately, the daemon still running"
-
-
-def test_an_orphaned_daemon_then_a_failure(tmp_path):
-    log = tmp_path / "log"
-    command = " ".join(DAEMON) + f" >{log} 2>&1 &"  # the shell exits at once: an orphan
+    orphan_log = tmp_path / "orphan.log"
+    command = " ".join(DAEMON) + f" >{orphan_log} 2>&1 &"  # the shell exits at once
     subprocess.run(["sh", "-c", command], check=True, cwd=ROOT)
-    wait_until(lambda: running(log), "the daemon to run", timeout=60)
-    assert False, "deliberately, the daemon still running"
+    wait_until(lambda: running(tmp_path / "log") and running(orphan_log), "them to run", timeout=60)
+    assert False, "deliberately, the daemons still running"
 """
 
-FAILING_TESTS = [
-    "test_a_harness_daemon_then_a_failure",
-    "test_a_daemon_by_hand_then_a_failure",
-    "test_an_orphaned_daemon_then_a_failure",
-]
+FAILING_TESTS = ["test_a_harness_daemon_then_a_failure", "test_daemons_by_hand_then_a_failure"]
 
 
 def processes_with(mark: str) -> list[str]:
@@ -101,9 +92,10 @@ def test_failing_tests_leave_no_daemon_running(tmp_path: Path, workers: list[str
         assert result.returncode == 1, report
         for name in FAILING_TESTS:
             assert f"FAILED test_failing.py::{name}" in report
-        assert report.count("AssertionError: deliberately, the daemon still running") == 3
-        # the two started by hand are named as left running; the harness's is its own to stop
-        assert report.count("the test left these running (now ended)") == 2, report
+        assert report.count("AssertionError: deliberately, the daemon") >= 2, report
+        # those started by hand are named as left running; the harness's is its own to stop
+        assert "the test left these running (now ended)" in report, report
+        assert report.count(f"--replay {mark}") >= 2, report
         assert processes_with(str(mark)) == [], report
     finally:
         leftovers = [int(p.split()[1].rstrip(":")) for p in processes_with(str(mark))]
