@@ -14,6 +14,7 @@ import signal
 import threading
 import time
 import tty
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -36,9 +37,9 @@ from usb2rc.protocols.sumd.session import SumdSession
 LIVE = c2_16b.LIVE
 STARTUP = c2_16b.startup(__version__)[: c2_16b.FRAME_LEN]  # as the daemon sends it
 # What a pty stall may still deliver before the fresh frames: the far end reads 4 KB at a
-# time (its line discipline's buffer); the one it reads and the one the kernel moves up
-# before the daemon's flush usually come through (8 KB), a third when the daemon is slow to
-# wake (12 KB). The kernel's whole buffer, what came through without the flush (or with a
+# time (its line discipline's buffer) and reads once before the daemon has dropped the stale
+# bytes (StallingLine.resume); that read and the one the kernel moves up meanwhile come
+# through (8 KB). The kernel's whole buffer, what came through without the flush (or with a
 # flush only at the next tick), is about 18.4 KB.
 BURST_LIMIT = 16384
 CONNECT = ["connected", "vid-pid", "device-string", "device-type"]
@@ -116,10 +117,19 @@ class StallingLine(PtyLine):
         self.chunks: list[Chunk] = []
         self.raw = bytearray()  # every byte read, in order
         self.resumed_at_byte = 0
+        self._read_on: Callable[[], bool] | None = None
         super().__init__()
 
     def _reading(self) -> bool:
-        return self.reading.wait(0.05)
+        if not self.reading.wait(0.05):
+            return False
+        if self._read_on is None or len(self.raw) == self.resumed_at_byte:
+            return True
+        if self._read_on():
+            self._read_on = None
+            return True
+        self._stop.wait(0.02)
+        return False
 
     def _received(self, now: float, data: bytes, frames: list) -> None:
         self.chunks.append(Chunk(now, len(data)))
@@ -129,10 +139,15 @@ class StallingLine(PtyLine):
     def stall(self) -> None:
         self.reading.clear()
 
-    def resume(self) -> float:
+    def resume(self, read_on: Callable[[], bool]) -> float:
+        """Read again: one read, then the next ones once `read_on()` holds (the daemon has
+        seen the line move and dropped the stale bytes). What comes through before the fresh
+        frames is then what the far end read before that, however late the daemon ran: on a
+        loaded host a far end reading on at once took the OS's whole buffer first."""
         with self._cond:
             self.resumed_at_byte = len(self.raw)
             now = time.monotonic()
+        self._read_on = read_on
         self.reading.set()
         return now
 
@@ -167,7 +182,7 @@ def stall_with_plug_and_unplug(tmp_path: Path, replay_dir: Path, stall_s: float)
         # ... node 3 is new (plugged at rest: the neutral guard)
         install(replay_dir / "d.hid", recording([StickState(), StickState(x=16383)]))
         time.sleep(max(0.0, stalled_at + stall_s - time.monotonic()))  # the far end's stall
-        resumed_at = line.resume()
+        resumed_at = line.resume(read_on=lambda: "takes bytes again" in daemon.log())
         line.wait_for(lambda fr: live(fr, 3) and not live(fr, 0), timeout=15)
         frames = line.frames()
         daemon.signal(signal.SIGUSR1)  # the stats line counts the flush
