@@ -107,10 +107,13 @@ def record(reports: int, at: float, repeats: int) -> ReaderRecord:
 def test_the_watch_learns_streaming_from_repeated_reports_only() -> None:
     watch = SilenceWatch()
     assert not watch.silent(record(100, 1.0, STREAMING_AFTER - 1), 5.0)  # not learned yet
-    assert watch.silent(record(101, 1.0, STREAMING_AFTER), 1.0 + MIN_SILENCE_S + 0.01)
+    late = 1.0 + MIN_SILENCE_S + 0.01
+    assert not watch.silent(record(101, 1.0, STREAMING_AFTER), late)  # this step's reports
+    assert watch.silent(record(101, 1.0, STREAMING_AFTER), late)  # none since: silent
     on_change = SilenceWatch(kind="on_change")
     assert not on_change.silent(record(100, 1.0, 10_000), 100.0)
     told = SilenceWatch(kind="streaming")
+    told.silent(record(1, 1.0, 0), 1.0)
     assert told.silent(record(1, 1.0, 0), 1.0 + MIN_SILENCE_S + 0.01)
 
 

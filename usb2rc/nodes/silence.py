@@ -36,6 +36,7 @@ class SilenceWatch:
     streaming: bool = False
     interval_s: float = 0.0  # the usual interval between two reports, once measured
     window: tuple[float, int] | None = None  # (time, reports) where the rate window began
+    seen_reports: int = 0  # the report count at the last check
 
     def limit_s(self) -> float:
         """How long the device may be silent."""
@@ -50,7 +51,10 @@ class SilenceWatch:
         if not self.streaming:
             self.streaming = self.kind == "streaming" or record.repeats >= STREAMING_AFTER
         self._learn(record.at, record.reports)
-        return self.streaming and now - record.at > self.limit_s()
+        fresh, self.seen_reports = record.reports != self.seen_reports, record.reports
+        # A step whose pull found reports is never silent, however late it ran: only a
+        # check that finds none since the last one, that long after the last, is.
+        return self.streaming and not fresh and now - record.at > self.limit_s()
 
     def _learn(self, at: float, reports: int) -> None:
         if self.window is None:
