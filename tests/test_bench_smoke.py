@@ -163,6 +163,7 @@ def test_daemon_cpu_with_every_extra_output(tmp_path: Path) -> None:
     assert isinstance(result["figures"]["cpu_pct"], float)
 
 
+@pytest.mark.slow  # bench_umockdev waits 5 s for frames, too short beside two CPU hogs
 def test_umockdev() -> None:
     """Figures on the real hidapi path, or (no umockdev here) why not; never a crash."""
     from umockdev_harness import require_umockdev
