@@ -37,6 +37,18 @@ COMMANDS: dict[str, str] = {
 }
 
 
+def _stop_within(exc: BaseException) -> BaseException | None:
+    """A stop (SystemExit, KeyboardInterrupt) a signal handler raised while a command's
+    module loaded, which Python wrapped (3.11 wraps what `__set_name__` raises in a class
+    body in RuntimeError): it is raised again, never reported as a broken command."""
+    inner = exc.__cause__ or exc.__context__
+    while inner is not None:
+        if not isinstance(inner, Exception):
+            return inner
+        inner = inner.__cause__ or inner.__context__
+    return None
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The whole command line, or with `only` one command's parser: a command imports its own
     module and what it needs, not every other command's (`usb2rc run` starts sooner by the
@@ -59,6 +71,9 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
                 sys.stderr.write(f"usb2rc: the `{name}` command is unavailable: {exc!r}\n")
             continue
         except Exception as exc:  # one broken command must not take the others down
+            stop = _stop_within(exc)
+            if stop is not None:
+                raise stop from None
             sys.stderr.write(f"usb2rc: the `{name}` command is unavailable: {exc!r}\n")
             continue
         module.add_parser(subparsers)
