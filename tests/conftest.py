@@ -11,6 +11,16 @@ from pathlib import Path
 import process_harness
 import pytest
 from daemon_harness import PtyLine
+from hypothesis import HealthCheck, settings
+
+# Property tests: no deadline per example, no "too slow" health check. On a loaded host an
+# example that takes 10 ms alone can take more than hypothesis's 200 ms, and hypothesis
+# then fails the test as flaky (seen beside CPU hogs). What a test must do in time, it
+# asserts itself.
+settings.register_profile(
+    "loaded-host", deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
+settings.load_profile("loaded-host")
 
 
 def pytest_configure(config: pytest.Config) -> None:
