@@ -235,7 +235,8 @@ def test_device_whose_reads_fail(request, tmp_path, replay):
 def test_device_flooding_8khz(request, tmp_path, replay):
     """8 kHz reports (looped): the reader keeps up, ticks keep their rate, codes consecutive."""
     states = fast_states(800, 3, 0.000125)  # 0.1 s at 8 kHz, looped
-    install(replay / "flood.hid", recording(states, hold_s=0.000125))
+    # no pause at a lap's start (a streaming device that pauses 0.5 s is silent: `!`, 0x07)
+    install(replay / "flood.hid", recording(states, hold_s=0.000125, rest_s=0.000125))
     seconds = env_int("USB2RC_FLOOD_SECONDS", 10)
     line = CheckedLine()
     daemon = start(tmp_path, line.path, replay, "--replay-loop", "--stats-interval", str(seconds))
