@@ -66,6 +66,11 @@ class MavlinkTelemetry(NamedTuple):
     at: float = 0.0
 
 
+# What a line session publishes (`session.telemetry`): C2-16B the newest downlink frame per
+# Node-ID (sorted by Node-ID), CRSF and MAVLink their telemetry; None: nothing heard.
+Telemetry = tuple[Downlink, ...] | CrsfTelemetry | MavlinkTelemetry | None
+
+
 class OutputState(NamedTuple):
     """What one device should show. `indicators`: bit k on = indicator k lit. `analog`:
     (name, value) pairs from ANALOG_NAMES, absent = rest. `texts`: display lines."""
