@@ -22,6 +22,8 @@ only moves events and bytes:
     next_due(due, now)                    when the tick after the one due at `due` is due
     period(now)                           the period now (a CRSF module may set it)
     stats(now) -> dict                    what only this protocol counts (stats record)
+    telemetry                             what the far end said last, one immutable value
+                                          (`usb2rc.feedback.model.Telemetry`; None: nothing)
 
 The line's state is one `LineState` per session (h11's `_state.py`): closed, open, stalled or
 flushing, and whether usb2rc is stopping; only its events change it, and the session and its
@@ -32,6 +34,11 @@ Back-pressure is decided here, by `Backpressure`, once for every protocol (docs/
 dropped when a stall begins; a channel output on a pty drops what the far end left unread
 before each tick; a C2-16B output on a pty waits for the drain, then drops the rest; a socket
 or UDP is never flushed.
+
+What the far end says back (`telemetry`: C2-16B's downlink frames, a CRSF module's link
+statistics and sensors, the MAVLink vehicle's state) is one immutable value that `received`
+replaces whole on the driver's thread: the feedback worker reads it from its own thread
+without a lock, and never sees one report's figures with another's.
 
 Each protocol has one session class, in its package (`usb2rc.protocols.<name>.session`): a
 channel output's (one frame of its channels a tick) is a `ChannelSession`, which says what
@@ -46,6 +53,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 
+from usb2rc.feedback.model import Telemetry
 from usb2rc.nodes.step import NodeFrame, TapLatch
 from usb2rc.nodes.table import NodeSnapshot
 
@@ -217,6 +225,8 @@ class LineSession(Protocol):
     def next_due(self, due: float, now: float) -> float: ...
     def period(self, now: float) -> float: ...
     def stats(self, now: float) -> dict[str, Any]: ...
+    @property
+    def telemetry(self) -> Telemetry: ...
 
 
 class SessionBase:
@@ -296,6 +306,13 @@ class SessionBase:
 
     def stats(self, now: float) -> dict[str, Any]:
         return {"queue_full_ticks": self.backpressure.held_queue_full}
+
+    @property
+    def telemetry(self) -> Telemetry:
+        """What the far end said last, replaced whole by `received` (see the module
+        docstring); None for a protocol whose far end tells usb2rc nothing it shows (SUMD,
+        SBUS, iBus)."""
+        return None
 
 
 class ChannelValues(Protocol):

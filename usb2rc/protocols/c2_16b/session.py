@@ -10,15 +10,20 @@ announcements), fed from the node snapshot and the far end's bytes.
   the first line the events logged before it go out first (an unusable device's `3`).
 - What the far end sends is decoded here: `<` and `4` requests, at most REQUESTS_PER_TICK
   a tick (the engine coalesces them anyway); nothing else is answered.
+- Its `>` data frames are the downlink (`c2_16b.downlink`): the newest per Node-ID is the
+  session's `telemetry`, counted, and never handed to the engine, so they change nothing
+  that goes up and take nothing from the requests' limit. Other statuses are ignored.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from usb2rc.feedback.model import Downlink
 from usb2rc.lines.session import Backpressure, Delivered, EngineSession
 from usb2rc.nodes.table import NodeSnapshot, ServiceEvent
 from usb2rc.protocols.c2_16b import codec as c2_16b
+from usb2rc.protocols.c2_16b.downlink import Downlinks, is_downlink
 from usb2rc.protocols.c2_16b.engine import C2Engine, C2Settings
 
 REQUESTS_PER_TICK = 512  # 2 per Node-ID: more in one tick only repeat what is asked
@@ -46,6 +51,7 @@ class C2Session(EngineSession[C2Engine]):
         backpressure = Backpressure(tick_bytes, drops_unread_each_tick=False)
         super().__init__(name, engine, backpressure, 1.0 / settings.rate_hz)
         self.decoder = c2_16b.Decoder()
+        self.downlinks = Downlinks()
         self.requests = 0
         self.requests_dropped = 0
         self.data_frames = 0  # frames that went out whole (counted once)
@@ -61,7 +67,11 @@ class C2Session(EngineSession[C2Engine]):
         self._announce_present = True
 
     def received(self, data: bytes, now: float) -> None:
+        downlinks = self.downlinks
         for frame in self.decoder.feed(data):
+            if is_downlink(frame):
+                downlinks.take(frame)
+                continue
             if not is_request(frame):
                 continue
             self.requests += 1
@@ -70,6 +80,12 @@ class C2Session(EngineSession[C2Engine]):
                 continue
             self._requests_this_tick += 1
             self.engine.received(frame)
+        downlinks.publish(now)
+
+    @property
+    def telemetry(self) -> tuple[Downlink, ...] | None:
+        """The newest downlink of each Node-ID heard, sorted by Node-ID; None before any."""
+        return self.downlinks.latest
 
     def tick(self, now: float, snapshot: NodeSnapshot) -> bytes:
         self._requests_this_tick = 0
@@ -118,5 +134,6 @@ class C2Session(EngineSession[C2Engine]):
             "rx_crc_failures": self.decoder.crc_failures,
             "rx_requests": self.requests,
             "rx_requests_dropped": self.requests_dropped,
+            "rx_downlink_frames": self.downlinks.frames,
             "event_log_gaps": self.log_gaps,
         }
