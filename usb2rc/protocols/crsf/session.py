@@ -9,7 +9,8 @@
 - `CrsfModule`: the module as the session hears it: what it sends back (`received(data,
   now)`: link statistics, and the timing-correction frames with which an ELRS module asks the
   handset to follow its packet rate and phase), and when the next frame is due
-  (`next_send(due, now)`).
+  (`next_send(due, now)`). Its link statistics, battery and flight mode frames are the
+  session's `telemetry` (`crsf.telemetry.CrsfReports`).
 """
 
 from __future__ import annotations
@@ -18,8 +19,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from usb2rc.feedback.model import CrsfTelemetry
 from usb2rc.lines.session import ChannelSession, ChannelValues
 from usb2rc.protocols.crsf import codec as crsf
+from usb2rc.protocols.crsf.telemetry import CrsfReports
 from usb2rc.protocols.rc11_channels import padded
 
 # ELRS sends a timing correction every 200 ms while it hears the handset; after a second
@@ -71,6 +74,7 @@ class CrsfModule:
         # immutable value, assigned in one step.
         self.link: ModuleLink | None = None
         self.timing: ModuleTiming | None = None
+        self.reports = CrsfReports()
         self.timing_frames = 0
         self.timing_ignored = 0  # implausible or not followed
         self._shift_s = 0.0  # the phase correction still to apply to the next send
@@ -84,6 +88,7 @@ class CrsfModule:
                 self.link = ModuleLink(frame, now)
             elif isinstance(frame, crsf.TimingSync):
                 self._follow(frame, now)
+            self.reports.take(frame, now)
 
     def _follow(self, sync: crsf.TimingSync, now: float) -> None:
         self.timing_frames += 1
@@ -181,6 +186,11 @@ class CrsfSession(ChannelSession):
     def period(self, now: float) -> float:
         return self.module.interval_s(now)
 
+    @property
+    def telemetry(self) -> CrsfTelemetry | None:
+        """The module's link statistics, battery and flight mode (None: none heard yet)."""
+        return self.module.reports.value
+
     def stats(self, now: float) -> dict[str, Any]:
         """The module's link quality, timing and what was withheld."""
         module, decoder = self.module, self.module.decoder
@@ -195,6 +205,7 @@ class CrsfSession(ChannelSession):
             "module_rx_frames": decoder.frames,
             "module_rx_crc_failures": decoder.crc_failures,
             "module_rx_skipped": decoder.bytes_skipped,
+            **module.reports.record(),
             "timing_corrections": module.timing_frames,
             "timing_corrections_ignored": module.timing_ignored,
         }
