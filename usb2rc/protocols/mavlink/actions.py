@@ -43,9 +43,9 @@ NEEDS_MODE_MAPS = ("mode", "rtl", "land")  # action kinds that look up a mode by
 
 def mode_maps() -> Any:  # pymavlink has no types
     """pymavlink's `mavutil`, for its mode maps only. Importing it loads a whole dialect,
-    about 9 MB of RSS on a Pi that may have 512 MB: an output whose actions name no mode
-    never imports it, and one whose actions do imports it when it is built (never in a
-    tick)."""
+    about 9 MB of RSS on a Pi that may have 512 MB, once per process: a MAVLink output
+    imports it when it is built (its vehicle's mode is named by it, and actions that name a
+    mode look it up), never in a tick or on a read."""
     from pymavlink import mavutil
 
     return mavutil

@@ -17,7 +17,9 @@ Two pieces, both sans-IO (no thread, no socket, no clock: `now` is passed in):
   - manual_control: no MANUAL_CONTROL at all, so the autopilot's manual-control-lost
     failsafe fires (PX4 COM_RC_LOSS_T; ArduPilot's RC_OVERRIDE_TIME).
   What the far end sends is parsed with a second pymavlink instance
-  (`protocols.mavlink.codec.MavlinkDecoder`, `received`): its heartbeats are counted for the stats.
+  (`protocols.mavlink.codec.MavlinkDecoder`, `received`): its heartbeats are counted for the
+  stats, and the vehicle's HEARTBEAT, SYS_STATUS and BATTERY_STATUS are the session's
+  `telemetry` (`protocols.mavlink.telemetry.VehicleTelemetry`: armed, mode, battery, failsafe).
 - With a signing key (`signing_key_file`) every message is signed (MAVLink 2 signing, link
   id 0, timestamps from the wall clock passed to `tick`), and only messages signed with the
   key count from the far end.
@@ -51,6 +53,7 @@ from usb2rc.config.mavlink import (
     RC_CHANNELS_OVERRIDE,
     MavlinkOptions,
 )
+from usb2rc.feedback.model import MavlinkTelemetry
 from usb2rc.lines.session import Backpressure, Delivered, EngineSession, LineState
 from usb2rc.nodes.mapping import ChannelSource
 from usb2rc.nodes.scaling import node_button_bit
@@ -70,6 +73,7 @@ from usb2rc.protocols.mavlink.codec import (
     set_up_signing,
     signing_timestamp,
 )
+from usb2rc.protocols.mavlink.telemetry import VehicleTelemetry
 
 OVERRIDE_FIRST_CHANNELS = 8  # channels 1-8: 0 releases; 9-18 (MAVLink 2 extensions): 65534
 RELEASE_LOW, RELEASE_HIGH = 0, 65534  # common.xml: 0 / UINT16_MAX-1 "release to the RC radio"
@@ -271,6 +275,7 @@ class MavlinkEngine:
         self.releases = 0  # override messages releasing every channel (failsafe)
         self.silent_ticks = 0  # ticks without a control message (failsafe)
         self.far_end = FarEnd(MavlinkDecoder(key, wall_time))
+        self.vehicle = VehicleTelemetry(settings.target_system, settings.target_component)
         self._next_heartbeat: float | None = None
         self._failsafe_since: float | None = None
         self._pending: deque[int] = deque()
@@ -393,8 +398,9 @@ class MavlinkEngine:
 
     # --- the far end ---------------------------------------------------------------------
 
-    def received(self, data: bytes) -> None:
-        """Bytes from the far end: parsed, heartbeats counted."""
+    def received(self, data: bytes, now: float = 0.0) -> None:
+        """Bytes from the far end at `now` (the session's clock): parsed, heartbeats
+        counted, the vehicle's state kept (`vehicle`)."""
         if not data:
             return
         far = self.far_end
@@ -404,6 +410,7 @@ class MavlinkEngine:
             if message.get_type() == "HEARTBEAT":
                 far.heartbeats += 1
                 far.last_heartbeat_from = (message.get_srcSystem(), message.get_srcComponent())
+            self.vehicle.take(message, now)
 
 
 class VehicleCall:
@@ -440,6 +447,7 @@ def stats_record(session: MavlinkEngine) -> dict[str, Any]:
     if far.last_heartbeat_from is not None:
         record["far_end_heartbeat_from"] = "{}/{}".format(*far.last_heartbeat_from)
     record["far_end_skipped"] = far.decoder.bytes_skipped
+    record.update(session.vehicle.record())
     if session.signed:
         record["far_end_bad_signatures"] = far.decoder.bad_signatures
     if session.actions is not None:
@@ -522,7 +530,12 @@ class MavlinkSession(EngineSession[MavlinkEngine]):
         return Delivered(0, data, stalled)
 
     def received(self, data: bytes, now: float) -> None:
-        self.engine.received(data)
+        self.engine.received(data, now)
+
+    @property
+    def telemetry(self) -> MavlinkTelemetry | None:
+        """The vehicle's armed state, mode, battery and failsafe (None: not heard yet)."""
+        return self.engine.vehicle.value
 
     def stats(self, now: float) -> dict[str, Any]:
         return {**super().stats(now), **stats_record(self.engine)}
