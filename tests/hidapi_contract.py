@@ -31,8 +31,12 @@ Measured on the real library (umockdev 0.17.16; the node is a pty the testbed wr
 - `get_report_descriptor()` returns a list of ints (from the HIDIOCGRDESC ioctl).
 - `get_input_report(id, n)` on a device that does not answer (here: the ioctl is not mocked,
   ENOTTY; a real stick without GET_REPORT gives EPIPE) raises `OSError("read error")`.
-- After `close()` (twice is fine) `read`, `set_nonblocking` and `get_report_descriptor`
-  raise `ValueError("not open")`.
+- After `close()` (twice is fine) `read`, `set_nonblocking`, `get_report_descriptor` and
+  `write` raise `ValueError("not open")`.
+- `write(data)` (bytes or a list of ints; the report ID first, 0 for a device without IDs)
+  returns the number of bytes written, all of `data`, and the device gets exactly `data`. A
+  failed write does not raise: it returns -1, and `error()` says why as a str (after an
+  unplug: WRITE_GONE_ERROR). A second handle on the same path writes while the first reads.
 
 umockdev artifacts, not library behaviour (the checks avoid them; see umockdev_bed.py):
 reports queued on the pty come back glued in one read, and a read shorter than the report
@@ -61,6 +65,8 @@ DESCRIPTOR = bytes.fromhex(
 )
 VID, PID = 0x044F, 0xB10A
 MISSING_PATH = b"/dev/hidraw-missing"
+OUTPUT = bytes([0x00, 0x05, 0x00, 0x08])  # an output report without ID: 0 first
+WRITE_GONE_ERROR = "Input/output error"
 READ_SIZE = 1024
 
 BLOCKED_S = 0.3  # a read still waiting after this long is taken as blocking
@@ -97,6 +103,10 @@ class Rig(Protocol):
 
     def unplug(self, path: bytes) -> None:
         """The device is gone (node removed, readers woken) when this returns."""
+        ...
+
+    def written(self, path: bytes) -> bytes:
+        """What the device received (writes to it) since the last call."""
         ...
 
 
@@ -300,6 +310,27 @@ def check_closed_handle(rig: Rig) -> None:
     rig.unplug(path)
 
 
+def check_write(rig: Rig) -> None:
+    path = rig.plug()
+    reader, writer = opened(rig, path), opened(rig, path)
+    pending = Call(lambda: reader.read(64, 2000))
+    for data in (OUTPUT, list(OUTPUT)):
+        result = writer.write(data)
+        expect(result == len(OUTPUT), f"write({data!r}) returned {result!r}")
+        got = rig.written(path)
+        expect(got == OUTPUT, f"the device got {got.hex()} for write({data!r})")
+    rig.report(path, report_bytes(8))  # the first handle's read goes on meanwhile
+    expect(pending.wait(WOKEN_S) and pending.result == list(report_bytes(8)), "read beside")
+    rig.unplug(path)
+    result = writer.write(OUTPUT)
+    expect(result == -1, f"write after unplug returned {result!r}")
+    error = writer.error()
+    expect(error == WRITE_GONE_ERROR, f"error() after a failed write: {error!r}")
+    writer.close()
+    raises(lambda: writer.write(OUTPUT), ValueError, "not open")
+    reader.close()
+
+
 CHECKS: dict[str, Callable[[Rig], None]] = {
     "enumerate_entry": check_enumerate_entry,
     "open_missing_path": check_open_missing_path,
@@ -310,6 +341,7 @@ CHECKS: dict[str, Callable[[Rig], None]] = {
     "unplug_wakes_readers": check_unplug_wakes_readers,
     "after_unplug": check_after_unplug,
     "closed_handle": check_closed_handle,
+    "write": check_write,
 }
 
 
@@ -361,6 +393,9 @@ class StdioRig:
 
     def unplug(self, path: bytes) -> None:
         self._ask(op="unplug", path=path.decode())
+
+    def written(self, path: bytes) -> bytes:
+        return bytes.fromhex(self._ask(op="written", path=path.decode())["data"])
 
 
 def run_stdio() -> None:

@@ -18,6 +18,7 @@ from daemon_harness import (
     services,
     timed_recording,
 )
+from output_fakes import RecordingPort
 from test_reader import RecordingDecoder
 
 from usb2rc.hid.backend import DeviceGone, DeviceInfo
@@ -114,6 +115,9 @@ class ScriptedDevice:
         if not self.reports:
             raise DeviceGone("done")
         return self.reports.pop(0)
+
+    def open_output(self) -> RecordingPort:
+        return RecordingPort()
 
     def close(self) -> None:
         pass

@@ -59,6 +59,7 @@ class FakeHandle:
         self.path: str | None = None
         self.closed = False
         self.blocking = True
+        self.last_error = ""
 
     def open_path(self, path: bytes) -> None:
         if not isinstance(path, bytes):
@@ -119,6 +120,21 @@ class FakeHandle:
             raise item
         return list(item)[:max_length]  # b"": a scripted empty read (a timeout)
 
+    def write(self, data: Any) -> int:
+        """hid_write(): the bytes written, or -1 with the reason in error(); never raises
+        for a failed write."""
+        path = self._open_path()
+        data = bytes(data)
+        if path in self.module.gone or path in self.module.refuse_writes:
+            self.last_error = contract.WRITE_GONE_ERROR
+            return -1
+        self.module.written.setdefault(path, bytearray()).extend(data)
+        return len(data)
+
+    def error(self) -> str:
+        self._open_path()
+        return self.last_error
+
     def close(self) -> None:
         self.closed = True
 
@@ -136,6 +152,9 @@ class FakeHid:
         self.read_timeouts: list[int] = []
         self.gone: set[str] = set()
         self.changed = threading.Condition()
+        self.written: dict[str, bytearray] = {}  # path -> what its device received
+        self.refuse_writes: set[str] = set()  # paths whose writes fail (-1)
+        self.opened: list[FakeHandle] = []
 
     def enumerate(self, vendor_id: int = 0, product_id: int = 0) -> list[dict[str, Any]]:
         return [
@@ -145,7 +164,9 @@ class FakeHid:
         ]
 
     def device(self) -> FakeHandle:
-        return FakeHandle(self)
+        handle = FakeHandle(self)
+        self.opened.append(handle)
+        return handle
 
     def present(self, path: str) -> bool:
         return path not in self.gone and any(e["path"] == path.encode() for e in self.entries)
@@ -182,6 +203,9 @@ class FakeRig:
 
     def unplug(self, path: bytes) -> None:
         self.hid.unplug(path.decode())
+
+    def written(self, path: bytes) -> bytes:
+        return bytes(self.hid.written.pop(path.decode(), b""))
 
 
 def test_the_fake_keeps_the_real_librarys_contract() -> None:

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from daemon_harness import INVERT_X_CONFIG, T16000M_DESCRIPTOR
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from output_fakes import RecordingPort
 from table_reader import TableReader
 
 from usb2rc.configfile import Config, load_config_text
@@ -42,6 +43,9 @@ class FakeDevice:
 
     def read(self, timeout_s: float) -> bytes | None:
         return None
+
+    def open_output(self) -> RecordingPort:
+        return RecordingPort()
 
     def close(self) -> None:
         self.closed = True

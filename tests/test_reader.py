@@ -8,9 +8,10 @@ from pathlib import Path
 
 import pytest
 from daemon_harness import StickState, recording
+from output_fakes import RecordingPort
 from test_replay import numbered, recording_text
 
-from usb2rc.hid.backend import DeviceInfo, ErrorCode
+from usb2rc.hid.backend import DeviceInfo, ErrorCode, OutputPort
 from usb2rc.hid.descriptor import InputState, parse_descriptor
 from usb2rc.hid.reader import (
     LAST_CALL_S,
@@ -68,6 +69,9 @@ class CloseSpy:
 
     def read(self, timeout_s: float) -> bytes | None:
         return self.device.read(timeout_s)
+
+    def open_output(self) -> OutputPort:
+        return self.device.open_output()
 
     def close(self) -> None:
         self.device.close()
@@ -149,6 +153,9 @@ class Exploding:
     def read(self, timeout_s: float) -> bytes | None:
         raise ValueError("not an OSError: a bug in a backend")
 
+    def open_output(self) -> RecordingPort:
+        return RecordingPort()
+
     def close(self) -> None:
         self.closed = True
 
@@ -176,6 +183,9 @@ class OneReport:
 
     def read(self, timeout_s: float) -> bytes | None:
         return self._queue.pop() if self._queue else None
+
+    def open_output(self) -> RecordingPort:
+        return RecordingPort()
 
     def close(self) -> None:
         pass

@@ -7,6 +7,7 @@ from __future__ import annotations
 import threading
 from collections import deque
 
+from output_fakes import RecordingPort
 from test_reader import Exits, RecordingDecoder
 
 from usb2rc.hid.backend import DeviceGone, DeviceInfo, ErrorCode
@@ -36,6 +37,9 @@ class QueueDevice:
 
     def report_descriptor(self) -> bytes:
         return b""
+
+    def open_output(self) -> RecordingPort:
+        return RecordingPort()
 
     def close(self) -> None:
         self.closed.set()

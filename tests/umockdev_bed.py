@@ -12,9 +12,14 @@ on failure, never an exception that ends the bed):
      "manufacturer": "Thrustmaster", "serial": "", "descriptor": "0501...", "mode": 0}
         -> {"ok": true, "hidraw": "/dev/hidraw0", "syspath": "/sys/devices/..."}
     {"cmd": "report", "hidraw": "/dev/hidraw0", "data": "0100..."}  -> {"ok": true, "t": T}
+    {"cmd": "written", "hidraw": "/dev/hidraw0"}            -> {"ok": true, "data": "0201..."}
     {"cmd": "remove", "hidraw": "/dev/hidraw0"}          -> {"ok": true, "t": T, "closed": T2}
     {"cmd": "chmod", "hidraw": "/dev/hidraw0", "mode": 0}              -> {"ok": true}
     {"cmd": "quit"}
+
+`written` returns what programs wrote to the node since the last `written` (output reports,
+as hidapi's write() sends them: report ID first, 0 for a device without IDs), without
+waiting: "" when nothing came. A pty keeps no boundaries: writes that queued come glued.
 
 T is time.monotonic() (CLOCK_MONOTONIC, system-wide: comparable with the test's clock) taken
 right after the report was written / just before the unplug began (its first uevent); T2
@@ -269,6 +274,21 @@ class Bed:
             raise OSError(f"short write to {dev.node}: {written} of {len(data)} bytes")
         return {"t": time.monotonic()}
 
+    def written(self, cmd: dict[str, Any]) -> dict[str, Any]:
+        """What was written to the node (its pty slave) since the last call: the master's
+        side, read without blocking."""
+        dev = self._plugged(cmd)
+        chunks = []
+        os.set_blocking(dev.master, False)
+        try:
+            while chunk := os.read(dev.master, 4096):
+                chunks.append(chunk)
+        except BlockingIOError:
+            pass  # nothing more queued
+        finally:
+            os.set_blocking(dev.master, True)  # reports are written blocking
+        return {"data": b"".join(chunks).hex()}
+
     def remove(self, cmd: dict[str, Any]) -> dict[str, Any]:
         dev = self.plugged.pop(cmd["hidraw"]) if cmd["hidraw"] in self.plugged else None
         if dev is None:
@@ -301,7 +321,13 @@ class Bed:
 
 
 def serve(bed: Bed) -> None:
-    handlers = {"add": bed.add, "report": bed.report, "remove": bed.remove, "chmod": bed.chmod}
+    handlers = {
+        "add": bed.add,
+        "report": bed.report,
+        "written": bed.written,
+        "remove": bed.remove,
+        "chmod": bed.chmod,
+    }
     for line in sys.stdin:
         if not line.strip():
             continue

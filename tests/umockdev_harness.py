@@ -96,6 +96,25 @@ class FakeStick:
     serial: str = ""
 
 
+# A stick with outputs (for the output-report tests): report 1 in (X, Y 0..4095 in 16 bits,
+# buttons 1..8), report 2 out: LEDs Num Lock .. Kana (1 bit each), 3 bits padding, LED
+# Intensity (8 bits, 0..255), Ordinal instances 1, 2 and a vendor bit (1 bit each), 5 bits
+# padding: 3 data bytes after the ID.
+LED_STICK_DESCRIPTOR = bytes.fromhex(
+    "05010904a101"  # Generic Desktop, Joystick, Collection (Application)
+    "850109300931150026ff0f751095028102"  # ID 1: X, Y
+    "05091901290815002501750195088102"  # buttons 1..8
+    "850205081901290515002501750195059102"  # ID 2: LEDs 1..5
+    "950175039101"  # padding
+    "095626ff00750895019102"  # LED Intensity
+    "050a190129022501750195029102"  # Ordinal 1, 2
+    "0600ff090195019102"  # vendor 0xFF00:0x0001
+    "95059101"  # padding
+    "c0"
+)
+LED_STICK_OUTPUT_BYTES = 3  # report 2's data bytes
+
+
 class BedError(RuntimeError):
     """The testbed refused a command or went away."""
 
@@ -171,6 +190,11 @@ class UsbBed:
     def report(self, hidraw: str, data: bytes) -> float:
         """Write one input report; the monotonic time right after the write."""
         return float(self.command("report", hidraw=hidraw, data=data.hex())["t"])
+
+    def written(self, hidraw: str) -> bytes:
+        """What programs wrote to the node since the last call (output reports, glued), at
+        once: b"" when nothing came."""
+        return bytes.fromhex(self.command("written", hidraw=hidraw)["data"])
 
     def remove(self, hidraw: str) -> float:
         """Unplug; the monotonic time the unplug began (a uevent watcher may act from then
@@ -257,6 +281,8 @@ def run_real_contract(bed: UsbBed, timeout: float = 60.0) -> list[dict[str, Any]
                 elif request["op"] == "report":
                     bed.report(request["path"], bytes.fromhex(request["data"]))
                     reply = {}
+                elif request["op"] == "written":
+                    reply = {"data": bed.written(request["path"]).hex()}
                 else:
                     bed.remove(request["path"])
                     reply = {}

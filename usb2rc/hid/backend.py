@@ -6,6 +6,10 @@ that picks one is hid/choose.py, and the help text for permission problems hid/p
 A backend enumerates devices (`DeviceInfo`) and opens them (`Device`). A reader thread owns an
 open device and blocks in `read(timeout_s)`. `DeviceGone` from `read` means the device was
 unplugged; any other `OSError` is a read failure (`ErrorCode.READ_FAILED`).
+
+Outputs (LEDs, rumble, a display) go through a port of their own (`Device.open_output()`):
+a second handle on the device, so a write never shares what the reads use, and never waits
+for a read. The reader thread opens, writes and closes it (usb2rc.hid.reader).
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Protocol, runtime_checkable
 
+from usb2rc.feedback.model import OutputWrite
 from usb2rc.hid.usages import is_joystick_like, make_usage, top_level_usage_name
 
 
@@ -68,6 +73,7 @@ class DeviceInfo:
     usage_page: int = 0
     usage: int = 0
     hidraw: str = ""  # "/dev/hidraw3" or ""
+    bus: str = ""  # "usb", "bluetooth", or "" (other or unknown): vendor output formats differ
 
     @property
     def identity(self) -> str:
@@ -87,6 +93,22 @@ class DeviceInfo:
         return top_level_usage_name(self.application)
 
 
+BUS_USB, BUS_BLUETOOTH = "usb", "bluetooth"
+
+
+@runtime_checkable
+class OutputPort(Protocol):
+    """Writes to one device's outputs; one thread at a time (its reader's)."""
+
+    def write(self, w: OutputWrite) -> None:
+        """Send one HID output report or USB control transfer. Raises DeviceGone when the
+        device is unplugged, another OSError when it refuses the write; its message says
+        what was refused and what to do (permissions, a missing library)."""
+        ...
+
+    def close(self) -> None: ...
+
+
 @runtime_checkable
 class Device(Protocol):
     info: DeviceInfo
@@ -98,6 +120,12 @@ class Device(Protocol):
 
         Raises DeviceGone when unplugged, another OSError on a read failure.
         """
+        ...
+
+    def open_output(self) -> OutputPort:
+        """A port for the device's outputs, apart from the reads (its own handle where the
+        backend has handles). Raises OSError (DevicePermissionError, DeviceGone) when it
+        cannot be opened; close it before (or with) the device."""
         ...
 
     def close(self) -> None: ...

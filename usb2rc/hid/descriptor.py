@@ -315,6 +315,10 @@ class _Parser:
     # -- driver ------------------------------------------------------------------------------
 
     def parse(self, data: bytes) -> DeviceLayout:
+        self.run(data)
+        return self.finish(len(data))
+
+    def run(self, data: bytes) -> None:
         for item in _items(data):
             kind = item.tag & 0x0C
             if kind == 0x00:
@@ -324,13 +328,15 @@ class _Parser:
             elif kind == 0x08:
                 self.local_item(item)
             # kind 0x0C: reserved item type, skipped
-        return self.finish(len(data))
 
-    def finish(self, end: int) -> DeviceLayout:
+    def check_closed(self, end: int) -> None:
         if self.depth:
             raise DescriptorError(
                 f"unbalanced collections: {self.depth} still open at the end (byte {end})"
             )
+
+    def finish(self, end: int) -> DeviceLayout:
+        self.check_closed(end)
         lengths = {rid: (bits + 7) // 8 for rid, bits in self.bit_ends.items() if bits}
         if not self.inputs and not self.buttons and not self.button_arrays:
             raise DescriptorError("no usable inputs in the descriptor")
@@ -450,11 +456,14 @@ class _Parser:
         elif item.tag == COLLECTION:
             self.open_collection(item)
         elif item.tag == END_COLLECTION:
-            if not self.depth:
-                raise DescriptorError(f"End Collection without Collection at byte {item.offset}")
-            self.depth -= 1
+            self.close_collection(item)
         # Output, Feature and reserved main items carry nothing into input reports.
         self.local = _Locals()
+
+    def close_collection(self, item: _Item) -> None:
+        if not self.depth:
+            raise DescriptorError(f"End Collection without Collection at byte {item.offset}")
+        self.depth -= 1
 
     def open_collection(self, item: _Item) -> None:
         if self.depth == 0 and item.value == COLLECTION_APPLICATION and self.application is None:
@@ -462,16 +471,23 @@ class _Parser:
             self.application = runs[0].first if runs else 0
         self.depth += 1
 
-    def input(self, item: _Item) -> None:
+    def reserve(self, ends: dict[int, int], item: _Item, kind: str) -> int:
+        """The bit offset of a Main item's data in its report; the report grows by it."""
         glob = self.glob
-        size, count, rid = glob.report_size, glob.report_count, glob.report_id
-        start = self.bit_ends.get(rid, 0)
-        end = start + size * count
+        rid = glob.report_id
+        start = ends.get(rid, 0)
+        end = start + glob.report_size * glob.report_count
         if end > MAX_REPORT_BYTES * 8:
             raise DescriptorError(
-                f"input report {rid} longer than {MAX_REPORT_BYTES} bytes at byte {item.offset}"
+                f"{kind} report {rid} longer than {MAX_REPORT_BYTES} bytes at byte {item.offset}"
             )
-        self.bit_ends[rid] = end
+        ends[rid] = end
+        return start
+
+    def input(self, item: _Item) -> None:
+        glob = self.glob
+        size, count = glob.report_size, glob.report_count
+        start = self.reserve(self.bit_ends, item, "input")
         if item.value & FLAG_CONSTANT or not self.local.runs or count == 0:
             return  # padding: advances the offset only
         if size == 0:
@@ -606,6 +622,131 @@ def parse_descriptor(data: bytes) -> DeviceLayout:
 @functools.lru_cache(maxsize=64)
 def _parse_cached(data: bytes) -> DeviceLayout:
     return _Parser().parse(data)
+
+
+# --------------------------------------------------------------------------------------------
+# Output reports: a pass of their own, on request (the input path above never pays for it)
+
+
+MAX_ARRAY_USAGES = 1 << 16  # usages an output array keeps (a selector cannot name more)
+
+
+@dataclass(frozen=True)
+class OutputField:
+    """One Output main item: `count` values of `bit_size` bits side by side from
+    `bit_offset` (from the first data byte, after the report-ID byte). `usages`: a
+    variable item's usage of each value (the last one repeating, as for inputs); an
+    array's the usages its values select (`logical_min` selects the first); a constant's
+    none. Logical limits as for inputs (signed when the minimum is negative)."""
+
+    report_id: int
+    bit_offset: int
+    bit_size: int
+    count: int
+    usages: tuple[int, ...]
+    logical_min: int
+    logical_max: int
+    variable: bool
+    constant: bool
+
+    @property
+    def usage_page(self) -> int:
+        """The page of its first usage; 0 when it has none."""
+        return self.usages[0] >> 16 if self.usages else 0
+
+    def value_offset(self, index: int) -> int:
+        """The bit offset of value `index` (0 .. count - 1)."""
+        return self.bit_offset + index * self.bit_size
+
+
+@dataclass(frozen=True)
+class OutputLayout:
+    """A device's output reports: their fields in descriptor order, and each report's
+    length in data bytes (without the ID byte) per report ID (0: the device uses none)."""
+
+    fields: tuple[OutputField, ...]
+    report_lengths: dict[int, int]
+
+    @property
+    def uses_report_ids(self) -> bool:
+        return 0 not in self.report_lengths
+
+
+class _OutputParser(_Parser):
+    """The same item state machine, for Output items only (Input items are skipped: their
+    checks belong to `parse_descriptor`)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.output_ends: dict[int, int] = {}  # report ID -> output bits so far
+        self.outputs: list[OutputField] = []
+
+    def main(self, item: _Item) -> None:
+        self.concatenate_usage_page()
+        if item.tag == OUTPUT:
+            self.output(item)
+        elif item.tag == COLLECTION:
+            self.depth += 1
+        elif item.tag == END_COLLECTION:
+            self.close_collection(item)
+        self.local = _Locals()
+
+    def output(self, item: _Item) -> None:
+        glob = self.glob
+        size, count, rid = glob.report_size, glob.report_count, glob.report_id
+        start = self.reserve(self.output_ends, item, "output")
+        if count == 0 or size == 0:
+            return
+        constant = bool(item.value & FLAG_CONSTANT)
+        variable = bool(item.value & FLAG_VARIABLE)
+        low, high = glob.logical_range()
+        runs = self.local.runs
+        if constant or not runs:
+            usages: tuple[int, ...] = ()
+        elif variable:
+            usages = tuple(_usages_for(runs, count))
+        else:
+            usages = tuple(_array_usages(runs))
+        self.outputs.append(
+            OutputField(rid, start, size, count, usages, low, high, variable, constant)
+        )
+
+    def output_layout(self, end: int) -> OutputLayout:
+        self.check_closed(end)
+        lengths = {rid: (bits + 7) // 8 for rid, bits in self.output_ends.items() if bits}
+        if 0 in lengths and len(lengths) > 1:
+            raise DescriptorError("output items without a report ID beside numbered reports")
+        return OutputLayout(tuple(self.outputs), lengths)
+
+
+def _array_usages(runs: list[_UsageRun]) -> Iterator[int]:
+    """An array's selectable usages in order, at most MAX_ARRAY_USAGES."""
+    left = MAX_ARRAY_USAGES
+    for run in runs:
+        take = min(len(run), left)
+        yield from range(run.first, run.first + take)
+        left -= take
+        if not left:
+            return
+
+
+def parse_outputs(data: bytes) -> OutputLayout:
+    """The output reports of a HID report descriptor (none: an empty layout). A separate
+    pass over the items, only for a caller that drives outputs. Raises DescriptorError (and
+    nothing else) for a descriptor it cannot read."""
+    try:
+        return _parse_outputs_cached(bytes(data))
+    except DescriptorError:
+        raise
+    except Exception as exc:  # as parse_descriptor: one error type for a bad descriptor
+        raise DescriptorError(f"descriptor not understood: {exc!r}") from exc
+
+
+@functools.lru_cache(maxsize=64)
+def _parse_outputs_cached(data: bytes) -> OutputLayout:
+    parser = _OutputParser()
+    parser.run(data)
+    return parser.output_layout(len(data))
 
 
 # --------------------------------------------------------------------------------------------

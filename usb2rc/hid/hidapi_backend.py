@@ -4,6 +4,11 @@ On Linux this uses the `hidraw` module of the hidapi package (the hidraw backend
 each top-level usage and leaves the kernel driver alone); the default `hid` module there is
 libusb, which reports no usage page and detaches the kernel driver. Elsewhere it uses `hid`.
 The USB port path comes from sysfs on Linux, from pyusb elsewhere.
+
+Outputs (`HidapiDevice.open_output`) go through a second hidapi handle on the same path:
+hidapi keeps each handle's last error string unguarded, so two threads must never share a
+handle, and a write never waits for a read. USB control transfers (vendor formats the
+descriptor cannot say) go through pyusb, imported only when one is written.
 """
 
 from __future__ import annotations
@@ -16,17 +21,21 @@ import os
 import re
 import sys
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 from typing import Any
 
+from usb2rc.feedback.model import HidReport, OutputWrite, UsbControl
 from usb2rc.hid.backend import (
+    BUS_BLUETOOTH,
+    BUS_USB,
     DeviceGone,
     DeviceInfo,
     DeviceOpenError,
     DevicePermissionError,
 )
-from usb2rc.hid.permissions import permission_message
+from usb2rc.hid.permissions import INSTALL_RULE, permission_message
 from usb2rc.hid.usages import is_joystick_like, make_usage
 
 log = logging.getLogger(__name__)
@@ -36,6 +45,10 @@ READ_SIZE = 1024  # hidraw returns one report per read; larger than any input re
 # report on a blocking handle; > 0 means hid_read_timeout() (poll for that long). Handles are
 # blocking when opened, so open() makes them non-blocking: hid_read() then polls.
 _USB_DEVICE_DIR = re.compile(r"^\d+-\d+(\.\d+)*$")  # "1-1.2"; not "usb1", not "1-1.2:1.0"
+# hidapi's hid_bus_type (enumerate()'s `bus_type`, hidapi >= 0.13) and the kernel's bus
+# numbers (sysfs HID_ID "0005:..."), for DeviceInfo.bus
+_HIDAPI_BUSES = {1: BUS_USB, 2: BUS_BLUETOOTH}
+_KERNEL_BUSES = {0x0003: BUS_USB, 0x0005: BUS_BLUETOOTH}
 
 
 def load_hid_module() -> ModuleType:
@@ -61,6 +74,20 @@ def port_path_from_sysfs(hidraw_name: str, sysfs_root: Path) -> str:
         if _USB_DEVICE_DIR.match(part.name):
             return part.name
     return ""  # not USB (Bluetooth, uhid)
+
+
+def bus_from_sysfs(hidraw_name: str, sysfs_root: Path) -> str:
+    """The bus from the hid device's uevent HID_ID ("0005:0000054C:..." is "bluetooth")."""
+    path = sysfs_root / "class" / "hidraw" / hidraw_name / "device" / "uevent"
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return ""
+    for line in lines:
+        if line.startswith("HID_ID="):
+            with contextlib.suppress(ValueError):
+                return _KERNEL_BUSES.get(int(line[7:].split(":")[0], 16), "")
+    return ""
 
 
 def descriptor_from_sysfs(hidraw_name: str, sysfs_root: Path) -> bytes | None:
@@ -118,6 +145,12 @@ class HidapiBackend:
             return port_path_from_sysfs(os.path.basename(hidraw), self._sysfs)
         return port_path_from_pyusb(vid, pid, serial)
 
+    def _bus(self, entry: dict[str, Any], hidraw: str) -> str:
+        bus = _HIDAPI_BUSES.get(int(entry.get("bus_type", 0) or 0), "")
+        if not bus and self._linux and hidraw:
+            bus = bus_from_sysfs(os.path.basename(hidraw), self._sysfs)
+        return bus
+
     def _info(self, entry: dict[str, Any], usage_page: int, usage: int) -> DeviceInfo:
         path = _text(entry.get("path"))
         hidraw = path if self._linux and path.startswith("/dev/hidraw") else ""
@@ -136,6 +169,7 @@ class HidapiBackend:
             usage_page=usage_page,
             usage=usage,
             hidraw=hidraw,
+            bus=self._bus(entry, hidraw),
         )
 
     def enumerate(self, all: bool = False) -> list[DeviceInfo]:
@@ -155,30 +189,35 @@ class HidapiBackend:
         return infos
 
     def open(self, info: DeviceInfo) -> HidapiDevice:
-        handle = self._hid.device()
-        try:
-            handle.open_path(info.path.encode())
-        except (OSError, ValueError) as exc:
-            raise self._open_error(info, exc) from exc
+        handle = open_handle(self._hid, info)
         try:
             handle.set_nonblocking(1)
         except (OSError, ValueError) as exc:
             with contextlib.suppress(Exception):
                 handle.close()
-            raise self._open_error(info, exc) from exc
+            raise open_error(info, exc) from exc
         return HidapiDevice(info, handle, self._hid, self._sysfs)
 
-    def _open_error(self, info: DeviceInfo, exc: Exception) -> OSError:
-        node = info.hidraw
-        if node and not os.path.exists(node):
-            return DeviceGone(f"{node}: unplugged before it could be opened")
-        if node and not os.access(node, os.R_OK | os.W_OK):
-            return DevicePermissionError(errno.EACCES, permission_message(node))
-        if isinstance(exc, PermissionError):
-            return DevicePermissionError(errno.EACCES, permission_message(node or info.path))
-        return DeviceOpenError(
-            errno.EIO, f"{node or info.path}: cannot open {info.identity}: {exc}"
-        )
+
+def open_handle(hid: Any, info: DeviceInfo) -> Any:
+    """A new hidapi handle on the device; the errors of `HidapiBackend.open`."""
+    handle = hid.device()
+    try:
+        handle.open_path(info.path.encode())
+    except (OSError, ValueError) as exc:
+        raise open_error(info, exc) from exc
+    return handle
+
+
+def open_error(info: DeviceInfo, exc: Exception) -> OSError:
+    node = info.hidraw
+    if node and not os.path.exists(node):
+        return DeviceGone(f"{node}: unplugged before it could be opened")
+    if node and not os.access(node, os.R_OK | os.W_OK):
+        return DevicePermissionError(errno.EACCES, permission_message(node))
+    if isinstance(exc, PermissionError):
+        return DevicePermissionError(errno.EACCES, permission_message(node or info.path))
+    return DeviceOpenError(errno.EIO, f"{node or info.path}: cannot open {info.identity}: {exc}")
 
 
 class HidapiDevice:
@@ -258,6 +297,112 @@ class HidapiDevice:
         # Round up: a timeout that rounds to 0 ms would mean hid_read(), not a short wait.
         return self._handle.read(READ_SIZE, max(1, math.ceil(timeout_s * 1000)))
 
+    def open_output(self) -> HidapiOutputPort:
+        """A second handle on the same path (module docstring: never the reads' handle)."""
+        return HidapiOutputPort(self.info, open_handle(self._hid, self.info), self._gone)
+
     def close(self) -> None:
         with contextlib.suppress(Exception):
             self._handle.close()
+
+
+class HidapiOutputPort:
+    """Writes to one device: HID output reports on its own hidapi handle, USB control
+    transfers through pyusb (found by VID:PID and port path when the first one is written).
+    Used by one thread (the device's reader)."""
+
+    def __init__(self, info: DeviceInfo, handle: Any, gone: Callable[[], bool]) -> None:
+        self.info = info
+        self._handle = handle
+        self._gone = gone
+        self._usb: Any = None  # the pyusb device, once a control transfer needed it
+
+    def write(self, w: OutputWrite) -> None:
+        if isinstance(w, HidReport):
+            self._write_report(w.data)
+        else:
+            self._control(w)
+
+    def _write_report(self, data: bytes) -> None:
+        what = f"{self.info.hidraw or self.info.path}: output report {data[0] if data else 0}"
+        try:
+            written = self._handle.write(data)
+        except (OSError, ValueError) as exc:
+            written, cause = -1, str(exc)
+        else:
+            # cython-hidapi returns hid_write()'s result: -1 on failure (the reason in the
+            # handle's error()), never raises for it (tests/hidapi_contract.py)
+            cause = "" if written >= 0 else self._handle_error()
+        if written >= 0:
+            return
+        if self._gone():
+            raise DeviceGone(f"{what}: unplugged")
+        raise OSError(errno.EIO, f"{what} refused by the device: {cause or 'no reason given'}")
+
+    def _handle_error(self) -> str:
+        try:
+            return str(self._handle.error() or "")
+        except Exception:
+            return ""
+
+    def _control(self, w: UsbControl) -> None:
+        device = self._usb_device()
+        try:
+            device.ctrl_transfer(w.request_type, w.request, w.w_value, w.w_index, w.data)
+        except Exception as exc:  # pyusb's USBError, USBTimeoutError
+            raise self._usb_error(exc) from exc
+
+    def _usb_error(self, exc: Exception) -> OSError:
+        code = getattr(exc, "errno", None)
+        where = f"USB device {self.info.vid:04x}:{self.info.pid:04x} at {self.info.port_path}"
+        if code == errno.EACCES:
+            return DevicePermissionError(
+                errno.EACCES,
+                f"permission denied on the {where} (its /dev/bus/usb node): install the udev "
+                f"rule with {INSTALL_RULE}, which gives the usb2rc group write access to it",
+            )
+        if code == errno.ENODEV or self._gone():
+            return DeviceGone(f"{where}: unplugged")
+        return OSError(errno.EIO, f"{where}: control transfer refused: {exc}")
+
+    def _usb_device(self) -> Any:
+        if self._usb is None:
+            self._usb = find_usb_device(self.info)
+        return self._usb
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._handle.close()
+        if self._usb is not None:
+            with contextlib.suppress(Exception):
+                import usb.util
+
+                usb.util.dispose_resources(self._usb)
+            self._usb = None
+
+
+def find_usb_device(info: DeviceInfo) -> Any:
+    """The pyusb device of `info`: its VID:PID at its port path (or with its serial, or the
+    only one). OSError saying what is missing when there is none or pyusb cannot look."""
+    try:
+        import usb.core
+    except ImportError as exc:
+        raise OSError(errno.ENOPKG, f"USB control transfers need pyusb: {exc}") from exc
+    try:
+        found = list(usb.core.find(find_all=True, idVendor=info.vid, idProduct=info.pid) or ())
+    except Exception as exc:  # usb.core.NoBackendError: no libusb
+        raise OSError(
+            errno.ENOPKG, f"pyusb cannot reach USB devices ({exc}): install libusb-1.0"
+        ) from exc
+    for dev in found:
+        ports = getattr(dev, "port_numbers", None) or ()
+        port_path = f"{dev.bus}-{'.'.join(str(p) for p in ports)}" if ports else ""
+        if info.port_path and port_path == info.port_path:
+            return dev
+        if not info.port_path and info.serial and _usb_serial(dev) == info.serial:
+            return dev
+    if len(found) == 1 and not info.port_path:
+        return found[0]
+    raise DeviceGone(
+        f"USB device {info.vid:04x}:{info.pid:04x} at {info.port_path or '?'}: not found by pyusb"
+    )

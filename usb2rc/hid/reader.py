@@ -17,6 +17,18 @@ The thread only holds the device: it waits for `stop()` or for a failure a pull 
 then reports as its own read would (`on_exit`), and it closes the device; a pull and the
 close never overlap (`_device_lock`), and a pull after the close does nothing.
 
+Outputs (pulled readers only): `post_output(driver, state)` leaves the newest state a device
+should show in a mailbox (the feedback thread's call; a newer post replaces one not written
+yet) and wakes the thread, which writes what changed (`driver.writes(state, shown)`) through
+the device's output port (`device.open_output()`, opened when first needed, closed before the
+device). The thread writes without `_device_lock`: a slow or refused write never delays a
+pull. At most OUTPUT_RATE_HZ states a second are shown (a token bucket of OUTPUT_BURST: a
+change after a quiet spell goes at once, one that must wait goes when a token comes, as the
+newest state then). A refusal (the port cannot be opened, a write fails, the driver fails)
+is logged once per device, counted (`outputs`), and tried again after OUTPUT_RETRY_S with
+everything rewritten; the input goes on. At stop a state not shown yet is written once.
+A reader that is not pulled ignores posts: its thread is in `device.read`.
+
 Not pulled (`usb2rc calibrate`, tests), it blocks in `device.read(timeout)`; with a
 `next_tick` (a grid's next tick and period) it drains and sleeps until just before that tick
 (`reader_pause`).
@@ -38,9 +50,9 @@ import time
 from collections.abc import Callable, Sequence
 from typing import NamedTuple, Protocol, runtime_checkable
 
-from usb2rc.hid.backend import Device, DeviceGone, ErrorCode
+from usb2rc.feedback.model import OutputDriver, OutputState
+from usb2rc.hid.backend import Device, DeviceGone, ErrorCode, OutputPort
 from usb2rc.hid.descriptor import InputState
-from usb2rc.runtime.flag import WakeFlag
 from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger(__name__)
@@ -61,6 +73,9 @@ LAST_CALL_S = 0.00025  # and once more this long before it, for what came in mea
 # drivers begin the starts that close together, and a CRSF module that sets its own phase
 # puts CRSF's anywhere, so two starts 4 ms apart may measure a little less.
 ONE_WAKE_GAP_S = 2 * READ_AHEAD_S + 0.0005
+OUTPUT_RATE_HZ = 20.0  # output states shown per second and device, at most
+OUTPUT_BURST = 3  # states shown at once after a quiet spell
+OUTPUT_RETRY_S = 1.0  # after a refusal, the next try
 
 
 class GridTick(Protocol):
@@ -153,6 +168,39 @@ class ReaderRecord(NamedTuple):
         return mask
 
 
+class TokenBucket:
+    """`burst` tokens, refilled at `rate_hz`; a write takes one."""
+
+    def __init__(self, rate_hz: float, burst: int, now: float) -> None:
+        self._rate = rate_hz
+        self._burst = float(burst)
+        self._tokens = float(burst)
+        self._at = now
+
+    def _refill(self, now: float) -> None:
+        self._tokens = min(self._burst, self._tokens + (now - self._at) * self._rate)
+        self._at = now
+
+    def wait_s(self, now: float) -> float:
+        """0 when a token is there, else how long until one is."""
+        self._refill(now)
+        missing = 1.0 - self._tokens
+        return 0.0 if missing <= 1e-9 else missing / self._rate  # 1e-9: float sums
+
+    def take(self, now: float) -> None:
+        self._refill(now)
+        self._tokens -= 1.0
+
+
+class OutputRecord(NamedTuple):
+    """A reader's outputs so far, as one value (replaced whole by its thread)."""
+
+    written: int = 0  # writes made (reports, control transfers)
+    refused: int = 0  # tries that failed (the port would not open, a write or driver failed)
+    last_error: str = ""  # why the last one failed
+    shown: OutputState | None = None  # what the device shows (None: not known, or nothing)
+
+
 class DeviceReader(Worker):
     def __init__(
         self,
@@ -191,7 +239,17 @@ class DeviceReader(Worker):
         self._device_lock = threading.Lock()
         self._closed = False
         self._pull_error: BaseException | None = None
-        self._woken = WakeFlag()  # stop(), or a failure a pull met
+        # stop(), a failure a pull met, or an output post: the pulled thread's wake-up
+        self._woken = threading.Event()
+        # Outputs (module docstring): the mailbox, replaced whole by post_output; the rest is
+        # the reader thread's own.
+        self._output_post: tuple[OutputDriver, OutputState] | None = None
+        self._output_port: OutputPort | None = None
+        self._shown_by: OutputDriver | None = None  # the driver `outputs.shown` was written by
+        self._output_bucket = TokenBucket(OUTPUT_RATE_HZ, OUTPUT_BURST, time.monotonic())
+        self._output_retry_at = 0.0
+        self._output_refusal_logged = False
+        self.outputs = OutputRecord()
         super().__init__(f"hid-reader {self.info.port_path or self.info.path}")
 
     # Views of the record, for statistics and tests.
@@ -314,13 +372,106 @@ class DeviceReader(Worker):
         super().stop()
         self._woken.set()
 
+    # -- outputs -----------------------------------------------------------------------------
+
+    def post_output(self, driver: OutputDriver, state: OutputState) -> None:
+        """What the device should show now (the feedback thread's call, never blocks): the
+        reader thread writes it, or a newer post, when the rate allows. Ignored when the
+        reader is not pulled."""
+        if not self._pulled:
+            return
+        self._output_post = (driver, state)
+        self._woken.set()
+
+    @property
+    def outputs_written(self) -> int:
+        return self.outputs.written
+
+    @property
+    def outputs_refused(self) -> int:
+        return self.outputs.refused
+
+    def _serve_outputs(self, now: float, flush: bool = False) -> float:
+        """Write the newest posted state while one is not shown and the rate allows (flush:
+        once, at once: at stop); how long until the next may be (TIMEOUT_MAX: none waits)."""
+        wait = self._output_wait(now)
+        while wait is not None and (wait <= 0 or flush):
+            self._show_post(now)
+            if flush:
+                return threading.TIMEOUT_MAX
+            wait = self._output_wait(now)
+        return threading.TIMEOUT_MAX if wait is None else wait
+
+    def _output_wait(self, now: float) -> float | None:
+        """None when the newest post is shown (or there is none), else how long until a
+        write may show it (<= 0: now)."""
+        post = self._output_post
+        if post is None or (post[0] is self._shown_by and post[1] == self.outputs.shown):
+            return None
+        return max(self._output_bucket.wait_s(now), self._output_retry_at - now)
+
+    def _show_post(self, now: float) -> None:
+        post = self._output_post
+        assert post is not None
+        driver, state = post
+        shown = self.outputs.shown if driver is self._shown_by else None
+        self._output_bucket.take(now)
+        written = 0
+        try:
+            writes = driver.writes(state, shown)
+            if writes:
+                port = self._output_port
+                if port is None:  # opened when first needed: a device never written keeps none
+                    port = self._output_port = self.device.open_output()
+                for w in writes:
+                    port.write(w)
+                    written += 1
+        except Exception as exc:  # a refusal must never end the reader: its input goes on
+            self._output_refused(exc, written, now)
+            return
+        self._shown_by = driver
+        self.outputs = self.outputs._replace(written=self.outputs.written + written, shown=state)
+
+    def _output_refused(self, exc: Exception, written: int, now: float) -> None:
+        """Counted always, logged once per device; the port is closed and everything is
+        written again at the next try (a partial write leaves the device unknown)."""
+        # an OSError's own words, without "[Errno 5]"
+        text = (exc.strerror if isinstance(exc, OSError) else None) or str(exc)
+        text = text or type(exc).__name__
+        if not self._output_refusal_logged:
+            self._output_refusal_logged = True
+            log.warning(
+                "%s: output refused: %s (its input goes on; further refusals are only counted)",
+                self.info.path,
+                text,
+                exc_info=not isinstance(exc, OSError),
+            )
+        self._close_output_port()
+        self._shown_by = None
+        self._output_retry_at = now + OUTPUT_RETRY_S
+        record = self.outputs
+        self.outputs = OutputRecord(record.written + written, record.refused + 1, text, shown=None)
+
+    def _close_output_port(self) -> None:
+        port, self._output_port = self._output_port, None
+        if port is not None:
+            with contextlib.suppress(Exception):
+                port.close()
+
+    # -- the thread --------------------------------------------------------------------------
+
     def _await_pull_failure(self) -> None:
         """Pulled: the thread holds the device until stop() or a failure a pull met, which
-        it raises here (run() then ends it as a failed read)."""
+        it raises here (run() then ends it as a failed read), and writes its outputs."""
+        timeout = threading.TIMEOUT_MAX
         while not self.stopping:
-            self._woken.wait(threading.TIMEOUT_MAX)
-            if self._pull_error is not None and not self.stopping:
+            self._woken.wait(timeout)
+            self._woken.clear()  # before the mailbox is read: a later post wakes it again
+            if self.stopping:
+                break
+            if self._pull_error is not None:
                 raise self._pull_error
+            timeout = self._serve_outputs(time.monotonic())
 
     def _loop(self) -> None:
         if self._pulled:
@@ -353,6 +504,9 @@ class DeviceReader(Worker):
                 "%s: read failed: %s", self.info.path, exc, exc_info=not isinstance(exc, OSError)
             )
         finally:
+            if ended is None and self.stopping:
+                self._serve_outputs(time.monotonic(), flush=True)  # the last post, once
+            self._close_output_port()
             with self._device_lock, contextlib.suppress(Exception):
                 self._closed = True
                 self.device.close()

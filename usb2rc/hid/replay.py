@@ -25,6 +25,9 @@ wake-up per report. `read` hands over the next report if it is due; `read_due` e
 report due, found by one bisection of the batch's due times; only when none is due does
 `read` wait (a plain timed wait on the close flag) until the next one's time.
 
+Outputs: `open_output()` gives a port that takes every write (nothing is refused) and counts
+them, keeping the last few (`ReplayOutputPort.last`) for tests and the monitor.
+
 Fault injection: a comment line `# usb2rc-fault: read-error at SECONDS` makes `read()` raise
 `OSError(EIO)` once the events before SECONDS are delivered.
 """
@@ -45,7 +48,8 @@ from dataclasses import dataclass
 from itertools import accumulate
 from pathlib import Path
 
-from usb2rc.hid.backend import DeviceGone, DeviceInfo, DeviceOpenError
+from usb2rc.feedback.model import OutputWrite
+from usb2rc.hid.backend import BUS_BLUETOOTH, BUS_USB, DeviceGone, DeviceInfo, DeviceOpenError
 from usb2rc.hid.descriptor import top_level_usage
 from usb2rc.hid.dirwatch import DirectoryWatch
 from usb2rc.hid.recording import (
@@ -64,6 +68,9 @@ FAULT_RE = re.compile(r"^\s*#\s*usb2rc-fault:\s*read-error\s+at\s+([0-9.]+)\s*$"
 SCAN_CHUNK = 1 << 20  # the fault-mark scan reads this much at a time
 # How often a device looks whether its file is still there (a stat): the unplug latency.
 GONE_CHECK_S = 0.05
+WRITES_KEPT = 16  # the writes a replay device's output port keeps, newest last
+# hid-recorder's bus numbers (the kernel's: `I: 3 ...` USB, `I: 5 ...` Bluetooth)
+_BUSES = {0x03: BUS_USB, 0x05: BUS_BLUETOOTH}
 
 
 StatId = tuple[int, int, int]  # inode, mtime_ns, size: one 'plug' of a file
@@ -175,6 +182,7 @@ def _make_info(path: Path, stat_id: StatId, rec: Recording) -> DeviceInfo:
         port_path=f"replay-{path.stem}",
         usage_page=page,
         usage=usage,
+        bus=_BUSES.get(rec.bus, ""),
     )
 
 
@@ -494,6 +502,30 @@ class ReplayDevice:
         finally:
             self.busy_s += time.perf_counter() - started - waited
 
+    def open_output(self) -> ReplayOutputPort:
+        return ReplayOutputPort(self.info)
+
     def close(self) -> None:
         self._closed.set()
         self._events.close()
+
+
+class ReplayOutputPort:
+    """A recording has no outputs: the port takes every write, counts it and keeps the last
+    WRITES_KEPT (what tests and the monitor look at). A write after close() is refused, as
+    a closed hidapi handle refuses one."""
+
+    def __init__(self, info: DeviceInfo) -> None:
+        self.info = info
+        self.written = 0
+        self.last: tuple[OutputWrite, ...] = ()  # replaced whole: read from any thread
+        self.closed = False
+
+    def write(self, w: OutputWrite) -> None:
+        if self.closed:
+            raise OSError(errno.EBADF, f"{self.info.path}: output port is closed")
+        self.written += 1
+        self.last = (*self.last, w)[-WRITES_KEPT:]
+
+    def close(self) -> None:
+        self.closed = True
