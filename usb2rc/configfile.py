@@ -29,7 +29,8 @@ for the commands (the stages below import them from where they are defined):
 - this module: the top level and `outputs:`;
 - `config/devices.py`: `devices:`; `config/checks.py`: clashes and channel sources;
   `config/ports.py`: the ports the outputs will use, `--port` applied;
-  `config/controls.py`: switches, mixes, throttle cuts.
+  `config/controls.py`: switches, mixes, throttle cuts;
+- `feedback/rules.py`: `feedback:`, the rules that drive the devices' outputs.
 """
 
 from __future__ import annotations
@@ -75,6 +76,7 @@ from usb2rc.config.yamlnodes import (
     decode,
     reject_recording,
 )
+from usb2rc.feedback.rules import read_feedback
 from usb2rc.outputs import PROTOCOLS as OUTPUT_PROTOCOLS
 from usb2rc.outputs import OutputProtocol, option_keys, protocol_aliases
 from usb2rc.outputs import protocol as output_protocol
@@ -113,7 +115,7 @@ __all__ = [
     "load_runnable",
 ]
 
-TOP_KEYS = ("outputs", "devices", "defaults", "switches", "throttle_cut")
+TOP_KEYS = ("outputs", "devices", "defaults", "switches", "throttle_cut", "feedback")
 COMMON_OUTPUT_KEYS = ("protocol", "port", "baudrate", "rate_hz")
 OUTPUT_KEYS = (*COMMON_OUTPUT_KEYS, "channels", *option_keys())
 _CONFIG_FIELDS = {f.name for f in dataclasses.fields(OutputConfig)}
@@ -194,7 +196,11 @@ def _read_config(reader: NodeReader, root: Node) -> Config | None:
         defaults = reader.boolean(items["defaults"][1], "defaults") is not False
     switches = read_switches(reader, items["switches"][1]) if "switches" in items else ()
     cuts = read_throttle_cuts(reader, items["throttle_cut"][1]) if "throttle_cut" in items else ()
-    return Config(outputs, devices, defaults, reader.source, switches, cuts)
+    feedback = None  # no key: the zero-config rule (docs/CONFIG.md, "Feedback")
+    if "feedback" in items:
+        names = [device.name for device in devices]
+        feedback = read_feedback(reader, items["feedback"][1], names)
+    return Config(outputs, devices, defaults, reader.source, switches, cuts, feedback)
 
 
 def _entries_within_limit(reader: NodeReader, node: Node) -> bool:

@@ -1,6 +1,10 @@
 """What a loaded config is: plain frozen dataclasses (channel references: channel_ref.py;
 the controls': controls/model.py).
 
+The `feedback:` rules' records are here too (read by usb2rc/feedback/rules.py, judged by
+usb2rc/feedback/engine.py): the config package imports nothing above it, and the feedback
+package, which reads devices and telemetry, sits above the config.
+
 `usb2rc.configfile` reads YAML into these (with config/devices.py and config/checks.py,
 which read the device entries and cross-check them); nodes/mapping.py compiles them.
 `usb2rc.configfile` re-exports the public names for the commands; the stages below it
@@ -10,7 +14,7 @@ import them from here.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 from usb2rc.config.channel_ref import CHANNEL_ALLOWED as CHANNEL_ALLOWED  # re-exported
 from usb2rc.config.channel_ref import ChannelRef as ChannelRef
@@ -185,6 +189,88 @@ def _channel_ref(channel: ChannelRef | MixRef | str) -> ChannelRef | MixRef:
     return ref
 
 
+# --------------------------------------------------------------------------- feedback
+
+
+class SourceRef(NamedTuple):
+    """A value a feedback rule reads (docs/CONFIG.md, "Feedback")."""
+
+    name: str  # as written: "crsf.link_quality", "node3.failsafe", "node.failsafe", "downlink"
+    kind: str  # "number", "text" or "flag": what it compares with
+    node_id: int | None = None  # nodeN.*: N; None: no node's, or the device's own (node.*)
+
+
+@dataclass(frozen=True)
+class Condition:
+    """`source`, or `source op value`: true when the source's value compares so; a bare
+    source is true when truthy. A condition on an unknown value is false."""
+
+    source: SourceRef
+    op: str | None = None  # < <= > >= == !=
+    value: float | str | bool | None = None
+    text: str = ""  # as written, for messages and the monitor
+
+
+@dataclass(frozen=True)
+class DeviceRef:
+    """Which devices a rule drives: a devices: entry's, a vid:pid's, or the gamepads (the
+    zero-config rule's)."""
+
+    entry: str | None = None
+    vid: int | None = None
+    pid: int | None = None
+    gamepads: bool = False
+
+    def label(self) -> str:
+        if self.entry is not None:
+            return self.entry
+        if self.vid is not None and self.pid is not None:
+            return f"{self.vid:04x}:{self.pid:04x}"
+        return "gamepads" if self.gamepads else "every device"
+
+
+@dataclass(frozen=True)
+class Rumble:
+    """Rumble motors' strength, 0..1; `ms`: a pulse on the condition's rising edge, else
+    while the condition holds."""
+
+    strong: float = 0.0
+    weak: float = 0.0
+    ms: int | None = None
+
+
+class TextPiece(NamedTuple):
+    """A display text's literal part, then a source's value (None: none) with its format."""
+
+    literal: str
+    source: SourceRef | None = None
+    spec: str = ""
+
+
+@dataclass(frozen=True)
+class TextLine:
+    line: int  # 1-based
+    pieces: tuple[TextPiece, ...]
+    template: str  # as written
+
+
+@dataclass(frozen=True)
+class FeedbackRule:
+    """One `feedback:` rule: when (None: always), which devices (None: every device that has
+    the output), and what they show."""
+
+    when: Condition | None = None
+    device: DeviceRef | None = None
+    leds: tuple[int | str, ...] = ()  # indicator indexes or names
+    blink_hz: float | None = None  # the leds blink; None: steady
+    rumble: Rumble | None = None
+    force: tuple[float, float] | None = None  # x, y: -1..1
+    brightness: float | None = None
+    color: tuple[int, int, int] | None = None  # r, g, b: 0..255
+    text: TextLine | None = None
+    where: Where | None = field(default=None, compare=False)
+
+
 @dataclass(frozen=True)
 class Config:
     outputs: tuple[OutputConfig, ...]
@@ -193,6 +279,8 @@ class Config:
     source: str = "<default>"
     switches: tuple[SwitchConfig, ...] = ()  # docs/CONFIG.md, "Switches"
     throttle_cuts: tuple[ThrottleCut, ...] = ()
+    # docs/CONFIG.md, "Feedback"; None: no `feedback:` key, the zero-config rule applies
+    feedback: tuple[FeedbackRule, ...] | None = None
 
     @classmethod
     def default(cls) -> Config:
