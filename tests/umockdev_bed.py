@@ -49,6 +49,7 @@ What the kernel does and this copies:
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import shutil
@@ -285,6 +286,9 @@ class Bed:
                 chunks.append(chunk)
         except BlockingIOError:
             pass  # nothing more queued
+        except OSError as exc:  # EIO: no program has the node open (and nothing is queued)
+            if exc.errno != errno.EIO:
+                raise
         finally:
             os.set_blocking(dev.master, True)  # reports are written blocking
         return {"data": b"".join(chunks).hex()}
