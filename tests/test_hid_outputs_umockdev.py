@@ -7,9 +7,6 @@ Expected bytes come from hid-tools' reading of the descriptor, not from usb2rc's
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 import textwrap
 from collections.abc import Iterator
 from typing import Any
@@ -18,7 +15,6 @@ import hidtools.hid
 import pytest
 from umockdev_harness import (
     LED_STICK_DESCRIPTOR,
-    ROOT,
     FakeStick,
     UsbBed,
     require_umockdev,
@@ -84,14 +80,7 @@ CHILD = textwrap.dedent(
 
 class Child:
     def __init__(self, bed: UsbBed) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, "-c", CHILD],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-            cwd=ROOT,
-            env=dict(os.environ, **bed.env()),
-        )
+        self.proc = bed.python(CHILD)
         self.first = self._reply()
 
     def _reply(self) -> dict[str, Any]:

@@ -170,6 +170,18 @@ class UsbBed:
         preload = " ".join(p for p in (PRELOAD, os.environ.get("LD_PRELOAD", "")) if p)
         return {"UMOCKDEV_DIR": self.root, "LD_PRELOAD": preload}
 
+    def python(self, code: str) -> subprocess.Popen[str]:
+        """`python -c code` (this venv's) under the preload library, seeing the testbed; text
+        pipes on stdin and stdout. The caller stops it (kill, wait)."""
+        return subprocess.Popen(
+            [sys.executable, "-c", code],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+            env=dict(os.environ, **self.env()),
+        )
+
     def add(self, stick: FakeStick, mode: int | None = None) -> str:
         """Plug `stick`; its /dev/hidrawN (as seen inside the testbed). `mode`: the node's
         permissions from the start (it never exists with others)."""
