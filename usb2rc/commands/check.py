@@ -14,8 +14,10 @@ will open (`config.ports.used_ports`: `--port` applied), not the file's.
 
 Warnings (on stderr, `file:line: key: warning: ...`) do not change the exit code: what the
 SUMD decoders of PX4, ArduPilot and Betaflight would not take of a SUMD output, SUMD channels
-on a node no entry pins and, with `--replay DIR`, entries no device in DIR matches and
-channels that read an axis slot no device of its node in DIR feeds (`config.unfed`). With
+on a node no entry pins, a `feedback:` rule that names an output its device does not have
+(when the device's outputs are known by its vid:pid: docs/CONFIG.md, "Feedback") and, with
+`--replay DIR`, entries no device in DIR matches and channels that read an axis slot no
+device of its node in DIR feeds (`config.unfed`). With
 `--replay DIR`, each hid-recorder file in DIR is bound as the daemon would bind that device:
 its node and any usage it lacks.
 """
@@ -33,6 +35,7 @@ from typing import Any
 
 from usb2rc.commands.arguments import replay_dir
 from usb2rc.config.mavlink import MavlinkOptions, baud_needed
+from usb2rc.config.model import DeviceRef, FeedbackRule
 from usb2rc.config.port_url import port_argument
 from usb2rc.config.ports import UsedPort, used_ports
 from usb2rc.config.udp_url import is_udp_url
@@ -46,6 +49,8 @@ from usb2rc.configfile import (
     load_config,
     load_runnable,
 )
+from usb2rc.feedback.drivers import known_capabilities
+from usb2rc.feedback.rules import missing_outputs
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import DescriptorError, parse_descriptor
 from usb2rc.hid.replay import ReplayBackend
@@ -242,6 +247,42 @@ def warnings(config: Config, mapping: Mapping) -> list[Problem]:
     ]
 
 
+def feedback_warnings(config: Config) -> list[Problem]:
+    """A warning at each rule that names an output its device does not have, for a device
+    whose outputs usb2rc knows by its vid:pid (a rule for every device drives only those
+    that have the output: nothing to warn about)."""
+    found = []
+    for rule in config.feedback or ():
+        usb_id = rule_usb_id(rule, config.devices)
+        if usb_id is None or rule.device is None:
+            continue
+        capabilities = known_capabilities(*usb_id)
+        if capabilities is None:
+            continue
+        device = f"{usb_id[0]:04x}:{usb_id[1]:04x}"
+        if rule.device.entry is not None:
+            device = f"{rule.device.entry} ({device})"
+        for key, what in missing_outputs(rule, capabilities):
+            where = rule.where_of(key)
+            assert where is not None
+            found.append(where.problem(f"warning: {device} has no {what}"))
+    return found
+
+
+def rule_usb_id(rule: FeedbackRule, entries: tuple[DeviceConfig, ...]) -> tuple[int, int] | None:
+    """The vid:pid a rule names, itself or through the entry it names (one that matches
+    both a vid and a pid); None: not one device."""
+    device: DeviceRef | None = rule.device
+    if device is None:
+        return None
+    if device.vid is not None and device.pid is not None:
+        return device.vid, device.pid
+    entry = next((d for d in entries if d.name == device.entry), None)
+    if entry is None or entry.match.vid is None or entry.match.pid is None:
+        return None
+    return entry.match.vid, entry.match.pid
+
+
 def replay_lines(devices: list[BoundDevice], problems: list[str]) -> list[str]:
     lines = ["replayed devices:"]
     for dev in devices:
@@ -319,7 +360,7 @@ def run(args: argparse.Namespace) -> int:
 
 def judge(config: Config, directory: str | None, port_override: str | None = None) -> Verdict:
     mapping = compile_mapping(config)
-    found = warnings(config, mapping) + sandbox_warnings(config)
+    found = warnings(config, mapping) + sandbox_warnings(config) + feedback_warnings(config)
     verdict = Verdict(config, summary(config, mapping, port_override), found, 0)
     if directory:
         devices, problems = bind_replay(mapping, directory)

@@ -269,6 +269,14 @@ class FeedbackRule:
     color: tuple[int, int, int] | None = None  # r, g, b: 0..255
     text: TextLine | None = None
     where: Where | None = field(default=None, compare=False)
+    key_lines: tuple[tuple[str, int], ...] = field(default=(), compare=False)  # key -> line
+
+    def where_of(self, key: str) -> Where | None:
+        """Where one of the rule's keys (`led`, `text.line`) is, for a problem found later."""
+        if self.where is None:
+            return None
+        line = dict(self.key_lines).get(key.partition(".")[0], self.where.line)
+        return Where(self.where.source, line, f"{self.where.key}.{key}")
 
 
 @dataclass(frozen=True)

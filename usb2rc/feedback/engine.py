@@ -371,6 +371,10 @@ class FeedbackEngine:
             tuple(self._actions[i] for i in sorted(self._actions)),
         )
 
+    def telemetry_values(self, now: float, sources: Sources) -> dict[str, object]:
+        """The sources' values as the rules see them (`telemetry_values`)."""
+        return telemetry_values(now, sources)
+
     def _apply(
         self,
         index: int,

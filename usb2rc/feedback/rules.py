@@ -28,7 +28,7 @@ from usb2rc.config.model import (
     TextPiece,
 )
 from usb2rc.config.yamlnodes import Items, NodeReader, show
-from usb2rc.feedback.model import INDICATOR_BITS
+from usb2rc.feedback.model import INDICATOR_BITS, Capabilities
 
 NUMBER, TEXT, FLAG = "number", "text", "flag"  # a source's kind: what it compares with
 
@@ -186,8 +186,10 @@ def _read_rule(
     text = _read_text(reader, items["text"][1], f"{path}.text") if "text" in items else None
     if len(reader.problems) > problems:
         return None
+    lines = tuple((key, key_node.start_mark.line + 1) for key, (key_node, _) in items.items())
+    where = reader.where(node, path)
     return FeedbackRule(
-        when, device, leds, blink, rumble, force, brightness, color, text, reader.where(node, path)
+        when, device, leds, blink, rumble, force, brightness, color, text, where, lines
     )
 
 
@@ -379,3 +381,47 @@ def _formats(kind: str, spec: str) -> bool:
             continue
         return True
     return False
+
+
+# --------------------------------------------------------------------------- outputs a device lacks
+
+
+def missing_outputs(rule: FeedbackRule, capabilities: Capabilities) -> list[tuple[str, str]]:
+    """What a rule drives that a device does not have: (the rule's key, what is missing)."""
+    missing = [("led", what) for what in _missing_leds(rule.leds, capabilities)]
+    analog = set(capabilities.analog)
+    wanted = {
+        "rumble": _rumble_outputs(rule.rumble),
+        "force": () if rule.force is None else ("force_x", "force_y"),
+        "brightness": () if rule.brightness is None else ("brightness",),
+        "color": () if rule.color is None else ("red", "green", "blue"),
+    }
+    for key, names in wanted.items():
+        lacking = [name for name in names if name not in analog]
+        if lacking:
+            missing.append((key, " or ".join(lacking)))
+    if rule.text is not None and rule.text.line > capabilities.text_lines:
+        has = f"{capabilities.text_lines} lines" if capabilities.text_lines else "no display"
+        missing.append(("text.line", f"display line {rule.text.line} (it has {has})"))
+    return missing
+
+
+def _missing_leds(leds: Sequence[int | str], capabilities: Capabilities) -> list[str]:
+    names = [name.casefold() for name in capabilities.indicator_names]
+    known = ", ".join(capabilities.indicator_names) or "none"
+    count = capabilities.indicators
+    indexes = f"0..{count - 1}" if count else "none"
+    found = []
+    for led in leds:
+        if isinstance(led, int) and led >= count:
+            found.append(f"indicator {led} (its indicators: {indexes})")
+        elif isinstance(led, str) and led.casefold() not in names:
+            found.append(f"indicator {led!r} (its indicators: {known})")
+    return found
+
+
+def _rumble_outputs(rumble: Rumble | None) -> tuple[str, ...]:
+    if rumble is None:
+        return ()
+    motors = (("rumble_strong", rumble.strong), ("rumble_weak", rumble.weak))
+    return tuple(name for name, value in motors if value > 0)
