@@ -38,8 +38,8 @@ def led_driver() -> HidOutputDriver:
 
 def lit(mask: int) -> bytes:
     """The LED stick's report 2 with the indicators `mask` lit (LEDs bits 0-4, the ordinals
-    and the vendor bit 16-18 of its 3 data bytes), brightness 0."""
-    bits = (mask & 0x1F) | (mask >> 5 & 0x07) << 16
+    and the vendor bit 16-18 of its 3 data bytes), brightness unset: full (0xFF, bits 8-15)."""
+    bits = (mask & 0x1F) | 0xFF << 8 | (mask >> 5 & 0x07) << 16
     return b"\x02" + bits.to_bytes(3, "little")
 
 

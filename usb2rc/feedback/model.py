@@ -29,6 +29,9 @@ ANALOG_NAMES = (
     "blue",
 )
 SIGNED_ANALOG = frozenset({"force_x", "force_y"})
+# An analog output no source sets: brightness is full, so that a far end that sends zeros
+# (or nothing) does not dim a display or a lightbar; everything else is off.
+UNSET_VALUES = {"brightness": 1.0}
 INDICATOR_BITS = 64  # a downlink frame's two button groups, group 1's bit 0 first
 
 
@@ -80,7 +83,8 @@ class OutputState(NamedTuple):
     texts: tuple[str, ...] = ()
 
     def value(self, name: str) -> float:
-        return dict(self.analog).get(name, 0.0)
+        """An analog output's value; absent: its rest (UNSET_VALUES, else 0)."""
+        return dict(self.analog).get(name, UNSET_VALUES.get(name, 0.0))
 
 
 REST = OutputState()
