@@ -3,6 +3,8 @@ only, staleness, the zero-config rule and the downlink across a node's devices."
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from usb2rc.config.model import FeedbackRule
@@ -15,6 +17,7 @@ from usb2rc.feedback.engine import (
     FeedbackResult,
     NodeFacts,
     Sources,
+    blink_phase,
     telemetry_values,
 )
 from usb2rc.feedback.model import (
@@ -190,6 +193,17 @@ def test_the_next_change_is_always_after_now_at_a_blink_boundary() -> None:
         result = fb.step(now, Sources(), (STICK,))
         assert result.next_change_at is not None and result.next_change_at > now
         now = result.next_change_at
+
+
+def test_a_blink_changes_only_at_the_moment_it_announced() -> None:
+    """Just before a boundary, now / half-period may round up to the next half: the phase
+    must still be the one that ends at the announced change."""
+    half_period = 0.5 / 3.0
+    boundary = 196608 * half_period
+    before = math.nextafter(boundary, 0)
+    assert math.floor(before / half_period) == 196608  # the division rounds across it
+    lit_before, change = blink_phase(before, 3.0)
+    assert change == boundary and (lit_before, blink_phase(boundary, 3.0)[0]) == (False, True)
 
 
 # --------------------------------------------------------------------------- pulses
