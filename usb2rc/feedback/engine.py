@@ -143,10 +143,10 @@ class _View:
         return None if facts is None else getattr(facts, source.name.rpartition(".")[2])
 
 
-Telemetry = TypeVar("Telemetry", CrsfTelemetry, MavlinkTelemetry)
+News = TypeVar("News", CrsfTelemetry, MavlinkTelemetry)
 
 
-def _fresh(telemetry: Telemetry | None, now: float) -> Telemetry | None:
+def _fresh(telemetry: News | None, now: float) -> News | None:
     if telemetry is None or now >= telemetry.at + TELEMETRY_STALE_S:
         return None
     return telemetry
