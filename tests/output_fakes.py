@@ -9,7 +9,7 @@ import errno
 import threading
 import time
 
-from usb2rc.feedback.model import OutputWrite
+from usb2rc.hid.outputs import OutputWrite
 
 WAIT_S = 10.0
 

@@ -13,7 +13,8 @@ from usb2rc.config.controls_model import MixRef
 from usb2rc.config.layout import AXIS_NAMES
 from usb2rc.configfile import Config, load_config_text
 from usb2rc.feedback.engine import DEFAULT_RULES, DeviceSlot, FeedbackEngine, Sources
-from usb2rc.feedback.model import Capabilities, CrsfTelemetry, MavlinkTelemetry
+from usb2rc.feedback.model import CrsfTelemetry, MavlinkTelemetry
+from usb2rc.hid.outputs import Capabilities
 from usb2rc.nodes.curves import position_value, to_int16
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import NodeFrame

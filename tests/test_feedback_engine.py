@@ -20,15 +20,8 @@ from usb2rc.feedback.engine import (
     blink_phase,
     telemetry_values,
 )
-from usb2rc.feedback.model import (
-    ANALOG_NAMES,
-    REST,
-    Capabilities,
-    CrsfTelemetry,
-    Downlink,
-    MavlinkTelemetry,
-    OutputState,
-)
+from usb2rc.feedback.model import CrsfTelemetry, Downlink, MavlinkTelemetry
+from usb2rc.hid.outputs import ANALOG_NAMES, REST, Capabilities, OutputState
 
 PAD_CAPS = Capabilities(
     indicators=0,

@@ -14,13 +14,8 @@ from hypothesis import strategies as st
 from usb2rc.config.model import FeedbackRule
 from usb2rc.configfile import load_config_text
 from usb2rc.feedback.engine import DeviceSlot, FeedbackEngine, FeedbackResult, NodeFacts, Sources
-from usb2rc.feedback.model import (
-    SIGNED_ANALOG,
-    Capabilities,
-    CrsfTelemetry,
-    Downlink,
-    MavlinkTelemetry,
-)
+from usb2rc.feedback.model import CrsfTelemetry, Downlink, MavlinkTelemetry
+from usb2rc.hid.outputs import SIGNED_ANALOG, Capabilities
 
 ENTRIES = """devices:
   - name: pad

@@ -16,8 +16,8 @@ from hypothesis import strategies as st
 from umockdev_harness import LED_STICK_DESCRIPTOR, LED_STICK_OUTPUT_BYTES
 
 from usb2rc.feedback.hid_outputs import ANALOG_USAGES, HidOutputDriver, output_usage_name
-from usb2rc.feedback.model import HidReport, OutputState
 from usb2rc.hid.descriptor import DescriptorError, OutputLayout, parse_descriptor, parse_outputs
+from usb2rc.hid.outputs import HidReport, OutputState
 
 DEVICES = json.loads((Path(__file__).parent / "data" / "real-devices.json").read_text())
 LED, ORDINAL, BUTTON, GDC, VENDOR, GD = 0x08, 0x0A, 0x09, 0x06, 0xFF00, 0x01

@@ -21,9 +21,9 @@ from test_replay import recording_text
 from umockdev_harness import LED_STICK_DESCRIPTOR, wait_until
 
 from usb2rc.feedback.hid_outputs import HidOutputDriver
-from usb2rc.feedback.model import HidReport, OutputState, UsbControl
 from usb2rc.hid.backend import DeviceGone, DeviceInfo
 from usb2rc.hid.hidapi_backend import HidapiBackend
+from usb2rc.hid.outputs import HidReport, OutputState, UsbControl
 from usb2rc.hid.reader import OUTPUT_BURST, OUTPUT_RATE_HZ, DeviceReader, TokenBucket
 from usb2rc.hid.replay import ReplayBackend, install_file
 

@@ -32,7 +32,7 @@ CHILD = textwrap.dedent(
     """
     import json, sys, threading
     from usb2rc.feedback.hid_outputs import HidOutputDriver
-    from usb2rc.feedback.model import OutputState
+    from usb2rc.hid.outputs import OutputState
     from usb2rc.hid.descriptor import parse_descriptor
     from usb2rc.hid.hidapi_backend import HidapiBackend
     from usb2rc.hid.reader import DeviceReader

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import pytest
 
-from usb2rc.feedback.model import REST, HidReport, UsbControl
 from usb2rc.feedback.vendor import (
     DEVICES,
     ds4,
@@ -16,6 +15,7 @@ from usb2rc.feedback.vendor import (
     x52,
 )
 from usb2rc.hid.backend import DeviceInfo
+from usb2rc.hid.outputs import REST, HidReport, UsbControl
 
 # The ids as their sources define them: linux drivers/hid/hid-ids.h (USB_VENDOR_ID_SONY,
 # USB_DEVICE_ID_SONY_PS4_CONTROLLER, _2, _DONGLE, USB_DEVICE_ID_SONY_PS5_CONTROLLER, _2) and

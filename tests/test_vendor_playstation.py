@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from usb2rc.feedback.model import ANALOG_NAMES, REST, HidReport, OutputState
 from usb2rc.feedback.vendor import ds4, dualsense
+from usb2rc.hid.outputs import ANALOG_NAMES, REST, HidReport, OutputState
 
 CHECK_INPUT = b"123456789"
 CRC32_CHECK = 0xCBF43926  # CRC-32 (ISO-HDLC) of the check input

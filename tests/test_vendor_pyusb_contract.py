@@ -25,8 +25,8 @@ from pyusb_fake import (
 )
 from usb.backend import libusb1
 
-from usb2rc.feedback.model import REST, OutputState, UsbControl
 from usb2rc.feedback.vendor import x52
+from usb2rc.hid.outputs import REST, OutputState, UsbControl
 
 X52_PRO = (0x06A3, 0x0762)
 DIRECTION_IN = 0x80

@@ -15,8 +15,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pyusb_fake import FakeUsbDevice
 
-from usb2rc.feedback.model import REST, OutputState, UsbControl
 from usb2rc.feedback.vendor import x52
+from usb2rc.hid.outputs import REST, OutputState, UsbControl
 
 VENDOR_OUT = 0x40  # vendor request type, device recipient, host to device
 X52_REQUEST = 0x91

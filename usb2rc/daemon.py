@@ -25,6 +25,8 @@ from typing import Any
 
 from usb2rc import __version__
 from usb2rc.configfile import Config, OutputConfig
+from usb2rc.feedback.engine import FeedbackEngine
+from usb2rc.feedback.worker import FeedbackWorker, FeedDevice
 from usb2rc.hid.backend import Backend, Device
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor
@@ -213,6 +215,7 @@ class Daemon:
             carries_channels=lambda name: protocol(name).channels is not None,
         )
         self.monitor = HotplugMonitor(backend, self.lifecycle.plugged, self.lifecycle.unplugged)
+        self.feedback = self._make_feedback(config) if self.outputs else None
         self.started_at = 0.0
         self._switch_interval: float | None = None  # the GIL's, to restore on stop()
         self._judge = judge
@@ -260,6 +263,40 @@ class Daemon:
             "--port" if replaced else "config",
             config_port,
         )
+
+    # --- feedback (docs/ICD.md "Downlink", docs/CONFIG.md "Feedback") ----------------------
+
+    def _make_feedback(self, config: Config) -> FeedbackWorker:
+        """The thread that drives the devices' outputs from the far ends' telemetry: rung by
+        each output's driver when its telemetry changed, and by the lifecycle after a plug."""
+        worker = FeedbackWorker(
+            FeedbackEngine(config.feedback),
+            [out.driver.session for out in self.outputs],
+            self.table.snapshot,
+            self._feed_devices,
+        )
+        for out in self.outputs:
+            out.driver.on_telemetry = worker.ring
+        self.lifecycle.on_devices = worker.ring
+        return worker
+
+    def _feed_devices(self) -> list[FeedDevice]:
+        """The present devices, by node, each node's in config-entry order, then in the
+        order they joined it (the order a node's downlink lights their indicators in)."""
+        order = {device.name: index for index, device in enumerate(self.config.devices)}
+        present = [
+            (node_id, name, source)
+            for node_id, name, source in self.table.present_sources()
+            if isinstance(source, DeviceReader)
+        ]
+        ranked = sorted(
+            enumerate(present),
+            key=lambda item: (item[1][0], order.get(item[1][1], len(order)), item[0]),
+        )
+        return [
+            FeedDevice(node_id, name if name in order else None, reader)
+            for _, (node_id, name, reader) in ranked
+        ]
 
     def _first_write(self) -> None:
         self._status("running: frames on " + ", ".join(o.link.url for o in self.outputs))
@@ -341,6 +378,8 @@ class Daemon:
                 out.rx.start()
         self.lifecycle.start()
         self.monitor.start()
+        if self.feedback is not None:
+            self.feedback.start()
         self._start_status_server()
 
     def _start_status_server(self) -> None:
@@ -360,6 +399,11 @@ class Daemon:
 
     def stop(self) -> None:
         self.monitor.stop()
+        if self.feedback is not None:
+            # before the readers stop: each writes its device's rest state as its last act
+            self.feedback.stop()
+            self.feedback.join(JOIN_TIMEOUT_S)
+            self.feedback.rest_all()
         self.table.stop()  # every node `!` from here; each output sends it before it closes
         readers = self.lifecycle.shutdown(JOIN_TIMEOUT_S)
         self.drivers.stop()
@@ -398,6 +442,8 @@ class Daemon:
         # Not taken within the timeout: it is queued and the thread applies it when free.
         self.mapping = prepared.mapping
         self.config = prepared.config
+        if self.feedback is not None:
+            self.feedback.reload(FeedbackEngine(prepared.config.feedback))
         outputs_changed = bool(self.outputs) and prepared.outputs != self.output_configs
         return ReloadResult(taken, outputs_changed)
 

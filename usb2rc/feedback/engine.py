@@ -29,17 +29,9 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple, TypeVar
 
 from usb2rc.config.model import Condition, DeviceRef, FeedbackRule, Rumble, SourceRef, TextLine
-from usb2rc.feedback.model import (
-    ANALOG_NAMES,
-    INDICATOR_BITS,
-    SIGNED_ANALOG,
-    Capabilities,
-    CrsfTelemetry,
-    Downlink,
-    MavlinkTelemetry,
-    OutputState,
-)
+from usb2rc.feedback.model import INDICATOR_BITS, CrsfTelemetry, Downlink, MavlinkTelemetry
 from usb2rc.feedback.rules import DOWNLINK, FLAG, TELEMETRY_SOURCES
+from usb2rc.hid.outputs import ANALOG_NAMES, SIGNED_ANALOG, Capabilities, OutputState
 
 DOWNLINK_STALE_S = 1.0  # no downlink frame for a node this long: its outputs back to rest
 TELEMETRY_STALE_S = 3.0  # no telemetry this long: its values are unknown

@@ -25,7 +25,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from usb2rc.feedback.model import (
+from usb2rc.hid.descriptor import DescriptorError, OutputField, OutputLayout, parse_outputs
+from usb2rc.hid.outputs import (
     ANALOG_NAMES,
     SIGNED_ANALOG,
     Capabilities,
@@ -33,7 +34,6 @@ from usb2rc.feedback.model import (
     OutputState,
     OutputWrite,
 )
-from usb2rc.hid.descriptor import DescriptorError, OutputField, OutputLayout, parse_outputs
 from usb2rc.hid.usages import (
     BUTTON_PAGE,
     GENERIC_DEVICE_PAGE,

@@ -28,7 +28,8 @@ from usb2rc.config.model import (
     TextPiece,
 )
 from usb2rc.config.yamlnodes import Items, NodeReader, show
-from usb2rc.feedback.model import INDICATOR_BITS, Capabilities
+from usb2rc.feedback.model import INDICATOR_BITS
+from usb2rc.hid.outputs import Capabilities
 
 NUMBER, TEXT, FLAG = "number", "text", "flag"  # a source's kind: what it compares with
 

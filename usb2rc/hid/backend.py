@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Protocol, runtime_checkable
 
-from usb2rc.feedback.model import OutputWrite
+from usb2rc.hid.outputs import OutputWrite
 from usb2rc.hid.usages import is_joystick_like, make_usage, top_level_usage_name
 
 

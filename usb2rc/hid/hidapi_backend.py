@@ -26,7 +26,6 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from usb2rc.feedback.model import HidReport, OutputWrite, UsbControl
 from usb2rc.hid.backend import (
     BUS_BLUETOOTH,
     BUS_USB,
@@ -35,6 +34,7 @@ from usb2rc.hid.backend import (
     DeviceOpenError,
     DevicePermissionError,
 )
+from usb2rc.hid.outputs import HidReport, OutputWrite, UsbControl
 from usb2rc.hid.permissions import INSTALL_RULE, permission_message
 from usb2rc.hid.usages import is_joystick_like, make_usage
 

@@ -50,9 +50,9 @@ import time
 from collections.abc import Callable, Sequence
 from typing import NamedTuple, Protocol, runtime_checkable
 
-from usb2rc.feedback.model import OutputDriver, OutputState
 from usb2rc.hid.backend import Device, DeviceGone, ErrorCode, OutputPort
 from usb2rc.hid.descriptor import InputState
+from usb2rc.hid.outputs import OutputDriver, OutputState
 from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger(__name__)

@@ -48,10 +48,10 @@ from dataclasses import dataclass
 from itertools import accumulate
 from pathlib import Path
 
-from usb2rc.feedback.model import OutputWrite
 from usb2rc.hid.backend import BUS_BLUETOOTH, BUS_USB, DeviceGone, DeviceInfo, DeviceOpenError
 from usb2rc.hid.descriptor import top_level_usage
 from usb2rc.hid.dirwatch import DirectoryWatch
+from usb2rc.hid.outputs import OutputWrite
 from usb2rc.hid.recording import (
     EventBatch,
     Recording,

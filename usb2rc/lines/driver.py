@@ -227,6 +227,9 @@ class LineDriver:
         self.stats = OutputStats()
         self.on_tick = on_tick
         self.on_first_write = on_first_write
+        # told when what the far end said changed the session's telemetry (feedback's ring);
+        # set before the thread starts
+        self.on_telemetry: Callable[[], None] | None = None
         self.last_tick_monotonic = 0.0
         self._last_write = 0.0
         self._input_at: float | None = None  # newest report of the tick's snapshot (read at)
@@ -396,8 +399,11 @@ class LineDriver:
                 session.line_opened()
             else:
                 session.line_lost()
+        told = session.telemetry
         for data, at in link.take_received():
             session.received(data, at)
+        if session.telemetry is not told and self.on_telemetry is not None:
+            self.on_telemetry()
 
     def _follow_backpressure(self) -> None:
         """Tell the session what the link holds; carry out what it asks."""

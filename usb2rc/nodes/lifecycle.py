@@ -160,6 +160,8 @@ class DeviceLifecycle(Worker):
         self._missing = MissingWarnings()
         # Published for other threads (statistics) by one assignment; never mutated.
         self.readers: tuple[DeviceReader, ...] = ()
+        # Told after each event it handled (feedback's ring); set before start().
+        self.on_devices: Callable[[], None] | None = None
         super().__init__("device-lifecycle")
 
     # --- what other threads call: they only post events ----------------------------------
@@ -256,6 +258,8 @@ class DeviceLifecycle(Worker):
             self._handle(event)
         except Exception:  # one bad event must not end device handling for all
             log.exception("device lifecycle: handling %s failed", type(event).__name__)
+        if self.on_devices is not None:
+            self.on_devices()  # feedback looks at the devices again (what plugged, went)
 
     def _handle(self, event: Event) -> None:
         if isinstance(event, Plugged):

@@ -739,6 +739,17 @@ class NodeTable:
                 for a in node.attached
             ]
 
+    def present_sources(self) -> list[tuple[int, str, SnapshotSource]]:
+        """(node, binding name, reader) of every present device, by node, then in the order
+        they joined it (feedback: whose outputs a node's downlink drives, in order)."""
+        with self._lock:
+            return [
+                (nid, a.binding.name, a.source)
+                for nid, node in sorted(self._nodes.items())
+                for a in node.attached
+                if a.present
+            ]
+
     def node_ids(self) -> list[int]:
         with self._lock:
             return sorted(self._nodes)

@@ -10,9 +10,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import NamedTuple
 
-from usb2rc.feedback.model import Capabilities, OutputDriver
 from usb2rc.feedback.vendor import ds4, dualsense, x52
 from usb2rc.hid.backend import DeviceInfo
+from usb2rc.hid.outputs import Capabilities, OutputDriver
 
 KERNEL_PLAYSTATION = "linux drivers/hid/hid-playstation.c (v6.2+), ids in drivers/hid/hid-ids.h"
 LIBX52 = "github.com/nirenjan/libx52 docs/specs/vendor_api.md, libx52/commands.h, libx52/control.c"

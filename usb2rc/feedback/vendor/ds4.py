@@ -14,8 +14,8 @@ left alone (the feedback engine blinks indicators itself). The DS4 has no indica
 
 from __future__ import annotations
 
-from usb2rc.feedback.model import Capabilities, HidReport, OutputState, OutputWrite
 from usb2rc.feedback.vendor.playstation import lightbar, motors, with_bt_crc
+from usb2rc.hid.outputs import Capabilities, HidReport, OutputState, OutputWrite
 
 USB_REPORT_ID = 0x05  # DS4_OUTPUT_REPORT_USB
 USB_REPORT_SIZE = 32  # DS4_OUTPUT_REPORT_USB_SIZE

@@ -20,8 +20,8 @@ animation) is left to hid-playstation, which does it at probe.
 
 from __future__ import annotations
 
-from usb2rc.feedback.model import Capabilities, HidReport, OutputState, OutputWrite
 from usb2rc.feedback.vendor.playstation import lightbar, motors, with_bt_crc
+from usb2rc.hid.outputs import Capabilities, HidReport, OutputState, OutputWrite
 
 USB_REPORT_ID = 0x02  # DS_OUTPUT_REPORT_USB
 USB_REPORT_SIZE = 63  # DS_OUTPUT_REPORT_USB_SIZE

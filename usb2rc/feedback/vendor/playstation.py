@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import zlib
 
-from usb2rc.feedback.model import OutputState
+from usb2rc.hid.outputs import OutputState
 
 OUTPUT_CRC32_SEED = 0xA2  # hid-playstation.c PS_OUTPUT_CRC32_SEED
 CRC_SIZE = 4

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 
-from usb2rc.feedback.model import Capabilities, OutputState, OutputWrite, UsbControl
+from usb2rc.hid.outputs import Capabilities, OutputState, OutputWrite, UsbControl
 
 REQUEST_TYPE = 0x40  # LIBUSB_REQUEST_TYPE_VENDOR | LIBUSB_RECIPIENT_DEVICE | ENDPOINT_OUT
 VENDOR_REQUEST = 0x91  # X52_VENDOR_REQUEST
