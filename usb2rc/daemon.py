@@ -478,6 +478,7 @@ class Daemon:
             ],
             # pinned entries without a device: their nodes send `!` (docs/ICD.md "Node-IDs")
             "missing_devices": [m.record() for m in self.table.missing_entries()],
+            **({} if self.feedback is None else {"feedback": self.feedback.record(now)}),
         }
 
     def _output_stats(self, out: _Output, frames: dict[int, NodeFrame]) -> dict[str, Any]:
@@ -530,4 +531,10 @@ class Daemon:
         busy_s = getattr(reader.device, "busy_s", None)  # the replay backend's own work
         if busy_s is not None:
             stats["backend_busy_ms"] = busy_s * 1000
+        outputs = reader.outputs
+        if outputs.written or outputs.refused:
+            stats["outputs_written"] = outputs.written
+            stats["outputs_refused"] = outputs.refused
+            if outputs.last_error:
+                stats["output_error"] = outputs.last_error
         return stats

@@ -18,20 +18,24 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Sequence
-from typing import NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol
 
+from usb2rc.config.model import FeedbackRule
 from usb2rc.feedback.drivers import output_driver
 from usb2rc.feedback.engine import DeviceSlot, FeedbackEngine, FeedbackResult, NodeFacts, Sources
 from usb2rc.feedback.model import CrsfTelemetry, Downlink, MavlinkTelemetry, Telemetry
 from usb2rc.hid.backend import Device, DeviceInfo
 from usb2rc.hid.outputs import REST, Capabilities, OutputDriver, OutputState
 from usb2rc.nodes.table import NodeSnapshot
-from usb2rc.runtime.flag import WakeFlag
 from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger("usb2rc.feedback")
 
 NODE_POLL_S = 0.1  # a node's failsafe reaches its devices' outputs this late at most
+# Steps at most this often, however often it is rung: a far end that floods the line with
+# downlinks changes the telemetry at every tick of its output; 10 ms keeps a downlink
+# within two 50 Hz ticks of the device.
+MIN_STEP_S = 0.01
 GAME_PAD = (0x01, 0x05)  # Generic Desktop / Game Pad: the zero-config rumble's devices
 
 
@@ -78,6 +82,28 @@ class FeedbackStatus(NamedTuple):
     at: float = 0.0
 
 
+def shown_record(can: Capabilities, state: OutputState) -> dict[str, Any]:
+    """What a device shows, by name: its lit indicators, analog outputs, text lines."""
+    names = can.indicator_names
+    lit = [
+        names[k] if k < len(names) else str(k)
+        for k in range(can.indicators)
+        if state.indicators >> k & 1
+    ]
+    return {
+        "indicators": can.indicators,
+        "lit": lit,
+        "analog": {name: round(value, 3) for name, value in state.analog},
+        "texts": list(state.texts),
+    }
+
+
+def _where(rule: FeedbackRule) -> str:
+    """The rule's place in its config file ("usb2rc.yaml:12"), or its kind (built in)."""
+    where = rule.where
+    return "built in" if where is None else f"{where.source}:{where.line}"
+
+
 def gathered_sources(sessions: Sequence[TelemetrySource], snapshot: NodeSnapshot) -> Sources:
     """The sessions' telemetry and the nodes' facts, as the engine takes them. Two outputs of
     one kind: the newest telemetry wins; downlinks of a Node-ID: the newest frame."""
@@ -118,7 +144,7 @@ class FeedbackWorker(Worker):
         self._devices = devices
         self._clock = clock
         self._known: dict[str, _Known] = {}  # by device key: this thread's only
-        self._woken = WakeFlag()
+        self._woken = threading.Event()  # rung: step again (cleared before each step)
         self.steps = 0
         self.status = FeedbackStatus({})
         super().__init__("feedback")
@@ -135,6 +161,31 @@ class FeedbackWorker(Worker):
             if known.driver is not None and known.driver.capabilities.any:
                 known.reader.post_output(known.driver, REST)
 
+    def record(self, now: float) -> dict[str, Any]:
+        """What it did last, as plain JSON for stats, `/api/status` and the page: the
+        telemetry as the rules see it (None: unknown or stale; ages in seconds), each rule's
+        last action, and what each driven device shows. Any thread (one value, read once)."""
+        status = self.status
+        rules = self.engine.rules
+        return {
+            "telemetry": {
+                name: round(value, 3) if isinstance(value, float) else value
+                for name, value in status.telemetry.items()
+            },
+            "actions": [
+                {
+                    "rule": index + 1,
+                    "where": _where(rules[index]) if index < len(rules) else "",
+                    "did": text,
+                    "ago_s": round(now - at, 3),
+                }
+                for index, text, at in status.actions
+            ],
+            "devices": [
+                {"name": name, **shown_record(can, state)} for name, can, state in status.devices
+            ],
+        }
+
     def ring(self) -> None:
         """Something changed (telemetry, the devices): step soon. Any thread."""
         self._woken.set()
@@ -145,12 +196,17 @@ class FeedbackWorker(Worker):
 
     def run(self) -> None:
         while not self.stopping:
+            stepped_at = self._clock()
+            self._woken.clear()  # a ring from here on steps again
             try:
                 wait_s = self.step()
             except Exception:  # feedback must never take the daemon down: log, go on
                 log.exception("feedback step failed")
                 wait_s = NODE_POLL_S
-            self._woken.wait(threading.TIMEOUT_MAX if wait_s is None else max(0.0, wait_s))
+            self._woken.wait(None if wait_s is None else max(0.0, wait_s))
+            rest_s = stepped_at + MIN_STEP_S - self._clock()
+            if rest_s > 0 and not self.stopping:
+                self.sleep(rest_s)
 
     def step(self) -> float | None:
         """One judgement, posted to the devices; how long until the next is due by itself

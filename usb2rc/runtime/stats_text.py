@@ -36,6 +36,7 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("rx_skipped", "rx skipped {}"),
     ("rx_crc_failures", "rx crc failures {}"),
     ("rx_requests", "requests {}"),
+    ("rx_downlink_frames", "downlink frames {}"),
     ("rx_requests_dropped", "(dropped {})"),
     ("rx_dropped_bytes", "rx bytes dropped (faster than the line) {}"),
     ("module", "{}"),
@@ -44,6 +45,10 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("module_rx_crc_failures", "rx crc failures {}"),
     ("module_rx_skipped", "rx skipped {}"),
     ("module_rx_reads_dropped", "rx reads dropped (queue full) {}"),
+    ("module_rx_link_statistics", "link statistics {}"),
+    ("module_rx_battery", "battery {}"),
+    ("module_rx_flight_mode", "flight mode {}"),
+    ("module_rx_malformed", "malformed {}"),
     ("timing_corrections", "timing corrections {}"),
     ("timing_corrections_ignored", "(ignored {})"),
     ("mavlink_message", "{}"),
@@ -55,6 +60,11 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("far_end_heartbeats", "heartbeats {}"),
     ("far_end_heartbeat_from", "(last from {})"),
     ("far_end_skipped", "bytes skipped {}"),
+    ("vehicle", "vehicle {}"),
+    ("vehicle_heartbeats", "its heartbeats {}"),
+    ("vehicle_sys_status", "sys status {}"),
+    ("vehicle_battery_status", "battery status {}"),
+    ("other_vehicle_heartbeats", "other vehicles' heartbeats {}"),
     ("far_end_bad_signatures", "bad signatures {}"),
     ("actions_fired", "actions: fired {}"),
     ("actions_sent", "commands sent {}"),
@@ -92,7 +102,66 @@ def device_line(record: dict[str, Any]) -> str:
     )
     if "backend_busy_ms" in record:
         line += f", backend busy {record['backend_busy_ms']:.1f} ms"
+    if "outputs_written" in record:
+        line += f", outputs written {record['outputs_written']}"
+        line += f", refused {record['outputs_refused']}"
+        if record.get("output_error"):
+            line += f" ({record['output_error']})"
     return line
+
+
+# telemetry source -> (label, unit) in the telemetry line, in order
+TELEMETRY_FIELDS: tuple[tuple[str, str, str], ...] = (
+    ("crsf.link_quality", "LQ", " %"),
+    ("crsf.rssi", "RSSI", " dBm"),
+    ("crsf.snr", "SNR", " dB"),
+    ("crsf.battery_voltage", "battery", " V"),
+    ("crsf.battery_remaining", "", " %"),
+    ("crsf.flight_mode", "mode", ""),
+    ("mavlink.armed", "armed", ""),
+    ("mavlink.mode", "mode", ""),
+    ("mavlink.battery_voltage", "battery", " V"),
+    ("mavlink.battery_remaining", "", " %"),
+    ("mavlink.failsafe", "failsafe", ""),
+)
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:.1f}"
+    return str(value)
+
+
+def telemetry_line(values: dict[str, Any], source: str) -> str | None:
+    """`crsf` or `mavlink` as the rules see it, with its age; None: never heard."""
+    age = values.get(f"{source}.age")
+    if age is None:
+        return None
+    parts = [
+        f"{label} {_shown(values[key])}{unit}".strip()
+        for key, label, unit in TELEMETRY_FIELDS
+        if key.startswith(source + ".") and values.get(key) is not None
+    ]
+    shown = ", ".join(parts) if parts else "nothing known (stale)"
+    return f"telemetry {source}: {shown} ({age:.1f} s ago)"
+
+
+def feedback_lines(record: dict[str, Any]) -> list[str]:
+    """The telemetry heard, each rule's last action, what each driven device shows."""
+    values = record["telemetry"]
+    lines = [line for s in ("crsf", "mavlink") if (line := telemetry_line(values, s))]
+    lines += [
+        f"feedback rule {a['rule']} ({a['where']}): {a['did']} ({a['ago_s']:.1f} s ago)"
+        for a in record["actions"]
+    ]
+    for device in record["devices"]:
+        shows = [f"lit {', '.join(device['lit'])}" if device["lit"] else "nothing lit"]
+        shows += [f"{name} {value:.2f}" for name, value in device["analog"].items()]
+        shows += [f"line {n} {text!r}" for n, text in enumerate(device["texts"], 1) if text]
+        lines.append(f"feedback {device['name']}: " + ", ".join(shows))
+    return lines
 
 
 def missing_line(record: dict[str, Any]) -> str:
@@ -108,4 +177,5 @@ def stats_lines(record: dict[str, Any]) -> list[str]:
         *map(output_line, record["outputs"]),
         *map(device_line, record["devices"]),
         *map(missing_line, record.get("missing_devices", [])),
+        *(feedback_lines(record["feedback"]) if "feedback" in record else []),
     ]
