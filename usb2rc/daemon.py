@@ -35,7 +35,7 @@ from usb2rc.lines.driver import DriverThread as Drivers
 from usb2rc.lines.driver import LineDriver as Driver
 from usb2rc.lines.driver import Pace, earliest
 from usb2rc.lines.link import Link
-from usb2rc.lines.rx import LinkReader
+from usb2rc.lines.rx import Handoff, LinkReader
 from usb2rc.nodes.lifecycle import DeviceLifecycle
 from usb2rc.nodes.mapping import Mapping, compile_mapping, match_text
 from usb2rc.nodes.step import (
@@ -216,6 +216,7 @@ class Daemon:
         )
         self.monitor = HotplugMonitor(backend, self.lifecycle.plugged, self.lifecycle.unplugged)
         self.feedback = self._make_feedback(config) if self.outputs else None
+        self._wire_wakes()
         self.started_at = 0.0
         self._switch_interval: float | None = None  # the GIL's, to restore on stop()
         self._judge = judge
@@ -277,8 +278,26 @@ class Daemon:
         )
         for out in self.outputs:
             out.driver.on_telemetry = worker.ring
-        self.lifecycle.on_devices = worker.ring
         return worker
+
+    def _wire_wakes(self) -> None:
+        """Who wakes whom: after each device event the feedback thread and the drivers'
+        thread (an asleep output has nodes to send again); a serial far end's bytes wake the
+        drivers' thread, so such an output may sleep while it has nothing to send (a UDP
+        link is polled by its driver: it keeps ticking)."""
+        feedback, drivers = self.feedback, self.drivers
+
+        def devices_changed() -> None:
+            drivers.wake()
+            if feedback is not None:
+                feedback.ring()
+
+        self.lifecycle.on_devices = devices_changed
+        for out in self.outputs:
+            received = getattr(out.link, "received", None)
+            if isinstance(received, Handoff):
+                received.on_put = drivers.wake
+                out.driver.can_doze = True
 
     def _feed_devices(self) -> list[FeedDevice]:
         """The present devices, by node, each node's in config-entry order, then in the
@@ -493,6 +512,8 @@ class Daemon:
             **out.failsafe.record(frames),
             "writes": st.writes,
             "ticks": st.ticks,
+            # times every output was asleep and the drivers' thread slept until woken
+            "dozes": self.drivers.dozes,
             "late_ticks": st.late_ticks,
             "missed_ticks": st.missed_ticks,
             "period_p99_error_ms": st.period_p99_error_ms(out.driver.period_s),

@@ -58,6 +58,10 @@ LEAD_MARGIN_S = 0.0002  # over the tick's recent cost (its p95): a wake-up is of
 LEAD_MAX_SHARE = 0.25  # never more than a quarter period: the records' age
 LEAD_WINDOW = 50  # ticks measured between two updates of the lead
 SAME_TICK_S = 0.0005  # starts this close are one tick for the readers (< half of 1 kHz)
+# While every output is asleep (nothing to send until the nodes change or a far end speaks)
+# the thread sleeps until woken, and ticks at least this often anyway: a port lost meanwhile
+# is noticed, and the watchdog (`Daemon.all_outputs_ticking`, 1 s) sees it alive.
+DOZE_SAFETY_S = 0.5
 SAME_DEADLINE_S = 1e-6  # deadlines this close are one (each driver adds its own periods)
 
 
@@ -230,6 +234,10 @@ class LineDriver:
         # told when what the far end said changed the session's telemetry (feedback's ring);
         # set before the thread starts
         self.on_telemetry: Callable[[], None] | None = None
+        # whoever queues the far end's bytes wakes the drivers' thread (`DriverThread.wake`),
+        # so this output may sleep while its session is asleep; set before the thread starts
+        self.can_doze = False
+        self.asleep = False  # its last tick found its session asleep (and it can doze)
         self.last_tick_monotonic = 0.0
         self._last_write = 0.0
         self._input_at: float | None = None  # newest report of the tick's snapshot (read at)
@@ -298,6 +306,7 @@ class LineDriver:
         except Exception as exc:
             self._failed(exc)
             self._held = b""
+        self.asleep = self.can_doze and self._ok and self.session.asleep(snapshot)
         self._cost_s = step_s + time.monotonic() - started
 
     def write(self) -> None:
@@ -520,6 +529,17 @@ class DriverThread(Worker):
     def __init__(self, name: str, drivers: Sequence[LineDriver]) -> None:
         super().__init__(name)
         self.drivers = list(drivers)
+        self._bell = threading.Event()  # wake(): the nodes changed or a far end spoke
+        self.dozes = 0  # times every output was asleep and the thread slept until woken
+
+    def wake(self) -> None:
+        """Something an asleep output may have to answer: a device came or went, the far
+        end sent bytes. Any thread; costs nothing while the outputs tick."""
+        self._bell.set()
+
+    def stop(self) -> None:
+        super().stop()
+        self._bell.set()
 
     def run(self) -> None:
         """Until stopped: the next moment's writes, else its starts; then the final ticks
@@ -532,6 +552,9 @@ class DriverThread(Worker):
         for driver in drivers:
             driver.plan(aligned(now, driver.period_s), driver.period_s)
         while not self.stopping:
+            if all(d.asleep and not d.holding for d in drivers):
+                self._doze()
+                continue
             moment = min(driver.next_moment for driver in drivers)
             delay = moment - time.monotonic()
             if delay > 0 and self._wait(delay):
@@ -570,6 +593,18 @@ class DriverThread(Worker):
         for driver in starting:
             if driver.lead is not None:
                 driver.lead.took(ready - driver.start, driver.period_s)
+
+    def _doze(self) -> None:
+        """Every output is asleep: sleep until woken (or DOZE_SAFETY_S), then tick again on
+        each one's grid. A wake-up that came since the last tick returns at once: it is
+        cleared only here, after the sleep, before the ticks that answer it."""
+        self.dozes += 1
+        self._bell.wait(DOZE_SAFETY_S)
+        self._bell.clear()
+        now = time.monotonic()
+        for driver in self.drivers:
+            driver.asleep = False
+            driver.plan(aligned(now, driver.period_s), driver.period_s)
 
     def _wait(self, delay_s: float) -> bool:
         """Asleep until the next moment (awake would hold the GIL from the readers); True

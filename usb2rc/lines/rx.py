@@ -15,6 +15,7 @@ import logging
 import queue
 import select
 import time
+from collections.abc import Callable
 from typing import Generic, Protocol, TypeVar
 
 from usb2rc.lines.link import BITS_PER_BYTE_ON_WIRE
@@ -75,12 +76,17 @@ class Handoff(Generic[T]):
         self.cap = cap
         self.dropped = 0  # the reader thread writes it, `stats` reads it
         self._queue: queue.SimpleQueue[T] = queue.SimpleQueue()
+        # told after each put (the drivers' thread's wake-up, when it sleeps); set before
+        # the reader thread starts
+        self.on_put: Callable[[], None] | None = None
 
     def put(self, item: T) -> None:
         if self._queue.qsize() >= self.cap:  # only this thread adds: the check holds
             self.dropped += 1
             return
         self._queue.put(item)
+        if self.on_put is not None:
+            self.on_put()
 
     def take_all(self) -> list[T]:
         """What waits now (at most `cap` items: the driver's work is bounded)."""

@@ -218,6 +218,7 @@ class LineSession(Protocol):
     def flush_done(self, flushed: bool) -> None: ...
     def received(self, data: bytes, now: float) -> None: ...
     def tick(self, now: float, snapshot: NodeSnapshot) -> bytes: ...
+    def asleep(self, snapshot: NodeSnapshot) -> bool: ...
     def wrote(self, sent: int, unsure: int = 0) -> Delivered: ...
     def stopping(self) -> None: ...
     @property
@@ -297,6 +298,13 @@ class SessionBase:
 
     def received(self, data: bytes, now: float) -> None:
         """A protocol whose far end says nothing it needs ignores what it sends."""
+
+    def asleep(self, snapshot: NodeSnapshot) -> bool:
+        """Whether, after a tick from `snapshot`, its ticks would send nothing until the
+        nodes change or the far end speaks (the driver then sleeps until one of them
+        happens: an idle daemon wakes for nothing). A protocol that sends on a clock of its
+        own (failsafe frames, heartbeats) never is."""
+        return False
 
     def next_due(self, due: float, now: float) -> float:
         return due + self.period_s

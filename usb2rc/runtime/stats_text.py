@@ -76,6 +76,7 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("datagrams_from_peer", "datagrams from it {}"),
     ("datagrams_from_others", "from others ignored {}"),
     ("datagrams_not_allowed", "not allowed {}"),
+    ("dozes", "asleep (nothing to send) {} times"),
 )
 
 

@@ -96,6 +96,21 @@ class C2Session(EngineSession[C2Engine]):
             return b""
         return out
 
+    def asleep(self, snapshot: NodeSnapshot) -> bool:
+        """No node, no event it has not seen, no frame owed, no request waiting, an open
+        line that takes bytes: its ticks would send nothing (docs/ICD.md "Timing and
+        bandwidth": with no device there is no data frame to send)."""
+        engine = self.engine
+        return (
+            not snapshot.nodes
+            and snapshot.log.end == self._cursor
+            and not self._announce_present
+            and engine.owed_frames == 0
+            and engine.pending_requests == 0
+            and self.line.is_open
+            and not self.line.stalled
+        )
+
     def _events(self, snapshot: NodeSnapshot) -> tuple[ServiceEvent, ...]:
         log = snapshot.log
         fresh = log.since(self._cursor)
