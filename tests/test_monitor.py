@@ -94,6 +94,24 @@ def wait_until(read: Callable[[], str], done: Callable[[str], bool]) -> str:
     return text
 
 
+def screen_reader(fd: int, raw: bytearray) -> Callable[[], str]:
+    """What came out of `fd` so far (gathered in `raw`, waiting a little for more), with
+    the terminal's escapes taken out."""
+
+    def screen() -> str:
+        while select.select([fd], [], [], 0.05)[0]:
+            try:
+                chunk = os.read(fd, 65536)
+            except OSError:
+                break
+            if not chunk:
+                break
+            raw.extend(chunk)
+        return ANSI.sub("", raw.decode("utf-8", "replace")).replace("\r", "")
+
+    return screen
+
+
 def check_screen(screen: str) -> None:
     sources = {source for _, _, source in x_lines(screen)}
     reporting = {(raw, sent) for raw, sent in x_raw_and_sent(screen) if raw != "-"}
@@ -160,18 +178,7 @@ def test_live_view_on_a_pty(tmp_path):
     )
     os.close(slave)
     raw = bytearray()
-
-    def screen() -> str:
-        while select.select([master], [], [], 0.05)[0]:
-            try:
-                chunk = os.read(master, 65536)
-            except OSError:
-                break
-            if not chunk:
-                break
-            raw.extend(chunk)
-        return ANSI.sub("", raw.decode("utf-8", "replace")).replace("\r", "")
-
+    screen = screen_reader(master, raw)
     try:
         text = wait_until(screen, both_ends_seen)
         check_screen(text)

@@ -8,7 +8,9 @@ device, the compiled mapping, the node table) and opens no serial port unless `-
 asks. On a terminal it redraws about 10 times a second (plain ANSI, fine over SSH); with
 `--plain`, or when stdout is not a terminal, it prints a text snapshot once a second. With
 `--outputs` it runs the config's outputs too (their ports are opened) and shows each
-output's figures, a CRSF module's link quality and timing included.
+output's figures, a CRSF module's link quality and timing included, and what the far ends
+say back: the telemetry as the feedback rules see it, each rule's last action and what each
+driven device shows (docs/CONFIG.md "Feedback"), ahead of the other figures.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import argparse
 import dataclasses
 import logging
 import sys
+import textwrap
 import threading
 import time
 from collections import deque
@@ -33,6 +36,7 @@ from usb2rc.hid.backend import Backend, DeviceInfo, ErrorCode
 from usb2rc.nodes.binding import DeviceBinding, describe_button_runs
 from usb2rc.nodes.table import EventKind, NodeFrame, ServiceEvent
 from usb2rc.protocols.c2_16b.receiver import NodeView
+from usb2rc.runtime import stats_text
 
 REFRESH_S = 0.1  # the live view: ~10 Hz
 PLAIN_EVERY_S = 1.0  # --plain: one snapshot a second
@@ -40,6 +44,7 @@ BAR_WIDTH = 24
 KEPT_LINES = 8  # events and log lines the live view keeps
 LOG_SHOWN_S = 10.0  # the live views show a log line this long (the plain ones print it once)
 PAGE_S = 4.0  # the live view shows each page of nodes this long when they do not all fit
+FEEDBACK_INDENT = "    "  # a feedback line's continuation rows, in a narrow window
 Preview = Callable[[list[NodeFrame]], str]  # a node snapshot -> what an output would send
 
 
@@ -59,7 +64,7 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         "--outputs",
         action="store_true",
         help="also run the config's outputs (opens their ports) and show each output's "
-        "figures, a CRSF module's link quality included",
+        "figures, a CRSF module's link quality included, and the telemetry and feedback",
     )
     parser.set_defaults(func=run)
 
@@ -128,9 +133,14 @@ class InputSide:
             self._node(f, described.get(str(f.node_id), {}), devices.get(f.node_id, []))
             for f in frames
         ]
-        stats = self.daemon.stats_lines()
+        record = self.daemon.stats_record()
+        told = record.pop("feedback", None)  # its own rows, ahead of the counters
+        stats = stats_text.stats_lines(record)
+        feedback = stats_text.feedback_lines(told) if told is not None else []
         outputs = [f"{name}: {preview(frames)}" for name, preview in self.previews]
-        return Snapshot(nodes, list(self.events), self.event_total, stats, self.ports, outputs)
+        return Snapshot(
+            nodes, list(self.events), self.event_total, stats, self.ports, outputs, feedback
+        )
 
     def _raw_values(self) -> dict[str, tuple[int, ...]]:
         """Each reporting device's raw input values (its reader's last record), by key."""
@@ -215,6 +225,9 @@ class Snapshot:
     device_stats: list[str] = field(default_factory=list)  # and the outputs', with --outputs
     ports: str = "no serial port is opened"
     outputs: list[str] = field(default_factory=list)  # what each MAVLink output would send
+    # with --outputs: the telemetry heard, each feedback rule's last action, what each
+    # driven device shows (usb2rc.runtime.stats_text.feedback_lines)
+    feedback: list[str] = field(default_factory=list)
 
 
 def device_label(info: DeviceInfo) -> str:
@@ -297,6 +310,7 @@ def snapshot_text(snap: Snapshot, log_lines: list[str]) -> str:
     if not snap.nodes:
         lines.append("no devices (usb2rc list shows what is plugged and why a device is not used)")
     lines += [f"output: {line}" for line in snap.outputs]
+    lines += snap.feedback  # each starts with its kind: "telemetry crsf: ", "feedback ..."
     lines += [f"stats: {line}" for line in snap.device_stats]
     lines += [f"event: {e}" for e in snap.events]
     lines += [f"log: {line}" for line in log_lines]
@@ -381,6 +395,18 @@ def paginate(rows: list[int], budget: int) -> list[list[int]]:
     return pages
 
 
+def feedback_rows(lines: list[str], width: int) -> list[Any]:
+    """The telemetry and feedback lines in `width` columns: each wrapped (its continuation
+    rows indented), never cut, so a line's age, at its end, stays on screen; a stale
+    source's line in yellow."""
+    rows = []
+    for line in lines:
+        style = "yellow" if "stale" in line else ""
+        wrapped = textwrap.wrap(line, width, subsequent_indent=FEEDBACK_INDENT) or [""]
+        rows += [_line(row, style) for row in wrapped]
+    return rows
+
+
 def render_live(
     snap: Snapshot,
     log_lines: list[str],
@@ -389,7 +415,8 @@ def render_live(
 ) -> Any:
     """The live screen; with `size` (columns, rows) it fits that window: the node rows first
     (in pages shown in turn, PAGE_S each, when they do not fit together), then outputs,
-    device rows, log lines, events and stats as room allows; what is left out is counted."""
+    the telemetry and feedback, device rows, log lines, events and stats as room allows;
+    what is left out is counted."""
     from rich.console import Group
 
     width, height = size or (10_000, 10_000)
@@ -405,6 +432,7 @@ def render_live(
     outputs = [
         _line(f"output: {line}", "red" if "FAILSAFE" in line else "") for line in snap.outputs
     ]
+    feedback = feedback_rows(snap.feedback, width)
     stats = [_line(f"stats: {line}", "dim") for line in snap.device_stats]
     events = [_line(f"event: {line}") for line in snap.events[-KEPT_LINES:]]
     logs = [_line(f"log: {line}", "yellow") for line in log_lines[-KEPT_LINES:]]
@@ -418,6 +446,7 @@ def render_live(
         return parts[len(parts) - count :] if newest else parts[:count]
 
     outputs = take(outputs)
+    feedback = take(feedback)
     details = [take(b.details) for b in shown]
     logs, events, stats = take(logs, True), take(events, True), take(stats)
 
@@ -432,7 +461,7 @@ def render_live(
         parts.append(
             _line("no devices (usb2rc list shows what is plugged and why a device is not used)")
         )
-    parts += [*outputs, *stats, *events, *logs]
+    parts += [*outputs, *feedback, *stats, *events, *logs]
     if hidden:
         parts.append(_line(f"... {hidden} lines hidden: a taller window or --plain shows them"))
     return Group(*parts)

@@ -20,6 +20,12 @@ function el(tag, attrs, ...children) {
   return node;
 }
 
+// The children with a space between each (a row's items: flex lays them out, and its copied
+// text still reads as words)
+function spaced(...children) {
+  return children.filter((c) => c !== null && c !== undefined).flatMap((c, i) => (i ? [" ", c] : [c]));
+}
+
 function count(n, noun) {
   return n + " " + noun + (n === 1 ? "" : "s");
 }
@@ -105,6 +111,123 @@ function outputCard(out, now) {
   return card;
 }
 
+// --- Telemetry & feedback (docs/CONFIG.md "Feedback", docs/ICD.md "Downlink") ----------
+const TELEMETRY_STALE_S = 3;  // CRSF or MAVLink silent this long: its values are unknown
+// [source, label, unit, digits] in the order a row shows them (null digits: as it comes)
+const TELEMETRY_FIELDS = {
+  crsf: [["link_quality", "LQ", " %", null], ["rssi", "RSSI", " dBm", null], ["snr", "SNR", " dB", null],
+    ["battery_voltage", "battery", " V", 1], ["battery_remaining", "", " %", null], ["flight_mode", "mode", "", null]],
+  mavlink: [["armed", "", "", null], ["mode", "mode", "", null], ["battery_voltage", "battery", " V", 1],
+    ["battery_remaining", "", " %", null], ["failsafe", "failsafe", "", null]],
+};
+const SOURCE_NAMES = { crsf: "CRSF", mavlink: "MAVLink" };
+
+function seconds(s) {
+  return s.toFixed(1) + " s ago";
+}
+
+function telemetryValue(source, key, value) {
+  if (value === null || value === undefined) return "--";
+  if (source === "mavlink" && key === "armed") return value ? "ARMED" : "disarmed";
+  if (typeof value === "boolean") return value ? "yes" : "no";
+  return value;
+}
+
+function telemetryChip(source, [key, label, unit, digits], values) {
+  const value = values[source + "." + key];
+  let shown = telemetryValue(source, key, value);
+  if (typeof shown === "number" && digits !== null) shown = shown.toFixed(digits);
+  const known = value !== null && value !== undefined;
+  return el("span", { class: "tv" + (known ? "" : " dim"), "data-key": source + "." + key, "data-value": String(value) },
+    (label ? label + " " : "") + shown + (known ? unit : ""));
+}
+
+// A source's row: its values, or that it was never heard or went quiet.
+// A row: its label in the first column, its items wrapping in the second.
+function labelled(label, attrs, items) {
+  return el("div", attrs, el("span", { class: "src" }, label), " ", el("div", { class: "vals" }, ...spaced(...items)));
+}
+
+function telemetryRow(source, values) {
+  const age = values[source + ".age"];
+  const state = age === null || age === undefined ? "not-heard" : age >= TELEMETRY_STALE_S ? "stale" : "fresh";
+  let shown;
+  if (state === "not-heard") shown = [el("span", { class: "dim" }, "not heard")];
+  else if (state === "stale") shown = [el("span", { class: "stale-word" }, "stale: nothing for " + age.toFixed(1) + " s")];
+  else shown = [...TELEMETRY_FIELDS[source].map((field) => telemetryChip(source, field, values)),
+    el("span", { class: "dim" }, seconds(age))];
+  return labelled(SOURCE_NAMES[source], { class: "telemetry " + state, "data-source": source, "data-state": state }, shown);
+}
+
+// Each node's downlink: fresh (1 s) or stale, with the age of its last frame.
+function downlinkRows(values, c2) {
+  const rows = [];
+  for (const [key, age] of Object.entries(values)) {
+    const match = /^node(\d+)\.downlink_age$/.exec(key);
+    if (!match) continue;
+    const fresh = values["node" + match[1] + ".downlink"] === true;
+    const state = fresh ? "fresh" : "stale";
+    rows.push(labelled("node " + match[1], { class: "telemetry " + state, "data-downlink": match[1], "data-state": state },
+      [el("span", { class: fresh ? "" : "stale-word" }, "downlink " + state), el("span", { class: "dim" }, seconds(age))]));
+  }
+  if (!rows.length && c2) rows.push(labelled("downlink", { class: "telemetry not-heard", "data-downlink": "none", "data-state": "not-heard" },
+    [el("span", { class: "dim" }, "none heard")]));
+  return rows;
+}
+
+function telemetryCard(record, values) {
+  const protocols = new Set(record.stats.outputs.map((o) => o.protocol));
+  const sources = ["crsf", "mavlink"].filter((s) => protocols.has(s) || values[s + ".age"] != null);
+  const rows = [...sources.map((s) => telemetryRow(s, values)), ...downlinkRows(values, protocols.has("c2-16b"))];
+  return el("article", { class: "fb", id: "telemetry" }, el("h3", {}, "Telemetry"),
+    ...(rows.length ? rows : [el("div", { class: "dim" }, "no output hears telemetry")]));
+}
+
+function rulesCard(actions) {
+  const rows = actions.map((a) => labelled("rule " + a.rule, { class: "action", "data-rule": a.rule },
+    [el("span", { class: "dim", title: a.where }, a.where.replace(/^.*\//, "")), el("span", {}, a.did),
+      el("span", { class: "dim" }, seconds(a.ago_s))]));
+  return el("article", { class: "fb", id: "actions" }, el("h3", {}, "Rules' last actions"),
+    ...(rows.length ? rows : [el("div", { class: "dim" }, "no rule has acted yet")]));
+}
+
+function outputCounts(stats) {
+  if (!stats || stats.outputs_written === undefined) return el("div", { class: "dim" }, "no output written yet");
+  return el("div", { class: "writes" + (stats.outputs_refused ? " problem" : "") },
+    "outputs written " + stats.outputs_written + " · refused " + stats.outputs_refused +
+    (stats.output_error ? " (" + stats.output_error + ")" : ""));
+}
+
+function drivenCard(device, stats) {
+  const card = el("article", { class: "fb", "data-driven": device.name }, el("h3", {}, device.name));
+  const chips = device.lit.map((name) => el("span", { class: "chip led", "data-lit": name }, name));
+  card.append(el("div", { class: "lit" }, ...spaced(
+    el("span", { class: "dim" }, chips.length ? "lit" : "nothing lit"), ...chips,
+    device.indicators ? el("span", { class: "dim" }, "(of " + count(device.indicators, "indicator") + ")") : null)));
+  const analog = Object.entries(device.analog).map(([name, value]) =>
+    el("span", { class: "tv", "data-analog": name, "data-value": value }, name.replace(/_/g, " ") + " " + value.toFixed(2)));
+  if (analog.length) card.append(el("div", { class: "analog" }, ...spaced(...analog)));
+  device.texts.forEach((text, i) => {
+    if (text) card.append(el("div", { class: "text-line", "data-line": i + 1 }, el("span", { class: "dim" }, "line " + (i + 1) + ": "), text));
+  });
+  card.append(outputCounts(stats));
+  return card;
+}
+
+// The section shows only when the daemon judges feedback (it has outputs): no key, no card.
+function feedbackPanel(record) {
+  const feedback = record.stats.feedback;
+  const section = document.getElementById("feedback-section");
+  section.hidden = !feedback;
+  if (!feedback) {
+    document.getElementById("feedback").replaceChildren();
+    return;
+  }
+  const reports = new Map(record.stats.devices.map((d) => [d.name, d]));
+  document.getElementById("feedback").replaceChildren(telemetryCard(record, feedback.telemetry),
+    rulesCard(feedback.actions), ...feedback.devices.map((d) => drivenCard(d, reports.get(d.name))));
+}
+
 function devicesTable(record) {
   const reports = new Map(record.stats.devices.map((d) => [d.name, d]));
   const head = ["device", "vid:pid", "node", "entry", "reports/s"];
@@ -159,7 +282,8 @@ function renderAway(web) {
   document.getElementById("nodes").replaceChildren(
     el("p", { class: "problem" }, "no data from the daemon (" + why + "retrying)"),
     el("p", { class: "dim", id: "hint" }, web ? web.hint : ""));
-  for (const id of ["outputs", "devices", "events", "check"]) document.getElementById(id).replaceChildren();
+  for (const id of ["outputs", "feedback", "devices", "events", "check"]) document.getElementById(id).replaceChildren();
+  document.getElementById("feedback-section").hidden = true;
 }
 
 function render(record) {
@@ -174,6 +298,7 @@ function render(record) {
   document.getElementById("uptime").textContent = "up " + Math.round(record.stats.uptime_s) + " s";
   document.getElementById("nodes").replaceChildren(...record.nodes.map(nodeCard));
   document.getElementById("outputs").replaceChildren(...record.stats.outputs.map((o) => outputCard(o, now)));
+  feedbackPanel(record);
   devicesTable(record);
   document.getElementById("events").replaceChildren(...record.events.slice().reverse().map((e) =>
     el("li", {}, "node " + e.node_id + ": " + e.kind + (e.device ? " " + e.device : "") +
