@@ -19,6 +19,7 @@ from typing import Any
 
 import pytest
 from daemon_harness import DaemonProcess, PtyLine, data_frames
+from hid_encoder import encode, ref_reports
 from pymavlink.dialects.v20 import common as mavlink2
 from test_hid_outputs_umockdev import expected_report, input_report
 from test_real_hidapi import daemon_prefix, wait_announced
@@ -291,3 +292,47 @@ def test_a_vehicle_that_arms_lights_an_led(bed: UsbBed, tmp_path: Path) -> None:
         code = daemon.stop()
         line.close_at_the_end()
         assert code == 0, daemon.log()[-3000:]
+
+
+def test_zero_config_a_node_entering_failsafe_pulses_its_gamepads_rumble_once(
+    bed: UsbBed, line: PtyLine, tmp_path: Path
+) -> None:
+    """No config: a DualShock 4 plugged (its node in failsafe from the plug: no pulse), live
+    on centred reports streamed every 25 ms, then silent: its node enters failsafe (`3`
+    0x07, docs/ICD.md "A device that falls silent") and the pad's motors run at full for
+    the pulse, then stop; once."""
+    pad = bed.add(FakeStick("1-5", 0x054C, 0x09CC, DS4_DESCRIPTOR, "Wireless Controller", "Sony"))
+    written = Written(bed, pad, 32)
+    (ref,) = ref_reports(DS4_DESCRIPTOR).values()
+    centred = encode(
+        ref,
+        {
+            (0x10030, 0): 128,
+            (0x10031, 0): 128,
+            (0x10032, 0): 128,
+            (0x10035, 0): 128,
+            (0x10039, 0): 8,
+        },
+    )
+    daemon = start(tmp_path, bed, line)
+    try:
+        wait_announced(line, 0)
+        start_at = time.monotonic()
+        for i in range(40):  # streaming: learned after 20 reports the same as the one before
+            time.sleep(max(0.0, start_at + i * 0.025 - time.monotonic()))
+            bed.report(pad, centred)
+        line.wait_for(lambda f: (own := data_frames(f, 0)) and own[-1].status == LIVE)
+        assert all(r[4:6] == b"\x00\x00" for r in written.reports()), "a pulse at the plug"
+        # silent from here: the node fails safe, the pad pulses
+        wait_until(
+            lambda: any(r[4:6] == b"\xff\xff" for r in written.reports()), WAIT_S, "the pulse"
+        )
+        wait_until(lambda: written.reports()[-1][4:6] == b"\x00\x00", WAIT_S, "the pulse's end")
+        motors = [r[4:6] for r in written.reports()]
+        runs = sum(
+            1 for a, b in itertools.pairwise(motors) if a != b"\xff\xff" and b == b"\xff\xff"
+        )
+        assert runs == 1, motors
+        assert "silent" in daemon.log()
+    finally:
+        assert daemon.stop() == 0, daemon.log()[-3000:]
