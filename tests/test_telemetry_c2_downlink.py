@@ -138,3 +138,23 @@ def test_a_flood_of_downlinks_changes_neither_the_ticks_nor_the_answers_to_reque
     assert telemetry is not None
     assert [d.node_id for d in telemetry] == [0, 1, 2, 3, 4]  # one each, the newest
     assert [d.indicators for d in telemetry] == [1995, 1996, 1997, 1998, 1999]
+
+
+def test_its_own_frames_come_back_as_an_echo_not_a_downlink() -> None:
+    """A loopback: every byte the line sent comes back. No downlink, each `>` an echo; a far
+    end's own `>` frame among them is still a downlink."""
+    session = open_session()
+    log = device_log()
+    sent = b""
+    for tick in range(1, 40):
+        out = session.tick(float(tick), snapshot(log, tick))
+        session.wrote(len(out))
+        sent += out
+    own = [f for f in c2_16b.Decoder().feed(sent) if isinstance(f, c2_16b.DataFrame)]
+    live = [f for f in own if f.status == c2_16b.LIVE]
+    assert live
+    session.received(sent, now=1.0)
+    assert session.telemetry is None
+    assert session.stats(1.0)["rx_echo_frames"] == len(live)
+    session.received(downlink_frame(0, code=3, g1=0b101), now=2.0)
+    assert session.telemetry == (Downlink(0, 0b101, AXES, 2.0),)

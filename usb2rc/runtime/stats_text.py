@@ -37,6 +37,7 @@ OUTPUT_FIELDS: tuple[tuple[str, str], ...] = (
     ("rx_crc_failures", "rx crc failures {}"),
     ("rx_requests", "requests {}"),
     ("rx_downlink_frames", "downlink frames {}"),
+    ("rx_echo_frames", "its own frames come back (echo) {}"),
     ("rx_requests_dropped", "(dropped {})"),
     ("rx_dropped_bytes", "rx bytes dropped (faster than the line) {}"),
     ("module", "{}"),

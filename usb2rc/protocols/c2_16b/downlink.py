@@ -16,12 +16,18 @@ no more than one downlink per Node-ID.
 
 from __future__ import annotations
 
+from collections import OrderedDict, deque
 from typing import TypeGuard
 
 from usb2rc.feedback.model import Downlink
 from usb2rc.protocols.c2_16b import codec as c2_16b
 
 GROUP_BITS = 32  # group 2's bits follow group 1's
+# What the line sent lately, for the echo check: the bytes of the last ECHO_TICKS ticks (at
+# 50 Hz ~1.3 s: an echo comes back within a few ms), decoded only when a `>` frame comes in,
+# at most ECHO_FRAMES data frames kept.
+ECHO_TICKS = 64
+ECHO_FRAMES = 1024
 
 
 def is_downlink(frame: c2_16b.Frame) -> TypeGuard[c2_16b.DataFrame]:
@@ -33,6 +39,34 @@ def downlink_of(frame: c2_16b.DataFrame, at: float) -> Downlink:
     """A `>` frame as the downlink it carries, received at `at`."""
     indicators = frame.group1 | frame.group2 << GROUP_BITS
     return Downlink(frame.node_id, indicators, tuple(frame.axes), at)
+
+
+class OwnFrames:
+    """The data frames this line sent lately, to tell an echo of them (a loopback plug, a
+    half-duplex wire that hears itself) from a downlink: a `>` frame equal to one of them
+    (Node-ID, message code, axes, groups: the rolling code makes a far end's own frame
+    equal to one of ours only if it copies it) is an echo. A tick costs one append; the
+    sent bytes are decoded only when a `>` frame comes in, so a far end that sends none
+    costs nothing."""
+
+    def __init__(self) -> None:
+        self._undecoded: deque[bytes] = deque(maxlen=ECHO_TICKS)
+        self._decoder = c2_16b.Decoder()
+        self._frames: OrderedDict[c2_16b.DataFrame, None] = OrderedDict()
+
+    def sent(self, data: bytes) -> None:
+        if data:
+            self._undecoded.append(data)
+
+    def is_echo(self, frame: c2_16b.DataFrame) -> bool:
+        frames = self._frames
+        while self._undecoded:
+            for own in self._decoder.feed(self._undecoded.popleft()):
+                if isinstance(own, c2_16b.DataFrame):
+                    frames[own] = None
+                    if len(frames) > ECHO_FRAMES:
+                        frames.popitem(last=False)
+        return frame in frames
 
 
 class Downlinks:

@@ -23,7 +23,7 @@ from usb2rc.feedback.model import Downlink
 from usb2rc.lines.session import Backpressure, Delivered, EngineSession
 from usb2rc.nodes.table import NodeSnapshot, ServiceEvent
 from usb2rc.protocols.c2_16b import codec as c2_16b
-from usb2rc.protocols.c2_16b.downlink import Downlinks, is_downlink
+from usb2rc.protocols.c2_16b.downlink import Downlinks, OwnFrames, is_downlink
 from usb2rc.protocols.c2_16b.engine import C2Engine, C2Settings
 
 REQUESTS_PER_TICK = 512  # 2 per Node-ID: more in one tick only repeat what is asked
@@ -52,6 +52,8 @@ class C2Session(EngineSession[C2Engine]):
         super().__init__(name, engine, backpressure, 1.0 / settings.rate_hz)
         self.decoder = c2_16b.Decoder()
         self.downlinks = Downlinks()
+        self.own_frames = OwnFrames()  # what it sent lately: an echo of it is no downlink
+        self.echoes = 0  # `>` frames that were its own, come back
         self.requests = 0
         self.requests_dropped = 0
         self.data_frames = 0  # frames that went out whole (counted once)
@@ -70,7 +72,10 @@ class C2Session(EngineSession[C2Engine]):
         downlinks = self.downlinks
         for frame in self.decoder.feed(data):
             if is_downlink(frame):
-                downlinks.take(frame)
+                if self.own_frames.is_echo(frame):
+                    self.echoes += 1
+                else:
+                    downlinks.take(frame)
                 continue
             if not is_request(frame):
                 continue
@@ -94,6 +99,7 @@ class C2Session(EngineSession[C2Engine]):
         if out and not self.backpressure.room(len(out)):
             self.engine.wrote(0)  # nothing went: service frames stay owed, codes unused
             return b""
+        self.own_frames.sent(out)
         return out
 
     def asleep(self, snapshot: NodeSnapshot) -> bool:
@@ -150,5 +156,6 @@ class C2Session(EngineSession[C2Engine]):
             "rx_requests": self.requests,
             "rx_requests_dropped": self.requests_dropped,
             "rx_downlink_frames": self.downlinks.frames,
+            "rx_echo_frames": self.echoes,
             "event_log_gaps": self.log_gaps,
         }
