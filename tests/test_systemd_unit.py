@@ -120,7 +120,9 @@ def test_unit_device_allow_list() -> None:
         "char-ttyAMA": "rw",  # Pi PL011 UART
         "char-ttyUSB": "rw",
         "char-ttyACM": "rw",
-    }  # no char-usb_device: hidapi's hidraw backend reads USB descriptors from sysfs
+        # the X52 Pro's MFD through pyusb; the udev rule grants only such devices' nodes
+        "char-usb_device": "rw",
+    }
 
 
 def test_unit_keeps_udev_events_reachable() -> None:
