@@ -1,9 +1,9 @@
-"""CPU of the daemon's hot paths: an output tick (and its parts), a reader's wake-up.
+"""CPU of the daemon's hot paths: an output tick (and its parts), a reader's pull.
 
 The daemon's CPU at 4 devices x 1000 reports/s is the scheduler's tick, 50 times a second,
-and each reader's wake-ups, ~100 a second, each draining ~10 reports. Thread CPU time
-(`time.thread_time`), so other load on the machine changes the figures less than it changes
-wall-clock ones (it still evicts caches: compare runs made back to back).
+and each reader's pulls by the node step, each draining what the device queued since.
+Thread CPU time (`time.thread_time`), so other load on the machine changes the figures less
+than it changes wall-clock ones (it still evicts caches: compare runs made back to back).
 
 Tick: the real `lines.driver.LineDriver.tick()` of a C2-16B output (follow the link, the node
 snapshot `NodeTable.step_if_due` ("collect"), `C2Session.tick` with one data frame per node,
@@ -14,9 +14,10 @@ drains, `--nodes` T.16000M devices whose readers' records change every tick (as 
   cold in the CPU's caches after 20 ms of other work, which costs several times more;
 - `collect_`, `session_`, `write_paced_us`: its parts, measured the same way.
 
-Reader: `DeviceReader`'s drain and publish of `--batch` queued T.16000M reports (a device
-whose `read` costs nothing, so this is the reader's and the decoder's share):
-- `reader_wake_hot_us` (best of `--runs` means), `reader_wake_paced_us` (one every 10 ms).
+Reader: a pulled `DeviceReader`'s `pull()` (its drain and publish) of `--batch` queued
+T.16000M reports (a device whose `read` costs nothing, so this is the reader's and the
+decoder's share):
+- `reader_pull_hot_us` (best of `--runs` means), `reader_pull_paced_us` (one every 10 ms).
 
     .venv/bin/python bench/bench_hot_paths.py [--nodes 4] [--ticks 2000] [--paced 250]
 """
@@ -44,7 +45,7 @@ from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import DeviceReader, ReaderRecord
 from usb2rc.hid.replay import ReplayBackend, install_file
-from usb2rc.lines.driver import LineDriver, Pace
+from usb2rc.lines.driver import LineDriver
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import NodeTable
@@ -164,9 +165,9 @@ class QueuedDevice:
         pass
 
 
-def reader_figures(batch: int, wakes: int, runs: int, paced_wakes: int) -> dict[str, float]:
-    """The reader thread's work per wake-up (as `DeviceReader._loop` does it with a pause:
-    the report that woke it, the drain of what is queued, one publish)."""
+def reader_figures(batch: int, pulls: int, runs: int, paced_pulls: int) -> dict[str, float]:
+    """A pulled reader's work per pull (the node step's call: the drain of what is queued,
+    one publish)."""
     states = [StickState(x=(7 * i) % 16384, y=(13 * i) % 16384, buttons=i) for i in range(64)]
     reports = [state.report() for state in states]
     device = QueuedDevice()
@@ -176,25 +177,23 @@ def reader_figures(batch: int, wakes: int, runs: int, paced_wakes: int) -> dict[
         replayed = backend.open(backend.enumerate()[0])
         layout = parse_descriptor(replayed.report_descriptor())
         replayed.close()
-    reader = DeviceReader(
-        device, layout.make_decoder(), lambda r, c: None, next_tick=lambda: Pace(0.0, 0.02)
-    )
+    # its thread is not started: it only holds the device, and a pull does not need it
+    reader = DeviceReader(device, layout.make_decoder(), lambda r, c: None, pulled=True)
 
-    def wake(k: int) -> float:
+    def pull(k: int) -> float:
         device.queue.extend(reports[(k + i) % len(reports)] for i in range(batch))
         began = time.thread_time()
-        reader._drain(device.queue.popleft())  # what _loop does after its blocking read
-        reader._publish()
+        reader.pull()
         return time.thread_time() - began
 
-    best = min(sum(wake(k) for k in range(wakes)) / wakes for _ in range(runs))
+    best = min(sum(pull(k) for k in range(pulls)) / pulls for _ in range(runs))
     paced: list[float] = []
-    for k in range(paced_wakes):
+    for k in range(paced_pulls):
         time.sleep(0.01)
-        paced.append(wake(k))
+        paced.append(pull(k))
     return {
-        "reader_wake_hot_us": best * 1e6,
-        "reader_wake_paced_us": statistics.median(paced) * 1e6,
+        "reader_pull_hot_us": best * 1e6,
+        "reader_pull_paced_us": statistics.median(paced) * 1e6,
     }
 
 
@@ -204,7 +203,7 @@ def main() -> None:
     parser.add_argument("--ticks", type=int, default=2000, help="hot ticks")
     parser.add_argument("--paced", type=int, default=250, help="paced ticks (20 ms each)")
     parser.add_argument("--runs", type=int, default=5, help="hot runs (the best counts)")
-    parser.add_argument("--batch", type=int, default=10, help="reports per reader wake-up")
+    parser.add_argument("--batch", type=int, default=10, help="reports per reader pull")
     args = parser.parse_args()
     master, slave = os.openpty()
     drain = subprocess.Popen(["cat"], stdin=master, stdout=subprocess.DEVNULL)

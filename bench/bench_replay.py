@@ -1,10 +1,10 @@
-"""The replay backend's own cost per report, as a paced reader drains it (issue 40).
+"""The replay backend's own cost per report, as a reader drains it (issue 40).
 
 Four real descriptors (X52, T.16000M, TWCS, WingMan: `tests/daemon_harness.py:
 BENCH_MODELS`), 12 s recordings of random reports at 1 kHz each, looped, each opened
-on the replay backend. Every `--step-ms` (10: a paced reader wakes twice per 20 ms tick)
-each device is drained as `hid/reader.py` drains it: `read(timeout)`, then `read_due`
-(where the device has it) and `read(0.0)` until that returns None.
+on the replay backend. Every `--step-ms` (10) each device is drained as `hid/reader.py`
+drains it: `read(timeout)`, then `read_due` (where the device has it) and `read(0.0)` until
+that returns None.
 
     .venv/bin/python bench/bench_replay.py [--seconds 5] [--step-ms 10]
     .venv/bin/python bench/bench_replay.py --callgrind        # instructions per report
@@ -52,7 +52,7 @@ RATE_HZ = 1000.0
 
 
 def drain(device: Any) -> int:
-    """A paced reader's drain (`DeviceReader._drain`): the reports it took."""
+    """A reader's drain (`DeviceReader._drain`) after a read: the reports it took."""
     if device.read(0.1) is None:
         return 0
     taken = 1

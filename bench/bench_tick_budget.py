@@ -1,5 +1,5 @@
 """The per-tick budget (issue 22): each protocol's session tick, the codecs' cached paths,
-a reader's wake-ups, and what each allocates, so a regression shows in the figure that moved.
+a reader's pulls, and what each allocates, so a regression shows in the figure that moved.
 
 Session ticks (`tick_us_<case>`, `alloc_peak_b_<case>`, `retained_b_<case>`): the line
 session of each protocol as the output thread drives it once a tick, its encoding included,
@@ -20,10 +20,11 @@ with (its temporaries; median over ticks). `retained_b_*`: memory still held aft
 
 Readers (`reader_*`): `--devices` replayed real descriptors (X52, T.16000M, TWCS, WingMan,
 from tests/data/real-devices.json) with random reports of every input report ID at
-`--rate` Hz each, read by `DeviceReader`s paced on a 20 ms grid (`next_tick`), for
-`--seconds`: `reader_wakes_per_s` (all readers: the times a reader woke to drain),
-`reader_reports_per_s`, `reader_us_per_wake` (the readers' thread CPU, less the replay
-backend's own `busy_s`, per wake-up) and `reader_cpu_pct` (the same as % of one core).
+`--rate` Hz each, read by pulled `DeviceReader`s that this thread pulls on a 20 ms grid (as
+the node step of C2-16B alone does), for `--seconds`: `reader_pulls_per_s` (all readers),
+`reader_reports_per_s`, `reader_us_per_pull` (the pulls' thread CPU, less the replay
+backend's own `busy_s`, per pull) and `reader_cpu_pct` (the same as % of one core). A tree
+whose readers are not pulled (an A/B against an older commit) leaves these rows out.
 
     .venv/bin/python bench/bench_tick_budget.py [--ticks 2000] [--runs 5] [--seconds 5]
 """
@@ -33,7 +34,6 @@ from __future__ import annotations
 import argparse
 import inspect
 import json
-import os
 import random
 import statistics
 import sys
@@ -46,7 +46,6 @@ from pathlib import Path
 from typing import Any
 
 from usb2rc.config import layout
-from usb2rc.lines.driver import Pace
 from usb2rc.protocols.c2_16b.engine import C2Engine, C2Settings
 from usb2rc.protocols.channels import OutputChannels
 from usb2rc.protocols.crsf.session import CrsfModule, CrsfSession
@@ -210,75 +209,66 @@ def session_figures(ticks: int, runs: int, inputs: int) -> dict[str, float]:
 # --- readers ----------------------------------------------------------------------------------
 
 
-def thread_cpu_s(native_id: int) -> float:
-    """utime + stime of one of this process's threads (Linux /proc)."""
-    fields = Path(f"/proc/self/task/{native_id}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def reader_figures(models: int, seconds: float, rate_hz: float) -> dict[str, float]:
-    started = time.monotonic()
-    drains = [0]  # the readers ask for the next tick once per drain: once per wake-up
-
-    def next_tick() -> Pace:  # a 20 ms grid, as one clock for every output would give
-        drains[0] += 1
-        ticks = (time.monotonic() - started) // GRID_S + 1
-        return Pace(started + ticks * GRID_S, GRID_S)
-
+    if "pulled" not in inspect.signature(DeviceReader).parameters:
+        return {}  # an older tree: its readers are not pulled
     with tempfile.TemporaryDirectory() as tmp:
         # looped: the first lap's parse (the replay's cost) comes before the window
         recordings = named_device_recordings(BENCH_MODELS[:models], seconds + 2.0, rate_hz)
         for k, text in enumerate(recordings):
             install_file(Path(tmp) / f"device{k}.hid", text)
         backend = ReplayBackend(tmp, loop=True)
-        readers = [paced_reader(backend, info, next_tick) for info in backend.enumerate()]
+        readers = [pulled_reader(backend, info) for info in backend.enumerate()]
         for reader in readers:
             reader.start()
-        time.sleep(1.0)  # started, first batches drained
-        ids = [r._thread.native_id for r in readers if r._thread.native_id is not None]
-        before = _reader_counts(readers, ids, drains[0])
-        time.sleep(seconds)
-        after = _reader_counts(readers, ids, drains[0])
-        for reader in readers:
-            reader.stop()
-        for reader in readers:
-            reader.join(1.0)
-    wakes, reports, cpu_s, replay_s, window = (b - a for a, b in zip(before, after, strict=True))
+        try:
+            pull_on_the_grid(readers, 1.0)  # started, first batches drained
+            before = _reader_counts(readers)
+            pulls, cpu_s = pull_on_the_grid(readers, seconds)
+            after = _reader_counts(readers)
+        finally:
+            for reader in readers:
+                reader.stop()
+            for reader in readers:
+                reader.join(1.0)
+    reports, replay_s, window = (b - a for a, b in zip(before, after, strict=True))
     own_s = max(0.0, cpu_s - replay_s)
     return {
         "reader_devices": float(len(readers)),
-        "reader_wakes_per_s": wakes / window,
+        "reader_pulls_per_s": pulls / window,
         "reader_reports_per_s": reports / window,
-        "reader_us_per_wake": own_s / max(1, wakes) * 1e6,
+        "reader_us_per_pull": own_s / max(1, pulls) * 1e6,
         "reader_cpu_pct": own_s / window * 100,
         "reader_replay_cpu_pct": replay_s / window * 100,
     }
 
 
-def paced_reader(backend: ReplayBackend, info: Any, next_tick: Callable[[], Pace]) -> Any:
-    """A reader paced on `next_tick`; before issue 22 (an A/B against an older commit) the
-    reader took the pause itself (`pause=`), computed as the daemon did."""
+def pulled_reader(backend: ReplayBackend, info: Any) -> Any:
     device = backend.open(info)
     decoder = parse_descriptor(device.report_descriptor()).make_decoder()
-    if "next_tick" in inspect.signature(DeviceReader).parameters:
-        return DeviceReader(device, decoder, lambda r, c: None, next_tick=next_tick)
-
-    def pause() -> float:  # daemon.Daemon._reader_pause of those commits
-        tick, now = next_tick(), time.monotonic()
-        due = tick.start
-        for wake in (due - 0.002, due - 0.00025, due + tick.period_s - 0.002):
-            if wake > now:
-                return wake - now
-        return 0.0
-
-    return DeviceReader(device, decoder, lambda r, c: None, pause=pause)  # type: ignore[call-arg]
+    return DeviceReader(device, decoder, lambda r, c: None, pulled=True)
 
 
-def _reader_counts(readers: list[Any], ids: list[int], drains: int) -> tuple[float, ...]:
+def pull_on_the_grid(readers: list[Any], seconds: float) -> tuple[int, float]:
+    """Every reader pulled once per GRID_S for `seconds`: (pulls, this thread's CPU in them)."""
+    pulls, cpu_s = 0, 0.0
+    started = time.monotonic()
+    tick = started
+    while tick - started < seconds:
+        tick += GRID_S
+        time.sleep(max(0.0, tick - time.monotonic()))
+        began = time.thread_time()
+        for reader in readers:
+            reader.pull()
+        cpu_s += time.thread_time() - began
+        pulls += len(readers)
+    return pulls, cpu_s
+
+
+def _reader_counts(readers: list[Any]) -> tuple[float, ...]:
     reports = sum(reader.reports for reader in readers)
-    cpu = sum(thread_cpu_s(native_id) for native_id in ids)
     replay = sum(r.device.busy_s for r in readers if isinstance(r.device, ReplayDevice))
-    return float(drains), float(reports), cpu, replay, time.monotonic()
+    return float(reports), replay, time.monotonic()
 
 
 def main() -> None:

@@ -67,7 +67,7 @@ def test_hot_paths() -> None:
     result = last_json(out)
     assert result["bench"] == "hot_paths" and result["nodes"] == 4
     for key in ("tick_hot_us", "tick_paced_us", "collect_paced_us", "session_paced_us",
-                "write_paced_us", "reader_wake_hot_us", "reader_wake_paced_us"):  # fmt: skip
+                "write_paced_us", "reader_pull_hot_us", "reader_pull_paced_us"):  # fmt: skip
         assert result["figures"][key] > 0, key
     assert re.search(r"^tick_hot_us\s+[0-9.]+ µs$", out, re.MULTILINE)
 
@@ -87,7 +87,7 @@ def test_tick_budget() -> None:
         for figure in ("tick_us", "alloc_peak_b", "retained_b"):
             assert isinstance(figures[f"{figure}_{case}"], float | int), (figure, case)
     assert figures["reader_devices"] == 2
-    for key in ("reader_wakes_per_s", "reader_reports_per_s", "reader_us_per_wake"):
+    for key in ("reader_pulls_per_s", "reader_reports_per_s", "reader_us_per_pull"):
         assert isinstance(figures[key], float), key
     assert re.search(r"^tick_us_c2_4_nodes\s+[0-9.]+ µs$", out, re.MULTILINE)
 

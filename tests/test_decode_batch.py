@@ -1,7 +1,7 @@
 """ReportDecoder.feed_batch: the state and counters of `feed` on every report, in order.
 
-It decodes only the last valid report of each report ID (what a paced reader's drain takes
-in one wake-up), and with `on_buttons` reports the button mask after every report that
+It decodes only the last valid report of each report ID (what a pulled reader's drain takes
+in one pull), and with `on_buttons` reports the button mask after every report that
 changed it (a tap inside a batch must not be lost); these tests hold it to the one-by-one
 result on every real descriptor and on a device whose report IDs share buttons (where the
 order of the survivors matters).

@@ -15,7 +15,6 @@ import serial
 from daemon_harness import PtyLine, StickState
 from test_node_table_driver import BINDING, Source, info
 
-from usb2rc.hid.reader import LAST_CALL_S, reader_pause
 from usb2rc.lines.driver import (
     LEAD_FIRST_S,
     LEAD_MARGIN_S,
@@ -24,9 +23,7 @@ from usb2rc.lines.driver import (
     DriverThread,
     Lead,
     LineDriver,
-    Pace,
     aligned,
-    earliest,
 )
 from usb2rc.lines.rx import LinkReader
 from usb2rc.lines.serial_link import SerialLink
@@ -213,41 +210,6 @@ def test_every_driver_ticks_on_multiples_of_its_period_from_one_epoch() -> None:
     fifty = {round(first + k * 0.02, 6) for k in range(10)}
     hundred = {round(second + k * 0.01, 6) for k in range(20)}
     assert fifty - {round(first, 6)} <= hundred
-    assert earliest([Pace(0.0, 0.02), Pace(2.0, 0.01), Pace(1.5, 0.02)], 1.0) == Pace(
-        1.5, pytest.approx(0.02)
-    )
-    assert earliest([Pace(0.0, 0.02)], 1.0) is None  # nobody ticks yet
-
-
-def test_the_readers_pace_is_the_next_tick_and_the_gap_to_the_one_after_of_any_output() -> None:
-    """C2-16B (20 ms) and SUMD (10 ms) due together: the tick after is SUMD's, 10 ms on,
-    whichever the readers read first; CRSF (4 ms) at 8 ms and SUMD at 10 ms: 2 ms on."""
-    now = 0.99
-    both = earliest([Pace(1.00, 0.020), Pace(1.00, 0.010)], now)
-    assert both == Pace(1.00, pytest.approx(0.010))
-    both = earliest([Pace(1.00, 0.010), Pace(1.00, 0.020)], now)
-    assert both == Pace(1.00, pytest.approx(0.010))
-    crsf_then_sumd = earliest([Pace(0.008, 0.004), Pace(0.010, 0.010)], 0.0)
-    assert crsf_then_sumd == Pace(0.008, pytest.approx(0.002))
-    # C2-16B due at 0.9995 and SUMD 0.2 ms after it (a CRSF module's phase next to the
-    # grid, say): one tick for the readers
-    together = earliest([Pace(0.9995, 0.020), Pace(0.9997, 0.010)], now)
-    assert together == Pace(0.9995, pytest.approx(1.0097 - 0.9995))
-    assert earliest([Pace(1.0, 0.001)], now) == Pace(1.0, pytest.approx(0.001))  # CRSF 1 kHz
-
-
-def test_a_driver_in_its_tick_paces_the_readers_on_its_next_tick() -> None:
-    """C2-16B's tick began at 0.9995 and has not written yet: its records are read, so a
-    reader asking now sleeps until the next tick of any output (SUMD's at 1.0097), not
-    until the deadline it has passed. That passed deadline had given a reader no pause at
-    all on a fast grid: it polled through every tick, a drain per report."""
-    c2_mid_tick, sumd = Pace(0.9995, 0.020), Pace(1.0097, 0.010)
-    now = 0.9998
-    assert earliest([c2_mid_tick, sumd], now) == Pace(1.0097, pytest.approx(1.0195 - 1.0097))
-    assert earliest([c2_mid_tick], now) == Pace(pytest.approx(1.0195), pytest.approx(0.020))
-    crsf_mid_tick = Pace(0.9995, 0.004)  # CRSF at 250 Hz, alone
-    tick = earliest([crsf_mid_tick], now)
-    assert tick is not None and reader_pause(tick, now) == pytest.approx(1.0035 - LAST_CALL_S - now)
 
 
 class TimedWrites(NamedTuple):
@@ -258,9 +220,9 @@ class TimedWrites(NamedTuple):
 
 def timed_writes(outputs: int) -> TimedWrites:
     """`outputs` C2-16B drivers at 100 Hz, each over its own pty, on one drivers' thread,
-    60 ticks or more; per write: which output, the tick's deadline and planned start, the
-    pace the readers saw, when the tick began, made its bytes (from which snapshot) and
-    wrote them. The final ticks (at once, on stop) are left out."""
+    60 ticks or more; per write: which output, the tick's deadline and planned start, when
+    the tick began, made its bytes (from which snapshot) and wrote them. The final ticks
+    (at once, on stop) are left out."""
     table = NodeTable()
     table.add_device(0, info("k0", "1-0"), BINDING, Source.of(StickState()), "JOYSTICK")
     fars = [PtyLine("c2-16b") for _ in range(outputs)]
@@ -306,7 +268,6 @@ def _timed(
             output=index,
             deadline=driver._deadline,
             start=driver._start,
-            pace=driver.pace,
             began=time.monotonic(),
             snapshot=snapshot,
         )
@@ -334,16 +295,16 @@ def test_outputs_due_together_are_made_ahead_from_one_snapshot_and_written_in_co
     None
 ):
     """Several outputs on the drivers' thread: each has its lead; the ticks due together
-    start on the earliest of their starts (the readers pace on it, and wake once for all),
-    are made from one step of the node table, asked for once, and are written on their
-    deadline, never before it, in config order, after all of them were made."""
+    start on the earliest of their starts, are made from one step of the node table, asked
+    for once, and are written on their deadline, never before it, in config order, after
+    all of them were made."""
     drivers, on_grid, steps = timed_writes(outputs=3)
     for driver in drivers:
         assert driver.lead is not None and 0.0 < driver.lead.s <= 0.01 * LEAD_MAX_SHARE
     ticks: dict[float, list[dict[str, Any]]] = {}
     for w in on_grid:
         assert w["start"] < w["deadline"] <= w["written"] and on_the_grid(w["deadline"], 0.01)
-        assert w["pace"].start == w["start"] and w["began"] <= w["made"] <= w["written"]
+        assert w["began"] <= w["made"] <= w["written"]
         ticks.setdefault(round(w["deadline"], 6), []).append(w)
     deadlines = sorted(ticks)
     together = [at for at in deadlines if len(ticks[at]) == 3]
@@ -367,12 +328,11 @@ def test_outputs_due_together_are_made_ahead_from_one_snapshot_and_written_in_co
 def test_the_only_output_reads_the_records_on_its_deadline_and_writes_them_at_once() -> None:
     """No lead: each tick wakes on its deadline (on the grid, from its epoch), makes its
     frame from the records then and writes it at once: never before the deadline, never
-    from records read ahead of it (a lead would age every frame's records by itself). The
-    readers pace on that deadline."""
+    from records read ahead of it (a lead would age every frame's records by itself)."""
     (driver,), on_grid, _ = timed_writes(outputs=1)
     assert len(on_grid) >= 60 and driver.lead is None
     for w in on_grid:
-        assert w["pace"].start == w["start"] == w["deadline"] and on_the_grid(w["start"], 0.01)
+        assert w["start"] == w["deadline"] and on_the_grid(w["start"], 0.01)
         assert w["deadline"] <= w["began"] <= w["made"] <= w["written"]
 
 

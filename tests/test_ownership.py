@@ -2,7 +2,7 @@
 race explicitly through a seam, or checks which thread writes a field; none relies on luck.
 
 - `Daemon._become_ready`: the check and the set are one step (READY=1 goes out once);
-- `LineDriver.pace`: the deadline and the period are one value, written by the driver thread;
+- `LineDriver.period_s`: written by the drivers' thread only, which follows a CRSF module;
 - `CrsfModule.link`: the module's figures with their time, one value (tests/test_crsf_sbus.py).
 """
 
@@ -18,9 +18,8 @@ import serial
 
 from usb2rc.configfile import Config, OutputConfig
 from usb2rc.daemon import Daemon
-from usb2rc.hid.reader import READ_AHEAD_S, reader_pause
 from usb2rc.hid.replay import ReplayBackend
-from usb2rc.lines.driver import DriverThread, LineDriver, Pace
+from usb2rc.lines.driver import DriverThread, LineDriver
 from usb2rc.lines.link import LineEvent
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.protocols.crsf import codec as crsf
@@ -93,50 +92,25 @@ def test_two_outputs_becoming_ready_together_send_ready_once(tmp_path: Path) -> 
     assert readies == ["output1"]
 
 
-def test_the_readers_pace_on_one_deadline_and_period(tmp_path: Path) -> None:
-    """`_next_tick` reads an output's pace once: an output that replaces it between two
-    reads (here: at every read) cannot pair one tick's deadline with another's period."""
-    daemon = _daemon(tmp_path)
-    now = time.monotonic()
-    paces = iter([Pace(now + 0.010, 0.020), Pace(now + 0.500, 1.0)] * 4)
+def _watch_period(thread: LineDriver, writers: set[str]) -> None:
+    """Notes in `writers` which threads assign the driver's `period_s`."""
 
-    class Replacing:
-        @property
-        def pace(self) -> Pace:
-            return next(paces)
-
-    daemon.outputs[0].driver = Replacing()  # type: ignore[assignment]
-    pause = reader_pause(daemon._next_tick(), time.monotonic())
-    assert 0 < pause <= 0.010 - READ_AHEAD_S  # the first value's wake-up, whole
-
-
-class _PaceWrites:
-    """Which thread assigns `pace` (and that nobody assigns the old loose fields)."""
-
-    def __init__(self) -> None:
-        self.writers: set[str] = set()
-        self.loose: list[str] = []
-
-
-def _watch_pace(thread: LineDriver, writes: _PaceWrites) -> None:
     def setattr_watched(obj: Any, name: str, value: Any) -> None:
-        if name == "pace":
-            writes.writers.add(threading.current_thread().name)
-        if name in ("next_deadline", "period_s"):
-            writes.loose.append(name)
+        if name == "period_s":
+            writers.add(threading.current_thread().name)
         object.__setattr__(obj, name, value)
 
     thread.__class__ = type("Watched", (type(thread),), {"__setattr__": setattr_watched})
 
 
-def test_only_the_drivers_thread_writes_a_pace_and_follows_the_module(
+def test_only_the_drivers_thread_writes_the_period_and_follows_the_module(
     tmp_path: Path,
 ) -> None:
     daemon = _daemon(tmp_path, protocol="crsf")
     thread = daemon.outputs[0].driver
     assert isinstance(thread, LineDriver) and isinstance(thread.session, CrsfSession)
-    writes = _PaceWrites()
-    _watch_pace(thread, writes)
+    writers: set[str] = set()
+    _watch_period(thread, writers)
     # the module asks for 10 ms (0.1 µs units): next_due follows it from the first tick
     thread.session.received(crsf.encode_timing_sync(100_000, 0), time.monotonic())
     daemon.drivers.start()
@@ -149,9 +123,8 @@ def test_only_the_drivers_thread_writes_a_pace_and_follows_the_module(
         daemon.drivers.stop()
         daemon.drivers.join(WAIT_S)
     assert thread.stats.ticks >= 3
-    assert writes.writers == {daemon.drivers.name}
-    assert writes.loose == []
-    assert thread.pace.period_s == 0.010
+    assert writers == {daemon.drivers.name}
+    assert thread.period_s == 0.010
 
 
 # --- SerialLink: one writer per field; a close waits for a read in progress -----------------

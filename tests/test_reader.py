@@ -6,22 +6,14 @@ import threading
 import time
 from pathlib import Path
 
-import pytest
 from daemon_harness import StickState, recording
 from output_fakes import RecordingPort
 from test_replay import numbered, recording_text
 
 from usb2rc.hid.backend import DeviceInfo, ErrorCode, OutputPort
 from usb2rc.hid.descriptor import InputState, parse_descriptor
-from usb2rc.hid.reader import (
-    LAST_CALL_S,
-    ONE_WAKE_GAP_S,
-    READ_AHEAD_S,
-    DeviceReader,
-    reader_pause,
-)
+from usb2rc.hid.reader import DeviceReader
 from usb2rc.hid.replay import ReplayBackend, install_file
-from usb2rc.lines.driver import Pace
 
 WAIT_S = 10.0
 
@@ -225,27 +217,23 @@ def test_the_count_and_the_state_are_published_together() -> None:
     assert (reader.record.reports, reader.record.state) == (1, InputState((1,), 0))
 
 
-def test_a_paced_reader_counts_every_report_and_shows_the_last(tmp_path: Path) -> None:
-    """With `next_tick` the reader drains what is queued as one batch (decoding only what
+def test_a_pulled_reader_counts_every_report_and_shows_the_last(tmp_path: Path) -> None:
+    """Pulled, the reader drains what is queued as one batch at each pull (decoding only what
     shows in the state): every report is counted, and the state is the last report's."""
     states = [StickState(x=i * 50, y=16383 - i * 50, buttons=i) for i in range(200)]
     install_file(tmp_path / "s.hid", recording(states, hold_s=0.0002, rest_s=0))  # 200 in 40 ms
     backend = ReplayBackend(tmp_path)
     device = backend.open(backend.enumerate()[0])
     layout = parse_descriptor(device.report_descriptor())
-    asked: list[float] = []
-
-    def next_tick() -> Pace:  # a grid of 10 ms ticks
-        now = time.monotonic()
-        asked.append(now)
-        return Pace((now // 0.01 + 1) * 0.01, 0.01)
-
-    reader = DeviceReader(device, layout.make_decoder(), Exits(), next_tick=next_tick)
+    reader = DeviceReader(device, layout.make_decoder(), Exits(), pulled=True)
     reader.start()
+    pulls = 0
     try:
         deadline = time.monotonic() + WAIT_S
         while reader.record.reports < len(states) and time.monotonic() < deadline:
-            time.sleep(0.01)
+            time.sleep(0.004)  # a node step's period: the pulls' pace, not a wait for a result
+            reader.pull()
+            pulls += 1
     finally:
         reader.stop()
         reader.join(WAIT_S)
@@ -254,36 +242,4 @@ def test_a_paced_reader_counts_every_report_and_shows_the_last(tmp_path: Path) -
         expected.feed(state.report())
     assert (reader.record.reports, reader.record.bad_reports) == (len(states), 0)
     assert reader.record.state == expected.state()
-    # paced on the grid: asked once per drain, and drained far fewer times than reports came
-    assert 0 < len(asked) < len(states)
-
-
-@pytest.mark.parametrize(
-    ("now", "expected"),
-    [
-        (0.000, 0.020 - READ_AHEAD_S),  # asleep until the read-ahead before the tick
-        (0.019, 0.020 - LAST_CALL_S - 0.019),  # then until the last call
-        (0.01990, 0.040 - READ_AHEAD_S - 0.01990),  # then until the next tick's read-ahead
-        (0.050, 0.0),  # the tick is long past (no clock yet, or it stopped): no pause
-    ],
-)
-def test_reader_pause_wakes_before_the_grid_tick(now: float, expected: float) -> None:
-    assert reader_pause(Pace(0.020, 0.020), now) == pytest.approx(expected)
-
-
-def test_on_a_fast_grid_a_reader_wakes_once_per_tick_at_its_last_call() -> None:
-    """CRSF at 500 or 250 Hz, or SUMD's tick 2 ms after CRSF's: the next tick is at most two
-    read-aheads away, and the reader wakes once for it, at its last call (a bulk wake-up
-    would fall on or next to the tick before). The gap is between two ticks' starts, each
-    its own lead before the grid: CRSF's 4 ms after C2-16B's measures 4.1 ms when their
-    leads differ by 0.1 ms, and is still one wake-up. A longer gap keeps the bulk wake-up."""
-    last = 0.020 - LAST_CALL_S + 0.00001  # just after the last call before the tick at 20 ms
-    for gap in (0.002, 0.004, 0.0041, ONE_WAKE_GAP_S):
-        assert last + reader_pause(Pace(0.020, gap), last) == pytest.approx(
-            0.020 + gap - LAST_CALL_S
-        )
-    assert last + reader_pause(Pace(0.020, 0.0046), last) == pytest.approx(0.0246 - READ_AHEAD_S)
-    assert reader_pause(Pace(0.020, 0.002), 0.0185) == pytest.approx(0.00125)  # its last call
-    # a drain that ended just after a tick began: the drivers show their next starts, and
-    # the next tick, 3.9 ms on, gets its last call only
-    assert reader_pause(Pace(0.024, 0.004), 0.0201) == pytest.approx(0.024 - LAST_CALL_S - 0.0201)
+    assert 0 < pulls < len(states)  # drained in batches, far fewer than reports came

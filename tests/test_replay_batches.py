@@ -122,7 +122,7 @@ def open_device(tmp_path: Path, events: list[tuple[float, bytes]], **kw: object)
 
 
 def drain(device: ReplayDevice, count: int) -> list[bytes]:
-    """What a paced reader does: a read that waits, then read_due and polls until empty."""
+    """A read that waits, then read_due and polls until empty (a pull's drain after it)."""
     got: list[bytes] = []
     deadline = time.monotonic() + 30
     while len(got) < count and time.monotonic() < deadline:

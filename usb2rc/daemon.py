@@ -30,10 +30,9 @@ from usb2rc.feedback.worker import FeedbackWorker, FeedDevice
 from usb2rc.hid.backend import Backend, Device
 from usb2rc.hid.descriptor import DeviceLayout
 from usb2rc.hid.hotplug import HotplugMonitor
-from usb2rc.hid.reader import DeviceReader, GridTick, OnExit
+from usb2rc.hid.reader import DeviceReader, OnExit
 from usb2rc.lines.driver import DriverThread as Drivers
 from usb2rc.lines.driver import LineDriver as Driver
-from usb2rc.lines.driver import Pace, earliest
 from usb2rc.lines.link import Link
 from usb2rc.lines.rx import Handoff, LinkReader
 from usb2rc.nodes.lifecycle import DeviceLifecycle
@@ -350,14 +349,6 @@ class Daemon:
 
     def _forget(self, key: str) -> None:
         self.monitor.forget(key)
-
-    def _next_tick(self) -> GridTick:
-        """The next tick of any output: the busy readers sleep until just before it
-        (`hid/reader.py: reader_pause`). One read of each output's pace: its deadline and
-        period are one value (the driver may replace it meanwhile; never half of it). The
-        drivers tick on one grid; before any ticks, a past tick: read as reports come."""
-        paces = [o.driver.pace for o in self.outputs]
-        return earliest(paces, time.monotonic()) or Pace(0.0, 0.0)
 
     def all_outputs_ticking(self, within_s: float = 1.0) -> bool:
         """True while every output has ticked in the last `within_s` seconds: one whose ticks

@@ -45,7 +45,7 @@ class BuiltOutput:
     """A running output's pieces: its link, its driver and, when the link is read on its
     own thread (a serial link), the reader. The daemon uses of `link` its `Link` side
     (`open_now()`, `is_open`, `url`, `last_error`, `stats`, `close()`), of `driver` (run by
-    the drivers' thread, `lines.driver.DriverThread`) its `stats`, `period_s`, `pace`,
+    the drivers' thread, `lines.driver.DriverThread`) its `stats`, `period_s`,
     `last_tick_monotonic` and `protocol_stats()`."""
 
     link: Link

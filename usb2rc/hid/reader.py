@@ -29,9 +29,8 @@ is logged once per device, counted (`outputs`), and tried again after OUTPUT_RET
 everything rewritten; the input goes on. At stop a state not shown yet is written once.
 A reader that is not pulled ignores posts: its thread is in `device.read`.
 
-Not pulled (`usb2rc calibrate`, tests), it blocks in `device.read(timeout)`; with a
-`next_tick` (a grid's next tick and period) it drains and sleeps until just before that tick
-(`reader_pause`).
+Not pulled (`usb2rc calibrate`, tests), it blocks in `device.read(timeout)` and publishes
+each report as it comes.
 
 Bad reports (unknown report ID, too short): counted, and counted in a row. After
 BAD_REPORTS_LIMIT refused in a row, with no accepted report between them, the device is in
@@ -59,56 +58,14 @@ log = logging.getLogger(__name__)
 
 READ_TIMEOUT_S = 0.1
 PRESSES_KEPT = 32  # rising edges a record remembers: a consumer one tick behind sees them all
-MAX_BATCH = 1000  # reports decoded as one batch (a paced reader's drain)
+MAX_BATCH = 1000  # reports decoded as one batch (a pull's drain)
 # Refused reports in a row that put a device in error (`3`, BAD_REPORTS). A glitch on the
 # bus truncates one report, not twenty; a device that refuses twenty in a row and none
 # good between them is not understood (wrong descriptor, unknown report IDs).
 BAD_REPORTS_LIMIT = 20
-READ_AHEAD_S = 0.002  # a paced reader wakes this long before a tick to drain its device
-LAST_CALL_S = 0.00025  # and once more this long before it, for what came in meanwhile
-# A tick at most this far from the drain before it gets one wake-up, its last call: a bulk
-# wake-up would fall on or next to that drain, for a few reports (CRSF at 250 or 500 Hz,
-# SUMD's tick 2 ms after CRSF's). Two read-aheads, and 0.5 ms (`lines.driver.SAME_TICK_S`,
-# not imported: `hid` does not depend on `lines`) for the spread of the ticks' starts: the
-# drivers begin the starts that close together, and a CRSF module that sets its own phase
-# puts CRSF's anywhere, so two starts 4 ms apart may measure a little less.
-ONE_WAKE_GAP_S = 2 * READ_AHEAD_S + 0.0005
 OUTPUT_RATE_HZ = 20.0  # output states shown per second and device, at most
 OUTPUT_BURST = 3  # states shown at once after a quiet spell
 OUTPUT_RETRY_S = 1.0  # after a refusal, the next try
-
-
-class GridTick(Protocol):
-    """When the next tick starts (monotonic: its records are read) and the period after it,
-    as one value (a reader never pairs one tick's start with another's period):
-    `lines.driver.Pace`."""
-
-    @property
-    def start(self) -> float: ...
-
-    @property
-    def period_s(self) -> float: ...
-
-
-NextTick = Callable[[], GridTick]
-
-
-def reader_pause(tick: GridTick, now: float) -> float:
-    """How long a busy reader may sleep at `now`, just after a drain: until READ_AHEAD_S
-    before the next tick (the bulk of a tick's reports), then until LAST_CALL_S before it
-    (the one or two since), then until the tick after's first wake-up. Two wake-ups per
-    tick instead of one per report in the last READ_AHEAD_S; a report in the last
-    LAST_CALL_S goes with the next tick (the tick's own wake-up is not more precise than
-    that). A tick within ONE_WAKE_GAP_S of the drain, or of the tick before it
-    (`tick.period_s` is the gap to the tick after, of any output), gets its last call
-    only. 0 when the tick is past (the clock has not started): read as reports come."""
-    due, gap = tick.start, tick.period_s
-    if due - now > ONE_WAKE_GAP_S:
-        return due - READ_AHEAD_S - now
-    if due - LAST_CALL_S > now:
-        return due - LAST_CALL_S - now
-    ahead = READ_AHEAD_S if gap > ONE_WAKE_GAP_S else LAST_CALL_S
-    return max(0.0, due + gap - ahead - now)
 
 
 class Decoder(Protocol):
@@ -208,7 +165,6 @@ class DeviceReader(Worker):
         decoder: Decoder,
         on_exit: OnExit,
         read_timeout_s: float = READ_TIMEOUT_S,
-        next_tick: NextTick | None = None,
         pulled: bool = False,
     ) -> None:
         self.device = device
@@ -232,7 +188,6 @@ class DeviceReader(Worker):
         self.error: BaseException | None = None  # what ended it, if not stop()
         self._on_exit = on_exit
         self._read_timeout_s = read_timeout_s
-        self._next_tick = next_tick
         # Pulled: the node step drains the device (`pull`); the pull and the close are never
         # at once, and a failure the pull meets ends this thread as a read's would.
         self._pulled = pulled
@@ -303,7 +258,7 @@ class DeviceReader(Worker):
 
     def _drain(self, first: bytes) -> None:
         """`first` and what the device has queued (read without blocking), decoded as one
-        batch: at 1 kHz ~10 reports per wake-up, of which only the last of each report ID
+        batch: at 1 kHz a few reports per pull, of which only the last of each report ID
         shows in the state (`ReportDecoder.feed_batch` decodes just those). At most
         MAX_BATCH at a time, so a device that never runs dry still gets published."""
         read = self.device.read
@@ -479,17 +434,9 @@ class DeviceReader(Worker):
             return
         while not self.stopping:
             report = self.device.read(self._read_timeout_s)
-            if report is None:
-                continue
-            if self._next_tick is None:
+            if report is not None:
                 self._handle(report)
                 self._publish()
-                continue
-            self._drain(report)
-            self._publish()  # once for the whole batch: the tick samples the latest
-            pause = reader_pause(self._next_tick(), time.monotonic())
-            if pause > 0:
-                self.sleep(pause)  # stop() ends it at once
 
     def run(self) -> None:
         ended: tuple[ErrorCode | None] | None = None

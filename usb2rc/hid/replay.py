@@ -319,13 +319,13 @@ class ReplayBackend:
 class ReplayDevice:
     """Plays one recording; `read` sleeps until absolute monotonic deadlines (or close()).
 
-    `read` and `read_due` are on the daemon's hot path (a paced reader drains ~10-20 due
-    reports per wake-up at 1 kHz). The batch in play is held as the reports and their due
-    times (`_dues`, monotonic, never earlier than the report before: reports come out in
-    file order), and `_next` is the first not handed over: a due report costs a clock read
-    and an index, a drain one bisection and one slice. `busy_s` is the time spent in `read`
-    and `read_due` other than waiting: the replay backend's own cost, which a real device
-    (the kernel) does not put on the daemon.
+    `read` and `read_due` are on the daemon's hot path (a pulled reader drains the due
+    reports at every node step: a few at 1 kHz). The batch in play is held as the reports
+    and their due times (`_dues`, monotonic, never earlier than the report before: reports
+    come out in file order), and `_next` is the first not handed over: a due report costs a
+    clock read and an index, a drain one bisection and one slice. `busy_s` is the time spent
+    in `read` and `read_due` other than waiting: the replay backend's own cost, which a real
+    device (the kernel) does not put on the daemon.
     """
 
     def __init__(

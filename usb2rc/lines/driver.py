@@ -23,10 +23,9 @@ others' work.
 
 One clock: a driver's ticks fall on the multiples of its period from the grid's epoch on the
 monotonic clock (`aligned`, `nodes.step.GRID_EPOCH_S`: 3/4 of a kernel tick, off the kernel's
-own), whenever it starts. Outputs whose periods are multiples of
-one another (the defaults: 20, 10, 4 ms) tick together, on the 4 ms grid of the node step
-(`nodes.step.BASE_PERIOD_S`), so a reader that paces on them (`Daemon._next_tick`, through
-`earliest`) wakes once for all of them. A CRSF output that follows its module's timing
+own), whenever it starts. Outputs whose periods are multiples of one another (the defaults:
+20, 10, 4 ms) tick together, on the 4 ms grid of the node step (`nodes.step.BASE_PERIOD_S`),
+so the ticks due together share one step. A CRSF output that follows its module's timing
 leaves the grid: the module sets its phase (`session.next_due`), to the microsecond.
 """
 
@@ -38,7 +37,7 @@ import threading
 import time
 import traceback
 from collections import deque
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -57,7 +56,7 @@ LEAD_FIRST_S = 0.0005  # how long before its deadline a tick starts, until it ha
 LEAD_MARGIN_S = 0.0002  # over the tick's recent cost (its p95): a wake-up is often 0.1 ms late
 LEAD_MAX_SHARE = 0.25  # never more than a quarter period: the records' age
 LEAD_WINDOW = 50  # ticks measured between two updates of the lead
-SAME_TICK_S = 0.0005  # starts this close are one tick for the readers (< half of 1 kHz)
+SAME_TICK_S = 0.0005  # starts this close are begun as one batch (< half of 1 kHz)
 # While every output is asleep (nothing to send until the nodes change or a far end speaks)
 # the thread sleeps until woken, and ticks at least this often anyway: a port lost meanwhile
 # is noticed, and the watchdog (`Daemon.all_outputs_ticking`, 1 s) sees it alive.
@@ -69,42 +68,6 @@ def aligned(now: float, period_s: float) -> float:
     """The first multiple of `period_s` from the grid's epoch at or after `now` (monotonic
     clock, `nodes.step.GRID_EPOCH_S`: 3/4 of a kernel tick, off the kernel's own ticks)."""
     return GRID_EPOCH_S + math.ceil((now - GRID_EPOCH_S) / period_s - 1e-9) * period_s
-
-
-@dataclass(frozen=True)
-class Pace:
-    """When a driver's next tick starts (`start`, monotonic: its deadline less its lead, if
-    it has one: when it reads the records) and its period now: one value, so a reader pacing
-    on it never pairs one tick's start with another's period. Only the driver's own thread
-    replaces it, whole."""
-
-    start: float
-    period_s: float
-
-
-def earliest(paces: Iterable[Pace], now: float) -> Pace | None:
-    """The next tick of any output after `now` (None: no output ticks): what a reader wakes
-    for. Its `period_s` is the gap from it to the tick after it, of whichever output: two
-    outputs due together (C2-16B's 20 ms and SUMD's 10 ms), or a slower one due sooner
-    than the faster one's next, must not send a reader to sleep past a tick (it would miss
-    a release, and a tap would show in two frames). Outputs due together start apart, each
-    its own lead before the deadline: starts within SAME_TICK_S of the first are one tick
-    for the readers (one wake-up, not one per output). A driver between its start and its
-    write still shows the start it has passed: its records are read, so its next start
-    counts (a past start would have a reader poll through the wait, a drain per report)."""
-    ticking = [pace for pace in paces if pace.start]
-    if not ticking:
-        return None
-    due = min(_start_after(pace, now) for pace in ticking)
-    after = min(_start_after(pace, due + SAME_TICK_S) for pace in ticking)
-    return Pace(due, after - due)
-
-
-def _start_after(pace: Pace, moment: float) -> float:
-    """The first start of `pace`'s output after `moment`."""
-    if pace.start > moment:
-        return pace.start
-    return pace.start + (math.floor((moment - pace.start) / pace.period_s) + 1) * pace.period_s
 
 
 class Lead:
@@ -207,7 +170,7 @@ class LineDriver:
     `alone`: the daemon's only output, which has no lead (`lead` is None) and writes as soon
     as its bytes are made; each of several makes them `lead.s` ahead (or with a tick due
     on the same deadline that leads more, `DriverThread`) and writes them on its deadline.
-    Every field is written by the drivers' thread only; `pace` and `stats` are read by
+    Every field is written by the drivers' thread only; `period_s` and `stats` are read by
     others."""
 
     def __init__(
@@ -225,7 +188,8 @@ class LineDriver:
         self.link = link
         self.session = session
         self.snapshot = snapshot
-        self.pace = Pace(0.0, period_s)  # start 0: not ticking yet
+        # the period now (a CRSF module may change it: `plan`)
+        self.period_s = period_s
         # the daemon's only output has no lead: it reads the records on its deadline
         self.lead = None if alone else Lead(period_s)
         self.stats = OutputStats()
@@ -253,20 +217,14 @@ class LineDriver:
         self._stall_logged_at = -STALL_LOG_QUIET_S
         self._stalls_not_logged = 0
 
-    @property
-    def period_s(self) -> float:
-        """The period now (a CRSF module may change it; `pace` has it with its start)."""
-        return self.pace.period_s
-
     # --- the loop ----------------------------------------------------------------------------
 
     def plan(self, deadline: float, period_s: float) -> None:
         """The next tick is due at `deadline`, `period_s` before the one after it (the
-        session's: a CRSF module may change it); it starts its lead before it (the readers
-        pace on that start)."""
+        session's: a CRSF module may change it); it starts its lead before it."""
         self._deadline = deadline
         self._start = deadline - (self.lead.s if self.lead else 0.0)
-        self.pace = Pace(self._start, period_s)
+        self.period_s = period_s
 
     @property
     def deadline(self) -> float:
@@ -572,12 +530,12 @@ class DriverThread(Worker):
             driver.link.close()
 
     def _begin(self, now: float) -> None:
-        """The ticks that start now, those within SAME_TICK_S after (one tick for the
-        readers: one wake-up), and those due on the same deadline as any of them (due
-        together: they start with the one that leads most), made in config order from one
-        snapshot: outputs due together send one step's values, and a record a reader
-        publishes meanwhile does not step the table again. Each that started on its own
-        start teaches its lead what the whole batch took."""
+        """The ticks that start now, those within SAME_TICK_S after (one batch), and those
+        due on the same deadline as any of them (due together: they start with the one that
+        leads most), made in config order from one snapshot: outputs due together send one
+        step's values, and a record a reader publishes meanwhile does not step the table
+        again. Each that started on its own start teaches its lead what the whole batch
+        took."""
         waiting = [driver for driver in self.drivers if not driver.holding]
         starting = [driver for driver in waiting if driver.next_moment <= now + SAME_TICK_S]
         if not starting:
