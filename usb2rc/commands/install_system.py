@@ -86,7 +86,8 @@ SET_PORT_STEP = (
 )
 CHECK_STEP = "{sudo}{program} check --config {config}"
 SYSTEM_STEPS = (
-    "sudo udevadm control --reload && sudo udevadm trigger --subsystem-match=hidraw --subsystem-match=usb",
+    "sudo udevadm control --reload"
+    " && sudo udevadm trigger --subsystem-match=hidraw --subsystem-match=usb",
     "sudo systemctl daemon-reload && sudo systemctl enable --now usb2rc",
 )
 WEB_NEXT_STEP = "sudo systemctl enable --now usb2rc-web  # then http://127.0.0.1:8080/"
