@@ -184,3 +184,28 @@ def test_a_second_vehicle_is_ignored_until_the_first_has_been_silent() -> None:
     line.received(heartbeat(second, base_mode=ARMED), now=1.0 + VEHICLE_LOST_S)
     assert line.telemetry is not None and line.telemetry.armed is True
     assert line.stats(5.0)["vehicle"] == "2/1"
+
+
+def test_the_mode_maps_load_no_dialect_but_common_and_leave_the_environment_as_it_was() -> None:
+    """pymavlink's mavutil, imported for its mode maps, would load the `all` dialect (9 MB
+    of RSS on a Pi): in a fresh process, after `mode_maps()`, only `common` is loaded (and
+    v10's empty package), the names still come out, and MAVLINK20 / MAVLINK_DIALECT are
+    unset again."""
+    import subprocess
+    import sys
+
+    code = (
+        "import os, sys\n"
+        "from usb2rc.protocols.mavlink.actions import mode_maps\n"
+        "m = mode_maps()\n"
+        "dialects = sorted(n for n in sys.modules if n.startswith('pymavlink.dialects.v'))\n"
+        "print(dialects, m.mavlink.__name__, os.environ.get('MAVLINK20'),"
+        " os.environ.get('MAVLINK_DIALECT'), m.mode_mapping_acm[5])\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
+    ).stdout.strip()
+    assert out == (
+        "['pymavlink.dialects.v10', 'pymavlink.dialects.v20', 'pymavlink.dialects.v20.common'] "
+        "pymavlink.dialects.v20.common None None LOITER"
+    )

@@ -28,6 +28,8 @@ Decisions:
 from __future__ import annotations
 
 import logging
+import os
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -41,13 +43,43 @@ log = logging.getLogger(__name__)
 NEEDS_MODE_MAPS = ("mode", "rtl", "land")  # action kinds that look up a mode by name
 
 
-def mode_maps() -> Any:  # pymavlink has no types
-    """pymavlink's `mavutil`, for its mode maps only. Importing it loads a whole dialect,
-    about 9 MB of RSS on a Pi that may have 512 MB, once per process: a MAVLink output
-    imports it when it is built (its vehicle's mode is named by it, and actions that name a
-    mode look it up), never in a tick or on a read."""
-    from pymavlink import mavutil
+# pymavlink's own dialects, beside `common` (which usb2rc speaks): mavutil imports
+# `v10.all` at its top for pyinstaller's sake only, in a try that lets it be missing.
+UNUSED_DIALECT = "pymavlink.dialects.v10.all"
 
+
+def mode_maps() -> Any:  # pymavlink has no types
+    """pymavlink's `mavutil`, for its mode maps only: a MAVLink output imports it when it
+    is built (its vehicle's mode is named by it, and actions that name a mode look it up),
+    never in a tick or on a read. As it is, importing it loads the `all` dialect twice over
+    (its own import of `v10.all`, and the dialect its environment names, `all` over MAVLink
+    1 unless told): 9 MB of RSS, on a Pi that may have 512 MB, for messages usb2rc never
+    parses. So `v10.all` is kept out while it imports (a `None` in `sys.modules`: its try
+    lets it be missing; a pymavlink whose import needs it imports it), and unless the user
+    set them, mavutil is told MAVLink 2's `common`, which usb2rc already loaded: the mode
+    maps are the same (they name autopilots and vehicle types by `common`'s constants).
+    The environment and `sys.modules` are as they were after the import."""
+    if "pymavlink.mavutil" in sys.modules:
+        return sys.modules["pymavlink.mavutil"]
+    told = {"MAVLINK20": "1", "MAVLINK_DIALECT": "common"}
+    added = [key for key in told if key not in os.environ]
+    os.environ.update({key: told[key] for key in added})
+    blocked = UNUSED_DIALECT not in sys.modules
+    if blocked:
+        sys.modules[UNUSED_DIALECT] = None  # type: ignore[assignment]
+    try:
+        try:
+            from pymavlink import mavutil
+        except ImportError:  # a pymavlink that needs it: load it after all
+            if blocked:
+                del sys.modules[UNUSED_DIALECT]
+                blocked = False
+            from pymavlink import mavutil
+    finally:
+        if blocked:
+            sys.modules.pop(UNUSED_DIALECT, None)
+        for key in added:
+            os.environ.pop(key, None)
     return mavutil
 
 
