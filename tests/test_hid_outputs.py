@@ -406,3 +406,40 @@ def test_hidtools_reads_back_the_indicators_and_levels_asked(
     level_of = dict(zip((0x53, 0x54, 0x55, 0x56), levels, strict=True))
     for usage, value, low, high in got_levels:
         assert abs(value - (low + level_of[usage] * (high - low))) <= 0.5
+
+
+# A variable output field with no usage before it (the usage went to the input before it).
+NO_USAGE_OUTPUT = bytes.fromhex(
+    "05010904a101"  # Generic Desktop, Joystick
+    "09301500250f750495018102"  # X in (4 bits)
+    "9102"  # a variable 4-bit output with no usage of its own (X went to the input)
+    "05080901250175019501910295079101"  # LED Num Lock out, padding
+    "c0"
+)
+
+
+def test_an_output_value_without_a_usage_rests_and_the_others_are_driven() -> None:
+    """Seen in the fuzzed daemon: an output field whose usages ran out crashed the driver's
+    build. It rests; what has a usage is driven."""
+    driver = HidOutputDriver.from_descriptor(NO_USAGE_OUTPUT)
+    assert driver is not None
+    assert driver.capabilities.indicator_names == ("LED Num Lock",)
+    # bits 0-3 the field without a usage (at rest), bit 4 Num Lock
+    assert driver.reports(OutputState(indicators=1)) == {0: bytes([0, 0x10, 0x00])}
+
+
+@given(st.binary(max_size=200), st.integers(0, 12), st.binary(min_size=1, max_size=4))
+def test_any_descriptor_gives_a_driver_or_none_never_an_error(
+    noise: bytes, which: int, patch: bytes
+) -> None:
+    """Random bytes, and the real descriptors with a few bytes overwritten: a driver whose
+    reports build for any indicators, or None; nothing raises."""
+    real = [bytes.fromhex(d["hex"]) for d in DEVICES]
+    base = bytearray(real[which % len(real)])
+    at = len(noise) % max(1, len(base))
+    base[at : at + len(patch)] = patch
+    for descriptor in (noise, bytes(base)):
+        driver = HidOutputDriver.from_descriptor(descriptor)
+        if driver is not None:
+            for report in driver.reports(OutputState(indicators=(1 << 64) - 1)).values():
+                assert isinstance(report, bytes)

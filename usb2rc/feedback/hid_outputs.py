@@ -152,7 +152,7 @@ class HidOutputDriver:
         analog: dict[str, list[_Value]] = {}
         rest: dict[int, int] = {}  # report ID -> its bits at rest
         for f in layout.fields:
-            if not f.constant and f.variable:
+            if not f.constant and f.variable and f.usages:  # a value with no usage: rest
                 for index, value in enumerate(_values(f)):
                     usage = f.usages[index]
                     if f.bit_size == 1 and is_indicator_page(usage_page(usage)):

@@ -264,7 +264,11 @@ class FeedbackWorker(Worker):
         except Exception as exc:
             log.warning("%s: no outputs driven: its descriptor: %s", reader.info.product, exc)
             return None
-        driver = output_driver(reader.info, descriptor)
+        try:
+            driver = output_driver(reader.info, descriptor)
+        except Exception:  # a descriptor no driver understands: its input goes on regardless
+            log.exception("%s: no outputs driven: its outputs are not understood", reader.info.path)
+            return None
         if driver is not None and driver.capabilities.any:
             can = driver.capabilities
             log.info(
