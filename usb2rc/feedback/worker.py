@@ -36,6 +36,7 @@ NODE_POLL_S = 0.1  # a node's failsafe reaches its devices' outputs this late at
 # downlinks changes the telemetry at every tick of its output; 10 ms keeps a downlink
 # within two 50 Hz ticks of the device.
 MIN_STEP_S = 0.01
+FAILURE_LOG_S = 60.0  # a step that keeps failing is logged this often, and counted
 GAME_PAD = (0x01, 0x05)  # Generic Desktop / Game Pad: the zero-config rumble's devices
 
 
@@ -146,6 +147,8 @@ class FeedbackWorker(Worker):
         self._known: dict[str, _Known] = {}  # by device key: this thread's only
         self._woken = threading.Event()  # rung: step again (cleared before each step)
         self.steps = 0
+        self.failures = 0  # steps that raised (logged the first time, then once a minute)
+        self._failure_logged_at = 0.0
         self.status = FeedbackStatus({})
         super().__init__("feedback")
 
@@ -168,6 +171,7 @@ class FeedbackWorker(Worker):
         status = self.status
         rules = self.engine.rules
         return {
+            "step_failures": self.failures,
             "telemetry": {
                 name: round(value, 3) if isinstance(value, float) else value
                 for name, value in status.telemetry.items()
@@ -201,7 +205,10 @@ class FeedbackWorker(Worker):
             try:
                 wait_s = self.step()
             except Exception:  # feedback must never take the daemon down: log, go on
-                log.exception("feedback step failed")
+                self.failures += 1
+                if self.failures == 1 or stepped_at - self._failure_logged_at >= FAILURE_LOG_S:
+                    self._failure_logged_at = stepped_at
+                    log.exception("feedback step failed (%d so far)", self.failures)
                 wait_s = NODE_POLL_S
             self._woken.wait(None if wait_s is None else max(0.0, wait_s))
             rest_s = stepped_at + MIN_STEP_S - self._clock()
