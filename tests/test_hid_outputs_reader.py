@@ -24,8 +24,9 @@ from usb2rc.feedback.hid_outputs import HidOutputDriver
 from usb2rc.hid.backend import DeviceGone, DeviceInfo
 from usb2rc.hid.hidapi_backend import HidapiBackend
 from usb2rc.hid.outputs import HidReport, OutputState, UsbControl
-from usb2rc.hid.reader import OUTPUT_BURST, OUTPUT_RATE_HZ, DeviceReader, TokenBucket
+from usb2rc.hid.reader import OUTPUT_BURST, OUTPUT_RATE_HZ, DeviceReader
 from usb2rc.hid.replay import ReplayBackend, install_file
+from usb2rc.runtime.token_bucket import TokenBucket
 
 INFO = DeviceInfo(key="k", path="/dev/hidraw7", vid=1, pid=2, product="LED stick")
 

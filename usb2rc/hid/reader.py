@@ -52,6 +52,7 @@ from typing import NamedTuple, Protocol, runtime_checkable
 from usb2rc.hid.backend import Device, DeviceGone, ErrorCode, OutputPort
 from usb2rc.hid.descriptor import InputState
 from usb2rc.hid.outputs import OutputDriver, OutputState
+from usb2rc.runtime.token_bucket import TokenBucket
 from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger(__name__)
@@ -123,30 +124,6 @@ class ReaderRecord(NamedTuple):
                 break
             mask |= rising
         return mask
-
-
-class TokenBucket:
-    """`burst` tokens, refilled at `rate_hz`; a write takes one."""
-
-    def __init__(self, rate_hz: float, burst: int, now: float) -> None:
-        self._rate = rate_hz
-        self._burst = float(burst)
-        self._tokens = float(burst)
-        self._at = now
-
-    def _refill(self, now: float) -> None:
-        self._tokens = min(self._burst, self._tokens + (now - self._at) * self._rate)
-        self._at = now
-
-    def wait_s(self, now: float) -> float:
-        """0 when a token is there, else how long until one is."""
-        self._refill(now)
-        missing = 1.0 - self._tokens
-        return 0.0 if missing <= 1e-9 else missing / self._rate  # 1e-9: float sums
-
-    def take(self, now: float) -> None:
-        self._refill(now)
-        self._tokens -= 1.0
 
 
 class OutputRecord(NamedTuple):

@@ -20,6 +20,7 @@ from typing import Generic, Protocol, TypeVar
 
 from usb2rc.lines.link import BITS_PER_BYTE_ON_WIRE
 from usb2rc.runtime.doorbell import Doorbell
+from usb2rc.runtime.token_bucket import TokenBucket
 from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger("usb2rc.lines")
@@ -42,8 +43,9 @@ class RxBudget:
         self.bytes_per_s = RX_LINE_SHARE * baudrate / BITS_PER_BYTE_ON_WIRE
         self.burst = max(float(RX_BURST_MIN), self.bytes_per_s * RX_BURST_S)
         self.dropped_bytes = 0  # the reader thread writes it, `stats` reads it
-        self._tokens = self.burst
-        self._at = time.monotonic() if now is None else now  # the bucket's clock
+        self._bucket = TokenBucket(
+            self.bytes_per_s, self.burst, time.monotonic() if now is None else now
+        )
 
     def admit(self, data: bytes, now: float) -> bytes:
         """`data`, read at `now`, whole while the budget holds it, else nothing (counted).
@@ -54,14 +56,13 @@ class RxBudget:
         leave starts shorter than one frame: a flood then let no request through at all,
         or some, depending on how the reader's and the sender's threads happened to run.
         A read longer than the burst is cut to the burst when the bucket is full."""
-        self._tokens = min(self.burst, self._tokens + (now - self._at) * self.bytes_per_s)
-        self._at = now
+        tokens = self._bucket.level(now)
         size = len(data)
-        if size > self.burst and self._tokens >= self.burst:
+        if size > self.burst and tokens >= self.burst:
             self.dropped_bytes += size - int(self.burst)
             data, size = data[: int(self.burst)], int(self.burst)
-        if size <= self._tokens:
-            self._tokens -= size
+        if size <= tokens:
+            self._bucket.take(now, size)
             return data
         self.dropped_bytes += size
         return b""
