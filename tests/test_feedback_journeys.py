@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import signal
 import threading
 import time
 from collections.abc import Iterator
@@ -334,5 +335,33 @@ def test_zero_config_a_node_entering_failsafe_pulses_its_gamepads_rumble_once(
         )
         assert runs == 1, motors
         assert "silent" in daemon.log()
+    finally:
+        assert daemon.stop() == 0, daemon.log()[-3000:]
+
+
+def test_a_reload_changes_what_the_rules_light_and_a_replugged_device_shows_it_again(
+    bed: UsbBed, line: PtyLine, tmp_path: Path
+) -> None:
+    """Feedback meets a reload and a replug: a rule with no `when` lights Num Lock; the
+    config rewritten to light Caps Lock and reloaded (SIGHUP), the device shows Caps Lock
+    alone; unplugged and plugged again (a new hidraw node), the new node is written the
+    same state, with no downlink or rule change needed."""
+    node = led_stick(bed)
+    written = Written(bed, node, LED_REPORT)
+    daemon = with_config(tmp_path, bed, line, "    protocol: c2-16b\n", "  - led: LED Num Lock\n")
+    try:
+        written.wait_for(expected_report(0b01, 255), "Num Lock lit by the rule")
+        config = tmp_path / "feedback.yaml"
+        config.write_text(config.read_text().replace("LED Num Lock", "LED Caps Lock"))
+        daemon.signal(signal.SIGHUP)
+        written.wait_for(expected_report(0b10, 255), "Caps Lock alone after the reload")
+        bed.remove(node)
+        wait_announced(line, 0)  # (the first announcement; the replug's is awaited below)
+        again = led_stick(bed)
+        assert again != node
+        wait_announced(line, 0, times=2)
+        Written(bed, again, LED_REPORT).wait_for(
+            expected_report(0b10, 255), "the replugged device shows the rule's state"
+        )
     finally:
         assert daemon.stop() == 0, daemon.log()[-3000:]
