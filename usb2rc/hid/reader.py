@@ -156,6 +156,8 @@ class DeviceReader(Worker):
         self.on_bad_reports: OnBadReports | None = None
         # the decoder, where its button mask can be read per report (fakes in tests: None)
         self._press_decoder = decoder if isinstance(decoder, ButtonsDecoder) else None
+        # the replay backend's `read_due` (everything due, in one call), if the device has it
+        self._read_due: Callable[[int], list[bytes]] | None = getattr(device, "read_due", None)
         self._buttons = 0  # the mask after the last report, for rising edges
         self._last_report = b""  # the raw report before, for `repeats`
         self._repeats = 0
@@ -233,25 +235,53 @@ class DeviceReader(Worker):
             self._press_serial += 1
             self._presses = (*self._presses, (self._press_serial, rising))[-PRESSES_KEPT:]
 
-    def _drain(self, first: bytes) -> None:
-        """`first` and what the device has queued (read without blocking), decoded as one
-        batch: at 1 kHz a few reports per pull, of which only the last of each report ID
-        shows in the state (`ReportDecoder.feed_batch` decodes just those). At most
-        MAX_BATCH at a time, so a device that never runs dry still gets published."""
+    def _note_changes(self, masks: list[int]) -> None:
+        """`_note_buttons` for each mask a batch left (`ReportDecoder.feed_batch`'s
+        `on_buttons`, collected by a list's `append`), the press log rebuilt once."""
+        before = self._buttons
+        serial = self._press_serial
+        presses = []
+        for buttons in masks:
+            rising = buttons & ~before
+            before = buttons
+            if rising:
+                serial += 1
+                presses.append((serial, rising))
+        self._buttons = before
+        if presses:
+            self._press_serial = serial
+            self._presses = (*self._presses, *presses)[-PRESSES_KEPT:]
+
+    def _queued(self) -> list[bytes]:
+        """What the device has queued, read without blocking, at most MAX_BATCH reports. The
+        replay backend hands over what is due in one call (`ReplayDevice.read_due`), which
+        returns nothing when a check of its own is due: `read(0.0)` then makes it. A device
+        that never runs dry still gets published: MAX_BATCH at a time."""
+        read_due = self._read_due
+        if read_due is not None and (batch := read_due(MAX_BATCH)):
+            return batch
         read = self.device.read
-        # The replay backend hands over what is due in one call (`ReplayDevice.read_due`);
-        # `read(0.0)` then does its checks and says when nothing is left.
-        read_due = getattr(self.device, "read_due", None)
-        batch = [first]
+        if (report := read(0.0)) is None:
+            return []
+        batch = [report]
         while len(batch) < MAX_BATCH:
             if read_due is not None:
                 batch += read_due(MAX_BATCH - len(batch))
             if len(batch) >= MAX_BATCH or (report := read(0.0)) is None:
                 break
             batch.append(report)
-        # every press, even one released within the batch (no lost taps)
-        on_buttons = self._note_buttons if self._press_decoder is not None else None
+        return batch
+
+    def _drain(self, batch: list[bytes]) -> None:
+        """`batch` decoded as one: at 1 kHz a few reports per pull, of which only the last
+        of each report ID shows in the state (`ReportDecoder.feed_batch` decodes just
+        those), and every press is noted, even one released within the batch (no lost
+        taps)."""
+        masks: list[int] = []
+        on_buttons = masks.append if self._press_decoder is not None else None
         accepted, refused = self.decoder.feed_batch(batch, on_buttons)
+        if masks:
+            self._note_changes(masks)
         if not refused:  # a run of the same refused report is no sign of streaming
             self._repeats += sum(map(operator.eq, batch, [self._last_report, *batch[:-1]]))
         self._last_report = batch[-1]
@@ -292,9 +322,9 @@ class DeviceReader(Worker):
             if self._closed or self._pull_error is not None:
                 return
             try:
-                report = self.device.read(0.0)
-                if report is not None:
-                    self._drain(report)
+                batch = self._queued()
+                if batch:
+                    self._drain(batch)
                     self._publish()
             except Exception as exc:  # the thread reports it (on_exit), as its own read would
                 self._pull_error = exc
