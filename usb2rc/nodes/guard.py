@@ -32,8 +32,9 @@ output happens to read the node.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 from usb2rc.hid.usages import GD_GAMEPAD, GD_JOYSTICK, GD_RZ, GD_X, GD_Y, SIM_THROTTLE
 from usb2rc.nodes.scaling import INT16_MIN, UINT16_MAX
@@ -85,7 +86,12 @@ class GuardedAxis:
     trim: float = 0.0  # the static trim of the axis (a stepped trim is passed at check time)
 
     def at_rest(self, wire: int, stepped_trim: float = 0.0) -> bool:
-        x = wire_to_unit(wire, self.unsigned)
+        if not stepped_trim and (run := self._wire_run) is not None:
+            return run[0] <= wire <= run[1]
+        return self._unit_at_rest(wire_to_unit(wire, self.unsigned), stepped_trim)
+
+    def _unit_at_rest(self, x: float, stepped_trim: float) -> bool:
+        """The rule on the value as a unit (module docstring): what `at_rest` answers."""
         rest = self.rest_point(stepped_trim)
         if self.arm == "low":
             return x <= rest + self.tolerance
@@ -93,11 +99,52 @@ class GuardedAxis:
             return x >= rest - self.tolerance
         return abs(x - rest) <= self.tolerance
 
+    @cached_property
+    def _wire_run(self) -> tuple[int, int] | None:
+        """The wire values at rest without a stepped trim, as (first, last): `at_rest` as
+        two integer comparisons, the step's hot path while a device waits. The unit value
+        never decreases as the wire value grows, so the values at rest are one run, found
+        by bisection on the rule itself (the same answer at every value, the edges too).
+        None when no value is at rest: the rule then answers."""
+        low, high = (0, UINT16_MAX) if self.unsigned else (INT16_MIN, INT16_MIN + UINT16_MAX)
+
+        def rests(wire: int) -> bool:
+            return self._unit_at_rest(wire_to_unit(wire, self.unsigned), 0.0)
+
+        nearest = round((self.rest_point() + 1.0) * UINT16_MAX / 2.0) + low
+        inside = [w for w in (low, high, nearest - 1, nearest, nearest + 1) if low <= w <= high]
+        inside = [w for w in inside if rests(w)]
+        if not inside:
+            return None
+        return _first(rests, low, inside[0]), _last(rests, inside[0], high)
+
     def rest_point(self, stepped_trim: float = 0.0) -> float:
         return _clamp(REST_POINT[self.arm] + self.trim + stepped_trim)
 
     def describe(self) -> str:
         return f"{self.label} {self.arm}"
+
+
+def _first(rests: Callable[[int], bool], low: int, inside: int) -> int:
+    """The smallest value in [low, inside] at rest, `inside` being at rest (bisection)."""
+    while low < inside:
+        mid = (low + inside) // 2
+        if rests(mid):
+            inside = mid
+        else:
+            low = mid + 1
+    return inside
+
+
+def _last(rests: Callable[[int], bool], inside: int, high: int) -> int:
+    """The largest value in [inside, high] at rest, `inside` being at rest (bisection)."""
+    while inside < high:
+        mid = (inside + high + 1) // 2
+        if rests(mid):
+            inside = mid
+        else:
+            high = mid - 1
+    return inside
 
 
 def wire_to_unit(wire: int, unsigned: bool) -> float:
@@ -176,6 +223,7 @@ class RestWatch:
         """What the device still waits for (empty: it has rested): `record` is the reader
         record, its report count and its time; `now` the time of this frame (same clock)."""
         new, reports, at = record
+        outside = None  # the guarded axes not at rest in `wire_axes`, once asked
         if self.plugged is None:
             self.plugged = now
         if new is not self.record:
@@ -188,14 +236,16 @@ class RestWatch:
             # a record without a time (made by hand: a reader always stamps its records)
             # cannot show how long the device rested: its rest counts as long enough
             taken_at = -math.inf if at is None else at
-            self._take(guard, wire_axes, trims, taken_at)
+            outside = self._take(guard, wire_axes, trims, taken_at)
             self._follow_run(gapless, taken_at)
         if self.rested_by(now):
             self.waiting = ()
         elif self.since is not None:
             self.waiting = (f"{_labels(guard)} still for {REST_S:g} s",)
         else:
-            self.waiting = tuple(self._not_at_rest(guard, wire_axes, trims, now))
+            if outside is None:
+                outside = guard.waiting_for(wire_axes, trims)
+            self.waiting = tuple(self._not_at_rest(guard, wire_axes, outside, now))
         return self.waiting
 
     def rested_by(self, now: float) -> bool:
@@ -209,16 +259,19 @@ class RestWatch:
         wire_axes: Sequence[int | None],
         trims: Mapping[int, float] | None,
         at: float,
-    ) -> None:
+    ) -> list[str]:
+        """The record's values taken into the rest; the guarded axes not at rest in them."""
         self._note_moves(guard, wire_axes)
-        if guard.waiting_for(wire_axes, trims):
+        outside = guard.waiting_for(wire_axes, trims)
+        if outside:
             self.since, self.spans = None, {}
-            return
+            return outside
         units = {a.slot: _unit(a, wire_axes) for a in guard.axes}
         spans = {slot: _widen(self.spans.get(slot), x) for slot, x in units.items()}
         if self.since is None or any(hi - lo > REST_SPAN for lo, hi in spans.values()):
             self.since, spans = at, {slot: (x, x) for slot, x in units.items()}
         self.spans = spans
+        return outside
 
     def _follow_run(self, gapless: bool, at: float) -> None:
         """The rest as seen report by report: it goes on while every report is seen, and
@@ -241,10 +294,11 @@ class RestWatch:
         self,
         guard: NeutralGuard,
         wire_axes: Sequence[int | None],
-        trims: Mapping[int, float] | None,
+        outside: list[str],
         now: float,
     ) -> list[str]:
-        waiting = guard.waiting_for(wire_axes, trims)
+        """What it waits for: the axes `outside` their rest, and the hint for a fixed one."""
+        waiting = list(outside)
         unmoved_s = now - (now if self.plugged is None else self.plugged)
         fixed = [a.label for a in guard.axes if self._is_fixed(a, wire_axes)]
         self.fixed = bool(fixed) and unmoved_s >= FIXED_S
