@@ -49,9 +49,9 @@ from usb2rc.nodes.scaling import (
     UINT16_MAX,
     hat_component,
     hat_direction,
+    linear_field,
     node_button_bit,
     normalize,
-    scale_linear,
     shape,
     to_wire,
 )
@@ -208,12 +208,9 @@ def _hat_bits(direction: int | None, to: str | tuple[int | None, ...]) -> tuple[
 
 
 def _linear_axis(field: InputField, axis: AxisConfig | None) -> AxisFn:
-    i, lo, hi = field.index, field.logical_min, field.logical_max
     unsigned = axis.unsigned if axis else False
     invert = axis.invert if axis else False
-    if invert:
-        return lambda values, _b: scale_linear(lo + hi - values[i], lo, hi, unsigned)
-    return lambda values, _b: scale_linear(values[i], lo, hi, unsigned)
+    return linear_field(field.index, field.logical_min, field.logical_max, unsigned, invert)
 
 
 def _shaped_axis(field: InputField, axis: AxisConfig) -> AxisFn:

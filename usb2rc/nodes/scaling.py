@@ -13,6 +13,7 @@ its codec (`usb2rc.protocols`).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 
 from usb2rc.config.layout import GROUP1_BUTTONS, NODE_BUTTONS
 from usb2rc.config.model import AxisConfig
@@ -31,11 +32,29 @@ def round_div(num: int, den: int) -> int:
 def scale_linear(v: int, lo: int, hi: int, unsigned: bool = False) -> int:
     """Clamp to [lo, hi], `round((v - lo) * 65535 / (hi - lo)) - 32768`
     (docs/ICD.md, "Axis scaling")."""
+    return linear_field(0, lo, hi, unsigned)((v,), 0)
+
+
+def linear_field(
+    index: int, lo: int, hi: int, unsigned: bool = False, invert: bool = False
+) -> Callable[[Sequence[int], int], int]:
+    """`scale_linear` of field `index` of a decoded state's values (`invert`: of lo + hi -
+    value), as one function of (values, buttons): the node step calls it for every axis of
+    every device at every step, so the range is worked out once and the rounding is inline."""
     if hi <= lo:
-        return 32768 if unsigned else 0
-    v = lo if v < lo else hi if v > hi else v
-    out = round_div((v - lo) * 65535, hi - lo)
-    return out if unsigned else out - 32768
+        centre = 32768 if unsigned else 0
+        return lambda _values, _buttons: centre
+    span, offset = hi - lo, 0 if unsigned else 32768
+
+    def scale(values: Sequence[int], _buttons: int) -> int:
+        v = lo + hi - values[index] if invert else values[index]
+        v = lo if v < lo else hi if v > hi else v
+        q, r = divmod((v - lo) * 65535, span)  # round_div inline: halves to even
+        if 2 * r > span or (2 * r == span and q & 1):
+            q += 1
+        return q - offset
+
+    return scale
 
 
 def to_wire(x: float, unsigned: bool = False) -> int:
