@@ -4,10 +4,10 @@ its reader thread. What is judged is what reaches the far end, decoded."""
 
 from __future__ import annotations
 
+import math
 import threading
 import time
-from collections.abc import Callable, Sequence
-from itertools import pairwise
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import pytest
@@ -15,7 +15,16 @@ import serial
 from daemon_harness import PtyLine, StickState
 from test_node_table_driver import BINDING, Source, info
 
-from usb2rc.lines.driver import SAME_TICK_S, DriverThread, LineDriver, aligned
+from usb2rc.lines.driver import (
+    LEAD_FIRST_S,
+    LEAD_MARGIN_S,
+    LEAD_MAX_SHARE,
+    LEAD_WINDOW,
+    DriverThread,
+    Lead,
+    LineDriver,
+    aligned,
+)
 from usb2rc.lines.rx import LinkReader
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.nodes.mapping import ChannelSource
@@ -204,55 +213,46 @@ def test_every_driver_ticks_on_multiples_of_its_period_from_one_epoch() -> None:
 
 
 class TimedWrites(NamedTuple):
+    drivers: list[LineDriver]
     writes: list[dict[str, Any]]  # per write: see `timed_writes`
     steps: list[float]  # when the node table was asked for a step (a snapshot)
-    waits: list[float]  # when the drivers' thread went to sleep until a deadline
 
 
-def timed_writes(periods_s: Sequence[float], ticks: int) -> TimedWrites:
-    """C2-16B drivers at `periods_s`, in that config order, each over its own pty, on one
-    drivers' thread, until `ticks` ticks of the first were written; per write: which output
-    (its index in `periods_s`), the tick's deadline, when the tick began, made its bytes
-    (from which snapshot) and wrote them. The final ticks (at once, on stop) are left
-    out."""
+def timed_writes(outputs: int) -> TimedWrites:
+    """`outputs` C2-16B drivers at 100 Hz, each over its own pty, on one drivers' thread,
+    60 ticks or more; per write: which output, the tick's deadline and planned start, when
+    the tick began, made its bytes (from which snapshot) and wrote them. The final ticks
+    (at once, on stop) are left out."""
     table = NodeTable()
     table.add_device(0, info("k0", "1-0"), BINDING, Source.of(StickState()), "JOYSTICK")
-    fars = [PtyLine("c2-16b") for _ in periods_s]
+    fars = [PtyLine("c2-16b") for _ in range(outputs)]
     drivers = []
     written: list[dict[str, Any]] = []
     steps: list[float] = []
-    waits: list[float] = []
     stopping = threading.Event()
 
     def step_if_due() -> Any:
         steps.append(time.monotonic())
         return table.step_if_due()
 
-    for index, (far, period) in enumerate(zip(fars, periods_s, strict=True)):
+    for index, far in enumerate(fars):
         link = SerialLink(far.path, 921600)
-        settings = C2Settings(rate_hz=1 / period, baudrate=921600, version="0.1.0")
-        driver = LineDriver(f"c2-{index}", link, C2Session(far.path, settings), step_if_due, period)
+        session = C2Session(far.path, C2Settings(rate_hz=100, baudrate=921600, version="0.1.0"))
+        driver = LineDriver(f"c2-{index}", link, session, step_if_due, 0.01, alone=outputs == 1)
         drivers.append(driver)
         _timed(driver, index, written, stopping)
         assert link.open_now()
     thread = DriverThread("drivers", drivers)
-    wait = thread._wait
-
-    def timed_wait(delay_s: float) -> bool:
-        waits.append(time.monotonic())
-        return wait(delay_s)
-
-    thread._wait = timed_wait  # type: ignore[method-assign]
     thread.start()
     try:
-        until(lambda: sum(w["output"] == 0 for w in written) >= ticks, f"{ticks} written ticks")
+        until(lambda: len(written) >= 60 * outputs, f"{60 * outputs} written ticks")
     finally:
         stopping.set()
         thread.stop()
         thread.join(WAIT_S)
         for far in fars:
             far.close()
-    return TimedWrites([w for w in written if not w["final"]], steps, waits)
+    return TimedWrites(drivers, [w for w in written if not w["final"]], steps)
 
 
 def _timed(
@@ -265,7 +265,11 @@ def _timed(
     def timed_begin(snapshot: Any, step_s: float = 0.0) -> None:
         this_tick.clear()
         this_tick.update(
-            output=index, deadline=driver.deadline, began=time.monotonic(), snapshot=snapshot
+            output=index,
+            deadline=driver._deadline,
+            start=driver._start,
+            began=time.monotonic(),
+            snapshot=snapshot,
         )
         begin(snapshot, step_s)
 
@@ -287,46 +291,65 @@ def on_the_grid(deadline: float, period_s: float) -> bool:
     return round(steps) == pytest.approx(steps, abs=1e-6)
 
 
-def test_outputs_due_together_are_made_on_their_deadline_from_one_snapshot_fastest_first() -> None:
-    """Four outputs on the drivers' thread, at 10, 20, 4 and 10 ms in config order: every
-    tick is made on its deadline, from the records then (but for one due within SAME_TICK_S
-    after a tick the loaded host made late: made with it, held), and written as soon as its
-    bytes are made, never before its deadline. The ticks due together are made from
-    one step of the node table, asked for once, and made and written one after another in
-    order of period, fastest first, config order among equal periods (every 20 ms: 4, 10,
-    10, 20 ms; on the other 10 ms: the two at 10 ms); each write comes before the next
-    output's making. The thread sleeps at most once per tick group, not once to make and
-    once to write."""
-    periods = (0.01, 0.02, 0.004, 0.01)
-    written, steps, waits = timed_writes(periods, ticks=100)
+def test_outputs_due_together_are_made_ahead_from_one_snapshot_and_written_in_config_order() -> (
+    None
+):
+    """Several outputs on the drivers' thread: each has its lead; the ticks due together
+    start on the earliest of their starts, are made from one step of the node table, asked
+    for once, and are written on their deadline, never before it, in config order, after
+    all of them were made."""
+    drivers, on_grid, steps = timed_writes(outputs=3)
+    for driver in drivers:
+        assert driver.lead is not None and 0.0 < driver.lead.s <= 0.01 * LEAD_MAX_SHARE
     ticks: dict[float, list[dict[str, Any]]] = {}
-    for w in written:
-        assert on_the_grid(w["deadline"], periods[w["output"]])
-        assert w["began"] <= w["made"] <= w["written"] and w["deadline"] <= w["written"]
-        w["stepped"] = max(step for step in steps if step <= w["began"])  # its batch's step
+    for w in on_grid:
+        assert w["start"] < w["deadline"] <= w["written"] and on_the_grid(w["deadline"], 0.01)
+        assert w["began"] <= w["made"] <= w["written"]
         ticks.setdefault(round(w["deadline"], 6), []).append(w)
-    for w in written:  # from the records on its deadline, or within SAME_TICK_S of it
-        if w["stepped"] < w["deadline"]:  # with a tick due before it, late on a loaded host
-            batch = [o for o in written if o["stepped"] == w["stepped"]]
-            assert any(o["deadline"] <= w["stepped"] for o in batch)
-            assert w["deadline"] - w["stepped"] <= SAME_TICK_S
     deadlines = sorted(ticks)
-    every_20_ms = [at for at in deadlines if len(ticks[at]) == 4]
-    assert len(every_20_ms) >= 20  # a loaded host skips some ticks: fewer full groups
-    for at in deadlines:
+    together = [at for at in deadlines if len(ticks[at]) == 3]
+    assert len(together) >= 50
+    for before, at in zip([None, *deadlines], deadlines, strict=False):
         tick = ticks[at]
-        outputs = [w["output"] for w in tick]  # the last group may be cut by the stop
-        assert outputs == sorted(outputs, key=lambda i: (periods[i], i))  # [2, 0, 3, 1]
-        for one, after in pairwise(tick):
-            if one["deadline"] <= one["stepped"]:  # not held: out as soon as made
-                assert one["written"] <= after["made"]
+        if len(tick) != 3:
+            continue
+        assert [w["output"] for w in tick] == [0, 1, 2]  # written in config order
+        first_start = min(w["start"] for w in tick)
+        assert first_start <= min(w["began"] for w in tick)  # on the earliest start
+        made = max(w["made"] for w in tick)
+        assert made <= min(w["written"] for w in tick)
+        # one step asked for since the tick before was made: not counted from the planned
+        # start, which a late tick before (a loaded host) may have stepped after
+        since = max(w["made"] for w in ticks[before]) if before is not None else -math.inf
+        assert sum(since < step <= made for step in steps) == 1
         assert len({id(w["snapshot"]) for w in tick}) == 1  # one step's values
-    # at most one step and one sleep per tick group: a late thread (a loaded host) makes
-    # the groups due by then in one batch, from one step, after no sleep
-    last_made, first, last = written[-1]["made"], written[0]["written"], written[-1]["written"]
-    assert sum(step <= last_made for step in steps) <= len(deadlines)
-    groups = len(deadlines) - 1  # the first group's sleep came before `first`
-    assert groups >= 100 and sum(first < at < last for at in waits) <= groups
+
+
+def test_the_only_output_reads_the_records_on_its_deadline_and_writes_them_at_once() -> None:
+    """No lead: each tick wakes on its deadline (on the grid, from its epoch), makes its
+    frame from the records then and writes it at once: never before the deadline, never
+    from records read ahead of it (a lead would age every frame's records by itself)."""
+    (driver,), on_grid, _ = timed_writes(outputs=1)
+    assert len(on_grid) >= 60 and driver.lead is None
+    for w in on_grid:
+        assert w["start"] == w["deadline"] and on_the_grid(w["start"], 0.01)
+        assert w["deadline"] <= w["began"] <= w["made"] <= w["written"]
+
+
+def test_the_lead_is_the_ticks_recent_cost_and_one_held_up_tick_does_not_move_it() -> None:
+    lead = Lead(0.02)
+    assert lead.s == LEAD_FIRST_S
+    costs = [0.0003] * (LEAD_WINDOW - 2) + [0.009, 0.012]  # two ticks the host held up
+    for cost in costs:
+        lead.took(cost, 0.02)
+    assert lead.s == pytest.approx(0.0003 + LEAD_MARGIN_S)
+    for _ in range(LEAD_WINDOW):  # a machine slower than a quarter period: capped there
+        lead.took(0.009, 0.02)
+    assert lead.s == pytest.approx(0.02 * LEAD_MAX_SHARE)
+    for _ in range(LEAD_WINDOW):  # a faster one: the lead follows it back down
+        lead.took(0.00001, 0.02)
+    assert lead.s == pytest.approx(0.00001 + LEAD_MARGIN_S)
+    assert Lead(0.001).s == pytest.approx(0.001 * LEAD_MAX_SHARE)  # CRSF at 1 kHz
 
 
 def test_an_output_whose_far_end_stops_reading_does_not_hold_the_others() -> None:

@@ -238,8 +238,16 @@ class Daemon:
         """The protocol's build function (`usb2rc.wiring`) makes its pieces."""
         assert out.port
         name = f"output{index + 1}-{out.protocol}"
+        count = len(self.output_configs)
         context = OutputContext(
-            name, out, self.mapping, self.table, self._tick, self._first_write, self.version
+            name,
+            out,
+            self.mapping,
+            self.table,
+            self._tick,
+            self._first_write,
+            self.version,
+            alone=count == 1,
         )
         built = build(context)
         reads = self.mapping.sumd_channels(out) if protocol(out.protocol).channels else None

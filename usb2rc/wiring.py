@@ -37,6 +37,7 @@ class OutputContext:
     on_tick: Callable[[], None] | None = None
     on_first_write: Callable[[], None] | None = None
     version: str = ""
+    alone: bool = False  # the daemon's only output: no lead (`lines.driver.LineDriver`)
 
 
 @dataclass
@@ -63,6 +64,7 @@ def running(context: OutputContext, link: Link, session: LineSession) -> BuiltOu
         1.0 / context.config.rate_hz,
         context.on_tick,
         context.on_first_write,
+        alone=context.alone,
     )
     return BuiltOutput(link, driver)
 

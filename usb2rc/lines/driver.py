@@ -12,16 +12,14 @@ Once a tick, on absolute monotonic deadlines, an output's `LineDriver`
 It knows no protocol: what to send, when to stall, when to flush, when the next tick is due
 (`session.next_due`) are the session's. A late tick is counted, never caught up with a burst.
 
-One thread drives every output (`DriverThread`) and wakes once per tick group. Each tick
-is made on its deadline, from the records then, and written as soon as its bytes are made,
-never before its deadline: no frame carries records read ahead of its deadline, but for a
-tick due within SAME_TICK_S after others (a CRSF output off the grid, or any after a late
-wake-up), made with them from their snapshot and held until its own deadline. Ticks due
-together share one snapshot, one node step; within such a batch the outputs are made and
-written one after another in order of period, fastest first (config order among equal
-periods), so the fastest output's write moves least with the others' work, and a slower
-one's comes after the faster ones' making. Threads of their own would queue for the one
-interpreter.
+One thread drives every output (`DriverThread`). The daemon's only output (`alone`) wakes on
+its deadline, reads the records and writes its bytes as soon as they are made. Several make
+their bytes `Lead.s` before their deadline (what their ticks took together, recently) and
+write them on it, as a transmitter's mixer runs ahead of its frame timer; the lead costs
+every frame's records that much age, which the only output has no reason to pay. Ticks due
+together are made together, from one snapshot, and written in config order: threads of
+their own would queue for the one interpreter, and C2-16B's write would move with the
+others' work.
 
 One clock: a driver's ticks fall on the multiples of its period from the grid's epoch on the
 monotonic clock (`aligned`, `nodes.step.GRID_EPOCH_S`: 3/4 of a kernel tick, off the kernel's
@@ -35,7 +33,6 @@ from __future__ import annotations
 
 import logging
 import math
-import operator
 import threading
 import time
 import traceback
@@ -55,20 +52,46 @@ log = logging.getLogger("usb2rc.lines")
 PERIODS_KEPT = 3000
 FINAL_TICKS_S = 0.25  # at most this long for the failsafe frames when usb2rc stops
 STALL_LOG_QUIET_S = 10.0  # a line that stalls again and again is logged once in this long
-# deadlines this close after the first are begun as one batch, from one step (< half of
-# 1 kHz): an output off the grid (CRSF following its module) shares the step of those on it
-SAME_TICK_S = 0.0005
+LEAD_FIRST_S = 0.0005  # how long before its deadline a tick starts, until it has measured itself
+LEAD_MARGIN_S = 0.0002  # over the tick's recent cost (its p95): a wake-up is often 0.1 ms late
+LEAD_MAX_SHARE = 0.25  # never more than a quarter period: the records' age
+LEAD_WINDOW = 50  # ticks measured between two updates of the lead
+SAME_TICK_S = 0.0005  # starts this close are begun as one batch (< half of 1 kHz)
 # While every output is asleep (nothing to send until the nodes change or a far end speaks)
 # the thread sleeps until woken, and ticks at least this often anyway: a port lost meanwhile
 # is noticed, and the watchdog (`Daemon.all_outputs_ticking`, 1 s) sees it alive.
 DOZE_SAFETY_S = 0.5
-_PERIOD = operator.attrgetter("period_s")  # a batch's order: fastest first
+SAME_DEADLINE_S = 1e-6  # deadlines this close are one (each driver adds its own periods)
 
 
 def aligned(now: float, period_s: float) -> float:
     """The first multiple of `period_s` from the grid's epoch at or after `now` (monotonic
     clock, `nodes.step.GRID_EPOCH_S`: 3/4 of a kernel tick, off the kernel's own ticks)."""
     return GRID_EPOCH_S + math.ceil((now - GRID_EPOCH_S) / period_s - 1e-9) * period_s
+
+
+class Lead:
+    """How long before its deadline a tick starts, so that its bytes are ready on time:
+    the p95 of what the last LEAD_WINDOW ticks took from their planned start to their bytes
+    and those of the ticks due with them (the wake-up's lateness included), plus
+    LEAD_MARGIN_S, at most a quarter period. It follows the machine (a Pi, a VM) and the
+    load (devices, outputs), and a single tick held up by the host moves it by nothing. The
+    drivers' thread owns it."""
+
+    def __init__(self, period_s: float) -> None:
+        self.s = min(LEAD_FIRST_S, period_s * LEAD_MAX_SHARE)
+        self._costs: list[float] = []
+
+    def took(self, cost_s: float, period_s: float) -> None:
+        """A tick's bytes were ready `cost_s` after its planned start."""
+        costs = self._costs
+        costs.append(cost_s)
+        if len(costs) < LEAD_WINDOW:
+            return
+        costs.sort()
+        p95 = costs[int(len(costs) * 0.95)]
+        self.s = min(period_s * LEAD_MAX_SHARE, p95 + LEAD_MARGIN_S)
+        costs.clear()
 
 
 @dataclass
@@ -139,12 +162,14 @@ def _p99_ms(values_s: list[float]) -> float:
 
 class LineDriver:
     """One output's driver: `session` over `link`, ticked on the grid by the drivers' thread
-    (`DriverThread`), whose loop calls `begin` on each tick's deadline (the bytes made and
-    held), `write` once the deadline has come (at once, unless the tick was begun with one
-    due up to SAME_TICK_S before it) and `finish` after the writes of its batch.
+    (`DriverThread`), whose loop calls `begin` at each tick's start, `write` on its deadline
+    and `finish` after the writes due with it.
 
     `snapshot`: the node table's latest step (`NodeTable.step_if_due`); `on_tick` after every
     tick (the watchdog hook), `on_first_write` once, after the first write that went out.
+    `alone`: the daemon's only output, which has no lead (`lead` is None) and writes as soon
+    as its bytes are made; each of several makes them `lead.s` ahead (or with a tick due
+    on the same deadline that leads more, `DriverThread`) and writes them on its deadline.
     Every field is written by the drivers' thread only; `period_s` and `stats` are read by
     others."""
 
@@ -157,6 +182,7 @@ class LineDriver:
         period_s: float,
         on_tick: Callable[[], None] | None = None,
         on_first_write: Callable[[], None] | None = None,
+        alone: bool = False,
     ) -> None:
         self.name = name
         self.link = link
@@ -164,6 +190,8 @@ class LineDriver:
         self.snapshot = snapshot
         # the period now (a CRSF module may change it: `plan`)
         self.period_s = period_s
+        # the daemon's only output has no lead: it reads the records on its deadline
+        self.lead = None if alone else Lead(period_s)
         self.stats = OutputStats()
         self.on_tick = on_tick
         self.on_first_write = on_first_write
@@ -177,8 +205,9 @@ class LineDriver:
         self.last_tick_monotonic = 0.0
         self._last_write = 0.0
         self._input_at: float | None = None  # newest report of the tick's snapshot (read at)
-        # the tick in progress (this thread only): due, made, held for the write
+        # the tick in progress (this thread only): due, started, made, held for the write
         self._deadline = 0.0
+        self._start = 0.0
         self._cost_s = 0.0
         self._ok = True
         self._was_stalled = False
@@ -192,28 +221,40 @@ class LineDriver:
 
     def plan(self, deadline: float, period_s: float) -> None:
         """The next tick is due at `deadline`, `period_s` before the one after it (the
-        session's: a CRSF module may change it)."""
+        session's: a CRSF module may change it); it starts its lead before it."""
         self._deadline = deadline
+        self._start = deadline - (self.lead.s if self.lead else 0.0)
         self.period_s = period_s
 
     @property
     def deadline(self) -> float:
-        """When the next tick, or the one in progress, is due: made, then written."""
+        """When the next tick, or the one in progress, writes."""
         return self._deadline
 
     @property
+    def start(self) -> float:
+        """When the next tick, or the one in progress, was planned to start."""
+        return self._start
+
+    @property
     def holding(self) -> bool:
-        """Between a tick's making and its write: its bytes wait for its deadline."""
+        """Between a tick's start and its write: its bytes are made."""
         return self._held is not None
 
+    @property
+    def next_moment(self) -> float:
+        """When this driver has something to do next: its write if it holds bytes, else
+        its next start."""
+        return self._deadline if self._held is not None else self._start
+
     def begin(self, snapshot: NodeSnapshot, step_s: float = 0.0) -> None:
-        """A tick's making: the link followed, the bytes made from `snapshot` and held for
+        """A tick's start: the link followed, the bytes made from `snapshot` and held for
         the write (an empty tick holds b''). A failure is counted and logged; the tick then
         writes nothing and does not count as alive. `step_s`: what getting the snapshot
         took, counted in this tick's cost (`OutputStats.ticks_s`) as when each output
         stepped the table itself."""
         started = time.monotonic()
-        if started - self._deadline > self.period_s / 2:
+        if started - self._start > self.period_s / 2:
             self.stats.late_ticks += 1
         self._input_at = snapshot.newest_report_at
         self._ok = True
@@ -227,8 +268,8 @@ class LineDriver:
         self._cost_s = step_s + time.monotonic() - started
 
     def write(self) -> None:
-        """The tick's write, once its deadline has come (`finish` does the rest, after the
-        writes of its batch)."""
+        """The tick's write, on its moment (`finish` does the rest: the writes due together
+        go out one right after another)."""
         data, self._held = self._held or b"", None
         sent_at = time.monotonic()
         if self._ok:
@@ -434,15 +475,14 @@ class LineDriver:
 
 class DriverThread(Worker):
     """The drivers' thread: every output's ticks, on one thread, in one loop (as
-    python-can's `Notifier` serves every bus), one wake-up per tick group. Each tick is made
-    on its deadline from the records then (`begin`) and written as soon as its bytes are
-    made (`write`), never before its deadline; the batch's ticks are counted after its last
-    write (`finish`). Ticks due together (the default outputs' every 20 ms), or within
-    SAME_TICK_S of one another, share one snapshot, so the table steps once for all of them;
-    they are made and written one after another in order of period, fastest first (config
-    order among equal periods): the fastest output's write moves least with the others'
-    work, and no write waits for another thread's. A tick begun with one due up to
-    SAME_TICK_S before it holds its bytes until its own deadline."""
+    python-can's `Notifier` serves every bus). A tick starts its lead before its deadline
+    (`begin`: the bytes made) and writes on it (`write`, then `finish`). Ticks due
+    together, the default outputs' every 20 ms, start together from one snapshot, so the
+    readers wake once for all of them, and write on their deadline in config order, one
+    right after another (each counted after all of them went out): no write waits for
+    another thread's work. Each of several outputs has its own lead, which learns what its
+    ticks took with those due together; ticks due together start on the earliest of their
+    starts. The only output has none (`LineDriver`'s `alone`)."""
 
     def __init__(self, name: str, drivers: Sequence[LineDriver]) -> None:
         super().__init__(name)
@@ -460,9 +500,9 @@ class DriverThread(Worker):
         self._bell.set()
 
     def run(self) -> None:
-        """Until stopped: asleep until the next deadline, then the bytes held for it
-        written, else the ticks due then begun (`_begin`); then the final ticks and the
-        links closed."""
+        """Until stopped: the next moment's writes, else its starts; then the final ticks
+        and the links closed. A write comes before a start due with it: its moment is the
+        one that matters."""
         drivers = self.drivers
         if not drivers:
             return
@@ -473,45 +513,44 @@ class DriverThread(Worker):
             if all(d.asleep and not d.holding for d in drivers):
                 self._doze()
                 continue
-            delay = min(driver.deadline for driver in drivers) - time.monotonic()
+            moment = min(driver.next_moment for driver in drivers)
+            delay = moment - time.monotonic()
             if delay > 0 and self._wait(delay):
                 break
             now = time.monotonic()
-            held = [d for d in drivers if d.holding and d.deadline <= now]
-            if held:
-                held.sort(key=_PERIOD)
-                for driver in held:
-                    driver.write()
-                for driver in held:
-                    driver.finish()
-            else:
+            due = [d for d in drivers if d.holding and d.next_moment <= now]
+            for driver in due:
+                driver.write()
+            for driver in due:
+                driver.finish()
+            if not due:
                 self._begin(now)
         self._final_ticks()
         for driver in drivers:
             driver.link.close()
 
     def _begin(self, now: float) -> None:
-        """The ticks due by `now` and those due within SAME_TICK_S after (one batch), made
-        from one snapshot (one `step_if_due` call: outputs due together send one step's
-        values, and a record a reader publishes meanwhile does not step the table again), in
-        order of period, fastest first (a stable sort: config order among equal periods).
-        Each whose deadline has come is written as soon as its bytes are made; one due
-        later holds them for `run`. Those written are counted after the last write."""
-        batch = [d for d in self.drivers if not d.holding and d.deadline <= now + SAME_TICK_S]
-        if not batch:
+        """The ticks that start now, those within SAME_TICK_S after (one batch), and those
+        due on the same deadline as any of them (due together: they start with the one that
+        leads most), made in config order from one snapshot: outputs due together send one
+        step's values, and a record a reader publishes meanwhile does not step the table
+        again. Each that started on its own start teaches its lead what the whole batch
+        took."""
+        waiting = [driver for driver in self.drivers if not driver.holding]
+        starting = [driver for driver in waiting if driver.next_moment <= now + SAME_TICK_S]
+        if not starting:
             return
-        batch.sort(key=_PERIOD)
+        due = [driver.deadline for driver in starting]
+        batch = [d for d in waiting if any(abs(d.deadline - at) <= SAME_DEADLINE_S for at in due)]
         stepping = time.monotonic()
         snapshot = batch[0].snapshot()  # the daemon's drivers all read its one node table
         step_s = time.monotonic() - stepping
-        written = []
         for driver in batch:
             driver.begin(snapshot, step_s)
-            if driver.deadline <= time.monotonic():
-                driver.write()
-                written.append(driver)
-        for driver in written:
-            driver.finish()
+        ready = time.monotonic()
+        for driver in starting:
+            if driver.lead is not None:
+                driver.lead.took(ready - driver.start, driver.period_s)
 
     def _doze(self) -> None:
         """Every output is asleep: sleep until woken (or DOZE_SAFETY_S), then tick again on
