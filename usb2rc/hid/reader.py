@@ -210,7 +210,7 @@ class DeviceReader(Worker):
             self._repeats += repeated
             self._reports += 1
             if self._press_decoder is not None:
-                self._note_buttons(self._press_decoder.buttons)
+                self._note_presses([self._press_decoder.buttons])
             self._count_refused(accepted=1, refused=0)
         else:
             self._bad_reports += 1
@@ -227,17 +227,11 @@ class DeviceReader(Worker):
         if before < BAD_REPORTS_LIMIT <= self._refused_in_a_row:
             self._bad_spells += 1
 
-    def _note_buttons(self, buttons: int) -> None:
-        """Every press, even one released before the record is published (a tap)."""
-        rising = buttons & ~self._buttons
-        self._buttons = buttons
-        if rising:
-            self._press_serial += 1
-            self._presses = (*self._presses, (self._press_serial, rising))[-PRESSES_KEPT:]
-
-    def _note_changes(self, masks: list[int]) -> None:
-        """`_note_buttons` for each mask a batch left (`ReportDecoder.feed_batch`'s
-        `on_buttons`, collected by a list's `append`), the press log rebuilt once."""
+    def _note_presses(self, masks: list[int]) -> None:
+        """Every press, even one released before the record is published (a tap): `masks`
+        are the button masks after each report that changed them, in order (a batch's, as
+        `ReportDecoder.feed_batch`'s `on_buttons` collects them); one entry per report that
+        pressed a button, the press log rebuilt once."""
         before = self._buttons
         serial = self._press_serial
         presses = []
@@ -281,7 +275,7 @@ class DeviceReader(Worker):
         on_buttons = masks.append if self._press_decoder is not None else None
         accepted, refused = self.decoder.feed_batch(batch, on_buttons)
         if masks:
-            self._note_changes(masks)
+            self._note_presses(masks)
         if not refused:  # a run of the same refused report is no sign of streaming
             self._repeats += sum(map(operator.eq, batch, [self._last_report, *batch[:-1]]))
         self._last_report = batch[-1]

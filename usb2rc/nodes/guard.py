@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 from usb2rc.hid.usages import GD_GAMEPAD, GD_JOYSTICK, GD_RZ, GD_X, GD_Y, SIM_THROTTLE
-from usb2rc.nodes.scaling import INT16_MIN, UINT16_MAX
+from usb2rc.nodes.scaling import INT16_MAX, INT16_MIN, UINT16_MAX
 
 DEFAULT_TOLERANCE = 0.1  # of the half range: ±5 % of the travel around the rest point
 # A Game Pad's thumb sticks rest loose: a DualShock 3 at rest reads X +0.106, Y -0.129. The
@@ -106,7 +106,7 @@ class GuardedAxis:
         never decreases as the wire value grows, so the values at rest are one run, found
         by bisection on the rule itself (the same answer at every value, the edges too).
         None when no value is at rest: the rule then answers."""
-        low, high = (0, UINT16_MAX) if self.unsigned else (INT16_MIN, INT16_MIN + UINT16_MAX)
+        low, high = (0, UINT16_MAX) if self.unsigned else (INT16_MIN, INT16_MAX)
 
         def rests(wire: int) -> bool:
             return self._unit_at_rest(wire_to_unit(wire, self.unsigned), 0.0)
