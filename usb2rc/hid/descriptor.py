@@ -158,6 +158,12 @@ class DeviceLayout:
         hold no state; each ReportDecoder keeps its own values."""
         return {rid: _compile_report(self, rid) for rid in self.input_report_lengths}
 
+    @functools.cached_property
+    def id_scan(self) -> _IdScanFn:
+        """A device with report IDs: a batch's button masks and each ID's last valid report
+        in one generated loop (`ReportDecoder.feed_batch`), compiled once per layout."""
+        return _compile_id_scan(self)
+
 
 def _representable(bit_size: int, signed: bool) -> tuple[int, int]:
     if signed and bit_size > 1:
@@ -847,31 +853,46 @@ class _ReportPlan:
     decode: _DecodeFn
     keep_buttons: int  # ~ the buttons this report owns
     source: str  # the generated code, for debugging
-    buttons: Callable[[bytes], int]  # the buttons it presses, without decoding its values
     # A device without report IDs: a batch's button masks in one loop (`ReportDecoder.
     # feed_batch`), the buttons' expression inline, no call per report but on a change.
     scan: _ScanFn
 
 
+def _button_terms(layout: DeviceLayout, rid: int, arrays_name: str) -> list[str]:
+    """The expressions (of a report's integer `v`) of the buttons report `rid` presses; its
+    Button-page arrays are `{arrays_name}[i]` in the generated code's namespace."""
+    id_bits = 8 if layout.uses_report_ids else 0
+    buttons = [b for b in layout.buttons if b.report_id == rid]
+    arrays = [a for a in layout.button_arrays if a.report_id == rid]
+    terms = [_button_expr(b, id_bits) for b in buttons]
+    terms += [
+        f"_array_buttons(v, {arrays_name}[{i}], {a.bit_offset + id_bits})"
+        for i, a in enumerate(arrays)
+    ]
+    return terms
+
+
+def _owned_buttons(layout: DeviceLayout, rid: int) -> int:
+    owned = 0
+    for b in layout.buttons:
+        owned |= b.mask if b.report_id == rid else 0
+    for a in layout.button_arrays:
+        owned |= a.mask if a.report_id == rid else 0
+    return owned
+
+
 def _compile_report(layout: DeviceLayout, rid: int) -> _ReportPlan:
     id_bits = 8 if layout.uses_report_ids else 0
     fields = [f for f in layout.inputs if f.report_id == rid]
-    buttons = [b for b in layout.buttons if b.report_id == rid]
     arrays = [a for a in layout.button_arrays if a.report_id == rid]
-    owned = 0
-    for mask in [b.mask for b in buttons] + [a.mask for a in arrays]:
-        owned |= mask
+    owned = _owned_buttons(layout, rid)
     length = layout.input_report_lengths[rid] + id_bits // 8
     lines = ["def decode(r, vals):", "    v = int.from_bytes(r, 'little')"]
     for run in _runs(fields, id_bits):
         lines += _run_lines(run, id_bits)
-    terms = [_button_expr(b, id_bits) for b in buttons]
-    terms += [
-        f"_array_buttons(v, arrays[{i}], {a.bit_offset + id_bits})" for i, a in enumerate(arrays)
-    ]
+    terms = _button_terms(layout, rid, "arrays")
     pressed = _pressed_lines(terms, "    ")
     lines += [*pressed, "    return b"]
-    lines += ["def buttons(r):", "    v = int.from_bytes(r, 'little')", *pressed, "    return b"]
     lines += _scan_lines(terms, length)
     source = "\n".join(lines) + "\n"
     namespace: dict[str, object] = {
@@ -882,9 +903,8 @@ def _compile_report(layout: DeviceLayout, rid: int) -> _ReportPlan:
     }
     exec(compile(source, f"<usb2rc decode plan, report {rid}>", "exec"), namespace)
     decode: _DecodeFn = namespace["decode"]  # type: ignore[assignment]
-    pressed_fn: Callable[[bytes], int] = namespace["buttons"]  # type: ignore[assignment]
     scan: _ScanFn = namespace["scan"]  # type: ignore[assignment]
-    return _ReportPlan(length, decode, ~owned, source, pressed_fn, scan)
+    return _ReportPlan(length, decode, ~owned, source, scan)
 
 
 def _pressed_lines(terms: list[str], indent: str) -> list[str]:
@@ -917,6 +937,57 @@ def _scan_lines(terms: list[str], length: int) -> list[str]:
     ]
 
 
+_IdScanFn = Callable[[Sequence[bytes], int, Callable[[int], None]], tuple[dict[int, int], int]]
+
+
+def _compile_id_scan(layout: DeviceLayout) -> _IdScanFn:
+    """`scan(reports, mask, on_buttons) -> ({report ID: index of its last valid report},
+    refused)` for a device with report IDs: one branch per ID on the first byte, its length
+    checked and its buttons' expression inline, `on_buttons(mask)` where the mask changed
+    (a press within a batch), as `_scan_lines` does for a device without IDs."""
+    lines = [
+        "def scan(reports, mask, on_buttons):",
+        "    last = {}",
+        "    refused = 0",
+        "    i = -1",
+        "    for r in reports:",
+        "        i += 1",
+        "        rid = r[0] if r else -1",
+    ]
+    namespace: dict[str, object] = {"_array_buttons": _array_buttons}
+    for n, (rid, data_length) in enumerate(sorted(layout.input_report_lengths.items())):
+        arrays_name = f"arrays_{rid}"
+        namespace[arrays_name] = tuple(a for a in layout.button_arrays if a.report_id == rid)
+        namespace[f"keep_{rid}"] = ~_owned_buttons(layout, rid)
+        lines += [
+            f"        {'if' if n == 0 else 'elif'} rid == {rid}:",
+            f"            if len(r) < {data_length + 1}:",
+            "                refused += 1",
+            "                continue",
+            "            v = int.from_bytes(r, 'little')",
+            *_pressed_lines(_button_terms(layout, rid, arrays_name), "            "),
+            f"            b |= mask & keep_{rid}",
+        ]
+    lines += [
+        "        else:",
+        "            refused += 1",
+        "            continue",
+        "        last[rid] = i",
+        "        if b != mask:",
+        "            mask = b",
+        "            on_buttons(b)",
+        "    return last, refused",
+    ]
+    source = "\n".join(lines) + "\n"
+    exec(compile(source, "<usb2rc decode plan, report IDs>", "exec"), namespace)
+    scan: _IdScanFn = namespace["scan"]  # type: ignore[assignment]
+    return scan
+
+
+def _ignore(_mask: int) -> None:
+    """`on_buttons` for a caller that does not ask for the masks."""
+
+
 class ReportDecoder:
     """Decodes one device's raw input reports into an InputState. Not thread-safe: one reader
     thread feeds it and takes its states."""
@@ -927,6 +998,7 @@ class ReportDecoder:
         self.bad_reports = 0
         self._plans = layout.report_plans
         self._plan = None if layout.uses_report_ids else self._plans[0]
+        self._id_scan = layout.id_scan if layout.uses_report_ids else None
         initial = layout.initial_state()
         self._values = list(initial.values)
         self._buttons = 0
@@ -981,22 +1053,10 @@ class ReportDecoder:
                         last = report
             survivors = [last] if last is not None else []
         else:
-            plans = self._plans
-            latest: dict[int, bytes] = {}
-            mask = self._buttons
-            for report in reports:
-                plan = plans.get(report[0]) if report else None
-                if plan is None or len(report) < plan.length:
-                    refused += 1
-                    continue
-                latest.pop(report[0], None)  # re-inserted: dict order = last occurrence
-                latest[report[0]] = report
-                if on_buttons is not None:
-                    pressed = (mask & plan.keep_buttons) | plan.buttons(report)
-                    if pressed != mask:
-                        mask = pressed
-                        on_buttons(mask)
-            survivors = list(latest.values())
+            assert self._id_scan is not None  # a layout with report IDs
+            last_of, refused = self._id_scan(reports, self._buttons, on_buttons or _ignore)
+            # in the order of each ID's last occurrence
+            survivors = [reports[i] for i in sorted(last_of.values())]
         for report in survivors:
             self.feed(report)
         accepted = len(reports) - refused
