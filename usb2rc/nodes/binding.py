@@ -299,6 +299,10 @@ class DeviceBinding:
         self.button_runs = tuple(button_runs)
         self.axis_slots = frozenset(AXIS_NAMES[slot] for slot, _ in self._axes)
         self.unsigned_slots = unsigned_slots(self.axis_info)  # bit k: slot k is a uint16
+        # an axis made of buttons (`buttons: [A, B]`): a tap moves it, not only button bits
+        self._axes_read_buttons = any(
+            info is not None and info.field_index is None for info in self.axis_info
+        )
         self.group1_mask, self.group2_mask = self._masks()
 
     def same_axes(self, other: DeviceBinding) -> bool:
@@ -320,6 +324,16 @@ class DeviceBinding:
         for shift, mask, group, dest in self._runs:
             groups[group] |= ((buttons >> shift) & mask) << dest
         return groups[0], groups[1]
+
+    def tap_groups(self, taps: int) -> tuple[int, int] | None:
+        """The node buttons HID buttons `taps` add to what `apply` gives, when that is all
+        they change (no axis of this binding is made of buttons, and the handover button is
+        not among them): `apply` of the state with them pressed is then its inputs with
+        these bits ORed in (a button run ORs its bits; axes, hats and the battery come from
+        the values). None: `apply` must be asked."""
+        if self._axes_read_buttons or taps & self._handover_mask:
+            return None
+        return self.button_groups(taps)
 
     def holds_handover(self, buttons: int) -> bool:
         """Whether the handover button is among these HID buttons."""

@@ -250,16 +250,32 @@ class TapLatch:
         return frames
 
     def _latched(self, node: NodeView, seen: dict[int, int]) -> NodeFrame:
-        inputs, tapped = [], False
+        taps_of: dict[int, int] = {}  # device_id -> HID buttons tapped since this latch saw it
         for device in node.devices:
             before = self._seen.get(device.device_id, 0)
             seen[device.device_id] = device.record.press_serial if device.known else before
             taps = device.tapped_since(before) if device.live else 0
-            tapped = tapped or bool(taps)
-            inputs.append((device.binding, device.with_taps(taps) if taps else device.inputs))
-        if not tapped:
+            if taps:
+                taps_of[device.device_id] = taps
+        if not taps_of:
             return node.frame
         frame = node.frame
+        added = [
+            d.binding.tap_groups(taps_of[d.device_id])
+            for d in node.devices
+            if d.device_id in taps_of
+        ]
+        if None not in added:  # the taps add button bits and change nothing else
+            group1, group2 = frame.group1, frame.group2
+            for bits in added:
+                assert bits is not None
+                group1 |= bits[0]
+                group2 |= bits[1]
+            return frame._replace(group1=group1, group2=group2)
+        inputs = [
+            (d.binding, d.with_taps(taps_of[d.device_id]) if d.device_id in taps_of else d.inputs)
+            for d in node.devices
+        ]
         latched = compose(
             frame.node_id, frame.failsafe, node.base_axes, node.base_unsigned, inputs, frame.pressed
         )
