@@ -23,6 +23,7 @@ from usb2rc.commands.check import check_record
 from usb2rc.config.port_url import port_argument
 from usb2rc.configfile import Config, ConfigError, load_config, load_runnable
 from usb2rc.daemon import Daemon, NoPortError, ReloadResult, log_reload
+from usb2rc.hid import speedups
 from usb2rc.hid.backend import Backend
 from usb2rc.hid.choose import choose_backend
 from usb2rc.runtime import log_escape
@@ -184,6 +185,7 @@ def serve(
     if not signals.running():
         log.info("stopped while starting")
         return 0
+    log.info("%s", speedups.status())
     try:
         daemon.start()  # inside: a start that fails half-way still stops what it started
         _main_loop(daemon, config_path, stats_interval, notifier, signals, stats_format)

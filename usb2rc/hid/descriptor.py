@@ -32,8 +32,16 @@ import functools
 import struct
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
+from usb2rc.hid import speedups
 from usb2rc.hid.usages import BUTTON_PAGE, GD_HAT_SWITCH
+
+if TYPE_CHECKING:  # the C loops may not be built here (usb2rc.hid.speedups)
+    from usb2rc.hid._speedups import Plan
+
+C_BUTTON_BITS = 64  # the C drain's button mask is a uint64
+C_FIELD_BITS = 32
 
 
 class DescriptorError(ValueError):
@@ -157,6 +165,14 @@ class DeviceLayout:
         nothing (compiling is Python that competes with the output threads for the GIL). Plans
         hold no state; each ReportDecoder keeps its own values."""
         return {rid: _compile_report(self, rid) for rid in self.input_report_lengths}
+
+    @functools.cached_property
+    def c_plan(self) -> Plan | None:
+        """The C drain's plan of this layout (`ReportDecoder.feed_batch`), or None: the C
+        drain is not built or is switched off (PURE_PYTHON_ENV), or the layout is outside
+        it (a Button-page array, a value wider than C_FIELD_BITS, a button above
+        C_BUTTON_BITS)."""
+        return _c_plan(self)
 
     @functools.cached_property
     def id_scan(self) -> _IdScanFn:
@@ -984,6 +1000,39 @@ def _compile_id_scan(layout: DeviceLayout) -> _IdScanFn:
     return scan
 
 
+def _c_plan(layout: DeviceLayout) -> Plan | None:
+    c_loops = speedups.compiled()
+    if c_loops is None:
+        return None
+    if layout.button_arrays or any(f.bit_size > C_FIELD_BITS for f in layout.inputs):
+        return None
+    if any(b.bit_size != 1 and b.count != 1 for b in layout.buttons):
+        return None  # the parser makes one field per wide button; the C drain knows no other
+    if any(b.bit_size > C_BUTTON_BITS for b in layout.buttons):
+        return None  # a button wider than the C drain reads at once
+    tops = [b.first_button - 1 + (b.count if b.bit_size == 1 else 1) for b in layout.buttons]
+    if max(tops, default=0) > C_BUTTON_BITS:
+        return None
+    id_bits = 8 if layout.uses_report_ids else 0
+    every = (1 << C_BUTTON_BITS) - 1
+    reports = []
+    for rid, data_length in sorted(layout.input_report_lengths.items()):
+        fields = [
+            (f.index, f.bit_offset + id_bits, f.bit_size, f.is_signed)
+            for f in layout.inputs
+            if f.report_id == rid
+        ]
+        buttons = [
+            (b.bit_offset + id_bits, b.bit_size, b.count, b.first_button)
+            for b in layout.buttons
+            if b.report_id == rid
+        ]
+        keep = ~_owned_buttons(layout, rid) & every
+        reports.append((rid, data_length + id_bits // 8, keep, fields, buttons))
+    plan: Plan = c_loops.Plan(layout.uses_report_ids, reports)
+    return plan
+
+
 def _ignore(_mask: int) -> None:
     """`on_buttons` for a caller that does not ask for the masks."""
 
@@ -992,13 +1041,16 @@ class ReportDecoder:
     """Decodes one device's raw input reports into an InputState. Not thread-safe: one reader
     thread feeds it and takes its states."""
 
-    def __init__(self, layout: DeviceLayout) -> None:
+    def __init__(self, layout: DeviceLayout, compiled: bool = True) -> None:
+        """`compiled`: drain batches in C where the layout allows and the C drain is built
+        (False: the Python path, as tests/test_speedups.py compares them)."""
         self.layout = layout
         self.reports = 0
         self.bad_reports = 0
         self._plans = layout.report_plans
         self._plan = None if layout.uses_report_ids else self._plans[0]
         self._id_scan = layout.id_scan if layout.uses_report_ids else None
+        self._c_plan = layout.c_plan if compiled else None
         initial = layout.initial_state()
         self._values = list(initial.values)
         self._buttons = 0
@@ -1038,6 +1090,8 @@ class ReportDecoder:
         accepted report that changed it, in order (its button bits only are computed, not
         its values), for a caller that must see every press, even one released within the
         batch."""
+        if self._c_plan is not None:
+            return self._c_drain(self._c_plan, reports, on_buttons)
         single = self._plan
         refused = 0
         if single is not None:
@@ -1061,6 +1115,27 @@ class ReportDecoder:
             self.feed(report)
         accepted = len(reports) - refused
         self.reports += accepted - len(survivors)
+        self.bad_reports += refused
+        return accepted, refused
+
+    def _c_drain(
+        self,
+        plan: Plan,
+        reports: Sequence[bytes],
+        on_buttons: Callable[[int], None] | None,
+    ) -> tuple[int, int]:
+        """`feed_batch` in one C call: the same values, masks and counts."""
+        batch = reports if isinstance(reports, list) else list(reports)
+        accepted, refused, _repeats, mask, changes = plan.drain(
+            batch, self._values, self._buttons, b"", False
+        )
+        if on_buttons is not None:
+            for changed in changes:
+                on_buttons(changed)
+        if accepted:
+            self._buttons = mask
+            self._state = None
+        self.reports += accepted
         self.bad_reports += refused
         return accepted, refused
 

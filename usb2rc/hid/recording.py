@@ -19,6 +19,8 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from itertools import islice
 
+from usb2rc.hid import speedups
+
 
 class RecordingError(ValueError):
     """A hid-recorder file that cannot be used; the message names the line."""
@@ -109,9 +111,20 @@ def _event_as_written(raw: str) -> RecordedEvent | None:
 
 
 def _events_as_written(lines: list[str]) -> EventBatch | None:
-    """Every line of `lines` an `E:` line as `_event_as_written` takes it, parsed in C loops
-    over the batch (one Python call per step, not per line); None when any line is not,
-    and the batch takes the full parse, a line at a time. Same checks as the line's."""
+    """Every line of `lines` an `E:` line as `_event_as_written` takes it; None when any
+    line is not, and the batch takes the full parse, a line at a time. In one C call where
+    the HID stage's C loops are built (usb2rc.hid._speedups: it takes only the strictest
+    spelling, and leaves any other to the Python below)."""
+    c_loops = speedups.compiled()
+    if c_loops is not None and (parsed := c_loops.parse_events(lines)) is not None:
+        batch: EventBatch = parsed
+        return batch
+    return _events_as_written_py(lines)
+
+
+def _events_as_written_py(lines: list[str]) -> EventBatch | None:
+    """`_events_as_written` in C loops over the batch (one Python call per step, not per
+    line). Same checks as `_event_as_written`'s."""
     parts = [line.rstrip().split(" ", 3) for line in lines]
     if set(map(len, parts)) != {4}:
         return None

@@ -1,0 +1,180 @@
+"""The HID stage's C loops (usb2rc.hid._speedups) against their Python twins.
+
+The drain:
+`ReportDecoder.feed_batch` takes the C drain where it is built and the layout allows; the
+Python path is what runs without it. Both must leave the same values, button masks and
+counts, and report the same masks after each change (`on_buttons`): here on layouts with
+signed and unsigned values of 1..32 bits at any bit offset, one-bit button runs and wide
+buttons anywhere in bits 0..63, with and without report IDs (several IDs may share buttons),
+and batches with short, empty and unknown-ID reports. The real descriptors are in
+tests/test_decode_batch.py (against `feed`, one report at a time).
+
+The event parse: `recording._events_as_written` takes the C parse first; where it answers it
+must give what the Python parse gives, and lines as `format_event` writes them must be
+answered (else the speed-up never runs).
+"""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from usb2rc.hid import recording, speedups
+from usb2rc.hid.descriptor import ButtonField, DeviceLayout, InputField, ReportDecoder
+from usb2rc.hid.recording import RecordedEvent, format_event
+
+if not speedups.built():
+    if os.environ.get("CI"):
+        pytest.fail("the C drain was not built (setup.py; needs a C compiler and Python headers)")
+    pytest.skip("the C drain is not built here: only the Python path runs", allow_module_level=True)
+
+
+@st.composite
+def layouts(draw: st.DrawFn) -> DeviceLayout:
+    uses_ids = draw(st.booleans())
+    ids = sorted(draw(st.sets(st.integers(1, 255), min_size=1, max_size=3))) if uses_ids else [0]
+    inputs: list[InputField] = []
+    buttons: list[ButtonField] = []
+    lengths = {}
+    for rid in ids:
+        offset = 0
+        for _ in range(draw(st.integers(0, 6))):
+            kind = draw(st.sampled_from(["value", "run", "wide"]))
+            offset += draw(st.integers(0, 9))  # padding
+            if kind == "value":
+                size = draw(st.integers(1, 32))
+                signed = draw(st.booleans())
+                low, high = (-(1 << (size - 1)), (1 << (size - 1)) - 1) if signed else (0, 1)
+                inputs.append(
+                    InputField(len(inputs), rid, 0x10030, offset, size, low, high, False, 0)
+                )
+            elif kind == "run":
+                size = draw(st.integers(1, 40))
+                first = draw(st.integers(1, 65 - size))
+                buttons.append(ButtonField(rid, first, size, offset, 1))
+            else:
+                size = draw(st.integers(2, 8))
+                buttons.append(ButtonField(rid, draw(st.integers(1, 64)), 1, offset, size))
+            offset += size
+        lengths[rid] = (offset + 7) // 8
+    count = max((b.first_button + b.count - 1 for b in buttons), default=0)
+    layout = DeviceLayout(0x10004, uses_ids, tuple(inputs), count, lengths, tuple(buttons))
+    assert layout.c_plan is not None  # inside the C drain's limits by construction
+    return layout
+
+
+@st.composite
+def batches(draw: st.DrawFn, layout: DeviceLayout) -> list[list[bytes]]:
+    ids = sorted(layout.input_report_lengths)
+
+    def valid(rid: int) -> st.SearchStrategy[bytes]:
+        size = layout.input_report_lengths[rid]
+        head = bytes([rid]) if layout.uses_report_ids else b""
+        return st.binary(min_size=size, max_size=size + 2).map(lambda body: head + body)
+
+    report = st.one_of(
+        st.sampled_from(ids).flatmap(valid),
+        st.sampled_from(ids).flatmap(valid),
+        st.binary(max_size=3),  # short, empty, an unknown ID
+    )
+    reports = draw(st.lists(report, max_size=25))
+    # a repeat now and then: the same report twice in a row
+    if reports and draw(st.booleans()):
+        reports.insert(draw(st.integers(0, len(reports) - 1)), reports[0])
+    cuts = sorted(draw(st.lists(st.integers(0, len(reports)), max_size=3)))
+    return [reports[a:b] for a, b in zip([0, *cuts], [*cuts, len(reports)], strict=True)]
+
+
+def drained(decoder: ReportDecoder, parts: list[list[bytes]]) -> tuple[object, ...]:
+    masks: list[int] = []
+    results = [decoder.feed_batch(part, masks.append) for part in parts]
+    return decoder.state(), decoder.reports, decoder.bad_reports, results, masks
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.data())
+def test_the_c_drain_leaves_what_the_python_path_leaves(data: st.DataObject) -> None:
+    layout = data.draw(layouts())
+    parts = data.draw(batches(layout))
+    c_decoder, py_decoder = ReportDecoder(layout), ReportDecoder(layout, compiled=False)
+    assert c_decoder._c_plan is not None and py_decoder._c_plan is None
+    assert drained(c_decoder, parts) == drained(py_decoder, parts)
+
+
+def test_layouts_outside_the_c_drain_take_the_python_path() -> None:
+    wide = InputField(0, 0, 0x10030, 0, 33, 0, 1, False, 0)
+    assert DeviceLayout(0x10004, False, (wide,), 0, {0: 5}).c_plan is None
+    high = ButtonField(0, 60, 8, 0, 1)  # buttons 60..67: past the uint64 mask
+    assert DeviceLayout(0x10004, False, (), 67, {0: 1}, (high,)).c_plan is None
+    broad = ButtonField(0, 1, 1, 0, 70)  # one button 70 bits wide
+    assert DeviceLayout(0x10004, False, (), 1, {0: 9}, (broad,)).c_plan is None
+
+
+def test_the_pure_python_switch_turns_the_c_drain_off(monkeypatch: pytest.MonkeyPatch) -> None:
+    field = InputField(0, 0, 0x10030, 0, 8, 0, 255, False, 0)
+    assert DeviceLayout(0x10004, False, (field,), 0, {0: 1}).c_plan is not None
+    monkeypatch.setenv(speedups.PURE_PYTHON_ENV, "1")
+    assert DeviceLayout(0x10004, False, (field,), 0, {0: 1}).c_plan is None
+
+
+EVENTS = st.builds(
+    RecordedEvent,
+    st.floats(min_value=0, max_value=1e7, allow_nan=False),
+    st.binary(min_size=1, max_size=70),
+)
+
+
+def c_parse(lines: list[str]) -> recording.EventBatch | None:
+    c_loops = speedups.compiled()
+    assert c_loops is not None
+    parsed: recording.EventBatch | None = c_loops.parse_events(lines)
+    return parsed
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(EVENTS, max_size=20), st.sampled_from(["", "\n", "\r\n", "  \n"]))
+def test_lines_as_written_parse_in_c_as_in_python(events: list[RecordedEvent], end: str) -> None:
+    lines = [format_event(e) + end for e in events]
+    parsed = c_parse(lines)
+    assert parsed == recording._events_as_written_py(lines)
+    assert (parsed is None) == (not lines)  # an empty batch is no batch
+
+
+EDITS = st.sampled_from(
+    [
+        "E:  ",
+        "E: -",
+        "e: ",
+        " E: ",
+        "\t",
+        "  ",
+        " 0",
+        "0 ",
+        "x",
+        "1e3",
+        "+",
+        "_",
+        ".",
+        "..",
+        "\u00e9",
+    ]
+)
+
+
+@settings(max_examples=1000, deadline=None)
+@given(st.lists(EVENTS, min_size=1, max_size=4), st.data())
+def test_any_other_spelling_is_the_python_parses_call(
+    events: list[RecordedEvent], data: st.DataObject
+) -> None:
+    """An edited line: the C parse either gives what the Python parse gives, or no verdict."""
+    lines = [format_event(e) for e in events]
+    k = data.draw(st.integers(0, len(lines) - 1))
+    at = data.draw(st.integers(0, len(lines[k])))
+    cut = data.draw(st.integers(0, 2))
+    lines[k] = lines[k][:at] + data.draw(EDITS) + lines[k][at + cut :]
+    parsed = c_parse(lines)
+    if parsed is not None:
+        assert parsed == recording._events_as_written_py(lines)

@@ -1,0 +1,531 @@
+/* usb2rc.hid._speedups: the HID stage's optional C loops.
+ *
+ * Where this module is not built (no C compiler or Python headers at install) or is
+ * switched off (USB2RC_PURE_PYTHON), the Python code it speeds up runs instead, with the
+ * same results: tests/test_speedups.py holds each function to its Python twin.
+ *
+ * Plan.drain: a batch of HID input reports drained in one loop, the compiled form of
+ * `descriptor.ReportDecoder.feed_batch` for the common layouts: every value field at most
+ * 32 bits, every button at most bit 63, no Button-page array.
+ *
+ * Plan(uses_ids, reports): reports is a sequence of
+ *     (report_id, length, keep, fields, buttons)
+ *   report_id  the first byte of the report (ignored without report IDs: one entry)
+ *   length     bytes the report must have, the ID byte included
+ *   keep       the button mask bits this report does not own (uint64)
+ *   fields     ((value_index, bit_offset, bit_size, signed), ...) bit_offset from byte 0
+ *   buttons    ((bit_offset, bit_size, count, first_button), ...) as descriptor.ButtonField
+ *
+ * Plan.drain(batch, values, mask, previous, edges)
+ *     -> (accepted, refused, repeats, mask, changes)
+ *   batch     list of bytes, oldest first
+ *   values    the decoder's list of values: each report ID's last valid report is decoded
+ *             into it (a report sets every field of its ID, so earlier ones never show)
+ *   mask      the button mask before the batch
+ *   previous  the report before the batch (for repeats: reports equal to the one before)
+ *   edges     False: changes are the masks after each report that changed the mask (as
+ *             feed_batch's on_buttons); True: the buttons each such report pressed, for
+ *             every report that pressed one (the reader's press log)
+ *
+ * parse_events(lines): hid-recorder `E:` lines as hid-recorder writes them, the compiled
+ * form of `recording._events_as_written`: (times, reports), or None when any line is not
+ * exactly `E: <digits[.digits]> <length> <length two-digit hex bytes, one space apart>`
+ * followed by whitespace only. None is no verdict: the Python parse then decides (it takes
+ * a few more spellings, and names a bad line).
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <ctype.h>
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+typedef struct {
+    Py_ssize_t index;
+    Py_ssize_t offset;
+    int size;
+    int is_signed;
+} Field;
+
+typedef struct {
+    Py_ssize_t offset;
+    int size;
+    int count;
+    int first;
+} Button;
+
+typedef struct {
+    int report_id;
+    Py_ssize_t length;
+    uint64_t keep;
+    Field *fields;
+    Py_ssize_t n_fields;
+    Button *buttons;
+    Py_ssize_t n_buttons;
+} Report;
+
+typedef struct {
+    PyObject_HEAD
+    int uses_ids;
+    Report *reports;
+    Py_ssize_t n_reports;
+    int by_id[256]; /* report ID -> index in reports, -1: unknown */
+} PlanObject;
+
+/* `n` (1..64) bits of `p` from bit `off`, little-endian as int.from_bytes(r, "little");
+ * bits past the end read 0 (never happens for a report of the plan's length). */
+static uint64_t
+get_bits(const unsigned char *p, Py_ssize_t len, Py_ssize_t off, int n)
+{
+    uint64_t v = 0;
+    int got = 0;
+    Py_ssize_t byte = off >> 3;
+    int shift = (int)(off & 7);
+    while (got < n) {
+        uint64_t b = byte < len ? (uint64_t)(p[byte] >> shift) : 0;
+        v |= b << got;
+        got += 8 - shift;
+        byte++;
+        shift = 0;
+    }
+    return n < 64 ? v & ((UINT64_C(1) << n) - 1) : v;
+}
+
+static uint64_t
+report_buttons(const Report *r, const unsigned char *p, Py_ssize_t len)
+{
+    uint64_t b = 0;
+    for (Py_ssize_t i = 0; i < r->n_buttons; i++) {
+        const Button *k = &r->buttons[i];
+        if (k->size == 1) {
+            b |= get_bits(p, len, k->offset, k->count) << (k->first - 1);
+        } else if (get_bits(p, len, k->offset, k->size)) {
+            b |= UINT64_C(1) << (k->first - 1);
+        }
+    }
+    return b;
+}
+
+static int
+decode_values(const Report *r, const unsigned char *p, Py_ssize_t len, PyObject *values)
+{
+    for (Py_ssize_t i = 0; i < r->n_fields; i++) {
+        const Field *f = &r->fields[i];
+        int64_t v = (int64_t)get_bits(p, len, f->offset, f->size);
+        if (f->is_signed) {
+            int64_t sign = (int64_t)1 << (f->size - 1);
+            v = (v ^ sign) - sign;
+        }
+        PyObject *item = PyLong_FromLongLong(v);
+        if (item == NULL) {
+            return -1;
+        }
+        if (PyList_SetItem(values, f->index, item) < 0) { /* steals item */
+            return -1;
+        }
+    }
+    return 0;
+}
+
+static void
+plan_free_reports(PlanObject *self)
+{
+    for (Py_ssize_t i = 0; i < self->n_reports; i++) {
+        PyMem_Free(self->reports[i].fields);
+        PyMem_Free(self->reports[i].buttons);
+    }
+    PyMem_Free(self->reports);
+    self->reports = NULL;
+    self->n_reports = 0;
+}
+
+static void
+plan_dealloc(PlanObject *self)
+{
+    plan_free_reports(self);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+/* One (index, offset, size, signed) tuple into a Field; -1 with an exception. */
+static int
+parse_field(PyObject *item, void *out)
+{
+    Field *f = out;
+    if (!PyArg_ParseTuple(item, "nnip", &f->index, &f->offset, &f->size, &f->is_signed)) {
+        return -1;
+    }
+    if (f->size < 1 || f->size > 32 || f->index < 0 || f->offset < 0) {
+        PyErr_SetString(PyExc_ValueError, "a field must be 1..32 bits");
+        return -1;
+    }
+    f->is_signed = f->is_signed && f->size > 1;
+    return 0;
+}
+
+/* One (offset, size, count, first) tuple into a Button; -1 with an exception. */
+static int
+parse_button(PyObject *item, void *out)
+{
+    Button *k = out;
+    if (!PyArg_ParseTuple(item, "niii", &k->offset, &k->size, &k->count, &k->first)) {
+        return -1;
+    }
+    int top = k->size == 1 ? k->first - 1 + k->count : k->first;
+    if (k->offset < 0 || k->size < 1 || k->size > 64 || k->count < 1 || k->count > 64
+        || k->first < 1 || top > 64) {
+        PyErr_SetString(PyExc_ValueError, "a button must be within bits 0..63");
+        return -1;
+    }
+    return 0;
+}
+
+/* Every item of `seq` parsed into a new array of `size`-byte elements (*count of them);
+ * NULL with an exception. */
+static void *
+parse_all(PyObject *seq, size_t size, int (*parse)(PyObject *, void *), Py_ssize_t *count)
+{
+    PyObject *fast = PySequence_Fast(seq, "a plan's fields and buttons are sequences");
+    if (fast == NULL) {
+        return NULL;
+    }
+    *count = PySequence_Fast_GET_SIZE(fast);
+    char *items = PyMem_Calloc(*count ? (size_t)*count : 1, size);
+    if (items == NULL) {
+        Py_DECREF(fast);
+        PyErr_NoMemory();
+        return NULL;
+    }
+    for (Py_ssize_t i = 0; i < *count; i++) {
+        if (parse(PySequence_Fast_GET_ITEM(fast, i), items + (size_t)i * size) < 0) {
+            PyMem_Free(items);
+            Py_DECREF(fast);
+            return NULL;
+        }
+    }
+    Py_DECREF(fast);
+    return items;
+}
+
+static int
+plan_init(PlanObject *self, PyObject *args, PyObject *kwds)
+{
+    int uses_ids;
+    PyObject *reports;
+    static char *kwlist[] = {"uses_ids", "reports", NULL};
+    if (!PyArg_ParseTupleAndKeywords(args, kwds, "pO", kwlist, &uses_ids, &reports)) {
+        return -1;
+    }
+    PyObject *fast = PySequence_Fast(reports, "reports must be a sequence");
+    if (fast == NULL) {
+        return -1;
+    }
+    plan_free_reports(self);
+    self->uses_ids = uses_ids;
+    for (int i = 0; i < 256; i++) {
+        self->by_id[i] = -1;
+    }
+    Py_ssize_t n = PySequence_Fast_GET_SIZE(fast);
+    if (n < 1 || n > 256 || (!uses_ids && n != 1)) {
+        Py_DECREF(fast);
+        PyErr_SetString(PyExc_ValueError, "1 report without IDs, 1..256 with");
+        return -1;
+    }
+    self->reports = PyMem_Calloc(n, sizeof(Report));
+    if (self->reports == NULL) {
+        Py_DECREF(fast);
+        PyErr_NoMemory();
+        return -1;
+    }
+    self->n_reports = n;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        Report *r = &self->reports[i];
+        PyObject *fields, *buttons;
+        unsigned long long keep;
+        if (!PyArg_ParseTuple(PySequence_Fast_GET_ITEM(fast, i), "inKOO", &r->report_id,
+                              &r->length, &keep, &fields, &buttons)
+            || (r->fields = parse_all(fields, sizeof(Field), parse_field, &r->n_fields)) == NULL
+            || (r->buttons = parse_all(buttons, sizeof(Button), parse_button, &r->n_buttons))
+                   == NULL) {
+            Py_DECREF(fast);
+            return -1;
+        }
+        r->keep = (uint64_t)keep;
+        if (uses_ids) {
+            if (r->report_id < 0 || r->report_id > 255) {
+                Py_DECREF(fast);
+                PyErr_SetString(PyExc_ValueError, "a report ID is a byte");
+                return -1;
+            }
+            self->by_id[r->report_id] = (int)i;
+        }
+    }
+    Py_DECREF(fast);
+    return 0;
+}
+
+static int
+append_int(PyObject *list, uint64_t v)
+{
+    PyObject *item = PyLong_FromUnsignedLongLong(v);
+    if (item == NULL) {
+        return -1;
+    }
+    int rc = PyList_Append(list, item);
+    Py_DECREF(item);
+    return rc;
+}
+
+static PyObject *
+plan_drain(PlanObject *self, PyObject *args)
+{
+    PyObject *batch, *values, *previous;
+    unsigned long long mask_in;
+    int edges;
+    if (!PyArg_ParseTuple(args, "O!O!KOp", &PyList_Type, &batch, &PyList_Type, &values, &mask_in,
+                          &previous, &edges)) {
+        return NULL;
+    }
+    Py_ssize_t last_of[256]; /* per report of the plan: index in batch of its last valid one */
+    for (Py_ssize_t i = 0; i < self->n_reports; i++) {
+        last_of[i] = -1;
+    }
+    PyObject *changes = PyList_New(0);
+    if (changes == NULL) {
+        return NULL;
+    }
+    uint64_t mask = (uint64_t)mask_in;
+    Py_ssize_t n = PyList_GET_SIZE(batch), refused = 0, repeats = 0;
+    PyObject *before = previous;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *item = PyList_GET_ITEM(batch, i);
+        if (!PyBytes_Check(item)) {
+            Py_DECREF(changes);
+            PyErr_SetString(PyExc_TypeError, "reports must be bytes");
+            return NULL;
+        }
+        const unsigned char *p = (const unsigned char *)PyBytes_AS_STRING(item);
+        Py_ssize_t len = PyBytes_GET_SIZE(item);
+        if (PyBytes_Check(before) && PyBytes_GET_SIZE(before) == len
+            && memcmp(PyBytes_AS_STRING(before), p, (size_t)len) == 0) {
+            repeats++;
+        }
+        before = item;
+        int which = 0;
+        if (self->uses_ids) {
+            which = len > 0 ? self->by_id[p[0]] : -1;
+        }
+        if (which < 0 || len < self->reports[which].length) {
+            refused++;
+            continue;
+        }
+        const Report *r = &self->reports[which];
+        last_of[which] = i;
+        uint64_t b = report_buttons(r, p, len) | (mask & r->keep);
+        if (b != mask) {
+            uint64_t report = edges ? b & ~mask : b;
+            mask = b;
+            if ((!edges || report) && append_int(changes, report) < 0) {
+                Py_DECREF(changes);
+                return NULL;
+            }
+        }
+    }
+    for (Py_ssize_t k = 0; k < self->n_reports; k++) {
+        if (last_of[k] < 0) {
+            continue;
+        }
+        PyObject *item = PyList_GET_ITEM(batch, last_of[k]);
+        const unsigned char *p = (const unsigned char *)PyBytes_AS_STRING(item);
+        if (decode_values(&self->reports[k], p, PyBytes_GET_SIZE(item), values) < 0) {
+            Py_DECREF(changes);
+            return NULL;
+        }
+    }
+    return Py_BuildValue("nnnKN", n - refused, refused, repeats, (unsigned long long)mask,
+                         changes);
+}
+
+static int
+hex_digit(unsigned char c)
+{
+    if (c >= '0' && c <= '9') {
+        return c - '0';
+    }
+    if (c >= 'a' && c <= 'f') {
+        return c - 'a' + 10;
+    }
+    if (c >= 'A' && c <= 'F') {
+        return c - 'A' + 10;
+    }
+    return -1;
+}
+
+/* What str.rstrip() strips, of ASCII (str.isspace). */
+static int
+is_space(unsigned char c)
+{
+    return c == ' ' || (c >= '\t' && c <= '\r') || (c >= 0x1c && c <= 0x1f);
+}
+
+/* One line as written: 1 and its time and report, 0 when it is not (no exception). */
+static int
+parse_event(const char *s, Py_ssize_t n, double *time_s, PyObject **report)
+{
+    if (n < 3 || memcmp(s, "E: ", 3) != 0) {
+        return 0;
+    }
+    Py_ssize_t i = 3, start = 3;
+    int dots = 0;
+    while (i < n && (isdigit((unsigned char)s[i]) || s[i] == '.')) {
+        dots += s[i] == '.';
+        i++;
+    }
+    if (i == start || i >= n || s[i] != ' ' || dots > 1 || s[start] == '.' || s[i - 1] == '.'
+        || i - start > 40) {
+        return 0;
+    }
+    char stamp[48];
+    memcpy(stamp, s + start, (size_t)(i - start));
+    stamp[i - start] = '\0';
+    double t = PyOS_string_to_double(stamp, NULL, NULL);
+    if (t == -1.0 && PyErr_Occurred()) {
+        PyErr_Clear();
+        return 0;
+    }
+    if (!isfinite(t) || t < 0) {
+        return 0;
+    }
+    i++;
+    start = i;
+    Py_ssize_t length = 0;
+    while (i < n && isdigit((unsigned char)s[i]) && i - start < 7) {
+        length = length * 10 + (s[i] - '0');
+        i++;
+    }
+    if (i == start || i >= n || s[i] != ' ' || length < 1) {
+        return 0;
+    }
+    i++;
+    if (n - i < 3 * length - 1) {
+        return 0;
+    }
+    PyObject *bytes = PyBytes_FromStringAndSize(NULL, length);
+    if (bytes == NULL) {
+        PyErr_Clear();
+        return 0;
+    }
+    unsigned char *out = (unsigned char *)PyBytes_AS_STRING(bytes);
+    for (Py_ssize_t k = 0; k < length; k++, i += 3) {
+        int hi = hex_digit((unsigned char)s[i]), lo = hex_digit((unsigned char)s[i + 1]);
+        if (hi < 0 || lo < 0 || (k + 1 < length && s[i + 2] != ' ')) {
+            Py_DECREF(bytes);
+            return 0;
+        }
+        out[k] = (unsigned char)(hi << 4 | lo);
+    }
+    for (i -= 1; i < n; i++) { /* after the last pair: whitespace only (rstrip) */
+        if (!is_space((unsigned char)s[i])) {
+            Py_DECREF(bytes);
+            return 0;
+        }
+    }
+    *time_s = t;
+    *report = bytes;
+    return 1;
+}
+
+static PyObject *
+parse_events(PyObject *module, PyObject *lines)
+{
+    (void)module;
+    PyObject *fast = PySequence_Fast(lines, "lines must be a sequence");
+    if (fast == NULL) {
+        return NULL;
+    }
+    Py_ssize_t n = PySequence_Fast_GET_SIZE(fast);
+    PyObject *times = PyList_New(n), *reports = PyList_New(n);
+    if (times == NULL || reports == NULL || n == 0) {
+        Py_DECREF(fast);
+        Py_XDECREF(times);
+        Py_XDECREF(reports);
+        if (PyErr_Occurred()) {
+            return NULL;
+        }
+        Py_RETURN_NONE;
+    }
+    for (Py_ssize_t k = 0; k < n; k++) {
+        PyObject *line = PySequence_Fast_GET_ITEM(fast, k);
+        double t;
+        PyObject *report = NULL, *stamp;
+        Py_ssize_t size;
+        const char *text = PyUnicode_Check(line) && PyUnicode_IS_ASCII(line)
+                               ? PyUnicode_AsUTF8AndSize(line, &size)
+                               : NULL;
+        if (text == NULL || !parse_event(text, size, &t, &report)
+            || (stamp = PyFloat_FromDouble(t)) == NULL) {
+            Py_XDECREF(report);
+            Py_DECREF(fast);
+            Py_DECREF(times);
+            Py_DECREF(reports);
+            if (PyErr_Occurred()) {
+                return NULL;
+            }
+            Py_RETURN_NONE;
+        }
+        PyList_SET_ITEM(times, k, stamp);
+        PyList_SET_ITEM(reports, k, report);
+    }
+    Py_DECREF(fast);
+    return Py_BuildValue("NN", times, reports);
+}
+
+static PyMethodDef module_methods[] = {
+    {"parse_events", parse_events, METH_O,
+     "parse_events(lines) -> (times, reports), or None: not every line as hid-recorder writes"},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyMethodDef plan_methods[] = {
+    {"drain", (PyCFunction)plan_drain, METH_VARARGS,
+     "drain(batch, values, mask, previous, edges) -> (accepted, refused, repeats, mask, "
+     "changes)"},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyTypeObject PlanType = {
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "usb2rc.hid._speedups.Plan",
+    .tp_basicsize = sizeof(PlanObject),
+    .tp_dealloc = (destructor)plan_dealloc,
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "A device layout's reports, compiled for drain().",
+    .tp_methods = plan_methods,
+    .tp_init = (initproc)plan_init,
+    .tp_new = PyType_GenericNew,
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT,
+    .m_name = "_speedups",
+    .m_doc = "The HID stage's optional C loops.",
+    .m_size = -1,
+    .m_methods = module_methods,
+};
+
+PyMODINIT_FUNC
+PyInit__speedups(void)
+{
+    if (PyType_Ready(&PlanType) < 0) {
+        return NULL;
+    }
+    PyObject *m = PyModule_Create(&module);
+    if (m == NULL) {
+        return NULL;
+    }
+    Py_INCREF(&PlanType);
+    if (PyModule_AddObject(m, "Plan", (PyObject *)&PlanType) < 0) {
+        Py_DECREF(&PlanType);
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
+}

@@ -1,0 +1,21 @@
+from collections.abc import Sequence
+
+class Plan:
+    def __init__(
+        self,
+        uses_ids: bool,
+        reports: Sequence[
+            tuple[
+                int,
+                int,
+                int,
+                Sequence[tuple[int, int, int, bool]],
+                Sequence[tuple[int, int, int, int]],
+            ]
+        ],
+    ) -> None: ...
+    def drain(
+        self, batch: list[bytes], values: list[int], mask: int, previous: bytes, edges: bool
+    ) -> tuple[int, int, int, int, list[int]]: ...
+
+def parse_events(lines: Sequence[str]) -> tuple[list[float], list[bytes]] | None: ...
