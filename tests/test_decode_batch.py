@@ -15,7 +15,7 @@ from pathlib import Path
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from usb2rc.hid.descriptor import DeviceLayout, parse_descriptor
+from usb2rc.hid.descriptor import DeviceLayout, ReportDecoder, parse_descriptor
 
 REAL = [
     parse_descriptor(bytes.fromhex(d["hex"]))
@@ -78,7 +78,22 @@ def batched(layout: DeviceLayout, batches: list[list[bytes]]) -> tuple[object, .
         decoder.reports,
         decoder.bad_reports,
     )
+    for compiled in (True, False):  # feed_presses: the rising edges of those masks
+        presser = ReportDecoder(layout, compiled=compiled)
+        pressed = [p for batch in batches for p in presser.feed_presses(list(batch))[2]]
+        assert pressed == rising_edges(masks)
+        assert presser.state() == decoder.state()
     return decoder.state(), decoder.reports, decoder.bad_reports, accepted, masks
+
+
+def rising_edges(masks: list[int]) -> list[int]:
+    """The buttons each change pressed (bits up before it), for the changes that pressed."""
+    before, edges = 0, []
+    for mask in masks:
+        if mask & ~before:
+            edges.append(mask & ~before)
+        before = mask
+    return edges
 
 
 @settings(max_examples=300, deadline=None)

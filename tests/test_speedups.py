@@ -3,7 +3,8 @@
 The drain:
 `ReportDecoder.feed_batch` takes the C drain where it is built and the layout allows; the
 Python path is what runs without it. Both must leave the same values, button masks and
-counts, and report the same masks after each change (`on_buttons`): here on layouts with
+counts, and report the same masks after each change (`on_buttons`) and the same presses
+(`feed_presses`, a pulled reader's press log): here on layouts with
 signed and unsigned values of 1..32 bits at any bit offset, one-bit button runs and wide
 buttons anywhere in bits 0..63, with and without report IDs (several IDs may share buttons),
 and batches with short, empty and unknown-ID reports. The real descriptors are in
@@ -94,6 +95,11 @@ def drained(decoder: ReportDecoder, parts: list[list[bytes]]) -> tuple[object, .
     return decoder.state(), decoder.reports, decoder.bad_reports, results, masks
 
 
+def pressed(decoder: ReportDecoder, parts: list[list[bytes]]) -> tuple[object, ...]:
+    results = [decoder.feed_presses(part) for part in parts]
+    return decoder.state(), decoder.reports, decoder.bad_reports, results
+
+
 @settings(max_examples=500, deadline=None)
 @given(st.data())
 def test_the_c_drain_leaves_what_the_python_path_leaves(data: st.DataObject) -> None:
@@ -102,6 +108,8 @@ def test_the_c_drain_leaves_what_the_python_path_leaves(data: st.DataObject) -> 
     c_decoder, py_decoder = ReportDecoder(layout), ReportDecoder(layout, compiled=False)
     assert c_decoder._c_plan is not None and py_decoder._c_plan is None
     assert drained(c_decoder, parts) == drained(py_decoder, parts)
+    c_decoder, py_decoder = ReportDecoder(layout), ReportDecoder(layout, compiled=False)
+    assert pressed(c_decoder, parts) == pressed(py_decoder, parts)
 
 
 def test_layouts_outside_the_c_drain_take_the_python_path() -> None:

@@ -1118,6 +1118,35 @@ class ReportDecoder:
         self.bad_reports += refused
         return accepted, refused
 
+    def feed_presses(self, reports: list[bytes]) -> tuple[int, int, list[int]]:
+        """`feed_batch`, and the buttons each accepted report pressed (its bits that were
+        up before it), for every report that pressed one, in order: a pulled reader's
+        press log (no tap lost, even one released within the batch). Returns (accepted,
+        refused, pressed)."""
+        if self._c_plan is not None:
+            accepted, refused, _repeats, mask, pressed = self._c_plan.drain(
+                reports, self._values, self._buttons, b"", True
+            )
+            self._took(accepted, refused, mask)
+            return accepted, refused, pressed
+        before = self._buttons
+        masks: list[int] = []
+        accepted, refused = self.feed_batch(reports, masks.append)
+        pressed = []
+        for mask in masks:
+            if rising := mask & ~before:
+                pressed.append(rising)
+            before = mask
+        return accepted, refused, pressed
+
+    def _took(self, accepted: int, refused: int, mask: int) -> None:
+        """The C drain's counts and mask (its values are already in `_values`)."""
+        if accepted:
+            self._buttons = mask
+            self._state = None
+        self.reports += accepted
+        self.bad_reports += refused
+
     def _c_drain(
         self,
         plan: Plan,
@@ -1132,11 +1161,7 @@ class ReportDecoder:
         if on_buttons is not None:
             for changed in changes:
                 on_buttons(changed)
-        if accepted:
-            self._buttons = mask
-            self._state = None
-        self.reports += accepted
-        self.bad_reports += refused
+        self._took(accepted, refused, mask)
         return accepted, refused
 
     def state(self) -> InputState:

@@ -81,11 +81,13 @@ class Decoder(Protocol):
 
 @runtime_checkable
 class ButtonsDecoder(Decoder, Protocol):
-    """A decoder whose current button mask is cheap to read (descriptor.ReportDecoder): the
+    """A decoder that tells the buttons each report pressed (descriptor.ReportDecoder): the
     reader then notes every press, for the taps between two ticks."""
 
     @property
     def buttons(self) -> int: ...
+
+    def feed_presses(self, reports: list[bytes]) -> tuple[int, int, list[int]]: ...
 
 
 OnExit = Callable[["DeviceReader", ErrorCode | None], None]
@@ -158,7 +160,6 @@ class DeviceReader(Worker):
         self._press_decoder = decoder if isinstance(decoder, ButtonsDecoder) else None
         # the replay backend's `read_due` (everything due, in one call), if the device has it
         self._read_due: Callable[[int], list[bytes]] | None = getattr(device, "read_due", None)
-        self._buttons = 0  # the mask after the last report, for rising edges
         self._last_report = b""  # the raw report before, for `repeats`
         self._repeats = 0
         self._presses: tuple[tuple[int, int], ...] = ()
@@ -206,11 +207,14 @@ class DeviceReader(Worker):
     def _handle(self, report: bytes) -> None:
         repeated = report == self._last_report
         self._last_report = report
+        before = self._press_decoder.buttons if self._press_decoder is not None else 0
         if self.decoder.feed(report):
             self._repeats += repeated
             self._reports += 1
-            if self._press_decoder is not None:
-                self._note_presses([self._press_decoder.buttons])
+            if self._press_decoder is not None and (
+                rising := self._press_decoder.buttons & ~before
+            ):
+                self._note_presses([rising])
             self._count_refused(accepted=1, refused=0)
         else:
             self._bad_reports += 1
@@ -227,24 +231,15 @@ class DeviceReader(Worker):
         if before < BAD_REPORTS_LIMIT <= self._refused_in_a_row:
             self._bad_spells += 1
 
-    def _note_presses(self, masks: list[int]) -> None:
-        """Every press, even one released before the record is published (a tap): `masks`
-        are the button masks after each report that changed them, in order (a batch's, as
-        `ReportDecoder.feed_batch`'s `on_buttons` collects them); one entry per report that
-        pressed a button, the press log rebuilt once."""
-        before = self._buttons
+    def _note_presses(self, pressed: list[int]) -> None:
+        """Every press, even one released before the record is published (a tap): `pressed`
+        holds the buttons each report pressed, for every report that pressed one, in order
+        (a batch's, as `ReportDecoder.feed_presses` gives them); one entry each, numbered on
+        from the last, the press log rebuilt once."""
         serial = self._press_serial
-        presses = []
-        for buttons in masks:
-            rising = buttons & ~before
-            before = buttons
-            if rising:
-                serial += 1
-                presses.append((serial, rising))
-        self._buttons = before
-        if presses:
-            self._press_serial = serial
-            self._presses = (*self._presses, *presses)[-PRESSES_KEPT:]
+        self._press_serial = serial + len(pressed)
+        numbered = zip(range(serial + 1, serial + 1 + len(pressed)), pressed, strict=True)
+        self._presses = (*self._presses, *numbered)[-PRESSES_KEPT:]
 
     def _queued(self) -> list[bytes]:
         """What the device has queued, read without blocking, at most MAX_BATCH reports. The
@@ -271,11 +266,12 @@ class DeviceReader(Worker):
         of each report ID shows in the state (`ReportDecoder.feed_batch` decodes just
         those), and every press is noted, even one released within the batch (no lost
         taps)."""
-        masks: list[int] = []
-        on_buttons = masks.append if self._press_decoder is not None else None
-        accepted, refused = self.decoder.feed_batch(batch, on_buttons)
-        if masks:
-            self._note_presses(masks)
+        if self._press_decoder is not None:
+            accepted, refused, pressed = self._press_decoder.feed_presses(batch)
+            if pressed:
+                self._note_presses(pressed)
+        else:
+            accepted, refused = self.decoder.feed_batch(batch)
         if not refused:  # a run of the same refused report is no sign of streaming
             self._repeats += sum(map(operator.eq, batch, [self._last_report, *batch[:-1]]))
         self._last_report = batch[-1]
