@@ -1,7 +1,7 @@
 """The daemon's CPU cost on its hot path, several source trees in turn in one run.
 
     .venv/bin/python bench/bench_hot_path.py --trees /tmp/base . [--rounds 3] [--seconds 10]
-        [--only c2 five five16 idle] [--json PATH]
+        [--only c2 five five16 idle] [--live] [--json PATH]
 
 Each tree runs its own code: `python -m usb2rc run --replay DIR --config CFG --status-socket
 off --log-level info` with that tree as cwd and PYTHONPATH (this interpreter). For each round,
@@ -15,6 +15,11 @@ of them, so 16 devices are those and the first four again.
   socket, each at its default rate.
 - five16: the five outputs with 16 devices.
 - idle: C2-16B on a pty, no device.
+
+With `--live` every device rests for its first second (its guarded axes where its guard
+wants them) and its node goes live before the window: the frames carry the values, CRSF
+and MAVLink send (random reports never rest, so without it every node waits in the neutral
+guard, CRSF is silent and MAVLink releases its overrides).
 
 The far ends (pty masters, the UDP socket) are read and dropped by a thread here. Once the
 daemon logs its first frame, and after a warm-up, a window of --seconds is measured from
@@ -50,7 +55,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
 from bench_daemon import STATS_BUSY_RE, STATS_DEV_RE, STATS_OUT_RE, OutputDrain  # noqa: E402
-from daemon_harness import real_device_recordings  # noqa: E402
+from daemon_harness import live_device_recordings, real_device_recordings  # noqa: E402
 
 FIVE = ("c2-16b", "sumd", "crsf", "sbus", "mavlink")
 CHANNELS = "[node0.x, node0.y, node1.x, node2.x]"  # the four outputs other than C2-16B
@@ -229,9 +234,10 @@ def config_text(protocols: Sequence[str], ports: Sequence[str]) -> str:
 
 
 def measure(
-    tree: Path, scenario: Scenario, replay_dir: Path, window: float, workdir: Path
+    tree: Path, scenario: Scenario, replay_dir: Path, window: float, workdir: Path, live: bool
 ) -> dict[str, float]:
-    """Start the tree's daemon, warm up, measure one window, stop it."""
+    """Start the tree's daemon, warm up (`live`: until every node is live), measure one
+    window, stop it."""
     drain = OutputDrain(scenario.protocols)
     try:
         config = workdir / "config.yaml"
@@ -239,6 +245,8 @@ def measure(
         outputs, devices = len(scenario.protocols), scenario.devices
         with daemon_running(tree, replay_dir, config, workdir / "daemon.log") as daemon:
             daemon.wait_for_log("first frame written", START_TIMEOUT_S)
+            for node in range(devices if live else 0):  # one node per device, zero config
+                daemon.wait_for_log(f"node {node} leaves failsafe", START_TIMEOUT_S)
             time.sleep(WARMUP_S)
             s0 = daemon.stats(outputs, devices)
             a, t0 = threads_now(daemon.proc.pid), time.monotonic()
@@ -273,12 +281,14 @@ def measure(
     }
 
 
-def write_recordings(workdir: Path, devices: int, seconds: float) -> Path:
+def write_recordings(workdir: Path, devices: int, seconds: float, live: bool) -> Path:
     """`devices` recordings in a directory of their own. There are fewer real descriptors
-    than 16 (12 with inputs, the T.16000M aside): past them, the first ones again."""
+    than 16 (12 with inputs, the T.16000M aside): past them, the first ones again. `live`:
+    each rests first, so its node goes live (daemon_harness.live_device_recordings)."""
     replay_dir = workdir / f"replay{devices}"
     replay_dir.mkdir()
-    texts = real_device_recordings(devices, seconds, REPORT_HZ) if devices else []
+    recordings = live_device_recordings if live else real_device_recordings
+    texts = recordings(devices, seconds, REPORT_HZ) if devices else []
     for i in range(devices):  # (a count of 0 would have got every descriptor)
         (replay_dir / f"dev{i}.hid").write_text(texts[i % len(texts)])
     return replay_dir
@@ -338,6 +348,9 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=10.0, help="measured window (10 s)")
     parser.add_argument("--only", nargs="+", choices=SCENARIOS, default=list(SCENARIOS))
     parser.add_argument("--json", metavar="PATH", help="also write the JSON line here")
+    parser.add_argument(
+        "--live", action="store_true", help="devices rest first: every node live (flight)"
+    )
     args = parser.parse_args()
     if args.rounds < 1 or args.seconds <= 0:
         parser.error("--rounds must be >= 1 and --seconds > 0")
@@ -355,7 +368,7 @@ def main() -> None:
         workdir = Path(tmp)
         recording_s = max(RECORDING_S, args.seconds + 60.0)
         replay_dirs = {
-            n: write_recordings(workdir, n, recording_s)
+            n: write_recordings(workdir, n, recording_s, args.live)
             for n in sorted({SCENARIOS[name].devices for name in args.only})
         }
         for round_no in range(1, args.rounds + 1):
@@ -363,14 +376,20 @@ def main() -> None:
                 for tree in trees:
                     scenario = SCENARIOS[name]
                     figures = measure(
-                        tree, scenario, replay_dirs[scenario.devices], args.seconds, workdir
+                        tree,
+                        scenario,
+                        replay_dirs[scenario.devices],
+                        args.seconds,
+                        workdir,
+                        args.live,
                     )
                     results[name][str(tree)].append(figures)
                     print(f"round {round_no}/{args.rounds} {name} {tree}: "
                           f"{json.dumps(rounded(figures))}", file=sys.stderr)  # fmt: skip
     print(
         f"hot path bench: {args.rounds} round(s), window {args.seconds:g} s after "
-        f"{WARMUP_S:g} s warm-up, load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} "
+        f"{WARMUP_S:g} s warm-up, {'live nodes' if args.live else 'random reports'}, "
+        f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} "
         "cores; per tree: median (each round)"
     )
     for tree, revision in revisions.items():
@@ -384,6 +403,7 @@ def main() -> None:
         "rounds": args.rounds,
         "seconds": args.seconds,
         "warmup_s": WARMUP_S,
+        "live": args.live,
         "loadavg": round(os.getloadavg()[0], 2),
         "scenarios": scenarios,
     }

@@ -177,6 +177,61 @@ def real_device_recordings(count: int, seconds: float, rate_hz: float) -> list[s
     return texts
 
 
+def live_device_recordings(count: int, seconds: float, rate_hz: float) -> list[str]:
+    """As `real_device_recordings`, but each device rests for its first REST_LEAD_S (every
+    guarded axis where its zero-config guard wants it, the others and the hats centred, no
+    button), so its node goes live: random reports after that keep it live, as a pilot's
+    sticks do in flight."""
+    import random
+
+    from usb2rc.hid.descriptor import parse_descriptor
+
+    rng = random.Random(11)
+    texts = []
+    for device in _real_devices():
+        layout = parse_descriptor(bytes.fromhex(device["hex"]))
+        if not layout.inputs or device["name"].startswith("Thrustmaster T.16000M"):
+            continue
+        texts.append(random_report_recording(device, seconds, rate_hz, rng, REST_LEAD_S))
+        if len(texts) == count:
+            break
+    return texts
+
+
+REST_LEAD_S = 1.0  # live_device_recordings: the rest before the random reports
+
+
+def _rest_reports(device: dict[str, str]) -> dict[int, bytes]:
+    """Each input report ID's report at rest: guarded axes at their zero-config rest point
+    (the device database's, else by usage), the other values at their centre, hats null,
+    no button."""
+    from usb2rc.hid.descriptor import parse_descriptor
+    from usb2rc.hid.usages import GD_HAT_SWITCH
+    from usb2rc.nodes import known_devices
+    from usb2rc.nodes.binding import default_axis_fields, default_binding
+    from usb2rc.nodes.mapping import AXIS_NAMES
+
+    layout = parse_descriptor(bytes.fromhex(device["hex"]))
+    known = known_devices.lookup(int(device["vid"], 16), int(device["pid"], 16))
+    values = {
+        f.index: f.null_value() if f.usage == GD_HAT_SWITCH else f.centre() for f in layout.inputs
+    }
+    slots = dict(default_axis_fields(layout))
+    for axis in default_binding(layout, device["name"], known=known).guard.axes:
+        f = slots[AXIS_NAMES[axis.slot]]
+        values[f.index] = {"low": f.logical_min, "high": f.logical_max}.get(axis.arm, f.centre())
+    id_bits = 8 if layout.uses_report_ids else 0
+    reports = {}
+    for rid, length in layout.input_report_lengths.items():
+        word = rid if id_bits else 0
+        for f in layout.inputs:
+            if f.report_id == rid:
+                raw = values[f.index] & ((1 << f.bit_size) - 1)
+                word |= raw << (f.bit_offset + id_bits)
+        reports[rid] = word.to_bytes(length + id_bits // 8, "little")
+    return reports
+
+
 # The four models of issue 22's bench of real descriptors (names as in real-devices.json).
 BENCH_MODELS = (
     "Saitek/Logitech X52",
@@ -213,21 +268,25 @@ def _real_devices() -> list[dict[str, str]]:
 
 
 def random_report_recording(
-    device: dict[str, str], seconds: float, rate_hz: float, rng: Any
+    device: dict[str, str], seconds: float, rate_hz: float, rng: Any, rest_s: float = 0.0
 ) -> str:
     """A recording of one real-devices.json entry: random reports, `rate_hz` of them a
-    second, of its input report IDs in turn."""
+    second, of its input report IDs in turn; in the first `rest_s`, its reports at rest
+    (`_rest_reports`)."""
     from usb2rc.hid.descriptor import parse_descriptor
     from usb2rc.hid.recording import RecordedEvent, Recording, format_recording
 
     descriptor = bytes.fromhex(device["hex"])
     layout = parse_descriptor(descriptor)
     ids = sorted(layout.input_report_lengths.items())
+    at_rest = _rest_reports(device) if rest_s > 0 else {}
     events = []
     for i in range(int(seconds * rate_hz)):
         rid, length = ids[i % len(ids)]
         head = bytes([rid]) if layout.uses_report_ids else b""
-        events.append(RecordedEvent(i / rate_hz, head + rng.randbytes(length)))
+        resting = i < rest_s * rate_hz
+        report = at_rest[rid] if resting else head + rng.randbytes(length)
+        events.append(RecordedEvent(i / rate_hz, report))
     vid, pid = int(device["vid"], 16), int(device["pid"], 16)
     rec = Recording(descriptor, device["name"], "", 3, vid, pid, tuple(events))
     return format_recording(rec)

@@ -206,3 +206,29 @@ def test_baseline_is_well_formed() -> None:
     assert baseline["runs"] >= 1 and baseline["machine"]["cores"]
     for key in ("period_p99_error_ms", "latency_mean_ms", "cpu_pct", "decode_us_median"):
         assert key in baseline["figures"], key
+
+
+def test_live_recordings_rest_where_each_guard_wants() -> None:
+    """bench_hot_path.py --live: each device's first reports satisfy its zero-config neutral
+    guard (so its node goes live), and the random ones come after."""
+    from daemon_harness import _real_devices, _rest_reports
+
+    from usb2rc.hid.descriptor import parse_descriptor
+    from usb2rc.nodes import known_devices
+    from usb2rc.nodes.binding import default_binding
+
+    checked = 0
+    for device in _real_devices():
+        layout = parse_descriptor(bytes.fromhex(device["hex"]))
+        if not layout.inputs:
+            continue
+        known = known_devices.lookup(int(device["vid"], 16), int(device["pid"], 16))
+        binding = default_binding(layout, device["name"], known=known)
+        decoder = layout.make_decoder()
+        for report in _rest_reports(device).values():
+            assert decoder.feed(report)
+        state = decoder.state()
+        assert binding.guard.waiting_for(binding.apply(state).axes) == [], device["name"]
+        assert state.buttons == 0
+        checked += bool(binding.guard.axes)
+    assert checked >= 8  # most real devices guard some axis
