@@ -304,6 +304,10 @@ class DeviceBinding:
             info is not None and info.field_index is None for info in self.axis_info
         )
         self.group1_mask, self.group2_mask = self._masks()
+        # the guard's slots only: what a device waiting in the guard needs of a step
+        guarded = {axis.slot for axis in guard.axes}
+        self._guarded_axes = tuple((slot, fn) for slot, fn in self._axes if slot in guarded)
+        self._failsafe_of: tuple[NodeInputs | None, NodeInputs] | None = None
 
     def same_axes(self, other: DeviceBinding) -> bool:
         """Whether both send the same axis values for the same reports: the same sources,
@@ -368,8 +372,27 @@ class DeviceBinding:
             tuple(axes), groups[0], groups[1], bool(buttons & self._handover_mask), low
         )
 
+    def guarded_inputs(self, state: InputState) -> NodeInputs:
+        """`apply`'s values of the guarded axes only (every other slot None, no button): what
+        the neutral guard looks at while the device waits, without the rest of `apply`."""
+        values, buttons = state.values, state.buttons
+        axes: list[int | None] = [None] * NUM_AXES
+        for slot, fn in self._guarded_axes:
+            axes[slot] = fn(values, buttons)
+        return NodeInputs(tuple(axes), 0, 0)
+
     def failsafe(self, last: NodeInputs | None = None) -> NodeInputs:
-        """Axes: the configured failsafe value, else the last value (0 if none); no buttons."""
+        """Axes: the configured failsafe value, else the last value (0 if none); no buttons.
+        The same `last` as the call before gives the same value (a waiting device asks at
+        every step): worked out again only when `last` is another."""
+        memo = self._failsafe_of
+        if memo is not None and memo[0] is last:
+            return memo[1]
+        inputs = self._failsafe_inputs(last)
+        self._failsafe_of = (last, inputs)
+        return inputs
+
+    def _failsafe_inputs(self, last: NodeInputs | None) -> NodeInputs:
         axes: list[int | None] = [None] * NUM_AXES
         for slot, _ in self._axes:
             configured = self._failsafe[slot]

@@ -206,15 +206,19 @@ class _Attached:
             return self._view(record, self.binding.failsafe(self.last_inputs), False)
         if not self._known(record):
             return self._view(record, self.binding.failsafe(self.last_inputs), False)
-        inputs = self.binding.apply(record.state)
-        if trims:
-            inputs = trimmed(inputs, trims, self.binding)
         if not self.armed:
+            # the guard looks at its own axes only: the rest of `apply` waits for the arming
+            guarded = self.binding.guarded_inputs(record.state)
+            if trims:
+                guarded = trimmed(guarded, trims, self.binding)
             timed = (record, record.reports, record.at)
-            self.waiting = self.rest.check(self.binding.guard, inputs.axes, trims, timed, now)
+            self.waiting = self.rest.check(self.binding.guard, guarded.axes, trims, timed, now)
             if self.waiting:
                 return self._view(record, self.binding.failsafe(self.last_inputs), False)
             self.armed = True
+        inputs = self.binding.apply(record.state)
+        if trims:
+            inputs = trimmed(inputs, trims, self.binding)
         return self._view(record, inputs, True, trims)
 
     def _view(
