@@ -9,8 +9,10 @@ fails, a close wakes a waiting read, and no thread besides the reader's.
 from __future__ import annotations
 
 import errno
+import io
 import threading
 import time
+from collections.abc import Iterable
 from pathlib import Path
 
 import pytest
@@ -49,10 +51,12 @@ def line_at_a_time(lines: list[str]) -> tuple[list[RecordedEvent], str | None]:
     return events, None
 
 
-def in_batches(lines: list[str]) -> tuple[list[RecordedEvent], str | None]:
+def in_batches(lines: list[str], as_file: bool = False) -> tuple[list[RecordedEvent], str | None]:
+    """`as_file`: read from a text file (blocks of BLOCK_CHARS), not from a list of lines."""
     events: list[RecordedEvent] = []
+    source: Iterable[str] = io.StringIO("".join(lines)) if as_file else lines
     try:
-        _, batches = open_recording_batches(lines, source="x")
+        _, batches = open_recording_batches(source, source="x")
         for times, reports in batches:
             assert times, "a batch is never empty"
             events += [RecordedEvent(t, r) for t, r in zip(times, reports, strict=True)]
@@ -94,6 +98,25 @@ def test_batches_give_what_a_line_at_a_time_gives(lines: list[str]) -> None:
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(recording, "BATCH_LINES", 4)  # many batches, every boundary
         assert in_batches(HEADER + lines) == line_at_a_time(HEADER + lines)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(st.one_of(_WRITTEN, _WRITTEN, _WRITTEN, _ODD), max_size=40),
+    st.integers(1, 90),
+    st.sampled_from(["", "\n"]),
+)
+def test_blocks_of_a_file_give_what_a_line_at_a_time_gives(
+    lines: list[str], block: int, last_end: str
+) -> None:
+    """Blocks that cut lines anywhere (a line's end waits for the next block), and a last
+    line with or without its newline."""
+    lines = [line.rstrip("\n") + "\n" for line in lines]  # one line each in the file
+    if lines:
+        lines[-1] = lines[-1].rstrip("\n") + last_end
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(recording, "BLOCK_CHARS", block)
+        assert in_batches(HEADER + lines, as_file=True) == line_at_a_time(HEADER + lines)
 
 
 def test_a_bad_line_in_a_batch_comes_after_the_good_ones_before_it() -> None:

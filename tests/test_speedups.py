@@ -18,6 +18,8 @@ answered (else the speed-up never runs).
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 
 import pytest
 from hypothesis import given, settings
@@ -121,11 +123,24 @@ def test_layouts_outside_the_c_drain_take_the_python_path() -> None:
     assert DeviceLayout(0x10004, False, (), 1, {0: 9}, (broad,)).c_plan is None
 
 
-def test_the_pure_python_switch_turns_the_c_drain_off(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_pure_python_switch_turns_the_c_loops_off() -> None:
+    """Read at import, as the daemon starts: a process started with it runs the twins."""
     field = InputField(0, 0, 0x10030, 0, 8, 0, 255, False, 0)
     assert DeviceLayout(0x10004, False, (field,), 0, {0: 1}).c_plan is not None
-    monkeypatch.setenv(speedups.PURE_PYTHON_ENV, "1")
-    assert DeviceLayout(0x10004, False, (field,), 0, {0: 1}).c_plan is None
+    script = (
+        "from usb2rc.hid import speedups\n"
+        "from usb2rc.hid.descriptor import DeviceLayout, InputField\n"
+        "field = InputField(0, 0, 0x10030, 0, 8, 0, 255, False, 0)\n"
+        "assert speedups.compiled() is None\n"
+        "assert DeviceLayout(0x10004, False, (field,), 0, {0: 1}).c_plan is None\n"
+        "print(speedups.status())\n"
+    )
+    env = dict(os.environ, **{speedups.PURE_PYTHON_ENV: "1"})
+    done = subprocess.run(
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert "switched off" in done.stdout
 
 
 EVENTS = st.builds(
@@ -186,3 +201,19 @@ def test_any_other_spelling_is_the_python_parses_call(
     parsed = c_parse(lines)
     if parsed is not None:
         assert parsed == recording._events_as_written_py(lines)
+
+
+STAMPS = st.tuples(
+    st.text("0123456789", min_size=1, max_size=19), st.text("0123456789", max_size=19)
+).map(lambda parts: f"{parts[0]}.{parts[1]}" if parts[1] else parts[0])
+
+
+@settings(max_examples=1000, deadline=None)
+@given(STAMPS, st.binary(min_size=1, max_size=4))
+def test_a_stamp_reads_as_float_reads_it(stamp: str, report: bytes) -> None:
+    """Up to 15 digits the C parse divides (one correctly rounded division); beyond, it asks
+    float()'s own parser: either way the same float, bit for bit."""
+    line = f"E: {stamp} {len(report)} {report.hex(' ')}\n"
+    parsed = c_parse([line])
+    assert parsed is not None
+    assert parsed[0][0].hex() == float(stamp).hex()

@@ -367,6 +367,45 @@ is_space(unsigned char c)
     return c == ' ' || (c >= '\t' && c <= '\r') || (c >= 0x1c && c <= 0x1f);
 }
 
+/* The value of `n` characters of digits with at most one '.' inside, as float() reads
+ * them: N / 10**k (N the digits as an integer, k those after the point) is one correctly
+ * rounded division when N < 2**53 and 10**k is exact (k <= 22), which is float()'s own
+ * answer; any other stamp is read by PyOS_string_to_double (float()'s parser). -1 when it
+ * cannot be read or is not finite. */
+static double
+stamp_seconds(const char *s, Py_ssize_t n)
+{
+    static const double exact[] = {1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,
+                                   1e8,  1e9,  1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
+                                   1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
+    uint64_t digits = 0;
+    int count = 0, after = -1;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        if (s[i] == '.') {
+            after = 0;
+            continue;
+        }
+        if (count < 19) {
+            digits = digits * 10 + (uint64_t)(s[i] - '0');
+        }
+        count++;
+        after += after >= 0;
+    }
+    int k = after < 0 ? 0 : after;
+    if (count <= 15 && k <= 22) { /* 10**15 < 2**53 */
+        return (double)digits / exact[k];
+    }
+    char stamp[48];
+    memcpy(stamp, s, (size_t)n);
+    stamp[n] = '\0';
+    double t = PyOS_string_to_double(stamp, NULL, NULL);
+    if (t == -1.0 && PyErr_Occurred()) {
+        PyErr_Clear();
+        return -1;
+    }
+    return isfinite(t) && t >= 0 ? t : -1;
+}
+
 /* One line as written: 1 and its time and report, 0 when it is not (no exception). */
 static int
 parse_event(const char *s, Py_ssize_t n, double *time_s, PyObject **report)
@@ -384,15 +423,8 @@ parse_event(const char *s, Py_ssize_t n, double *time_s, PyObject **report)
         || i - start > 40) {
         return 0;
     }
-    char stamp[48];
-    memcpy(stamp, s + start, (size_t)(i - start));
-    stamp[i - start] = '\0';
-    double t = PyOS_string_to_double(stamp, NULL, NULL);
-    if (t == -1.0 && PyErr_Occurred()) {
-        PyErr_Clear();
-        return 0;
-    }
-    if (!isfinite(t) || t < 0) {
+    double t = stamp_seconds(s + start, i - start);
+    if (t < 0) {
         return 0;
     }
     i++;

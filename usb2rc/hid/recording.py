@@ -26,11 +26,14 @@ class RecordingError(ValueError):
     """A hid-recorder file that cannot be used; the message names the line."""
 
 
-# A replayed device parses its file as it plays it, a batch of this many lines at a time:
-# its lines as hid-recorder writes them in a few C loops over the batch (`_events_as_written`),
-# ~0.6 µs a line, not the ~1.6 µs of a line at a time. 256 lines were no faster and held
-# twice the memory (bench/README.md, issue 40).
+# A replayed device parses its file as it plays it, a batch at a time: from its file a block
+# of BLOCK_CHARS characters split into lines here (a text file's own line iteration cost
+# ~3.5x the split), from a list of lines BATCH_LINES of them. Its lines as hid-recorder
+# writes them are parsed in one C call (usb2rc.hid.speedups) or a few C loops over the
+# batch (`_events_as_written`). 16 KB (~40-280 lines) held the per-batch overhead below
+# the lines' own cost; 32 KB was no faster (bench/README.md, issue 40).
 BATCH_LINES = 64
+BLOCK_CHARS = 16384
 
 # Recorded times (seconds since the recording's start) and reports, in file order.
 EventBatch = tuple[list[float], list[bytes]]
@@ -197,10 +200,10 @@ class _LineParser:
         return None
 
     def batches(self, lines: Iterator[str], lineno: int) -> Iterator[EventBatch]:
-        """The events of `lines` (the first is line `lineno + 1`), BATCH_LINES lines at a
-        time; a batch with no event is not yielded. At a bad line, the events before it
-        come out first, then its RecordingError."""
-        while chunk := list(islice(lines, BATCH_LINES)):
+        """The events of `lines` (the first is line `lineno + 1`), a chunk of lines at a
+        time (`_line_chunks`); a batch with no event is not yielded. At a bad line, the
+        events before it come out first, then its RecordingError."""
+        for chunk in _line_chunks(lines):
             size = len(chunk)
             written = _events_as_written(chunk) if self.device_index == 0 else None
             if written is None:
@@ -229,6 +232,25 @@ class _LineParser:
         return Recording(
             self.descriptor, self.name, self.phys, self.bus, self.vid, self.pid, events
         )
+
+
+def _line_chunks(lines: Iterator[str]) -> Iterator[list[str]]:
+    """The lines in lists: from a text file (what has `read`), a block of BLOCK_CHARS at a
+    time split at its newlines (a line the block cuts waits for the next block; the lines
+    come without their newline), else BATCH_LINES lines at a time."""
+    read = getattr(lines, "read", None)
+    if read is None:
+        while chunk := list(islice(lines, BATCH_LINES)):
+            yield chunk
+        return
+    pending = ""
+    while block := read(BLOCK_CHARS):
+        chunk = (pending + block).split("\n")
+        pending = chunk.pop()
+        if chunk:
+            yield chunk
+    if pending:
+        yield [pending]
 
 
 def parse_recording(lines: Iterable[str], source: str = "<recording>") -> Recording:

@@ -12,7 +12,7 @@ A plug does not read the whole recording: the directory scan parses a new file's
 only (descriptor, name, IDs: what `DeviceInfo` needs) and looks for a fault mark (a scan in
 1 MB chunks), and a device reads its events from the file as they come due, in its reader's
 thread: it holds the open file, its position and one batch of parsed events
-(`recording.BATCH_LINES` lines), never the text nor the events it played (a loop reads the
+(`recording.BLOCK_CHARS` of text), never the text nor the events it played (a loop reads the
 file again from the top each lap). So a 20 MB recording costs a batch's memory, and a plug
 does not parse thousands of lines at once on a thread that shares the GIL with the outputs
 (bench/bench_plug_cost.py). The price: an `E:` line that is not valid is found when its

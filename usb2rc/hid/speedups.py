@@ -21,10 +21,13 @@ except ImportError:  # pragma: no cover - a machine where it could not be built
     _built = None  # type: ignore[assignment]
 
 
+# read once, at import: `compiled()` is asked per batch, and an environment lookup costs
+# more than some of the loops it chooses
+_SWITCHED_OFF = os.environ.get(PURE_PYTHON_ENV, "") not in ("", "0")
+
+
 def compiled() -> ModuleType | None:
-    if os.environ.get(PURE_PYTHON_ENV, "") not in ("", "0"):
-        return None
-    return _built
+    return None if _SWITCHED_OFF else _built
 
 
 def built() -> bool:
@@ -39,6 +42,6 @@ def status() -> str:
             "HID C loops not built here: the Python path runs (the same output, more CPU); "
             "`sudo apt install gcc python3-dev` and reinstall usb2rc to build them"
         )
-    if compiled() is None:
+    if _SWITCHED_OFF:
         return f"HID C loops built but switched off ({PURE_PYTHON_ENV}): the Python path runs"
     return "HID C loops: compiled"
