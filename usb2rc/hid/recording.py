@@ -30,10 +30,11 @@ class RecordingError(ValueError):
 # of BLOCK_CHARS characters split into lines here (a text file's own line iteration cost
 # ~3.5x the split), from a list of lines BATCH_LINES of them. Its lines as hid-recorder
 # writes them are parsed in one C call (usb2rc.hid.speedups) or a few C loops over the
-# batch (`_events_as_written`). 16 KB (~40-280 lines) held the per-batch overhead below
-# the lines' own cost; 32 KB was no faster (bench/README.md, issue 40).
+# batch (`_events_as_written`). 8 KB (~40-140 lines) keeps the per-batch overhead below the
+# lines' own cost; 16 KB saved a little more CPU but cost the five outputs 0.5 MB of RSS,
+# past their 40 MB (bench/README.md, issue 40).
 BATCH_LINES = 64
-BLOCK_CHARS = 16384
+BLOCK_CHARS = 8192
 
 # Recorded times (seconds since the recording's start) and reports, in file order.
 EventBatch = tuple[list[float], list[bytes]]
