@@ -158,9 +158,12 @@ def timed_recording(
     return "\n".join(lines) + "\n"
 
 
-def real_device_recordings(count: int, seconds: float, rate_hz: float) -> list[str]:
+def real_device_recordings(
+    count: int, seconds: float, rate_hz: float, rest_s: float = 0.0
+) -> list[str]:
     """`count` recordings of real descriptors (tests/data/real-devices.json; no T.16000M, so
-    each is another model), each with random reports of every input report ID at `rate_hz`."""
+    each is another model), each with random reports of every input report ID at `rate_hz`;
+    in the first `rest_s`, each device's reports at rest (`_rest_reports`)."""
     import random
 
     from usb2rc.hid.descriptor import parse_descriptor
@@ -171,7 +174,7 @@ def real_device_recordings(count: int, seconds: float, rate_hz: float) -> list[s
         layout = parse_descriptor(bytes.fromhex(device["hex"]))
         if not layout.inputs or device["name"].startswith("Thrustmaster T.16000M"):
             continue
-        texts.append(random_report_recording(device, seconds, rate_hz, rng))
+        texts.append(random_report_recording(device, seconds, rate_hz, rng, rest_s))
         if len(texts) == count:
             break
     return texts
@@ -182,20 +185,7 @@ def live_device_recordings(count: int, seconds: float, rate_hz: float) -> list[s
     guarded axis where its zero-config guard wants it, the others and the hats centred, no
     button), so its node goes live: random reports after that keep it live, as a pilot's
     sticks do in flight."""
-    import random
-
-    from usb2rc.hid.descriptor import parse_descriptor
-
-    rng = random.Random(11)
-    texts = []
-    for device in _real_devices():
-        layout = parse_descriptor(bytes.fromhex(device["hex"]))
-        if not layout.inputs or device["name"].startswith("Thrustmaster T.16000M"):
-            continue
-        texts.append(random_report_recording(device, seconds, rate_hz, rng, REST_LEAD_S))
-        if len(texts) == count:
-            break
-    return texts
+    return real_device_recordings(count, seconds, rate_hz, REST_LEAD_S)
 
 
 REST_LEAD_S = 1.0  # live_device_recordings: the rest before the random reports

@@ -16,13 +16,11 @@
  *   fields     ((value_index, bit_offset, bit_size, signed), ...) bit_offset from byte 0
  *   buttons    ((bit_offset, bit_size, count, first_button), ...) as descriptor.ButtonField
  *
- * Plan.drain(batch, values, mask, previous, edges)
- *     -> (accepted, refused, repeats, mask, changes)
+ * Plan.drain(batch, values, mask, edges) -> (accepted, refused, mask, changes)
  *   batch     list of bytes, oldest first
  *   values    the decoder's list of values: each report ID's last valid report is decoded
  *             into it (a report sets every field of its ID, so earlier ones never show)
  *   mask      the button mask before the batch
- *   previous  the report before the batch (for repeats: reports equal to the one before)
  *   edges     False: changes are the masks after each report that changed the mask (as
  *             feed_batch's on_buttons); True: the buttons each such report pressed, for
  *             every report that pressed one (the reader's press log)
@@ -278,11 +276,11 @@ append_int(PyObject *list, uint64_t v)
 static PyObject *
 plan_drain(PlanObject *self, PyObject *args)
 {
-    PyObject *batch, *values, *previous;
+    PyObject *batch, *values;
     unsigned long long mask_in;
     int edges;
-    if (!PyArg_ParseTuple(args, "O!O!KOp", &PyList_Type, &batch, &PyList_Type, &values, &mask_in,
-                          &previous, &edges)) {
+    if (!PyArg_ParseTuple(args, "O!O!Kp", &PyList_Type, &batch, &PyList_Type, &values, &mask_in,
+                          &edges)) {
         return NULL;
     }
     Py_ssize_t last_of[256]; /* per report of the plan: index in batch of its last valid one */
@@ -294,8 +292,7 @@ plan_drain(PlanObject *self, PyObject *args)
         return NULL;
     }
     uint64_t mask = (uint64_t)mask_in;
-    Py_ssize_t n = PyList_GET_SIZE(batch), refused = 0, repeats = 0;
-    PyObject *before = previous;
+    Py_ssize_t n = PyList_GET_SIZE(batch), refused = 0;
     for (Py_ssize_t i = 0; i < n; i++) {
         PyObject *item = PyList_GET_ITEM(batch, i);
         if (!PyBytes_Check(item)) {
@@ -305,11 +302,6 @@ plan_drain(PlanObject *self, PyObject *args)
         }
         const unsigned char *p = (const unsigned char *)PyBytes_AS_STRING(item);
         Py_ssize_t len = PyBytes_GET_SIZE(item);
-        if (PyBytes_Check(before) && PyBytes_GET_SIZE(before) == len
-            && memcmp(PyBytes_AS_STRING(before), p, (size_t)len) == 0) {
-            repeats++;
-        }
-        before = item;
         int which = 0;
         if (self->uses_ids) {
             which = len > 0 ? self->by_id[p[0]] : -1;
@@ -341,7 +333,7 @@ plan_drain(PlanObject *self, PyObject *args)
             return NULL;
         }
     }
-    return Py_BuildValue("nnnKN", n - refused, refused, repeats, (unsigned long long)mask,
+    return Py_BuildValue("nnKN", n - refused, refused, (unsigned long long)mask,
                          changes);
 }
 
@@ -475,15 +467,9 @@ parse_events(PyObject *module, PyObject *lines)
         return NULL;
     }
     Py_ssize_t n = PySequence_Fast_GET_SIZE(fast);
-    PyObject *times = PyList_New(n), *reports = PyList_New(n);
+    PyObject *times = PyList_New(n), *reports = PyList_New(n), *result = NULL;
     if (times == NULL || reports == NULL || n == 0) {
-        Py_DECREF(fast);
-        Py_XDECREF(times);
-        Py_XDECREF(reports);
-        if (PyErr_Occurred()) {
-            return NULL;
-        }
-        Py_RETURN_NONE;
+        goto done; /* an empty batch is no batch: no verdict */
     }
     for (Py_ssize_t k = 0; k < n; k++) {
         PyObject *line = PySequence_Fast_GET_ITEM(fast, k);
@@ -496,19 +482,20 @@ parse_events(PyObject *module, PyObject *lines)
         if (text == NULL || !parse_event(text, size, &t, &report)
             || (stamp = PyFloat_FromDouble(t)) == NULL) {
             Py_XDECREF(report);
-            Py_DECREF(fast);
-            Py_DECREF(times);
-            Py_DECREF(reports);
-            if (PyErr_Occurred()) {
-                return NULL;
-            }
-            Py_RETURN_NONE;
+            goto done;
         }
         PyList_SET_ITEM(times, k, stamp);
         PyList_SET_ITEM(reports, k, report);
     }
+    result = Py_BuildValue("OO", times, reports);
+done:
     Py_DECREF(fast);
-    return Py_BuildValue("NN", times, reports);
+    Py_XDECREF(times);
+    Py_XDECREF(reports);
+    if (result == NULL && !PyErr_Occurred()) {
+        Py_RETURN_NONE; /* not every line as written: the Python parse decides */
+    }
+    return result;
 }
 
 static PyMethodDef module_methods[] = {
@@ -519,7 +506,7 @@ static PyMethodDef module_methods[] = {
 
 static PyMethodDef plan_methods[] = {
     {"drain", (PyCFunction)plan_drain, METH_VARARGS,
-     "drain(batch, values, mask, previous, edges) -> (accepted, refused, repeats, mask, "
+     "drain(batch, values, mask, edges) -> (accepted, refused, mask, "
      "changes)"},
     {NULL, NULL, 0, NULL},
 };

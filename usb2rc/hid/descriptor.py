@@ -1124,8 +1124,8 @@ class ReportDecoder:
         press log (no tap lost, even one released within the batch). Returns (accepted,
         refused, pressed)."""
         if self._c_plan is not None:
-            accepted, refused, _repeats, mask, pressed = self._c_plan.drain(
-                reports, self._values, self._buttons, b"", True
+            accepted, refused, mask, pressed = self._c_plan.drain(
+                reports, self._values, self._buttons, True
             )
             self._took(accepted, refused, mask)
             return accepted, refused, pressed
@@ -1155,9 +1155,7 @@ class ReportDecoder:
     ) -> tuple[int, int]:
         """`feed_batch` in one C call: the same values, masks and counts."""
         batch = reports if isinstance(reports, list) else list(reports)
-        accepted, refused, _repeats, mask, changes = plan.drain(
-            batch, self._values, self._buttons, b"", False
-        )
+        accepted, refused, mask, changes = plan.drain(batch, self._values, self._buttons, False)
         if on_buttons is not None:
             for changed in changes:
                 on_buttons(changed)
