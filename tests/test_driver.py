@@ -231,9 +231,9 @@ def timed_writes(outputs: int) -> TimedWrites:
     steps: list[float] = []
     stopping = threading.Event()
 
-    def step_if_due() -> Any:
+    def step_if_due(node_ids: frozenset[int] | None = None) -> Any:
         steps.append(time.monotonic())
-        return table.step_if_due()
+        return table.step_if_due(node_ids)
 
     for index, far in enumerate(fars):
         link = SerialLink(far.path, 921600)

@@ -38,11 +38,11 @@ FIVE = (  # each at its default rate
 
 
 def test_beside_outputs_the_clock_steps_on_the_grid_about_every_quarter_second() -> None:
-    assert node_clock_period(0.020, has_outputs=True) == pytest.approx(0.240)  # 12 grid steps
-    assert node_clock_period(0.004, has_outputs=True) == pytest.approx(0.248)
-    assert node_clock_period(0.100, has_outputs=True) == pytest.approx(0.200)
-    assert node_clock_period(1.000, has_outputs=True) == pytest.approx(1.000)  # never under it
-    assert node_clock_period(0.020, has_outputs=False) == pytest.approx(0.020)  # monitor
+    assert node_clock_period(0.020, every_node_read=True) == pytest.approx(0.240)  # 12 grid steps
+    assert node_clock_period(0.004, every_node_read=True) == pytest.approx(0.248)
+    assert node_clock_period(0.100, every_node_read=True) == pytest.approx(0.200)
+    assert node_clock_period(1.000, every_node_read=True) == pytest.approx(1.000)  # never under it
+    assert node_clock_period(0.020, every_node_read=False) == pytest.approx(0.020)  # monitor
 
 
 def clearance_s(daemon: Daemon) -> float:
@@ -141,3 +141,17 @@ def test_the_clock_steps_a_table_no_driver_stepped_within_its_period(tmp_path: P
         clock.stop()
         assert clock.join(WAIT_S)
     assert gap >= clock.period_s - 0.005  # not more often than its period (late: later)
+
+
+def test_beside_outputs_that_read_some_nodes_only_the_clock_steps_the_others_on_the_grid(
+    tmp_path: Path,
+) -> None:
+    """A node no output reads is stepped by the clock alone: at the grid's period, so its
+    device's queue is drained as often as a C2-16B output's would (a hidraw queue holds 64
+    reports), and `monitor` shows it fresh. Beside an output that reads every node: the
+    safety net."""
+    crsf = OutputConfig(protocol="crsf", port="loop://", rate_hz=250, channels=X)
+    some = Daemon(Config(outputs=(crsf,)), ReplayBackend(tmp_path))
+    assert some.node_clock.period_s == pytest.approx(0.020)
+    every = Daemon(Config(outputs=(crsf, C2)), ReplayBackend(tmp_path))
+    assert every.node_clock.period_s == pytest.approx(0.240)

@@ -72,12 +72,12 @@ class PausingTable:
     def __getattr__(self, name):
         return getattr(self.table, name)
 
-    def step_if_due(self):
+    def step_if_due(self, node_ids=None):
         if self.pause_next:
             self.pause_next = False
             self.in_collect.set()
             assert self.go_on.wait(10), "never let go on"
-        return self.table.step_if_due()
+        return self.table.step_if_due(node_ids)
 
 
 def test_a_port_opened_in_the_middle_of_a_tick_carries_nothing_before_the_startup(monkeypatch):

@@ -56,6 +56,10 @@ from usb2rc.status_socket import (
 )
 from usb2rc.wiring import OutputContext
 
+# How often the liveness hook (systemd's watchdog, seconds apart) asks whether every output
+# ticks: not at each of their ticks.
+LIVENESS_CHECK_S = 0.05
+
 log = logging.getLogger("usb2rc")
 
 JOIN_TIMEOUT_S = 0.5
@@ -73,12 +77,13 @@ GIL_SWITCH_S = 0.0005
 SAFETY_NET_PERIOD_S = 0.25
 
 
-def node_clock_period(grid_period_s: float, has_outputs: bool) -> float:
-    """The node clock's period: with no output it is the only step (`grid_period_s`,
-    `nodes.step.clock_period`); beside outputs, which step the table at each tick, the
-    whole number of grid periods nearest SAFETY_NET_PERIOD_S, so its steps stay on the
-    grid's points at the clock's phase, away from every tick."""
-    if not has_outputs:
+def node_clock_period(grid_period_s: float, every_node_read: bool) -> float:
+    """The node clock's period: the only step of a node no output reads (`grid_period_s`,
+    `nodes.step.clock_period`: with no output, or beside channel outputs that read some
+    nodes only); beside an output that reads every node (C2-16B, MAVLink), which steps the
+    table at each tick, the whole number of grid periods nearest SAFETY_NET_PERIOD_S, so
+    its steps stay on the grid's points at the clock's phase, away from every tick."""
+    if not every_node_read:
         return grid_period_s
     return max(1, round(SAFETY_NET_PERIOD_S / grid_period_s)) * grid_period_s
 
@@ -192,6 +197,7 @@ class Daemon:
         self.table.set_controls(config.switches, config.throttle_cuts)  # nodes/switches.py
         self._on_ready = on_ready
         self._on_tick = on_tick
+        self._liveness_asked_at = -LIVENESS_CHECK_S  # when `_tick` last asked (drivers' thread)
         self._on_status = on_status
         self._ready_once = threading.Event()  # set once, under _ready_lock; read anywhere
         self._ready_lock = threading.Lock()
@@ -201,7 +207,8 @@ class Daemon:
         periods = [out.driver.period_s for out in self.outputs]
         grid = clock_period(periods)
         phase = clock_phase(grid, periods)
-        period = node_clock_period(grid, bool(self.outputs))
+        every_node_read = any(out.driver.session.reads is None for out in self.outputs)
+        period = node_clock_period(grid, every_node_read)
         self.node_clock = NodeClock(
             lambda: self.table.step_if_stale(period), time.monotonic, period, phase
         )
@@ -344,7 +351,13 @@ class Daemon:
             waiting = "; ".join(o.link.last_error for o in self.outputs if o.link.last_error)
             self._status(f"waiting for the serial line: {waiting}")
             self._become_ready("running; no serial port open yet, retrying every second")
-        if self._on_tick and self.all_outputs_ticking():
+        if self._on_tick is None:
+            return
+        now = time.monotonic()
+        if now - self._liveness_asked_at < LIVENESS_CHECK_S:
+            return  # asked for every output's tick (550 a second): an answer 50 ms old holds
+        self._liveness_asked_at = now
+        if self.all_outputs_ticking():
             self._on_tick()
 
     def _forget(self, key: str) -> None:

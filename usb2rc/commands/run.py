@@ -342,7 +342,7 @@ def run(args: argparse.Namespace) -> int:
             make_backend(args),
             port_override=args.port,
             on_ready=notifier.ready,
-            on_tick=_WatchdogFeeder(notifier),
+            on_tick=_WatchdogFeeder(notifier) if notifier.watchdog_interval_s() else None,
             on_status=notifier.status,
             status_socket=status_socket_path(args),
             judge=functools.partial(check_record, port_override=args.port),

@@ -165,8 +165,10 @@ class LineDriver:
     (`DriverThread`), whose loop calls `begin` at each tick's start, `write` on its deadline
     and `finish` after the writes due with it.
 
-    `snapshot`: the node table's latest step (`NodeTable.step_if_due`); `on_tick` after every
-    tick (the watchdog hook), `on_first_write` once, after the first write that went out.
+    `snapshot`: the node table's latest step of the nodes asked for (`NodeTable.step_if_due`,
+    asked for those its session reads, or those of every output due with it); `on_tick`
+    after every tick (the watchdog hook), `on_first_write` once, after the first write
+    that went out.
     `alone`: the daemon's only output, which has no lead (`lead` is None) and writes as soon
     as its bytes are made; each of several makes them `lead.s` ahead (or with a tick due
     on the same deadline that leads more, `DriverThread`) and writes them on its deadline.
@@ -178,7 +180,7 @@ class LineDriver:
         name: str,
         link: Link,
         session: LineSession,
-        snapshot: Callable[[], NodeSnapshot],
+        snapshot: Callable[[frozenset[int] | None], NodeSnapshot],
         period_s: float,
         on_tick: Callable[[], None] | None = None,
         on_first_write: Callable[[], None] | None = None,
@@ -212,6 +214,9 @@ class LineDriver:
         self._ok = True
         self._was_stalled = False
         self._held: bytes | None = None
+        # when this driver has something to do next: its write if it holds bytes (`begin`
+        # to `write`), else its next start; an attribute, as the loop asks at every wake-up
+        self.next_moment = 0.0
         self._logged_errors: set[str] = set()
         self._stalled_since = 0.0
         self._stall_logged_at = -STALL_LOG_QUIET_S
@@ -225,6 +230,7 @@ class LineDriver:
         self._deadline = deadline
         self._start = deadline - (self.lead.s if self.lead else 0.0)
         self.period_s = period_s
+        self.next_moment = self._start
 
     @property
     def deadline(self) -> float:
@@ -240,12 +246,6 @@ class LineDriver:
     def holding(self) -> bool:
         """Between a tick's start and its write: its bytes are made."""
         return self._held is not None
-
-    @property
-    def next_moment(self) -> float:
-        """When this driver has something to do next: its write if it holds bytes, else
-        its next start."""
-        return self._deadline if self._held is not None else self._start
 
     def begin(self, snapshot: NodeSnapshot, step_s: float = 0.0) -> None:
         """A tick's start: the link followed, the bytes made from `snapshot` and held for
@@ -264,6 +264,7 @@ class LineDriver:
         except Exception as exc:
             self._failed(exc)
             self._held = b""
+        self.next_moment = self._deadline
         self.asleep = self.can_doze and self._ok and self.session.asleep(snapshot)
         self._cost_s = step_s + time.monotonic() - started
 
@@ -271,6 +272,7 @@ class LineDriver:
         """The tick's write, on its moment (`finish` does the rest: the writes due together
         go out one right after another)."""
         data, self._held = self._held or b"", None
+        self.next_moment = self._start
         sent_at = time.monotonic()
         if self._ok:
             try:
@@ -346,7 +348,7 @@ class LineDriver:
         self._follow_link()
         self._follow_backpressure()
         return self.session.tick(
-            time.monotonic(), self.snapshot() if snapshot is None else snapshot
+            time.monotonic(), self.snapshot(self.session.reads) if snapshot is None else snapshot
         )
 
     def _write(self, data: bytes, was_stalled: bool) -> None:
@@ -473,6 +475,17 @@ class LineDriver:
         return {**self.session.stats(time.monotonic()), **self.link.counters()}
 
 
+def nodes_read_by(drivers: Sequence[LineDriver]) -> frozenset[int] | None:
+    """The nodes these drivers' sessions read (None: every node, if one reads any)."""
+    nodes: frozenset[int] = frozenset()
+    for driver in drivers:
+        reads = driver.session.reads
+        if reads is None:
+            return None
+        nodes |= reads
+    return nodes
+
+
 class DriverThread(Worker):
     """The drivers' thread: every output's ticks, on one thread, in one loop (as
     python-can's `Notifier` serves every bus). A tick starts its lead before its deadline
@@ -513,12 +526,12 @@ class DriverThread(Worker):
             if all(d.asleep and not d.holding for d in drivers):
                 self._doze()
                 continue
-            moment = min(driver.next_moment for driver in drivers)
+            moment = min([driver.next_moment for driver in drivers])
             delay = moment - time.monotonic()
             if delay > 0 and self._wait(delay):
                 break
             now = time.monotonic()
-            due = [d for d in drivers if d.holding and d.next_moment <= now]
+            due = [d for d in drivers if d.next_moment <= now and d.holding]
             for driver in due:
                 driver.write()
             for driver in due:
@@ -543,7 +556,8 @@ class DriverThread(Worker):
         due = [driver.deadline for driver in starting]
         batch = [d for d in waiting if any(abs(d.deadline - at) <= SAME_DEADLINE_S for at in due)]
         stepping = time.monotonic()
-        snapshot = batch[0].snapshot()  # the daemon's drivers all read its one node table
+        # the daemon's drivers all read its one node table: the nodes the batch reads
+        snapshot = batch[0].snapshot(nodes_read_by(batch))
         step_s = time.monotonic() - stepping
         for driver in batch:
             driver.begin(snapshot, step_s)

@@ -207,6 +207,7 @@ class LineSession(Protocol):
     """What the driver knows of any output's session (see the module docstring)."""
 
     name: str
+    reads: frozenset[int] | None
 
     @property
     def line_open(self) -> bool: ...
@@ -243,6 +244,9 @@ class SessionBase:
         self.backpressure = backpressure
         self.period_s = period_s
         self.latch = TapLatch()  # this output's taps: advanced by its own ticks only
+        # the Node-IDs its ticks read (None: every node): the driver steps those before a
+        # tick (`NodeTable.step_if_due`)
+        self.reads: frozenset[int] | None = None
 
     @property
     def line_open(self) -> bool:
@@ -324,7 +328,10 @@ class SessionBase:
 
 
 class ChannelValues(Protocol):
-    """An output's channels: wire values and failsafe from the node frames."""
+    """An output's channels: wire values and failsafe from the node frames; `node_ids`:
+    the nodes they read (None: any)."""
+
+    node_ids: frozenset[int] | None
 
     def evaluate(self, frames: Iterable[NodeFrame]) -> tuple[list[int], bool]: ...
 
@@ -342,6 +349,7 @@ class ChannelSession(SessionBase):
     ) -> None:
         super().__init__(name, LineState(), Backpressure(frame_length), period_s)
         self.channels = channels
+        self.reads = channels.node_ids
         self.frame_length = frame_length
         self._last_len = 0
         self._stop_sent = False
@@ -362,7 +370,7 @@ class ChannelSession(SessionBase):
         # since the last frame stay latched for the next one
         if not self.can_add(self.frame_length):
             return b""
-        values, failsafe = self.channels.evaluate(self.latch.frames(snapshot))
+        values, failsafe = self.channels.evaluate(self.latch.frames(snapshot, self.reads))
         return self.frame(values, failsafe)
 
     def frame(self, values: Sequence[int], failsafe: bool) -> bytes:

@@ -122,6 +122,11 @@ class GuardedAxis:
         return _clamp(REST_POINT[self.arm] + self.trim + stepped_trim)
 
     def describe(self) -> str:
+        return self._text
+
+    @cached_property
+    def _text(self) -> str:
+        """ "X centre": made once, as a waiting device names its axes at every step."""
         return f"{self.label} {self.arm}"
 
 

@@ -241,11 +241,17 @@ class TapLatch:
     def __init__(self) -> None:
         self._seen: dict[int, int] = {}  # device_id -> the press serial last shown
 
-    def frames(self, snapshot: TableSnapshot) -> list[NodeFrame]:
-        """The snapshot's frames, each live device's taps since this latch's last call
-        shown pressed."""
+    def frames(
+        self, snapshot: TableSnapshot, node_ids: frozenset[int] | None = None
+    ) -> list[NodeFrame]:
+        """The snapshot's frames (those of `node_ids` only, when given: the nodes its
+        output reads), each live device's taps since this latch's last call shown
+        pressed. One latch is always asked for the same nodes (its output's)."""
         seen: dict[int, int] = {}
-        frames = [self._latched(node, seen) for node in snapshot.nodes]
+        nodes = snapshot.nodes
+        if node_ids is not None:
+            nodes = tuple(node for node in nodes if node.frame.node_id in node_ids)
+        frames = [self._latched(node, seen) for node in nodes]
         self._seen = seen  # devices gone from the snapshot are forgotten
         return frames
 

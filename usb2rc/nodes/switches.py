@@ -105,6 +105,8 @@ class SwitchBank:
         self._plans: tuple[_Plan, ...] = ()
         self._by_node: dict[int, list[_Plan]] = {}  # the plans of each node, in config order
         self._cuts: tuple[ThrottleCut, ...] = ()
+        # per node, the nodes of the switches its throttle cuts follow
+        self._cut_switch_nodes: dict[int, set[int]] = {}
         self.positions: dict[str, int] = {}
         self.cut_on: dict[str, bool] = {}  # by the cut channel's name
         self._seen: dict[int, int] = {}  # device_id -> the press serial stepped on
@@ -121,6 +123,12 @@ class SwitchBank:
         for plan in self._plans:
             self._by_node.setdefault(plan.config.node_id, []).append(plan)
         self._cuts = tuple(cuts)
+        node_of = {plan.config.name: plan.config.node_id for plan in self._plans}
+        self._cut_switch_nodes = {}
+        for cut in cuts:
+            if cut.switch in node_of:
+                needs = self._cut_switch_nodes.setdefault(cut.channel.node_id, set())
+                needs.add(node_of[cut.switch])
         kept = {}
         for switch in switches:
             before = self.positions.get(switch.name)
@@ -137,12 +145,24 @@ class SwitchBank:
         self.positions = kept
         self.cut_on = {c.channel.name: self.cut_on.get(c.channel.name, False) for c in cuts}
 
-    def step(self, views: Sequence[NodeView]) -> tuple[NodeView, ...]:
-        """Step every switch on these node views (one node step); the views with the
-        switches' values and the cuts applied to their frames."""
+    def with_cut_switches(self, node_ids: frozenset[int]) -> frozenset[int]:
+        """`node_ids` and the nodes of the switches their throttle cuts follow: a cut is
+        decided at its node's step on its switch's position, stepped with that switch's
+        node."""
+        needs = self._cut_switch_nodes
+        if not needs:
+            return node_ids
+        extra = [needs[node_id] for node_id in node_ids if node_id in needs]
+        return node_ids.union(*extra) if extra else node_ids
+
+    def step(self, views: Sequence[NodeView], every_node: bool = True) -> tuple[NodeView, ...]:
+        """Step the switches of these nodes on their views (one node step: every node's,
+        or `every_node` False, those an output reads); the views with the switches' values
+        and the cuts applied to their frames. The switches of the nodes not stepped are
+        where their last step left them."""
         if not self._plans:
             return tuple(views)
-        seen: dict[int, int] = {}
+        seen: dict[int, int] = {} if every_node else dict(self._seen)
         for view in views:
             held, failsafe = view.frame.pressed, view.frame.failsafe
             presses = self._presses(view.devices, seen, failsafe)

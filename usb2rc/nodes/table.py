@@ -464,14 +464,17 @@ class NodeTable:
         self._switches = SwitchBank()  # switches and throttle cuts (nodes/switches.py)
         self._stopping = False
         # The step (docs/DESIGN.md, "Node state: one step per period"): the latest snapshot,
-        # and what it was made from: the period, the devices' layout, the readers' records.
+        # and what each node's view in it was made from: the period, the devices' layout,
+        # the readers' records, and when (the table's clock).
         self._snapshot: NodeSnapshot = NodeSnapshot()
         self._log = EMPTY_LOG  # replaced whole by `_broadcast`, published by each step
         self._layout = 0  # bumped whenever devices, entries or bindings change
-        self._stepped: tuple[int, int, tuple[ReaderRecord, ...]] | None = None
-        self._stepped_at = -math.inf  # when the step last ran (the table's clock)
-        # devices resting, not long enough yet at the last step: a step when one has
-        self._resting: list[RestWatch] = []
+        self._snapshot_layout = -1  # the layout the snapshot's set of nodes is from
+        self._stepped: dict[int, tuple[int, int, tuple[ReaderRecord, ...]]] = {}
+        self._stepped_at: dict[int, float] = {}
+        # per node, its devices resting, not long enough yet at its last step: a step of
+        # the node when one has
+        self._resting: dict[int, list[RestWatch]] = {}
         self._attachments = 0  # device ids handed out
         for node_id, entries in (expected or {}).items():
             self._nodes[node_id] = _Node(node_id, expected=dict(entries))
@@ -487,24 +490,34 @@ class NodeTable:
         """The latest step's snapshot, as it is: reading it changes nothing."""
         return self._snapshot
 
-    def step_if_due(self) -> NodeSnapshot:
-        """Run the step unless it already ran for this period, these reader records and
-        these devices (each driver's call before its tick, and the node clock's); the latest
-        snapshot."""
+    def step_if_due(self, node_ids: frozenset[int] | None = None) -> NodeSnapshot:
+        """Step each node unless it was already stepped for this period, these reader
+        records and these devices (each driver's call before its tick, and the node
+        clock's); the latest snapshot. `node_ids`: the nodes the caller reads (an output's
+        channels), None: every node. The others keep their view from their last step; a
+        change of devices or entries steps every node."""
         with self._lock:
-            changes = self._step_if_due_locked()
+            changes = self._step_if_due_locked(node_ids)
             snapshot = self._snapshot
         _log_changes(changes)
         return snapshot
 
     def step_if_stale(self, age_s: float) -> NodeSnapshot:
-        """The node clock's call: the step (as `step_if_due`) unless one ran in the last
-        `age_s`, a driver's before its tick. The snapshot is never older than `age_s`, and
-        a clock beside outputs that step the table as often does not step it again for
-        nobody (the five default outputs: a second step every 4 ms, ~3 % of a core)."""
+        """The node clock's call: the step (as `step_if_due`) of the nodes not stepped in
+        the last `age_s`, by a driver before its tick. No view in the snapshot is older than
+        `age_s`, and a clock beside outputs that step the nodes as often does not step them
+        again for nobody (the five default outputs: a second step every 4 ms, ~3 % of a
+        core)."""
         with self._lock:
-            stale = self._clock() - self._stepped_at >= age_s
-            changes = self._step_if_due_locked() if stale else []
+            now = self._clock()
+            at = self._stepped_at
+            stale = frozenset(i for i in self._nodes if now - at.get(i, -math.inf) >= age_s)
+            if now - self._snapshot.at >= age_s:  # no node at all: the snapshot's time moves
+                changes = self._step_if_due_locked(None)
+            elif stale or self._layout != self._snapshot_layout:
+                changes = self._step_if_due_locked(stale)
+            else:
+                changes = []
             snapshot = self._snapshot
         _log_changes(changes)
         return snapshot
@@ -522,34 +535,53 @@ class NodeTable:
                         attached.present = False
             self._by_key.clear()
 
-    def _step_if_due_locked(self) -> list[str]:
-        """The step, memoised: it runs once per (period, devices, records), whoever calls."""
-        nodes = [self._nodes[node_id] for node_id in sorted(self._nodes)]
-        for node in nodes:  # what every device queued until now, decoded
+    def _step_if_due_locked(self, node_ids: frozenset[int] | None) -> list[str]:
+        """The step of the nodes asked for (all of them after a change of devices or
+        entries), each memoised: a node is stepped once per (period, devices, records),
+        whoever calls, and again within the period when a device's rest is long enough."""
+        if node_ids is None or self._layout != self._snapshot_layout:
+            ids = sorted(self._nodes)
+        else:
+            ids = sorted(self._nodes.keys() & self._switches.with_cut_switches(node_ids))
+        nodes = [self._nodes[node_id] for node_id in ids]
+        for node in nodes:  # what their devices queued until now, decoded
             for attached in node.attached:
                 if attached.present:
                     attached.source.pull()
         now = self._clock()
-        # each reader's record read once: the step uses these (values and liveness agree)
-        records = tuple(a.source.record for node in nodes for a in node.attached)
         period = int((now - GRID_EPOCH_S) // BASE_PERIOD_S)  # the drivers' grid
-        last = self._stepped
+        due = []
+        for node in nodes:
+            # each reader's record read once: the step uses these (values and liveness agree)
+            records = tuple(a.source.record for a in node.attached)
+            if not self._stepped_again(node.node_id, period, records, now):
+                continue
+            self._stepped[node.node_id] = (period, self._layout, records)
+            self._stepped_at[node.node_id] = now
+            due.append((node, records))
+        fresh = node_ids is not None or period == self._snapshot.period
+        if not due and fresh and self._layout == self._snapshot_layout:
+            return []  # every node asked for is as its last step left it, in this period
+        return self._step_locked(period, now, due)
+
+    def _stepped_again(
+        self, node_id: int, period: int, records: tuple[ReaderRecord, ...], now: float
+    ) -> bool:
+        """Whether the node is due a step: not stepped in this period, on these records and
+        devices, or a rest of one of its devices is long enough by now."""
+        last = self._stepped.get(node_id)
         same = last is not None and last[:2] == (period, self._layout) and _same(last[2], records)
-        if same and not any(rest.rested_by(now) for rest in self._resting):
-            return []
-        self._stepped = (period, self._layout, records)
-        self._stepped_at = now
-        return self._step_locked(period, now, nodes, iter(records))
+        return not same or any(rest.rested_by(now) for rest in self._resting.get(node_id, ()))
 
     def _step_locked(
-        self, period: int, now: float, nodes: list[_Node], records: Iterator[ReaderRecord]
+        self, period: int, now: float, due: list[tuple[_Node, tuple[ReaderRecord, ...]]]
     ) -> list[str]:
-        """One step: every node once, in Node-ID order, on the records read for it; the
-        snapshot published with one assignment; the lines to log (a node entered or left
-        failsafe)."""
+        """One step: each node due once, in Node-ID order, on the records read for it; the
+        snapshot (those views, the others' from their last step) published with one
+        assignment; the lines to log (a node entered or left failsafe)."""
         views, changes = [], []
-        for node in nodes:
-            view, notes = node.step(self._trims, now, records)
+        for node, records in due:
+            view, notes = node.step(self._trims, now, iter(records))
             views.append(view)
             change = None if self._stopping else node.failsafe_change(view.frame.failsafe)
             if change:
@@ -561,12 +593,19 @@ class NodeTable:
                     ServiceEvent(EventKind.ERROR, node.node_id, attached.info, "", code)
                 )
             node.silenced.clear()
-        stepped = self._switches.step(views)
+            self._resting[node.node_id] = _resting(node, now)
+        every = len(due) == len(self._nodes)
+        stepped = self._switches.step(views, every)
+        if not every:  # the others as their last step left them
+            fresh = {view.frame.node_id: view for view in stepped}
+            stepped = tuple(fresh.get(v.frame.node_id, v) for v in self._snapshot.nodes)
+        else:
+            self._snapshot_layout = self._layout
+            self._resting = {node.node_id: self._resting[node.node_id] for node, _ in due}
         positions = tuple(sorted(self._switches.positions.items()))
         self._snapshot = NodeSnapshot(
             period=period, at=now, nodes=stepped, switches=positions, log=self._log
         )
-        self._resting = _resting(nodes, now)
         return changes
 
     # --- devices -------------------------------------------------------------------------
@@ -854,8 +893,9 @@ def _connected(node_id: int, attached: _Attached) -> ServiceEvent:
     return ServiceEvent(EventKind.CONNECTED, node_id, attached.info, attached.device_type)
 
 
-def _resting(nodes: list[_Node], now: float) -> list[RestWatch]:
-    """The waiting devices' rests not long enough at `now`: a step is due once one is, even
-    inside a period that had its step (a rest long enough by now was seen by this step)."""
-    waiting = (a.rest for node in nodes for a in node.attached if not a.armed)
+def _resting(node: _Node, now: float) -> list[RestWatch]:
+    """The node's waiting devices' rests not long enough at `now`: a step of the node is due
+    once one is, even inside a period that had its step (a rest long enough by now was seen
+    by this step)."""
+    waiting = (a.rest for a in node.attached if not a.armed)
     return [rest for rest in waiting if rest.since is not None and not rest.rested_by(now)]

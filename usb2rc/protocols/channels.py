@@ -107,6 +107,27 @@ def channel_value(source: Channel, scale: WireScale) -> ChannelValue:
 Int16Value = Callable[[Nodes], tuple[int, bool]]  # the nodes' frames -> (int16, failsafe)
 
 
+def nodes_read(sources: Iterable[Channel]) -> frozenset[int] | None:
+    """The Node-IDs whose frames these channels read: each source's node, a mix's lines'
+    sources and rate switches. None when one is not resolved to a node (a switch by name
+    before `Mapping.sumd_channels`): then any node may be read."""
+    nodes: set[int] = set()
+    for source in sources:
+        if isinstance(source, ChannelSource) and source.kind == "mix":
+            lines = nodes_read(
+                [line.source for line in source.mix]
+                + [line.rates[0] for line in source.mix if line.rates is not None]
+            )
+            if lines is None:
+                return None
+            nodes |= lines
+        elif source.node_id < 0:
+            return None
+        else:
+            nodes.add(source.node_id)
+    return frozenset(nodes)
+
+
 def _scaled(value: tuple[int, bool], scale: WireScale) -> tuple[int, bool]:
     return scale.axis(value[0]), value[1]
 
@@ -185,16 +206,26 @@ def _rate(line: MixLine, switch: Int16Value | None, nodes: Nodes) -> float:
 class OutputChannels:
     """One output's channels, in frame order: `evaluate` once a tick (the output thread)."""
 
-    def __init__(self, channels: Sequence[ChannelValue], frame_length: int = 0) -> None:
+    def __init__(
+        self,
+        channels: Sequence[ChannelValue],
+        frame_length: int = 0,
+        node_ids: frozenset[int] | None = None,
+    ) -> None:
         self.channels = tuple(channels)
         self._frame_length = frame_length
+        # the nodes the channels read (None: any node): the step before a tick of this
+        # output alone need not step the others
+        self.node_ids = node_ids
 
     @classmethod
     def scaled(
         cls, sources: Iterable[Channel], scale: WireScale, frame_length: int = 0
     ) -> OutputChannels:
         """The channels of a config's output through a protocol's scale."""
-        return cls([channel_value(source, scale) for source in sources], frame_length)
+        sources = tuple(sources)
+        values = [channel_value(source, scale) for source in sources]
+        return cls(values, frame_length, nodes_read(sources))
 
     def __len__(self) -> int:
         return len(self.channels)
