@@ -8,19 +8,27 @@ from __future__ import annotations
 
 import random
 from dataclasses import dataclass
+from pathlib import Path
 
 from daemon_harness import StickState
 from test_node_table_driver import BINDING, LAYOUT, info
 
 from usb2rc.config.channel_ref import ChannelRef
 from usb2rc.config.controls_model import SwitchConfig, ThrottleCut
+from usb2rc.configfile import Config, OutputConfig
+from usb2rc.daemon import Daemon
 from usb2rc.hid.reader import ReaderRecord
+from usb2rc.hid.replay import ReplayBackend
 from usb2rc.lines.driver import nodes_read_by
 from usb2rc.nodes.guard import REST_S
 from usb2rc.nodes.mapping import ChannelSource, MixLine
 from usb2rc.nodes.step import BASE_PERIOD_S, TapLatch
 from usb2rc.nodes.table import NodeTable
 from usb2rc.protocols.channels import nodes_read
+from usb2rc.protocols.registry import PROTOCOLS
+
+# every protocol, on a port it can be built on without a far end
+PORTS = {name: "udpout:127.0.0.1:9" if name == "mavlink" else "loop://" for name in PROTOCOLS}
 
 
 @dataclass
@@ -146,3 +154,18 @@ def test_outputs_due_together_step_the_nodes_any_of_them_reads() -> None:
     crsf, sbus, c2 = _Driver(frozenset({0})), _Driver(frozenset({1, 2})), _Driver(None)
     assert nodes_read_by([crsf, sbus]) == {0, 1, 2}  # type: ignore[list-item]
     assert nodes_read_by([crsf, c2]) is None  # type: ignore[list-item]
+
+
+def test_each_protocols_output_reads_the_nodes_of_its_channels(tmp_path: Path) -> None:
+    """Built as the daemon builds them: a channel output reads its channels' nodes, C2-16B
+    every node (it sends them all)."""
+    channels = (ChannelRef(0, "axis", 0, "node0.x"), ChannelRef(2, "axis", 1, "node2.y"))
+    outputs = [
+        OutputConfig(protocol=name, port=port, channels=channels)
+        for name, port in PORTS.items()
+        if name != "c2-16b"
+    ]
+    outputs.append(OutputConfig(protocol="c2-16b", port="loop://"))
+    daemon = Daemon(Config(outputs=tuple(outputs)), ReplayBackend(tmp_path))
+    reads = {out.config.protocol: out.driver.session.reads for out in daemon.outputs}
+    assert reads == {name: None if name == "c2-16b" else {0, 2} for name in PORTS}

@@ -58,7 +58,7 @@ from usb2rc.lines.session import Backpressure, Delivered, EngineSession, LineSta
 from usb2rc.nodes.mapping import ChannelSource
 from usb2rc.nodes.scaling import node_button_bit
 from usb2rc.nodes.table import NodeFrame, NodeSnapshot
-from usb2rc.protocols.channels import int16_value
+from usb2rc.protocols.channels import int16_value, nodes_read
 from usb2rc.protocols.mavlink.actions import ActionRunner
 from usb2rc.protocols.mavlink.codec import (
     MANUAL_MAX,
@@ -165,6 +165,8 @@ class MavlinkChannels:
         self.message = message
         self.readings = tuple(channel_reading(source) for source in self.sources)
         self.triggers = tuple(trigger_value(source, target) for source, target in triggers)
+        # the nodes the channels and the actions' buttons and switches read (None: any)
+        self.node_ids = nodes_read([*self.sources, *(source for source, _ in triggers)])
 
     def __len__(self) -> int:
         return len(self.readings)
@@ -501,6 +503,7 @@ class MavlinkSession(EngineSession[MavlinkEngine]):
     ) -> None:
         super().__init__(name, engine, Backpressure(tick_bytes), 1.0 / rate_hz)
         self.channels = channels
+        self.reads = channels.node_ids
         self.tick_bytes = tick_bytes
         self.wall_clock = wall_clock  # signing timestamps follow the wall clock
         self._lengths: list[int] = []  # the last tick's messages, in order
@@ -509,7 +512,7 @@ class MavlinkSession(EngineSession[MavlinkEngine]):
         self._lengths = []
         if not self.can_add(self.tick_bytes):
             return b""
-        values = self.channels.evaluate(self.latch.frames(snapshot))
+        values = self.channels.evaluate(self.latch.frames(snapshot, self.reads))
         messages = self.engine.tick(now, values, self.wall_clock())
         self._lengths = [len(m) for m in messages]
         return b"".join(messages)
