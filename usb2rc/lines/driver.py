@@ -475,6 +475,16 @@ class LineDriver:
         return {**self.session.stats(time.monotonic()), **self.link.counters()}
 
 
+def _due_with(drivers: list[LineDriver], due: list[float]) -> list[LineDriver]:
+    """The drivers (in their order) whose deadline is within SAME_DEADLINE_S of one of
+    `due`. Usually every deadline in `due` is one: then a range, with no loop over `due`."""
+    low, high = min(due), max(due)
+    if high - low <= SAME_DEADLINE_S:  # within both ends' reach: within one's
+        low, high = low - SAME_DEADLINE_S, high + SAME_DEADLINE_S
+        return [d for d in drivers if low <= d._deadline <= high]
+    return [d for d in drivers if any(abs(d._deadline - at) <= SAME_DEADLINE_S for at in due)]
+
+
 def nodes_read_by(drivers: Sequence[LineDriver]) -> frozenset[int] | None:
     """The nodes these drivers' sessions read (None: every node, if one reads any)."""
     nodes: frozenset[int] = frozenset()
@@ -523,7 +533,7 @@ class DriverThread(Worker):
         for driver in drivers:
             driver.plan(aligned(now, driver.period_s), driver.period_s)
         while not self.stopping:
-            if all(d.asleep and not d.holding for d in drivers):
+            if all([d.asleep and d._held is None for d in drivers]):
                 self._doze()
                 continue
             moment = min([driver.next_moment for driver in drivers])
@@ -549,12 +559,12 @@ class DriverThread(Worker):
         step's values, and a record a reader publishes meanwhile does not step the table
         again. Each that started on its own start teaches its lead what the whole batch
         took."""
-        waiting = [driver for driver in self.drivers if not driver.holding]
-        starting = [driver for driver in waiting if driver.next_moment <= now + SAME_TICK_S]
+        waiting = [driver for driver in self.drivers if driver._held is None]
+        horizon = now + SAME_TICK_S
+        starting = [driver for driver in waiting if driver.next_moment <= horizon]
         if not starting:
             return
-        due = [driver.deadline for driver in starting]
-        batch = [d for d in waiting if any(abs(d.deadline - at) <= SAME_DEADLINE_S for at in due)]
+        batch = _due_with(waiting, [driver._deadline for driver in starting])
         stepping = time.monotonic()
         # the daemon's drivers all read its one node table: the nodes the batch reads
         snapshot = batch[0].snapshot(nodes_read_by(batch))

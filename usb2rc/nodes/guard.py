@@ -305,8 +305,10 @@ class RestWatch:
         """What it waits for: the axes `outside` their rest, and the hint for a fixed one."""
         waiting = list(outside)
         unmoved_s = now - (now if self.plugged is None else self.plugged)
-        fixed = [a.label for a in guard.axes if self._is_fixed(a, wire_axes)]
-        self.fixed = bool(fixed) and unmoved_s >= FIXED_S
+        # not fixed before FIXED_S; after it, not once every guarded axis has moved
+        moving = unmoved_s < FIXED_S or all([a.slot in self.moved for a in guard.axes])
+        fixed = [] if moving else [a.label for a in guard.axes if self._is_fixed(a, wire_axes)]
+        self.fixed = bool(fixed)
         if not self.fixed:
             return waiting
         waiting.append(

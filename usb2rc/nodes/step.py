@@ -33,6 +33,7 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import NamedTuple
 
 from usb2rc.config.model import HandoverConfig
@@ -166,10 +167,11 @@ class TableSnapshot:
     def frames(self) -> list[NodeFrame]:
         return [node.frame for node in self.nodes]
 
-    @property
+    @cached_property
     def newest_report_at(self) -> float | None:
         """When the newest report a live device published was read (monotonic): what a
-        frame made from this snapshot carries at the freshest. None: no live device."""
+        frame made from this snapshot carries at the freshest. None: no live device. Worked
+        out once per snapshot (every output due with it asks)."""
         times = [
             device.record.at
             for node in self.nodes
@@ -250,7 +252,7 @@ class TapLatch:
         seen: dict[int, int] = {}
         nodes = snapshot.nodes
         if node_ids is not None:
-            nodes = tuple(node for node in nodes if node.frame.node_id in node_ids)
+            nodes = tuple([node for node in nodes if node.frame.node_id in node_ids])
         frames = [self._latched(node, seen) for node in nodes]
         self._seen = seen  # devices gone from the snapshot are forgotten
         return frames

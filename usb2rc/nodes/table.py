@@ -347,14 +347,14 @@ class _Node:
                 own_trims = trims.of_switches(self.node_id, attached.binding.trim_switches)
             devices.append(attached.step(record, own_trims, now))
         # as `failsafe` says
-        failsafe = not self.attached or bool(self.expected) or not all(d.live for d in devices)
+        failsafe = not self.attached or bool(self.expected) or not all([d.live for d in devices])
         devices, notes = self._gated(devices, not failsafe)
         notes += self._silence_notes()
         merged = [(d.binding, d.inputs) for d in devices]
         pressed = NO_BUTTONS if failsafe else _pressed(devices)
         frame = compose(self.node_id, failsafe, base, base_unsigned, merged, pressed)
         self.stepped_reasons = self.reasons() if failsafe else []
-        waiting = tuple(text for _, text in self.stepped_reasons)
+        waiting = tuple([text for _, text in self.stepped_reasons])
         return NodeView(frame, tuple(devices), tuple(base), base_unsigned, waiting), notes
 
     def _silence_notes(self) -> list[str]:
@@ -421,10 +421,11 @@ class _Node:
         just gave), or waits for something else now (the neutral guard: what must rest),
         since the last call; `now` is the state of its last step (`step`)."""
         reasons = self.stepped_reasons if now else []
-        key = (now, tuple(kind for kind, _ in reasons))
+        key = (now, tuple([kind for kind, _ in reasons]))
         before, self.logged = self.logged, key
-        guarded = any(kind.startswith("guard") for kind, _ in reasons)
-        if before == key or (before is None and not guarded):
+        if before == key:
+            return None
+        if before is None and not any(kind.startswith("guard") for kind, _ in reasons):
             return None  # a new node says nothing until it waits for the pilot, or is live
         texts = ", ".join(text for _, text in reasons) or "-"
         if not now:
@@ -553,7 +554,7 @@ class NodeTable:
         due = []
         for node in nodes:
             # each reader's record read once: the step uses these (values and liveness agree)
-            records = tuple(a.source.record for a in node.attached)
+            records = tuple([a.source.record for a in node.attached])
             if not self._stepped_again(node.node_id, period, records, now):
                 continue
             self._stepped[node.node_id] = (period, self._layout, records)
@@ -897,5 +898,8 @@ def _resting(node: _Node, now: float) -> list[RestWatch]:
     """The node's waiting devices' rests not long enough at `now`: a step of the node is due
     once one is, even inside a period that had its step (a rest long enough by now was seen
     by this step)."""
-    waiting = (a.rest for a in node.attached if not a.armed)
-    return [rest for rest in waiting if rest.since is not None and not rest.rested_by(now)]
+    return [
+        a.rest
+        for a in node.attached
+        if not a.armed and a.rest.since is not None and not a.rest.rested_by(now)
+    ]
