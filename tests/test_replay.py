@@ -133,6 +133,19 @@ def test_removed_file_is_unplug(tmp_path: Path) -> None:
         backend.open(info)
 
 
+def test_a_pull_that_only_calls_read_due_sees_the_unplug(tmp_path: Path) -> None:
+    """A 1 kHz device always has a report due: read_due makes the gone check itself."""
+    path = install_file(tmp_path / "s.hid", recording_text(numbered(1)))
+    backend = ReplayBackend(tmp_path, loop=True, speed=1000.0)  # a report always due
+    device = backend.open(backend.enumerate()[0])
+    assert device.read_due(10)
+    path.unlink()
+    deadline = time.monotonic() + 10.0
+    with pytest.raises(DeviceGone):
+        while time.monotonic() < deadline:
+            device.read_due(10)
+
+
 def test_replaced_file_is_a_new_plug(tmp_path: Path) -> None:
     install_file(tmp_path / "s.hid", recording_text(numbered(1)))
     backend = ReplayBackend(tmp_path)
@@ -198,10 +211,9 @@ def test_read_due_hands_over_what_is_due_in_order_and_read_goes_on_from_there(
     install_file(tmp_path / "l.hid", recording_text(numbered(5, step=0.001)))
     backend = ReplayBackend(tmp_path, loop=True, speed=1000.0)  # every report due at once
     device = backend.open(backend.enumerate()[0])
-    assert device.read_due(10) == []  # no gone check yet: read() does it first
-    first = device.read(5.0)
+    first = device.read_due(1)  # its gone check made first, as read() makes it
     due = device.read_due(7)  # the rest of the lap and the next lap's first two
-    assert [first, *due] == [i.to_bytes(2, "little") for i in (0, 1, 2, 3, 4, 0, 1, 2)]
+    assert [*first, *due] == [i.to_bytes(2, "little") for i in (0, 1, 2, 3, 4, 0, 1, 2)]
     assert device.read(5.0) == (3).to_bytes(2, "little")
     device.close()
     assert device.read_due(10) == []

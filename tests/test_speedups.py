@@ -17,6 +17,7 @@ answered (else the speed-up never runs).
 
 from __future__ import annotations
 
+import io
 import os
 import subprocess
 import sys
@@ -25,7 +26,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from usb2rc.hid import recording, speedups
+from usb2rc.hid import recording, replay, speedups
 from usb2rc.hid.descriptor import ButtonField, DeviceLayout, InputField, ReportDecoder
 from usb2rc.hid.recording import RecordedEvent, format_event
 
@@ -217,3 +218,82 @@ def test_a_stamp_reads_as_float_reads_it(stamp: str, report: bytes) -> None:
     parsed = c_parse([line])
     assert parsed is not None
     assert parsed[0][0].hex() == float(stamp).hex()
+
+
+def c_block(text: str) -> tuple[list[float], list[bytes], int, int] | None:
+    c_loops = speedups.compiled()
+    assert c_loops is not None
+    parsed: tuple[list[float], list[bytes], int, int] | None = c_loops.parse_block(text)
+    return parsed
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.lists(EVENTS, max_size=20), st.sampled_from(["\n", "\r\n", "  \n"]), st.data())
+def test_a_block_parses_in_c_as_in_python(
+    events: list[RecordedEvent], end: str, data: st.DataObject
+) -> None:
+    """A block of lines as written, cut anywhere (the replay reads 8 KB at a time): the C
+    parse gives what the Python twin gives, None included. Edited: the same, or no verdict
+    (None: the lines then take the line parses, as `parse_events`'s no verdict does)."""
+    text = "".join(format_event(e) + end for e in events)
+    text = text[: data.draw(st.integers(0, len(text)))]
+    edited = bool(text) and data.draw(st.booleans())
+    if edited:
+        at = data.draw(st.integers(0, len(text)))
+        text = text[:at] + data.draw(EDITS) + text[at:]
+    parsed = c_block(text)
+    if parsed is not None or not edited:
+        assert parsed == recording._block_as_written_py(text)
+
+
+@given(st.lists(EVENTS, min_size=1, max_size=20), st.sampled_from(["\n", "\r\n"]))
+def test_a_block_of_complete_lines_gives_their_events_and_where_they_end(
+    events: list[RecordedEvent], end: str
+) -> None:
+    lines = [format_event(e) + end for e in events]
+    parsed = c_block("".join(lines) + "E: 1.5 2 0")  # a line the block cut: for the next
+    one_by_one = [recording._event_as_written(line) for line in lines]
+    assert parsed == (
+        [e.time_s for e in one_by_one if e is not None],
+        [e.report for e in one_by_one if e is not None],
+        len("".join(lines)),
+        len(events),
+    )
+
+
+@given(
+    st.lists(st.floats(min_value=0, max_value=1e6, allow_nan=False), max_size=30),
+    st.floats(min_value=0, max_value=1e6, allow_nan=False),
+    st.floats(min_value=0.01, max_value=1000, allow_nan=False),
+    st.floats(min_value=-1e6, max_value=2e6, allow_nan=False),
+)
+def test_running_dues_in_c_are_the_python_twins_bit_for_bit(
+    times: list[float], start: float, speed: float, floor: float
+) -> None:
+    c_loops = speedups.compiled()
+    assert c_loops is not None
+    got = c_loops.running_dues(times, start, speed, floor)
+    want = replay.running_dues_py(times, start, speed, floor)
+    assert [d.hex() for d in got] == [d.hex() for d in want]
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(EVENTS, min_size=1, max_size=400), st.sampled_from(["\n", "\r\n"]))
+def test_a_recordings_batches_are_the_same_with_the_c_loops_off(
+    events: list[RecordedEvent], end: str
+) -> None:
+    """From a text file, read in blocks: every event, in order, with or without C."""
+    text = "R: 1 00\n" + "".join(format_event(e) + end for e in events)
+    got = []
+    for switched_off in (False, True):
+        before = speedups._SWITCHED_OFF
+        speedups._SWITCHED_OFF = switched_off
+        try:
+            batches = recording.open_recording_batches(io.StringIO(text, newline=None))[1]
+            got.append(
+                [(t, r) for times, reports in batches for t, r in zip(times, reports, strict=True)]
+            )
+        finally:
+            speedups._SWITCHED_OFF = before
+    assert got[0] == got[1]
+    assert [r for _, r in got[0]] == [e.report for e in events]

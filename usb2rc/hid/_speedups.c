@@ -30,6 +30,14 @@
  * exactly `E: <digits[.digits]> <length> <length two-digit hex bytes, one space apart>`
  * followed by whitespace only. None is no verdict: the Python parse then decides (it takes
  * a few more spellings, and names a bad line).
+ *
+ * parse_block(text): the complete lines of a block of a recording's text (those that end in
+ * '\n'), each as parse_events takes it, without making a string per line: (times, reports,
+ * end, lines), `end` the index after the last '\n' and `lines` their count; None when the
+ * text is not ASCII, holds no complete line, or one of them is not as written.
+ *
+ * running_dues(times, start, speed, floor): when each event is due, start + t / speed, and
+ * never before the one before it nor before `floor` (a running maximum from `floor`).
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -498,9 +506,95 @@ done:
     return result;
 }
 
+static PyObject *
+parse_block(PyObject *module, PyObject *text)
+{
+    (void)module;
+    if (!PyUnicode_Check(text)) {
+        PyErr_SetString(PyExc_TypeError, "text must be a str");
+        return NULL;
+    }
+    if (!PyUnicode_IS_ASCII(text)) {
+        Py_RETURN_NONE;
+    }
+    const char *s = (const char *)PyUnicode_DATA(text);
+    Py_ssize_t n = PyUnicode_GET_LENGTH(text), lines = 0, start = 0;
+    PyObject *times = PyList_New(0), *reports = PyList_New(0), *result = NULL;
+    if (times == NULL || reports == NULL) {
+        goto done;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        if (s[i] != '\n') {
+            continue;
+        }
+        double t;
+        PyObject *report = NULL, *stamp = NULL;
+        if (!parse_event(s + start, i - start, &t, &report)) {
+            goto done; /* not as written: no verdict */
+        }
+        int failed = (stamp = PyFloat_FromDouble(t)) == NULL || PyList_Append(times, stamp) < 0
+                     || PyList_Append(reports, report) < 0;
+        Py_XDECREF(stamp);
+        Py_DECREF(report);
+        if (failed) {
+            goto done;
+        }
+        lines++;
+        start = i + 1;
+    }
+    if (lines > 0) {
+        result = Py_BuildValue("OOnn", times, reports, start, lines);
+    }
+done:
+    Py_XDECREF(times);
+    Py_XDECREF(reports);
+    if (result == NULL && !PyErr_Occurred()) {
+        Py_RETURN_NONE;
+    }
+    return result;
+}
+
+static PyObject *
+running_dues(PyObject *module, PyObject *args)
+{
+    (void)module;
+    PyObject *times;
+    double start, speed, due;
+    if (!PyArg_ParseTuple(args, "O!ddd", &PyList_Type, &times, &start, &speed, &due)) {
+        return NULL;
+    }
+    Py_ssize_t n = PyList_GET_SIZE(times);
+    PyObject *dues = PyList_New(n);
+    if (dues == NULL) {
+        return NULL;
+    }
+    for (Py_ssize_t k = 0; k < n; k++) {
+        double t = PyFloat_AsDouble(PyList_GET_ITEM(times, k));
+        if (t == -1.0 && PyErr_Occurred()) {
+            Py_DECREF(dues);
+            return NULL;
+        }
+        double at = start + t / speed;
+        if (at > due) { /* max(due, at), as Python's max keeps the first of equals */
+            due = at;
+        }
+        PyObject *value = PyFloat_FromDouble(due);
+        if (value == NULL) {
+            Py_DECREF(dues);
+            return NULL;
+        }
+        PyList_SET_ITEM(dues, k, value);
+    }
+    return dues;
+}
+
 static PyMethodDef module_methods[] = {
     {"parse_events", parse_events, METH_O,
      "parse_events(lines) -> (times, reports), or None: not every line as hid-recorder writes"},
+    {"parse_block", parse_block, METH_O,
+     "parse_block(text) -> (times, reports, end, lines), or None: a line not as written"},
+    {"running_dues", running_dues, METH_VARARGS,
+     "running_dues(times, start, speed, floor) -> dues: start + t / speed, a running maximum"},
     {NULL, NULL, 0, NULL},
 };
 

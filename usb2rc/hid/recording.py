@@ -15,7 +15,7 @@ Only the first device of a file is read; `D:` lines for other devices are skippe
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from itertools import islice
 
@@ -149,6 +149,29 @@ def _events_as_written_py(lines: list[str]) -> EventBatch | None:
     return times, reports
 
 
+def _block_as_written(text: str) -> tuple[list[float], list[bytes], int, int] | None:
+    """The complete lines of a block of text (those its last newline ends) when every one is
+    an `E:` line as written: (times, reports, end, lines), `end` the index after that
+    newline, `lines` their count. None otherwise (the lines then take `_events_as_written`
+    and the full parse). In one C call, without a string per line, where the HID stage's C
+    loops are built."""
+    c_loops = speedups.compiled()
+    if c_loops is not None:
+        parsed: tuple[list[float], list[bytes], int, int] | None = c_loops.parse_block(text)
+        return parsed
+    return _block_as_written_py(text)
+
+
+def _block_as_written_py(text: str) -> tuple[list[float], list[bytes], int, int] | None:
+    """`_block_as_written` in Python: the lines split, then `_events_as_written_py`."""
+    end = text.rfind("\n") + 1
+    if not end:
+        return None
+    lines = text[: end - 1].split("\n")
+    parsed = _events_as_written_py(lines) if text.isascii() else None
+    return None if parsed is None else (parsed[0], parsed[1], end, len(lines))
+
+
 def _parse_ids(rest: str, lineno: int, source: str) -> tuple[int, int, int]:
     parts = rest.split()
     try:
@@ -202,9 +225,14 @@ class _LineParser:
 
     def batches(self, lines: Iterator[str], lineno: int) -> Iterator[EventBatch]:
         """The events of `lines` (the first is line `lineno + 1`), a chunk of lines at a
-        time (`_line_chunks`); a batch with no event is not yielded. At a bad line, the
-        events before it come out first, then its RecordingError."""
-        for chunk in _line_chunks(lines):
+        time (`_line_chunks`; from a text file, a block whose lines are all as written is
+        parsed whole, `_block_as_written`); a batch with no event is not yielded. At a bad
+        line, the events before it come out first, then its RecordingError."""
+        for chunk in _line_chunks(lines, self._as_written_block):
+            if isinstance(chunk, tuple):  # a block as written: (times, reports, lines)
+                yield chunk[0], chunk[1]
+                lineno += chunk[2]
+                continue
             size = len(chunk)
             written = _events_as_written(chunk) if self.device_index == 0 else None
             if written is None:
@@ -213,6 +241,11 @@ class _LineParser:
                 del chunk  # the text is not held while its events are played
                 yield written
             lineno += size
+
+    def _as_written_block(self, text: str) -> tuple[list[float], list[bytes], int, int] | None:
+        """`_block_as_written`, for the first device's lines only (the others' are read
+        for their `D:` lines)."""
+        return _block_as_written(text) if self.device_index == 0 else None
 
     def _line_by_line(self, chunk: list[str], lineno: int) -> Iterator[EventBatch]:
         times: list[float] = []
@@ -235,10 +268,16 @@ class _LineParser:
         )
 
 
-def _line_chunks(lines: Iterator[str]) -> Iterator[list[str]]:
+BlockParse = Callable[[str], tuple[list[float], list[bytes], int, int] | None]
+
+
+def _line_chunks(
+    lines: Iterator[str], parse_block: BlockParse | None = None
+) -> Iterator[list[str] | tuple[list[float], list[bytes], int]]:
     """The lines in lists: from a text file (what has `read`), a block of BLOCK_CHARS at a
     time split at its newlines (a line the block cuts waits for the next block; the lines
-    come without their newline), else BATCH_LINES lines at a time."""
+    come without their newline), else BATCH_LINES lines at a time. With `parse_block`, a
+    block's complete lines it parses come as (times, reports, number of lines) instead."""
     read = getattr(lines, "read", None)
     if read is None:
         while chunk := list(islice(lines, BATCH_LINES)):
@@ -246,7 +285,13 @@ def _line_chunks(lines: Iterator[str]) -> Iterator[list[str]]:
         return
     pending = ""
     while block := read(BLOCK_CHARS):
-        chunk = (pending + block).split("\n")
+        text = pending + block
+        if parse_block is not None and (parsed := parse_block(text)) is not None:
+            times, reports, end, count = parsed
+            pending = text[end:]
+            yield times, reports, count
+            continue
+        chunk = text.split("\n")
         pending = chunk.pop()
         if chunk:
             yield chunk

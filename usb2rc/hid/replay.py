@@ -48,6 +48,7 @@ from dataclasses import dataclass
 from itertools import accumulate
 from pathlib import Path
 
+from usb2rc.hid import speedups
 from usb2rc.hid.backend import BUS_BLUETOOTH, BUS_USB, DeviceGone, DeviceInfo, DeviceOpenError
 from usb2rc.hid.descriptor import top_level_usage
 from usb2rc.hid.dirwatch import DirectoryWatch
@@ -135,6 +136,21 @@ class EventFile:
 
     def __del__(self) -> None:  # a device dropped without close() (a test's) closes its file
         self.close()
+
+
+def running_dues(times: list[float], start: float, speed: float, floor: float) -> list[float]:
+    """When each event of a batch is due: `start + t / speed`, never before the one before
+    it nor before `floor` (the batch before's last). In one C call where the HID stage's C
+    loops are built."""
+    c_loops = speedups.compiled()
+    if c_loops is not None:
+        dues: list[float] = c_loops.running_dues(times, start, speed, floor)
+        return dues
+    return running_dues_py(times, start, speed, floor)
+
+
+def running_dues_py(times: list[float], start: float, speed: float, floor: float) -> list[float]:
+    return list(accumulate((start + t / speed for t in times), max, initial=floor))[1:]
 
 
 def _stat_id(path: Path) -> StatId | None:
@@ -384,11 +400,8 @@ class ReplayDevice:
         times, self._reports = batch
         # From t0 each time (not a running sum): a device looped for hours does not drift.
         start = self._t0 + self._lap * self._lap_s
-        speed = self._speed
-        dues = [start + t / speed for t in times]
-        if dues[0] < self._last_due or dues != sorted(dues):  # a time before the one before
-            dues = list(accumulate(dues, max, initial=self._last_due))[1:]
-        self._dues = dues
+        # a time before the one before is due with it: the file's order is kept
+        self._dues = running_dues(times, start, self._speed, self._last_due)
         self._last_due = self._dues[-1]
         self._next = 0
         return True
@@ -448,12 +461,20 @@ class ReplayDevice:
     def read_due(self, limit: int) -> list[bytes]:
         """The reports due now, at most `limit`, in one call: a reader's drain takes ~10 at
         a time from a 1 kHz device, and a `read(0.0)` each costs more in clock reads and
-        calls than the delivery itself. Never blocks, never checks: when a gone check or a
-        fault is due it returns [] and the caller's `read` does it (`hid/reader.py` calls
-        `read(0.0)` after this until it returns None)."""
+        calls than the delivery itself. Never blocks. Its gone check (a stat every
+        GONE_CHECK_S) is made here as in `read`, and raises as `read` does once the file is
+        gone; when a fault is due, or the device is gone or closed, it returns [] and the
+        caller's `read` raises (`hid/reader.py` calls `read(0.0)` after this until it
+        returns None)."""
         started = time.perf_counter()
         now = time.monotonic()
         due: list[bytes] = []
+        if self._quiet_until <= now < self._fault_due and self._gone is None:
+            try:
+                self._check_gone(now)  # a stat, at most every GONE_CHECK_S
+            finally:
+                self.busy_s += time.perf_counter() - started
+            started = time.perf_counter()
         if now < self._quiet_until and not self._closed.is_set():
             while len(due) < limit and (self._next < len(self._dues) or self._refill()):
                 first, dues = self._next, self._dues
