@@ -169,3 +169,51 @@ def _wire(entry: dict[str, Any]) -> bytes:
     if "hex" in entry:
         return bytes.fromhex(entry["hex"].replace(" ", ""))
     return bytes(entry["bytes"])
+
+
+C2_CONTENTS = st.tuples(
+    st.lists(st.integers(-32768, 65535), min_size=10, max_size=10),
+    st.integers(0, 0xFFFFFFFF),
+    st.integers(0, 0xFFFFFFFF),
+)
+C2_FRAMES = st.tuples(
+    st.sampled_from([0x3E, 0x21, 0x3C, 0x26, 0x25, 0x3E, 0x00]),  # a bad status too
+    st.integers(0, 3),
+    st.integers(0, 255),
+    st.integers(0, 3),  # which of a few contents: most frames repeat one
+)
+
+
+def one_field_changed(content: tuple[list[int], int, int], k: int) -> tuple[list[int], int, int]:
+    """`content` with field k changed: an axis (0-9), group 1 (10) or group 2 (11)."""
+    axes, group1, group2 = list(content[0]), content[1], content[2]
+    if k < 10:
+        axes[k] = axes[k] + 1 if axes[k] < 65535 else 0
+    elif k == 10:
+        group1 ^= 1 << 31
+    else:
+        group2 ^= 1
+    return axes, group1, group2
+
+
+@settings(max_examples=300)
+@given(
+    C2_CONTENTS,
+    st.lists(st.integers(0, 11), max_size=3),
+    st.lists(C2_FRAMES, max_size=30),
+)
+def test_c2_data_frames_kept_bodies_encode_as_encode_data(
+    base: tuple[list[int], int, int], changes: list[int], frames: list[tuple[int, int, int, int]]
+) -> None:
+    """A body kept while a node's content stays the same (one field apart is another
+    content): every frame, and every error, as `encode_data` makes it (docs/ICD.md, "Data
+    frame")."""
+    contents = [base, *(one_field_changed(base, k) for k in changes)]
+    for line_feed in (True, False):
+        kept = c2_16b.DataFrames(line_feed)
+        for status, node_id, code, which in frames:
+            axes, group1, group2 = contents[which % len(contents)]
+            want = outcome(
+                c2_16b.encode_data, status, node_id, code, axes, group1, group2, line_feed=line_feed
+            )
+            assert outcome(kept.encode, status, node_id, code, axes, group1, group2) == want

@@ -219,11 +219,13 @@ def _wire_axes(axes: Sequence[int]) -> list[int]:
     return list(map(_UINT16_MASK.__and__, axes))
 
 
-def _frame(status: int, node_id: int, code: int, body: bytes, line_feed: bool) -> bytes:
+def _frame(
+    status: int, node_id: int, code: int, body: bytes, line_feed: bool, body_crc: int = -1
+) -> bytes:
     """A frame from its checked parts: the CRC from the header bytes' shares (one lookup
-    each) and the CRC of the 28-byte body."""
+    each) and the CRC of the 28-byte body (`body_crc`, when known)."""
     crc = _HEADER_CRC ^ _STATUS_CRC[status] ^ _NODE_CRC[node_id] ^ _CODE_CRC[code]
-    crc ^= crc16_arc(body)
+    crc ^= crc16_arc(body) if body_crc < 0 else body_crc
     if line_feed:
         return _FRAME_LF.pack(HEADER, status, node_id, code, body, crc, LF)
     return _FRAME.pack(HEADER, status, node_id, code, body, crc)
@@ -264,6 +266,34 @@ def encode_data(
     """A data frame. Axes take int16 or uint16 values (-32768..65535), packed little-endian."""
     body = _checked_body(status, node_id, code, axes, group1, group2)
     return _frame(status, node_id, code, body, line_feed)
+
+
+class DataFrames:
+    """`encode_data` for one output's frames: each node's body (bytes 5-32: axes and
+    buttons) and its CRC are kept while that content stays the same, so a frame whose
+    content did not change gets only its status, code and CRC (three table lookups)."""
+
+    def __init__(self, line_feed: bool = True) -> None:
+        self.line_feed = line_feed
+        # node_id -> ((axes, group1, group2), body, the body's CRC)
+        self._kept: dict[int, tuple[tuple[tuple[int, ...], int, int], bytes, int]] = {}
+
+    def encode(
+        self,
+        status: int,
+        node_id: int,
+        code: int,
+        axes: Sequence[int],
+        group1: int,
+        group2: int,
+    ) -> bytes:
+        content = (tuple(axes), group1, group2)
+        kept = self._kept.get(node_id)
+        if kept is None or kept[0] != content or not _data_checks_pass(status, node_id, code):
+            body = _checked_body(status, node_id, code, axes, group1, group2)
+            kept = (content, body, crc16_arc(body))
+            self._kept[node_id] = kept
+        return _frame(status, node_id, code, kept[1], self.line_feed, kept[2])
 
 
 def _checked_body(

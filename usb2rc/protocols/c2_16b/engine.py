@@ -161,6 +161,8 @@ class C2Engine:
         self._startup_due = True
         self._owed: deque[_Owed] = deque()
         self._codes: dict[int, int] = {}
+        # a node's frame body and its CRC, kept while its content stays the same
+        self._data_frames = c2_16b.DataFrames(settings.line_feed)
         self._on_line: set[int] = set()  # nodes whose data frames this line has seen
         self._announced: set[int] = set()  # nodes whose whole 1,6,5,7 went out on this line
         self._present: dict[int, dict[str, ServiceEvent]] = {}  # node -> device -> CONNECTED
@@ -522,14 +524,8 @@ class C2Engine:
         ]
 
     def _data_frame(self, frame: NodeFrame, status: int, byte4: int) -> bytes:
-        return c2_16b.encode_data(
-            status,
-            frame.node_id,
-            byte4,
-            frame.axes,
-            frame.group1,
-            frame.group2,
-            line_feed=self.settings.line_feed,
+        return self._data_frames.encode(
+            status, frame.node_id, byte4, frame.axes, frame.group1, frame.group2
         )
 
     def _kw(self) -> dict[str, bool]:
