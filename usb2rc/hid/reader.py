@@ -298,10 +298,8 @@ class DeviceReader(Worker):
             self._repeats,
         )
         self.record = record
-        if self.on_bad_reports is None:
-            return
         edge = (record.in_error, record.bad_spells) != (last.in_error, last.bad_spells)
-        if edge:
+        if edge and self.on_bad_reports is not None:
             self.on_bad_reports(self, record)
 
     def pull(self) -> None:

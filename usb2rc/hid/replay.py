@@ -469,21 +469,20 @@ class ReplayDevice:
         started = time.perf_counter()
         now = time.monotonic()
         due: list[bytes] = []
-        if self._quiet_until <= now < self._fault_due and self._gone is None:
-            try:
+        try:
+            if self._quiet_until <= now < self._fault_due and self._gone is None:
                 self._check_gone(now)  # a stat, at most every GONE_CHECK_S
-            finally:
-                self.busy_s += time.perf_counter() - started
-            started = time.perf_counter()
-        if now < self._quiet_until and not self._closed.is_set():
-            while len(due) < limit and (self._next < len(self._dues) or self._refill()):
-                first, dues = self._next, self._dues
-                end = bisect_right(dues, now, first, min(len(dues), first + limit - len(due)))
-                due += self._reports[first:end]
-                self._next = end
-                if end < len(dues):  # the next one is not due yet (or the limit is reached)
-                    break
-        self.busy_s += time.perf_counter() - started
+            if now < self._quiet_until and not self._closed.is_set():
+                while len(due) < limit and (self._next < len(self._dues) or self._refill()):
+                    first, dues = self._next, self._dues
+                    last = min(len(dues), first + limit - len(due))
+                    end = bisect_right(dues, now, first, last)
+                    due += self._reports[first:end]
+                    self._next = end
+                    if end < len(dues):  # the next one is not due yet (or the limit is reached)
+                        break
+        finally:
+            self.busy_s += time.perf_counter() - started
         return due
 
     def read(self, timeout_s: float) -> bytes | None:

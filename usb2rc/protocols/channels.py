@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Self
 
 from usb2rc.config.channel_ref import ChannelRef
 from usb2rc.nodes.curves import clamp, mix_line, normalised, position_value, to_int16
@@ -219,10 +220,9 @@ class OutputChannels:
         self.node_ids = node_ids
 
     @classmethod
-    def scaled(
-        cls, sources: Iterable[Channel], scale: WireScale, frame_length: int = 0
-    ) -> OutputChannels:
-        """The channels of a config's output through a protocol's scale."""
+    def scaled(cls, sources: Iterable[Channel], scale: WireScale, frame_length: int = 0) -> Self:
+        """The channels of a config's output through a protocol's scale, and the nodes
+        they read."""
         sources = tuple(sources)
         values = [channel_value(source, scale) for source in sources]
         return cls(values, frame_length, nodes_read(sources))

@@ -220,12 +220,11 @@ def _wire_axes(axes: Sequence[int]) -> list[int]:
 
 
 def _frame(
-    status: int, node_id: int, code: int, body: bytes, line_feed: bool, body_crc: int = -1
+    status: int, node_id: int, code: int, body: bytes, line_feed: bool, body_crc: int
 ) -> bytes:
     """A frame from its checked parts: the CRC from the header bytes' shares (one lookup
-    each) and the CRC of the 28-byte body (`body_crc`, when known)."""
-    crc = _HEADER_CRC ^ _STATUS_CRC[status] ^ _NODE_CRC[node_id] ^ _CODE_CRC[code]
-    crc ^= crc16_arc(body) if body_crc < 0 else body_crc
+    each) and `body_crc`, the CRC of the 28-byte body."""
+    crc = _HEADER_CRC ^ _STATUS_CRC[status] ^ _NODE_CRC[node_id] ^ _CODE_CRC[code] ^ body_crc
     if line_feed:
         return _FRAME_LF.pack(HEADER, status, node_id, code, body, crc, LF)
     return _FRAME.pack(HEADER, status, node_id, code, body, crc)
@@ -265,7 +264,7 @@ def encode_data(
 ) -> bytes:
     """A data frame. Axes take int16 or uint16 values (-32768..65535), packed little-endian."""
     body = _checked_body(status, node_id, code, axes, group1, group2)
-    return _frame(status, node_id, code, body, line_feed)
+    return _frame(status, node_id, code, body, line_feed, crc16_arc(body))
 
 
 class DataFrames:
@@ -327,7 +326,7 @@ def encode_service(
     _check_int("service code", code, 0, 255)
     wire_payload = _padded_payload(payload)
     status = kind.value if binary_status else ASCII_SERVICE_OFFSET + kind.value
-    return _frame(status, node_id, code, wire_payload, line_feed)
+    return _frame(status, node_id, code, wire_payload, line_feed, crc16_arc(wire_payload))
 
 
 def ascii_field(text: str, limit: int = TEXT_LEN) -> bytes:

@@ -18,7 +18,6 @@ from usb2rc.protocols.channels import (
     OutputChannels,
     WireScale,
     channel_value,
-    nodes_read,
     wire_value,
 )
 from usb2rc.protocols.sumd import codec as sumd
@@ -53,9 +52,7 @@ class SumdChannels(OutputChannels):
     def of(cls, sources: Iterable[Channel], extended: bool = False) -> SumdChannels:
         """The channels of a config's output: `SumdChannels.of(mapping.sumd_channels(out),
         out.extended)`."""
-        sources = tuple(sources)
-        values = [sumd_channel(source, extended) for source in sources]
-        return cls(values, node_ids=nodes_read(sources))
+        return cls.scaled(sources, sumd_scale(extended))
 
     @property
     def frame_length(self) -> int:
