@@ -51,7 +51,8 @@ class Pilot:
         self.table.set_controls(switches, list(cuts))
         self.state = StickState()
         self.reports = 1  # the state is known from the first report
-        self.presses: tuple[tuple[int, int], ...] = ()
+        self.presses: tuple[int, ...] = ()
+        self.serial = 0  # the newest press's
         self.source = RecordSource(self._record())
         self.plug()
 
@@ -66,15 +67,16 @@ class Pilot:
     def _record(self) -> ReaderRecord:
         decoder = LAYOUT.make_decoder()
         decoder.feed(self.state.report())
-        serial = self.presses[-1][0] if self.presses else 0
-        return ReaderRecord(decoder.state(), self.reports, 0, self.clock.now, self.presses, serial)
+        return ReaderRecord(
+            decoder.state(), self.reports, 0, self.clock.now, self.presses, self.serial
+        )
 
     def report(self, **changes: int) -> None:
         before = self.state.buttons
         self.state = StickState(**{**self.state.__dict__, **changes})
         rising = self.state.buttons & ~before
         if rising:
-            self.presses = (*self.presses, (len(self.presses) + 1, rising))[-32:]
+            self.presses, self.serial = (*self.presses, rising)[-32:], self.serial + 1
         self.reports += 1
         self.source.record = self._record()
 

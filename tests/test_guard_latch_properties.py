@@ -198,12 +198,13 @@ def test_a_trim_steps_once_per_press_and_never_leaves_its_limit(
     source = RecordSource(centred)
     table.add_device(0, info("k"), binding, source, "JOYSTICK")
     table.frames()  # live: trims step from now on
-    presses: tuple[tuple[int, int], ...] = ()
+    presses: tuple[int, ...] = ()
+    serial = 0
     model = 0.0
     for op in ops:
         if op[0] == "press":
-            serial = len(presses) + 1
-            presses = (*presses, (serial, 1 << (op[1] - 1)))[-PRESSES_KEPT:]
+            serial += 1
+            presses = (*presses, 1 << (op[1] - 1))[-PRESSES_KEPT:]
             source.record = ReaderRecord(centred.state, 1 + serial, 0, None, presses, serial)
             model = max(-limit, min(limit, model + (step if op[1] == 2 else -step)))
         else:

@@ -54,7 +54,7 @@ def record(state: StickState, reports: int, at: float) -> ReaderRecord:
     """A reader's record of `state`; its buttons, when any, pressed by this report."""
     decoder = LAYOUT.make_decoder()
     decoder.feed(state.report())
-    presses = ((reports, state.buttons),) if state.buttons else ()
+    presses = (state.buttons,) if state.buttons else ()
     return ReaderRecord(decoder.state(), reports, 0, at, presses, reports if presses else 0)
 
 

@@ -50,7 +50,7 @@ class Reader:
 
     buttons: int = 0
     reports: int = 0
-    presses: tuple[tuple[int, int], ...] = ()
+    presses: tuple[int, ...] = ()
     serial: int = 0
     decoder: Any = field(default_factory=LAYOUT.make_decoder)
 
@@ -60,7 +60,7 @@ class Reader:
         self.buttons, self.reports = buttons, self.reports + 1
         if rising:
             self.serial += 1
-            self.presses = (*self.presses, (self.serial, rising))[-64:]
+            self.presses = (*self.presses, rising)[-64:]
 
     def record(self) -> ReaderRecord:
         state = self.decoder.state()

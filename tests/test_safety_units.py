@@ -209,7 +209,7 @@ class Presses:
 
     def __init__(self) -> None:
         self.serial = 0
-        self.presses: tuple[tuple[int, int], ...] = ()
+        self.presses: tuple[int, ...] = ()
         self.record = stick_record(StickState())
 
     def pull(self) -> None:
@@ -217,7 +217,7 @@ class Presses:
 
     def press(self, hid_button: int) -> None:
         self.serial += 1
-        self.presses = (*self.presses, (self.serial, 1 << (hid_button - 1)))
+        self.presses = (*self.presses, 1 << (hid_button - 1))
         base = stick_record(StickState())
         self.record = ReaderRecord(base.state, self.serial + 1, 0, None, self.presses, self.serial)
 

@@ -126,11 +126,11 @@ def test_the_node_frame_carries_the_handover_and_the_battery():
     (frame,) = table.frames()  # live: a press from now on asks for the handover
     assert frame.failsafe is False and frame.low_battery is True and frame.handover is None
     decoder.feed(pad_report(buttons=0x01, battery=5))
-    source.record = ReaderRecord(decoder.state(), reports=2, presses=((1, 0x01),), press_serial=1)
+    source.record = ReaderRecord(decoder.state(), reports=2, presses=(0x01,), press_serial=1)
     (frame,) = table.frames()
     assert frame.handover is not None and frame.handover.destination == 200
     decoder.feed(pad_report(buttons=0x00, battery=50))
-    source.record = ReaderRecord(decoder.state(), reports=3, presses=((1, 0x01),), press_serial=1)
+    source.record = ReaderRecord(decoder.state(), reports=3, presses=(0x01,), press_serial=1)
     (frame,) = table.frames()
     assert (frame.handover, frame.low_battery) == (None, False)
 

@@ -47,6 +47,7 @@ import operator
 import threading
 import time
 from collections.abc import Callable, Sequence
+from functools import reduce
 from typing import NamedTuple, Protocol, runtime_checkable
 
 from usb2rc.hid.backend import Device, DeviceGone, ErrorCode, OutputPort
@@ -102,9 +103,10 @@ class ReaderRecord(NamedTuple):
     reports: int = 0  # reports the decoder accepted; 0: the device's state is not known yet
     bad_reports: int = 0  # reports it refused (unknown ID, short)
     at: float | None = None  # monotonic time of the last published report
-    # No lost taps (docs/ICD.md, "Taps"): the last PRESSES_KEPT reports that pressed a button,
-    # as (serial, HID buttons that went down), oldest first; press_serial is the newest's.
-    presses: tuple[tuple[int, int], ...] = ()
+    # No lost taps (docs/ICD.md, "Taps"): the HID buttons that went down in each of the last
+    # PRESSES_KEPT reports that pressed a button, oldest first. Presses are numbered one by
+    # one: press_serial is the newest's, so entry i is press press_serial - len + 1 + i.
+    presses: tuple[int, ...] = ()
     press_serial: int = 0
     refused_in_a_row: int = 0  # refused since the last accepted report
     bad_spells: int = 0  # times `refused_in_a_row` reached BAD_REPORTS_LIMIT
@@ -117,15 +119,18 @@ class ReaderRecord(NamedTuple):
         """The device's last BAD_REPORTS_LIMIT reports or more were all refused."""
         return self.refused_in_a_row >= BAD_REPORTS_LIMIT
 
+    def presses_after(self, serial: int) -> tuple[int, ...]:
+        """What each press after press `serial` (a consumer's last `press_serial`) pressed,
+        oldest first (those still kept)."""
+        newer = self.press_serial - serial
+        if newer <= 0:
+            return ()
+        return self.presses[-newer:]
+
     def pressed_since(self, serial: int) -> int:
-        """The HID buttons pressed in any report after press `serial` (a consumer's last
-        `press_serial`): a tap that is over by now still shows in the consumer's next frame."""
-        mask = 0
-        for when, rising in reversed(self.presses):
-            if when <= serial:
-                break
-            mask |= rising
-        return mask
+        """The HID buttons pressed in any report after press `serial`: a tap that is over by
+        now still shows in the consumer's next frame."""
+        return reduce(operator.or_, self.presses_after(serial), 0)
 
 
 class OutputRecord(NamedTuple):
@@ -162,7 +167,7 @@ class DeviceReader(Worker):
         self._read_due: Callable[[int], list[bytes]] | None = getattr(device, "read_due", None)
         self._last_report = b""  # the raw report before, for `repeats`
         self._repeats = 0
-        self._presses: tuple[tuple[int, int], ...] = ()
+        self._presses: tuple[int, ...] = ()
         self._press_serial = 0
         self.exit_code: ErrorCode | None = None
         self.error: BaseException | None = None  # what ended it, if not stop()
@@ -236,10 +241,8 @@ class DeviceReader(Worker):
         holds the buttons each report pressed, for every report that pressed one, in order
         (a batch's, as `ReportDecoder.feed_presses` gives them); one entry each, numbered on
         from the last, the press log rebuilt once."""
-        serial = self._press_serial
-        self._press_serial = serial + len(pressed)
-        numbered = zip(range(serial + 1, serial + 1 + len(pressed)), pressed, strict=True)
-        self._presses = (*self._presses, *numbered)[-PRESSES_KEPT:]
+        self._press_serial += len(pressed)
+        self._presses = (*self._presses, *pressed)[-PRESSES_KEPT:]
 
     def _queued(self) -> list[bytes]:
         """What the device has queued, read without blocking, at most MAX_BATCH reports. The
@@ -283,7 +286,7 @@ class DeviceReader(Worker):
         """One assignment: the state, its counts and its time are seen together or not at all.
         Only when something changed (a refused report changes the counts, not the state)."""
         last = self.record
-        if (last.reports, last.bad_reports) == (self._reports, self._bad_reports):
+        if last.reports == self._reports and last.bad_reports == self._bad_reports:
             return
         at = time.monotonic() if self._reports != last.reports else last.at
         record = ReaderRecord(
@@ -298,8 +301,12 @@ class DeviceReader(Worker):
             self._repeats,
         )
         self.record = record
-        edge = (record.in_error, record.bad_spells) != (last.in_error, last.bad_spells)
-        if edge and self.on_bad_reports is not None:
+        if self.on_bad_reports is None or (
+            record.refused_in_a_row == last.refused_in_a_row
+            and record.bad_spells == last.bad_spells
+        ):
+            return  # the common publish: nothing refused, before or now
+        if (record.in_error, record.bad_spells) != (last.in_error, last.bad_spells):
             self.on_bad_reports(self, record)
 
     def pull(self) -> None:

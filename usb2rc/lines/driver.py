@@ -204,6 +204,9 @@ class LineDriver:
         # so this output may sleep while its session is asleep; set before the thread starts
         self.can_doze = False
         self.asleep = False  # its last tick found its session asleep (and it can doze)
+        # its session's line stalled, as this driver's last call (start, write, wait on the
+        # link, tick) left it: the only calls that change it; the loop asks at every wake-up
+        self.stalled = False
         self.last_tick_monotonic = 0.0
         self._last_write = 0.0
         self._input_at: float | None = None  # newest report of the tick's snapshot (read at)
@@ -266,6 +269,7 @@ class LineDriver:
             self._held = b""
         self.next_moment = self._deadline
         self.asleep = self.can_doze and self._ok and self.session.asleep(snapshot)
+        self.stalled = self.session.stalled
         self._cost_s = step_s + time.monotonic() - started
 
     def write(self) -> None:
@@ -279,6 +283,7 @@ class LineDriver:
                 self._write(data, self._was_stalled)
             except Exception as exc:
                 self._failed(exc)
+        self.stalled = self.session.stalled
         self._cost_s += time.monotonic() - sent_at
 
     def finish(self) -> None:
@@ -317,6 +322,7 @@ class LineDriver:
         under a tick, and the stale part must be dropped before it does."""
         if self.session.stalled and self.link.wait_writable(timeout_s):
             self._follow_backpressure()
+        self.stalled = self.session.stalled
 
     def final_tick(self) -> None:
         """One tick at once while usb2rc stops; a failure is logged and counted."""
@@ -340,7 +346,10 @@ class LineDriver:
         ticks, and a test's own pace)."""
         was_stalled = self.session.stalled
         self._input_at = None  # the latest step's, unknown here: no age counted
-        self._write(self._make(None), was_stalled)
+        try:
+            self._write(self._make(None), was_stalled)
+        finally:
+            self.stalled = self.session.stalled
 
     def _make(self, snapshot: NodeSnapshot | None) -> bytes:
         """The link followed, the backpressure reported, the session's bytes for now from
@@ -594,7 +603,7 @@ class DriverThread(Worker):
         any other looked at when it ends (and at every tick)."""
         end = time.monotonic() + delay_s
         for driver in self.drivers:
-            if driver.session.stalled:
+            if driver.stalled:
                 driver.wait_while_stalled(max(0.0, end - time.monotonic()))
         return self.sleep(max(0.0, end - time.monotonic()))
 

@@ -190,7 +190,7 @@ class SwitchBank:
             if failsafe or not device.live:
                 continue  # presses while not live are consumed, never applied later
             after = max(before, device.counts_from)  # and those before its node went live
-            new = [mask for serial, mask in record.presses if serial > after]
+            new = record.presses_after(after)
             if not new:
                 continue  # the common step: no binding applied
             values = record.state.values

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import math
+import operator
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -284,7 +285,7 @@ class _Attached:
         if not switches or not self._known(record):
             return
         after = max(self.trim_serial, self.gate.counts_from)
-        rising = [mask for serial, mask in record.presses if serial > after]
+        rising = record.presses_after(after)
         self.trim_serial = record.press_serial
         for switch in switches:
             if switch.hat_index >= 0:
@@ -362,7 +363,10 @@ class _Node:
         silent ones are in `silenced` until the table has sent their `3`."""
         notes = []
         for a in self.attached:
-            news, a.silence_news = a.silence_news, ""
+            news = a.silence_news
+            if not news:
+                continue  # the common step
+            a.silence_news = ""
             name = a.info.product or "device"
             if news == "silent":
                 self.silenced.append(a)
@@ -571,8 +575,18 @@ class NodeTable:
         """Whether the node is due a step: not stepped in this period, on these records and
         devices, or a rest of one of its devices is long enough by now."""
         last = self._stepped.get(node_id)
-        same = last is not None and last[:2] == (period, self._layout) and _same(last[2], records)
-        return not same or any(rest.rested_by(now) for rest in self._resting.get(node_id, ()))
+        same = (
+            last is not None
+            and last[0] == period
+            and last[1] == self._layout
+            and _same(last[2], records)
+        )
+        if not same:
+            return True
+        resting = self._resting.get(node_id)
+        if not resting:
+            return False  # no device of it resting, not long enough yet
+        return any(rest.rested_by(now) for rest in resting)
 
     def _step_locked(
         self, period: int, now: float, due: list[tuple[_Node, tuple[ReaderRecord, ...]]]
@@ -860,7 +874,7 @@ class NodeTable:
 
 def _same(before: tuple[ReaderRecord, ...], now: tuple[ReaderRecord, ...]) -> bool:
     """The same reader records, one by one (each a new object when a reader publishes)."""
-    return len(before) == len(now) and all(a is b for a, b in zip(before, now, strict=True))
+    return len(before) == len(now) and all(map(operator.is_, before, now))
 
 
 def _rebind_attached(node_id: int, attached: _Attached, binding: DeviceBinding, now: float) -> None:
