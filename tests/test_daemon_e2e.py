@@ -16,6 +16,7 @@ from daemon_harness import (
 )
 
 from usb2rc import __version__
+from usb2rc.hid import speedups
 from usb2rc.protocols.c2_16b import codec as c2_16b
 
 LIVE, FAILSAFE = c2_16b.LIVE, c2_16b.FAILSAFE
@@ -164,3 +165,23 @@ def test_without_a_port_exits_2_and_says_how(tmp_path, replay_dir):
     )
     assert result.returncode == 2
     assert "--port" in result.stderr
+
+
+def test_every_state_reaches_the_line_with_the_c_loops_off(tmp_path, line, replay_dir):
+    """The C loops are optional: a daemon started with them switched off (as on a machine
+    that could not build them) decodes, steps and sends the same states, in order."""
+    env = {speedups.PURE_PYTHON_ENV: "1"}
+    daemon = run_daemon(tmp_path, line.path, replay_dir, env=env)
+    try:
+        install(replay_dir / "stick.hid", recording(STATES, hold_s=0.25))
+        line.wait_for(
+            lambda fr: (
+                expected_frame(FINAL) in [(f.axes, f.group1, f.group2) for f in data_frames(fr, 0)]
+            )
+        )
+        seen = [(f.axes, f.group1, f.group2) for f in data_frames(line.frames(), 0)]
+        assert is_subsequence([expected_frame(s) for s in STATES], seen)
+    finally:
+        code = daemon.stop()
+    assert code == 0, daemon.log()
+    assert "the Python path runs" in daemon.log()  # switched off, or not built here

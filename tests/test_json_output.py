@@ -61,6 +61,31 @@ def test_check_json_ok_with_replayed_devices() -> None:
     assert devices["stick"]["file"].endswith("stick.hid")
 
 
+def test_check_json_warnings_are_the_text_warnings(tmp_path: Path) -> None:
+    """A config `check` accepts with warnings (a CRSF address no receiver takes, a feedback
+    rule for an output the stick does not have): `--json` gives each one the text prints,
+    record by record, as a `warning`, and the exit stays 0."""
+    config = tmp_path / "warned.yaml"
+    config.write_text(
+        "outputs:\n"
+        "  - {protocol: crsf, port: loop://, address: 0x10, channels: [node1.x]}\n"
+        "devices:\n"
+        "  - name: pad\n"
+        "    match: {vid: 0x054c, pid: 0x09cc}\n"
+        "feedback:\n"
+        "  - {when: mavlink.armed, device: pad, force: {x: 1}}\n"
+    )
+    text = usb2rc("check", "--config", str(config))
+    result = usb2rc("check", "--json", "--config", str(config))
+    assert text.returncode == result.returncode == 0, text.stderr
+    printed = [line for line in text.stderr.splitlines() if ": warning: " in line]
+    assert len(printed) >= 2, text.stderr
+    document = json.loads(result.stdout)
+    records = document["problems"]
+    assert document["ok"] is True and {r["severity"] for r in records} == {"warning"}
+    assert [as_problem(r).format() for r in records] == printed
+
+
 def test_check_json_device_errors_and_unusable_files(tmp_path: Path) -> None:
     replay = tmp_path / "replay"
     replay.mkdir()

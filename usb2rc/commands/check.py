@@ -358,9 +358,15 @@ def run(args: argparse.Namespace) -> int:
     return _printed(lambda: print_verdict(verdict), 2 if verdict.errors else 0)
 
 
+def config_warnings(config: Config, mapping: Mapping) -> list[Problem]:
+    """What the config itself may get wrong without being refused: the outputs' far ends,
+    the service's sandbox, the feedback rules (text and `--json` alike)."""
+    return warnings(config, mapping) + sandbox_warnings(config) + feedback_warnings(config)
+
+
 def judge(config: Config, directory: str | None, port_override: str | None = None) -> Verdict:
     mapping = compile_mapping(config)
-    found = warnings(config, mapping) + sandbox_warnings(config) + feedback_warnings(config)
+    found = config_warnings(config, mapping)
     verdict = Verdict(config, summary(config, mapping, port_override), found, 0)
     if directory:
         devices, problems = bind_replay(mapping, directory)
@@ -409,7 +415,8 @@ def _printed(write: Callable[[], None], code: int) -> int:
 #
 # An output's `port` is the one it will open (--port applied); `config_port` is the file's.
 #
-# Every config problem is an `error` (exit 2, as without --json); with `--replay DIR`, a device
+# Every config problem is an `error` (exit 2, as without --json), and every warning the text
+# prints is a `warning` (the exit stays 0); with `--replay DIR`, a device
 # that cannot be bound is an `error` too (at the config line it names, `recording`: which
 # device) and a file in DIR that is no usable recording a `warning` (the exit stays 0, as
 # the text summary only lists it).
@@ -483,13 +490,16 @@ def json_document(args: argparse.Namespace) -> dict[str, Any]:
         document["problems"] = [problem_record(p) for p in exc.problems]
         return document
     document["outputs"] = output_records(config, args.port)
+    mapping = compile_mapping(config)
+    found = [problem_record(p, "warning") for p in config_warnings(config, mapping)]
+    document["problems"] = found
     if args.replay:
-        mapping = compile_mapping(config)
         devices, problems = bind_replay(mapping, args.replay)
         unmatched = unmatched_entries(mapping, devices, args.replay)
         document["replay"] = [device_record(d) for d in devices]
         document["problems"] = (
-            [bind_problem(d) for d in devices if d.error]
+            found
+            + [bind_problem(d) for d in devices if d.error]
             + [problem_record(Problem(args.replay, None, None, p), "warning") for p in problems]
             + [problem_record(p, "warning") for p in unmatched]
             + [problem_record(p, "warning") for p in unfed_warnings(config, devices)]
