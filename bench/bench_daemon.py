@@ -56,7 +56,6 @@ import sys
 import tempfile
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -413,12 +412,6 @@ def driver_period_figures(
     }
 
 
-def take_all(kept: deque[float]) -> list[float]:
-    """What a driver noted in one of its deques since the last call (it keeps only its last
-    few thousand: 6 s at 500 Hz). `popleft` while the driver appends on the right loses none."""
-    return [kept.popleft() for _ in range(len(kept))]
-
-
 def run_crsf500(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
     """C2-16B (50 Hz) plus CRSF at 500 Hz on ptys (921600 baud), 4 resting T.16000M at 1 kHz,
     the daemon in this process: each driver's own write periods over the window, and CRSF's
@@ -449,14 +442,14 @@ def run_crsf500(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
         time.sleep(warmup)
         periods: dict[Any, list[float]] = {c2: [], crsf: []}
         for driver in periods:
-            take_all(driver.stats.periods_s)
+            driver.stats.new_periods()  # the window starts now
         missed0, late0, ticks0 = crsf.stats.missed_ticks, crsf.stats.late_ticks, crsf.stats.ticks
         probe = host_sleep_probe(window, 1 / CRSF500_HZ)  # the host's own, same window
         end = time.monotonic() + window
         while (left := end - time.monotonic()) > 0:
             time.sleep(min(1.0, left))
             for driver, kept in periods.items():
-                kept.extend(take_all(driver.stats.periods_s))
+                kept.extend(driver.stats.new_periods())  # keeps 6 s at 500 Hz: read each 1 s
         missed, late = crsf.stats.missed_ticks - missed0, crsf.stats.late_ticks - late0
         ticks = crsf.stats.ticks - ticks0
         figures = driver_period_figures(periods[crsf], 1 / CRSF500_HZ, "crsf500")

@@ -49,7 +49,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_daemon import PERIOD_S, PtyReader, percentile, ramp_recording, take_all
+from bench_daemon import PERIOD_S, PtyReader, percentile, ramp_recording
 
 CLIENTS = 5
 KINDS = ("none", "reading", "stuck")
@@ -167,11 +167,11 @@ def run(seconds: float, rounds: int) -> dict[str, Any]:
             for kind in [k for _ in range(rounds) for k in KINDS]:
                 clients.become(kind, sock)
                 time.sleep(EDGE_S)
-                take_all(stats.ticks_s), take_all(stats.periods_s)
+                stats.new_tick_durations(), stats.new_periods()  # the window starts now
                 start = time.monotonic()
                 time.sleep(seconds)
                 end = time.monotonic()
-                inside[kind].append((take_all(stats.ticks_s), take_all(stats.periods_s)))
+                inside[kind].append((stats.new_tick_durations(), stats.new_periods()))
                 windows.append((kind, start, end))
             clients.become("none", sock)
             status = last_status(sock)["status_socket"]

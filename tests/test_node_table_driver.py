@@ -293,19 +293,20 @@ def test_stats_are_read_while_the_output_thread_adds_periods():
         stats.add_period(0.02)
         appended.set()
 
-    class Period(float):
-        """A period whose arithmetic lets the writer thread in, mid-iteration."""
+    class Nominal(float):
+        """A nominal period whose arithmetic lets the writer thread in, mid-iteration (a
+        period minus it asks it first: it is a float's subclass)."""
 
-        def __sub__(self, other: float) -> float:
+        def __rsub__(self, other: float) -> float:
             if not appended.is_set():
                 threading.Thread(target=writer).start()
                 assert appended.wait(5), "the writer was kept waiting by the reader"
-            return float(self) - other
+            return other - float(self)
 
     for _ in range(10):
         stats.add_period(0.02)
-    stats.add_period(Period(0.021))
-    assert stats.period_p99_error_ms(0.02) == pytest.approx(1.0)
+    stats.add_period(0.021)
+    assert stats.period_p99_error_ms(Nominal(0.02)) == pytest.approx(1.0)
     assert appended.is_set() and len(stats.periods()) == 12
 
 

@@ -36,7 +36,6 @@ import math
 import threading
 import time
 import traceback
-from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -45,6 +44,7 @@ from usb2rc.lines.link import LineEvent, Link, Written
 from usb2rc.lines.session import Ask, LineSession
 from usb2rc.nodes.step import GRID_EPOCH_S
 from usb2rc.nodes.table import NodeSnapshot
+from usb2rc.runtime.samples import SampleRing
 from usb2rc.runtime.worker import Worker
 
 log = logging.getLogger("usb2rc.lines")
@@ -97,8 +97,8 @@ class Lead:
 @dataclass
 class OutputStats:
     """Counters of one output. The driver writes them; `stats_lines` reads them from
-    another thread, so the periods are only read through `periods()` (a copy under a lock:
-    iterating the deque while the writer appends would raise)."""
+    another thread, so the samples are only read through `periods()` and the others (a
+    copy under a lock)."""
 
     ticks: int = 0
     late_ticks: int = 0
@@ -106,14 +106,14 @@ class OutputStats:
     writes: int = 0
     tick_errors: int = 0
     stalls: int = 0
-    periods_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
+    periods_s: SampleRing = field(default_factory=lambda: SampleRing(PERIODS_KEPT))
     # how long each tick took, wake-up to written (a wait for the deadline left out): what
     # a tick costs, whatever the wake-up's jitter (other threads' work, a status client,
     # shows here)
-    ticks_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
+    ticks_s: SampleRing = field(default_factory=lambda: SampleRing(PERIODS_KEPT))
     # each written frame's input age: from the read of the newest report it carries (of a
     # live device) to its write (docs/ICD.md, "Input age")
-    input_ages_s: deque[float] = field(default_factory=lambda: deque(maxlen=PERIODS_KEPT))
+    input_ages_s: SampleRing = field(default_factory=lambda: SampleRing(PERIODS_KEPT))
     _periods_lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def add_period(self, period_s: float) -> None:
@@ -132,7 +132,7 @@ class OutputStats:
         """p50, p99 and max of the input age of the frames kept, in ms; None: no frame
         carried a live device's report yet."""
         with self._periods_lock:
-            ages = sorted(self.input_ages_s)
+            ages = sorted(self.input_ages_s.values())
         if not ages:
             return None
         p50, p99 = (ages[min(len(ages) - 1, int(len(ages) * share))] for share in (0.5, 0.99))
@@ -140,11 +140,21 @@ class OutputStats:
 
     def periods(self) -> list[float]:
         with self._periods_lock:
-            return list(self.periods_s)
+            return self.periods_s.values()
 
     def tick_durations(self) -> list[float]:
         with self._periods_lock:
-            return list(self.ticks_s)
+            return self.ticks_s.values()
+
+    def new_periods(self) -> list[float]:
+        """The write periods noted since the last call (a bench's window)."""
+        with self._periods_lock:
+            return self.periods_s.take_new()
+
+    def new_tick_durations(self) -> list[float]:
+        """The tick durations noted since the last call."""
+        with self._periods_lock:
+            return self.ticks_s.take_new()
 
     def period_p99_error_ms(self, nominal_s: float) -> float:
         return _p99_ms([abs(p - nominal_s) for p in self.periods()])
