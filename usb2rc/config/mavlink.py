@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-import hashlib
 import ipaddress
 import os
 import stat
@@ -140,6 +139,10 @@ def read_signing_key(path: str) -> bytes:
     passphrase = text.splitlines()[0].strip() if text.strip() else b""
     if not passphrase:
         raise SigningKeyError(f"{path}: empty; write the signing passphrase on its first line")
+    # imported here: hashlib loads OpenSSL's libcrypto (~3.6 MB of RSS), which a daemon
+    # without MAVLink signing never needs
+    import hashlib
+
     return hashlib.sha256(passphrase).digest()
 
 
