@@ -301,12 +301,12 @@ class DeviceReader(Worker):
             self._repeats,
         )
         self.record = record
-        if self.on_bad_reports is None or (
-            record.refused_in_a_row == last.refused_in_a_row
-            and record.bad_spells == last.bad_spells
-        ):
-            return  # the common publish: nothing refused, before or now
-        if (record.in_error, record.bad_spells) != (last.in_error, last.bad_spells):
+        # an edge: a new run of bad reports, or the device in error or out of it (which only
+        # a change of its refused count can bring); the common publish compares two ints
+        edge = record.bad_spells != last.bad_spells or (
+            record.refused_in_a_row != last.refused_in_a_row and record.in_error != last.in_error
+        )
+        if edge and self.on_bad_reports is not None:
             self.on_bad_reports(self, record)
 
     def pull(self) -> None:

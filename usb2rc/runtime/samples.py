@@ -43,4 +43,4 @@ class SampleRing:
         caller that waits longer than `size` samples misses the oldest)."""
         new = min(self._count - self._taken, len(self))
         self._taken = self._count
-        return self.values()[len(self) - new :] if new else []
+        return self.values()[len(self) - new :]
