@@ -1,7 +1,7 @@
 """The daemon's CPU cost on its hot path, several source trees in turn in one run.
 
     .venv/bin/python bench/bench_hot_path.py --trees /tmp/base . [--rounds 3] [--seconds 10]
-        [--only c2 five five16 idle] [--live] [--json PATH]
+        [--only c2 five five16 idle] [--live] [--together] [--json PATH]
 
 Each tree runs its own code: `python -m usb2rc run --replay DIR --config CFG --status-socket
 off --log-level info` with that tree as cwd and PYTHONPATH (this interpreter). For each round,
@@ -15,6 +15,14 @@ of them, so 16 devices are those and the first four again.
   socket, each at its default rate.
 - five16: the five outputs with 16 devices.
 - idle: C2-16B on a pty, no device.
+
+With `--together` every tree's daemon runs at once and one window measures them all: on a
+host whose speed drifts by a third within minutes (this VM), the trees in turn each meet
+another host, while daemons side by side meet the same one. Two copies of one tree, four
+rounds of 10 s: ratios 0.96-1.05 this way, where one tree in turn with another ranged from
+5.6 to 11.6 % of a core within half an hour. The figures
+are not those of a daemon alone (they share the CPUs and caches): use it for the ratio of
+a change, and the trees in turn for the issue's figures.
 
 With `--live` every device rests for its first second (its guarded axes where its guard
 wants them) and its node goes live before the window: the frames carry the values, CRSF
@@ -46,7 +54,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -233,34 +241,55 @@ def config_text(protocols: Sequence[str], ports: Sequence[str]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def measure(
-    tree: Path, scenario: Scenario, replay_dir: Path, window: float, workdir: Path, live: bool
-) -> dict[str, float]:
-    """Start the tree's daemon, warm up (`live`: until every node is live), measure one
-    window, stop it."""
+@contextmanager
+def warmed_up(
+    tree: Path, scenario: Scenario, replay_dir: Path, workdir: Path, live: bool, tag: str = ""
+) -> Iterator[DaemonRun]:
+    """The tree's daemon started, its far ends drained, its first frame written (`live`:
+    every node live); stopped after, and its exit checked."""
     drain = OutputDrain(scenario.protocols)
     try:
-        config = workdir / "config.yaml"
+        config = workdir / f"config{tag}.yaml"
         config.write_text(config_text(scenario.protocols, drain.ports))
-        outputs, devices = len(scenario.protocols), scenario.devices
-        with daemon_running(tree, replay_dir, config, workdir / "daemon.log") as daemon:
+        with daemon_running(tree, replay_dir, config, workdir / f"daemon{tag}.log") as daemon:
             daemon.wait_for_log("first frame written", START_TIMEOUT_S)
-            for node in range(devices if live else 0):  # one node per device, zero config
+            for node in range(scenario.devices if live else 0):  # one node per device
                 daemon.wait_for_log(f"node {node} leaves failsafe", START_TIMEOUT_S)
-            time.sleep(WARMUP_S)
-            s0 = daemon.stats(outputs, devices)
-            a, t0 = threads_now(daemon.proc.pid), time.monotonic()
-            time.sleep(window)
-            b, t1 = threads_now(daemon.proc.pid), time.monotonic()
-            rss = rss_mb(daemon.proc.pid)
-            s1 = daemon.stats(outputs, devices)
+            yield daemon
         if daemon.proc.returncode != 0:
             raise daemon.failure(f"SIGTERM: the daemon exited {daemon.proc.returncode}")
     finally:
         drain.close()
+
+
+def window(
+    daemons: Sequence[DaemonRun], scenario: Scenario, seconds: float
+) -> list[dict[str, float]]:
+    """After the warm-up, one window of `seconds` measured on every daemon at once."""
+    outputs, devices = len(scenario.protocols), scenario.devices
+    time.sleep(WARMUP_S)
+    s0 = [daemon.stats(outputs, devices) for daemon in daemons]
+    a, t0 = [threads_now(daemon.proc.pid) for daemon in daemons], time.monotonic()
+    time.sleep(seconds)
+    b, t1 = [threads_now(daemon.proc.pid) for daemon in daemons], time.monotonic()
+    rss = [rss_mb(daemon.proc.pid) for daemon in daemons]
+    s1 = [daemon.stats(outputs, devices) for daemon in daemons]
+    return [figures(*each, t1 - t0) for each in zip(a, b, s0, s1, rss, strict=True)]
+
+
+def figures(
+    a: dict[str, tuple[int, int]],
+    b: dict[str, tuple[int, int]],
+    s0: Stats,
+    s1: Stats,
+    rss: float,
+    dt: float,
+) -> dict[str, float]:
+    """One daemon's figures over a window: threads (CPU ns, wake-ups) and stats dumps at
+    each end of it, its RSS at the end."""
     if set(a) - set(b):  # its CPU in the window is lost: say so rather than under-count quietly
         print(f"  note: {len(set(a) - set(b))} thread(s) exited in the window", file=sys.stderr)
-    dt, stats_dt = t1 - t0, s1.at - s0.at
+    stats_dt = s1.at - s0.at
     cpu_s = sum(ns - a.get(tid, (0, 0))[0] for tid, (ns, _) in b.items()) / 1e9
     wakes = sum(n - a.get(tid, (0, 0))[1] for tid, (_, n) in b.items())
     busy_s = sum(s - s0.busy_s.get(port, 0.0) for port, s in s1.busy_s.items())
@@ -279,6 +308,34 @@ def measure(
         "late_ticks": late,
         "missed_ticks": missed,
     }
+
+
+def measure(
+    tree: Path, scenario: Scenario, replay_dir: Path, seconds: float, workdir: Path, live: bool
+) -> dict[str, float]:
+    """The tree's daemon alone: started, warmed up, one window measured, stopped."""
+    with warmed_up(tree, scenario, replay_dir, workdir, live) as daemon:
+        return window([daemon], scenario, seconds)[0]
+
+
+def measure_together(
+    trees: Sequence[Path],
+    scenario: Scenario,
+    replay_dir: Path,
+    seconds: float,
+    workdir: Path,
+    live: bool,
+) -> list[dict[str, float]]:
+    """Every tree's daemon at once, one window over all of them (`--together`): a host
+    whose speed drifts within minutes slows them alike, so their ratio holds where the
+    trees in turn each meet another host. Each daemon has less of the machine to itself
+    (its caches, a CPU), so the absolute figures are not those of one alone."""
+    with ExitStack() as stack:
+        daemons = [
+            stack.enter_context(warmed_up(tree, scenario, replay_dir, workdir, live, f"-{i}"))
+            for i, tree in enumerate(trees)
+        ]
+        return window(daemons, scenario, seconds)
 
 
 def write_recordings(workdir: Path, devices: int, seconds: float, live: bool) -> Path:
@@ -351,6 +408,11 @@ def main() -> None:
     parser.add_argument(
         "--live", action="store_true", help="devices rest first: every node live (flight)"
     )
+    parser.add_argument(
+        "--together",
+        action="store_true",
+        help="every tree's daemon at once, one window (an A/B on a host that drifts)",
+    )
     args = parser.parse_args()
     if args.rounds < 1 or args.seconds <= 0:
         parser.error("--rounds must be >= 1 and --seconds > 0")
@@ -373,22 +435,30 @@ def main() -> None:
         }
         for round_no in range(1, args.rounds + 1):
             for name in args.only:
-                for tree in trees:
-                    scenario = SCENARIOS[name]
-                    figures = measure(
-                        tree,
-                        scenario,
-                        replay_dirs[scenario.devices],
-                        args.seconds,
-                        workdir,
-                        args.live,
+                scenario = SCENARIOS[name]
+                replay_dir = replay_dirs[scenario.devices]
+                if args.together:  # every other round started in the reverse order
+                    order = trees if round_no % 2 else trees[::-1]
+                    measured = measure_together(
+                        order, scenario, replay_dir, args.seconds, workdir, args.live
                     )
-                    results[name][str(tree)].append(figures)
+                    runs = list(zip(order, measured, strict=True))
+                else:
+                    runs = [
+                        (
+                            tree,
+                            measure(tree, scenario, replay_dir, args.seconds, workdir, args.live),
+                        )
+                        for tree in trees
+                    ]
+                for tree, figures_of_tree in runs:
+                    results[name][str(tree)].append(figures_of_tree)
                     print(f"round {round_no}/{args.rounds} {name} {tree}: "
-                          f"{json.dumps(rounded(figures))}", file=sys.stderr)  # fmt: skip
+                          f"{json.dumps(rounded(figures_of_tree))}", file=sys.stderr)  # fmt: skip
     print(
         f"hot path bench: {args.rounds} round(s), window {args.seconds:g} s after "
         f"{WARMUP_S:g} s warm-up, {'live nodes' if args.live else 'random reports'}, "
+        f"{'the trees at once' if args.together else 'the trees in turn'}, "
         f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} "
         "cores; per tree: median (each round)"
     )
@@ -404,6 +474,7 @@ def main() -> None:
         "seconds": args.seconds,
         "warmup_s": WARMUP_S,
         "live": args.live,
+        "together": args.together,
         "loadavg": round(os.getloadavg()[0], 2),
         "scenarios": scenarios,
     }

@@ -232,3 +232,27 @@ def test_live_recordings_rest_where_each_guard_wants() -> None:
         assert state.buttons == 0
         checked += bool(binding.guard.axes)
     assert checked >= 8  # most real devices guard some axis
+
+
+def test_hot_path_trees_together(tmp_path: Path) -> None:
+    """bench_hot_path.py --together: two trees' daemons at once, one window each round, a
+    figure per tree and the ratio (here two copies of this tree, C2-16B with no device)."""
+    import shutil
+
+    trees = [tmp_path / "a", tmp_path / "b"]
+    for tree in trees:
+        shutil.copytree(
+            ROOT / "usb2rc", tree / "usb2rc", ignore=shutil.ignore_patterns("__pycache__")
+        )
+    out = run(
+        sys.executable, "bench/bench_hot_path.py", "--trees", *map(str, trees),
+        "--rounds", "1", "--seconds", "1", "--only", "idle", "--together",
+        timeout=180,
+    )  # fmt: skip
+    result = last_json(out)
+    assert result["together"] is True and set(result["trees"]) == set(map(str, trees))
+    idle = result["scenarios"]["idle"]
+    for tree in trees:
+        (figures,) = idle["trees"][str(tree)]["rounds"]
+        assert figures["cpu_pct"] > 0 and figures["rss_mb"] > 0
+    assert idle["ratio_last_first"]["cpu_pct"] is not None
