@@ -83,6 +83,26 @@ def test_the_hogs_go_with_the_wrapper_however_it_is_stopped(signum, status):
         end([command])  # after a SIGKILL the wrapper could not stop it
 
 
+@pytest.mark.parametrize(("signum", "status"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_signal_as_soon_as_the_command_runs_stops_the_wrapper(signum, status):
+    """On a loaded machine the command may run, and be signalled, before the wrapper's shell
+    is back from starting it (HOGS_SLOW_SHELL_S stands in for that): its traps must already
+    be there, or it waits for a command that is gone."""
+    proc, command, hogs = start(HOGS_SLOW_SHELL_S="1")
+    try:
+        if signum == signal.SIGINT:
+            os.killpg(proc.pid, signum)
+        else:
+            proc.send_signal(signum)
+        assert proc.wait(WAIT_S) == status
+        assert not still_running([command, *hogs], WAIT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        end([command])
+
+
 def test_ci_runs_the_fast_suite_a_second_time_beside_the_hogs():
     steps = (ROOT / ".ci" / "run").read_text()
     first = steps.index(".venv/bin/pytest\n")
