@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -237,8 +238,6 @@ def test_live_recordings_rest_where_each_guard_wants() -> None:
 def test_hot_path_trees_together(tmp_path: Path) -> None:
     """bench_hot_path.py --together: two trees' daemons at once, one window each round, a
     figure per tree and the ratio (here two copies of this tree, C2-16B with no device)."""
-    import shutil
-
     trees = [tmp_path / "a", tmp_path / "b"]
     for tree in trees:
         shutil.copytree(

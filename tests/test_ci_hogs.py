@@ -60,12 +60,16 @@ def test_the_command_runs_beside_two_hogs_its_status_is_kept_and_the_hogs_go():
     assert not still_running(hogs, WAIT_S), [command_line(pid) for pid in hogs]
 
 
+@pytest.mark.parametrize("slow_shell", ["", "1"])
 @pytest.mark.parametrize(
     ("signum", "status"), [(signal.SIGTERM, 143), (signal.SIGINT, 130), (signal.SIGKILL, -9)]
 )
-def test_the_hogs_go_with_the_wrapper_however_it_is_stopped(signum, status):
-    """SIGTERM and SIGKILL to the wrapper alone; SIGINT to its process group, as Ctrl-C."""
-    proc, command, hogs = start()
+def test_the_hogs_go_with_the_wrapper_however_it_is_stopped(signum, status, slow_shell):
+    """SIGTERM and SIGKILL to the wrapper alone; SIGINT to its process group, as Ctrl-C.
+    `slow_shell`: on a loaded machine the command may run, and be signalled, before the
+    wrapper's shell is back from starting it (HOGS_SLOW_SHELL_S stands in for that): its
+    traps must already be there, or it waits for a command that is gone."""
+    proc, command, hogs = start(HOGS_SLOW_SHELL_S=slow_shell)
     try:
         assert len(hogs) == 2, hogs
         if signum == signal.SIGINT:
@@ -81,26 +85,6 @@ def test_the_hogs_go_with_the_wrapper_however_it_is_stopped(signum, status):
             proc.kill()
             proc.wait()
         end([command])  # after a SIGKILL the wrapper could not stop it
-
-
-@pytest.mark.parametrize(("signum", "status"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
-def test_a_signal_as_soon_as_the_command_runs_stops_the_wrapper(signum, status):
-    """On a loaded machine the command may run, and be signalled, before the wrapper's shell
-    is back from starting it (HOGS_SLOW_SHELL_S stands in for that): its traps must already
-    be there, or it waits for a command that is gone."""
-    proc, command, hogs = start(HOGS_SLOW_SHELL_S="1")
-    try:
-        if signum == signal.SIGINT:
-            os.killpg(proc.pid, signum)
-        else:
-            proc.send_signal(signum)
-        assert proc.wait(WAIT_S) == status
-        assert not still_running([command, *hogs], WAIT_S)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        end([command])
 
 
 def test_ci_runs_the_fast_suite_a_second_time_beside_the_hogs():
