@@ -22,6 +22,8 @@ from rc_reference import (
 )
 
 from usb2rc.configfile import load_config_text
+from usb2rc.lines.session import SILENT_TICK_PERIOD_S
+from usb2rc.nodes.step import aligned
 from usb2rc.protocols import rc11 as block
 from usb2rc.protocols.channels import OutputChannels
 from usb2rc.protocols.crc import crc8_dvb_s2
@@ -197,6 +199,23 @@ def test_crsf_session_withholds_frames_in_failsafe_and_pads_with_low() -> None:
     assert session.frame([172, 992], False)
 
 
+@pytest.mark.parametrize("rate_hz", [250.0, 500.0, 150.0])
+def test_crsf_session_ticks_on_the_20ms_grid_while_it_withholds(rate_hz: float) -> None:
+    """In failsafe CRSF sends nothing, so it has no reason to tick at its own rate: the
+    tick after a withheld one is the next on the 20 ms grid (where the other outputs' ticks
+    fall); the tick after one that sent is one period later again."""
+    period = 1.0 / rate_hz
+    session = CrsfSession("crsf", NO_CHANNELS, CrsfModule(period))
+    session.line_opened()
+    due = aligned(1000.0, period)
+    assert session.frame([992] * 4, True) == b""
+    silent_due = session.next_due(due, due)
+    assert silent_due == aligned(due + period, SILENT_TICK_PERIOD_S)
+    assert due < silent_due <= due + period + SILENT_TICK_PERIOD_S
+    assert session.frame([992] * 4, False)
+    assert session.next_due(silent_due, silent_due) == pytest.approx(silent_due + period)
+
+
 def test_crsf_session_follows_the_module_timing_then_falls_back() -> None:
     session = CrsfModule(0.004)
     assert session.next_send(10.0, 10.0) == pytest.approx(10.004)
@@ -345,15 +364,18 @@ EVENTS = st.lists(
 def test_crsf_session_timing_invariants(events: list, min_interval: float) -> None:
     """Whatever the module says and whenever: the next frame is always later than the one
     before (at least half an interval), the interval stays within what the line carries and
-    100 ms, frames go out only while live, and a stale correction is not followed."""
+    100 ms, frames go out only while live, a stale correction is not followed, and a tick
+    that withheld its frame is followed by one on the 20 ms grid, no later."""
     module = CrsfModule(0.004, min_interval_s=min_interval)
     session = CrsfSession("crsf", NO_CHANNELS, module)
     session.line_opened()
     now = due = 0.0
+    withheld = False
     for event in events:
         if event[0] == "tick":
             frame = session.frame([992] * 4, event[1])
             assert bool(frame) == (not event[1])
+            withheld = event[1]
         elif event[0] == "sync":
             session.received(crsf.encode_timing_sync(event[1], event[2]), now)
         elif event[0] == "wait":
@@ -367,5 +389,9 @@ def test_crsf_session_timing_invariants(events: list, min_interval: float) -> No
         following = module.following(now)
         nxt = session.next_due(due, now)
         assert nxt >= due + interval / 2 - 1e-12
-        assert following or nxt == pytest.approx(due + 0.004)
+        if withheld:
+            assert aligned(nxt, SILENT_TICK_PERIOD_S) == nxt
+            assert nxt < due + 0.1 + SILENT_TICK_PERIOD_S  # the frame's own due, then the grid
+        else:
+            assert following or nxt == pytest.approx(due + 0.004)
         due = nxt

@@ -23,12 +23,11 @@ from usb2rc.lines.driver import (
     DriverThread,
     Lead,
     LineDriver,
-    aligned,
 )
 from usb2rc.lines.rx import LinkReader
 from usb2rc.lines.serial_link import SerialLink
 from usb2rc.nodes.mapping import ChannelSource
-from usb2rc.nodes.step import GRID_EPOCH_S, kernel_tick_s
+from usb2rc.nodes.step import GRID_EPOCH_S, aligned, kernel_tick_s
 from usb2rc.nodes.table import NodeTable
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.c2_16b.engine import C2Settings

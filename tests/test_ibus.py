@@ -15,6 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from ibus_reference import RefIbusReader, microseconds
 
+from usb2rc.lines.session import SILENT_TICK_PERIOD_S
+from usb2rc.nodes.step import aligned
 from usb2rc.protocols.channels import OutputChannels
 from usb2rc.protocols.ibus import codec as ibus
 from usb2rc.protocols.ibus.session import IbusSession
@@ -74,6 +76,21 @@ def test_session_pads_and_is_silent_in_failsafe() -> None:
     assert RefIbusReader().feed(frame)[0].channels == [1234, 2000] + [1000] * 12
     assert session.encode([1234, 2000], failsafe=True) == b""
     assert session.withheld == 1
+
+
+def test_session_ticks_on_the_20ms_grid_while_silent_but_not_while_the_line_stalls() -> None:
+    """Silence in failsafe: the next tick is the 20 ms grid's; a tick with no frame for
+    another reason (a stalled line) keeps the output's own rate, so it sees the drain."""
+    session = IbusSession("ibus", OutputChannels([]), 1 / 0.007)
+    session.line_opened()
+    due = aligned(500.0, SILENT_TICK_PERIOD_S)
+    assert session.frame([1500] * 4, True) == b""
+    assert session.next_due(due, due) == pytest.approx(due + SILENT_TICK_PERIOD_S)
+    assert session.frame([1500] * 4, False)
+    assert session.next_due(due, due) == pytest.approx(due + 0.007)
+    session.line.stall()
+    assert session.frame([1500] * 4, True) == b""
+    assert session.next_due(due, due) == pytest.approx(due + 0.007)
 
 
 def _usb2rc(*args: str, stdin: bytes = b"") -> subprocess.CompletedProcess[bytes]:

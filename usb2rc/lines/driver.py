@@ -32,7 +32,6 @@ leaves the grid: the module sets its phase (`session.next_due`), to the microsec
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 import traceback
@@ -42,7 +41,7 @@ from typing import Any
 
 from usb2rc.lines.link import LineEvent, Link, Written
 from usb2rc.lines.session import Ask, LineSession
-from usb2rc.nodes.step import GRID_EPOCH_S
+from usb2rc.nodes.step import aligned
 from usb2rc.nodes.table import NodeSnapshot
 from usb2rc.runtime.samples import SampleRing
 from usb2rc.runtime.worker import Worker
@@ -62,12 +61,6 @@ SAME_TICK_S = 0.0005  # starts this close are begun as one batch (< half of 1 kH
 # is noticed, and the watchdog (`Daemon.all_outputs_ticking`, 1 s) sees it alive.
 DOZE_SAFETY_S = 0.5
 SAME_DEADLINE_S = 1e-6  # deadlines this close are one (each driver adds its own periods)
-
-
-def aligned(now: float, period_s: float) -> float:
-    """The first multiple of `period_s` from the grid's epoch at or after `now` (monotonic
-    clock, `nodes.step.GRID_EPOCH_S`: 3/4 of a kernel tick, off the kernel's own ticks)."""
-    return GRID_EPOCH_S + math.ceil((now - GRID_EPOCH_S) / period_s - 1e-9) * period_s
 
 
 class Lead:

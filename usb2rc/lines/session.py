@@ -54,10 +54,15 @@ from dataclasses import dataclass
 from typing import Any, Generic, Protocol, TypeVar
 
 from usb2rc.feedback.model import Telemetry
-from usb2rc.nodes.step import NodeFrame, TapLatch
+from usb2rc.nodes.step import LIVENESS_PERIOD_S, NodeFrame, TapLatch, aligned
 from usb2rc.nodes.table import NodeSnapshot
 
 QUEUE_TICKS = 2  # at most this many ticks of bytes wait in a queue the link reports
+# A channel output whose protocol's failsafe is silence (CRSF, iBus) has nothing to send
+# while a channel's node is in failsafe: it ticks on this grid then (the node clock's, where
+# the default outputs' ticks fall: their step is shared), not at its own rate, which it
+# takes again from the first tick that sends (docs/ICD.md, "CRSF failsafe").
+SILENT_TICK_PERIOD_S = LIVENESS_PERIOD_S
 
 
 class Line(enum.Enum):
@@ -353,6 +358,9 @@ class ChannelSession(SessionBase):
         self.frame_length = frame_length
         self._last_len = 0
         self._stop_sent = False
+        # the last tick sent nothing because a channel is in failsafe (the protocol's
+        # failsafe is silence): the next one is due on SILENT_TICK_PERIOD_S's grid
+        self._silent = False
 
     def encode(self, values: Sequence[int], failsafe: bool) -> bytes:
         """The protocol's frame of the channels' wire values (b"": nothing this tick)."""
@@ -377,14 +385,29 @@ class ChannelSession(SessionBase):
         """This tick's frame of these wire values: b"" on a closed or stalled line, the
         failsafe frame while stopping."""
         self._last_len = 0
+        self._silent = False
         line = self.line
         if not line.is_open or line.stalled:
             return b""
         frame = self.encode(values, failsafe or line.stopping)
-        if line.stopping and not frame:
-            self._stop_sent = True  # its failsafe is silence: nothing more to send
+        if not frame:
+            if line.stopping:
+                self._stop_sent = True  # its failsafe is silence: nothing more to send
+            else:
+                self._silent = failsafe
         self._last_len = len(frame)
         return frame
+
+    def next_due(self, due: float, now: float) -> float:
+        """The protocol's next frame (`frame_due`); while its failsafe is silence and it
+        keeps it, the first tick of SILENT_TICK_PERIOD_S's grid from then."""
+        frame_due = self.frame_due(due, now)
+        return aligned(frame_due, SILENT_TICK_PERIOD_S) if self._silent else frame_due
+
+    def frame_due(self, due: float, now: float) -> float:
+        """When the frame after the one due at `due` is due: one period later (a protocol
+        with a pace of its own says otherwise)."""
+        return due + self.period_s
 
     def wrote(self, sent: int, unsure: int = 0) -> Delivered:
         whole = self._last_len > 0 and sent >= self._last_len

@@ -84,6 +84,12 @@ def kernel_tick_s() -> float:
 GRID_EPOCH_S = kernel_tick_s() * 3 / 4
 
 
+def aligned(now: float, period_s: float) -> float:
+    """The first multiple of `period_s` from the grid's epoch at or after `now` (monotonic
+    clock, GRID_EPOCH_S: 3/4 of a kernel tick, off the kernel's own ticks)."""
+    return GRID_EPOCH_S + math.ceil((now - GRID_EPOCH_S) / period_s - 1e-9) * period_s
+
+
 class NodeFrame(NamedTuple):
     node_id: int
     failsafe: bool

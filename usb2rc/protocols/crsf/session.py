@@ -179,7 +179,7 @@ class CrsfSession(ChannelSession):
     def received(self, data: bytes, now: float) -> None:
         self.module.received(data, now)
 
-    def next_due(self, due: float, now: float) -> float:
+    def frame_due(self, due: float, now: float) -> float:
         """The module's interval and phase while it sends timing corrections."""
         return self.module.next_send(due, now)
 
