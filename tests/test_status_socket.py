@@ -113,11 +113,20 @@ def test_a_client_that_never_reads_is_dropped_others_go_on(
     served: StatusServer, caplog: pytest.LogCaptureFixture
 ) -> None:
     caplog.set_level(logging.WARNING, "usb2rc.status")
+    close, dropped_at_close = served._close, []
+
+    def noting_close(client: Any) -> None:  # what another thread could read as it closes
+        dropped_at_close.append(served.counters.clients_dropped)
+        close(client)
+
+    served._close = noting_close  # type: ignore[method-assign]
     stuck = connect(served.path)
     reading = connect(served.path)
     reader = reading.makefile("rb")
     # 20 kB lines at 100 Hz fill the stuck client's socket buffer and then the server's cap
     wait_until(lambda: reader.readline() and served.counters.clients_dropped == 1, "a drop")
+    # counted once gone: a reader that sees the drop never sees the client connected
+    assert dropped_at_close == [0]
     assert json.loads(reader.readline())["n"] > 0  # the reading client is still served
     assert served.counters.clients_connected == 1
     assert sum("read too slowly" in r.message for r in caplog.records) == 1

@@ -378,12 +378,14 @@ class StatusServer(Worker):
             return
         for client in list(self._clients.values()):
             if len(client.pending) + len(line) > self.client_cap:
-                self.counters.clients_dropped += 1
                 log.warning(
                     "status socket: a client read too slowly (%d bytes waiting): dropped",
                     len(client.pending),
                 )
                 self._close(client)
+                # counted once it is gone: whoever reads the counters from another thread
+                # and sees the drop sees it no longer connected
+                self.counters.clients_dropped += 1
                 continue
             client.pending += line
             self._flush(client)
