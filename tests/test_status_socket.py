@@ -40,9 +40,20 @@ from usb2rc.status_socket import (
 
 
 def connect(path: Path | str) -> socket.socket:
+    client = connected(path)
+    assert client is not None, f"nobody listens on {path}"
+    return client
+
+
+def connected(path: Path | str) -> socket.socket | None:
+    """A connection, or None while nobody listens there yet (a daemon that is starting)."""
     client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     client.settimeout(10)
-    client.connect(str(path))
+    try:
+        client.connect(str(path))
+    except (ConnectionRefusedError, FileNotFoundError):
+        client.close()
+        return None
     return client
 
 
@@ -253,7 +264,9 @@ def test_a_killed_daemons_socket_is_replaced_at_start(
     daemon = start(tmp_path, line, replay_dir, sock, "daemon.log")
     try:
         wait_until(lambda: "left by a daemon that is gone: replaced" in daemon.log(), "the note")
-        assert read_lines(connect(sock), 1)[0]["stats"]["outputs"]
+        # the note comes as the stale file goes, before the new socket listens
+        client = wait_until(lambda: connected(sock), "the new daemon listening")
+        assert read_lines(client, 1)[0]["stats"]["outputs"]
     finally:
         assert daemon.stop() == 0
 
