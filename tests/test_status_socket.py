@@ -235,8 +235,7 @@ def test_reload_keeps_the_socket_sigterm_removes_it(
     sock = tmp_path / "run" / "status.sock"
     daemon = start(tmp_path, line, replay_dir, sock, "daemon.log")
     try:
-        wait_until(sock.exists, "the status socket")
-        client = connect(sock)
+        client = wait_until(lambda: connected(sock), "the status socket listening")
         first = wait_until(
             lambda: (got := read_lines(client, 1)) and node_4_live(got) and got, "node 4 live"
         )
@@ -284,9 +283,9 @@ def test_the_service_runtime_directory_and_a_0077_umask(tmp_path: Path, replay_d
     )
     try:
         sock = runtime / "status.sock"
-        wait_until(sock.exists, "the socket in $RUNTIME_DIRECTORY")
+        client = wait_until(lambda: connected(sock), "the socket in $RUNTIME_DIRECTORY")
         assert stat.S_IMODE(os.stat(sock).st_mode) == 0o660
-        assert read_lines(connect(sock), 1)[0]["nodes"] == []
+        assert read_lines(client, 1)[0]["nodes"] == []
     finally:
         assert daemon.stop() == 0
 
@@ -298,8 +297,8 @@ def test_five_clients_that_never_read_do_not_stop_the_frames(
     sock = tmp_path / "status.sock"
     daemon = start(tmp_path, line, replay_dir, sock, "daemon.log")
     try:
-        wait_until(sock.exists, "the status socket")
-        stuck = [connect(sock) for _ in range(5)]
+        stuck = [wait_until(lambda: connected(sock), "the status socket listening")]
+        stuck += [connect(sock) for _ in range(4)]
         for client in stuck:
             client.sendall(b"x" * 100_000)  # and never read
         before = len(line.frames())
