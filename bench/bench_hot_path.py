@@ -1,7 +1,7 @@
 """The daemon's CPU cost on its hot path, several source trees in turn in one run.
 
     .venv/bin/python bench/bench_hot_path.py --trees /tmp/base . [--rounds 3] [--seconds 10]
-        [--only c2 five five16 idle] [--live] [--together] [--json PATH]
+        [--only c2 five five-live five16 idle] [--live] [--together] [--json PATH]
 
 Each tree runs its own code: `python -m usb2rc run --replay DIR --config CFG --status-socket
 off --log-level info` with that tree as cwd and PYTHONPATH (this interpreter). For each round,
@@ -13,6 +13,8 @@ of them, so 16 devices are those and the first four again.
 - c2: 4 devices, C2-16B on a pty.
 - five: 4 devices, C2-16B, SUMD, CRSF and SBUS on ptys, MAVLink `udpout:` to a local UDP
   socket, each at its default rate.
+- five-live: the five outputs, every node live (as `--live` below): the state a pilot
+  flies in, where every output sends (in `five`, every node waits in the neutral guard).
 - five16: the five outputs with 16 devices.
 - idle: C2-16B on a pty, no device.
 
@@ -24,10 +26,10 @@ rounds of 10 s: ratios 0.96-1.05 this way, where one tree in turn with another r
 are not those of a daemon alone (they share the CPUs and caches): use it for the ratio of
 a change, and the trees in turn for the issue's figures.
 
-With `--live` every device rests for its first second (its guarded axes where its guard
-wants them) and its node goes live before the window: the frames carry the values, CRSF
-and MAVLink send (random reports never rest, so without it every node waits in the neutral
-guard, CRSF is silent and MAVLink releases its overrides).
+With `--live` (every scenario; `five-live` always) every device rests for its first second
+(its guarded axes where its guard wants them) and its node goes live before the window: the
+frames carry the values, CRSF and MAVLink send (random reports never rest, so without it
+every node waits in the neutral guard, CRSF is silent and MAVLink releases its overrides).
 
 The far ends (pty masters, the UDP socket) are read and dropped by a thread here. Once the
 daemon logs its first frame, and after a warm-up, a window of --seconds is measured from
@@ -79,11 +81,13 @@ STOP_TIMEOUT_S = 10.0
 class Scenario:
     devices: int
     protocols: tuple[str, ...]
+    live: bool = False  # every node live (devices rest first), whatever --live says
 
 
 SCENARIOS = {
     "c2": Scenario(4, ("c2-16b",)),
     "five": Scenario(4, FIVE),
+    "five-live": Scenario(4, FIVE, live=True),
     "five16": Scenario(16, FIVE),
     "idle": Scenario(0, ("c2-16b",)),
 }
@@ -342,7 +346,7 @@ def write_recordings(workdir: Path, devices: int, seconds: float, live: bool) ->
     """`devices` recordings in a directory of their own. There are fewer real descriptors
     than 16 (12 with inputs, the T.16000M aside): past them, the first ones again. `live`:
     each rests first, so its node goes live (daemon_harness.live_device_recordings)."""
-    replay_dir = workdir / f"replay{devices}"
+    replay_dir = workdir / f"replay{devices}{'-live' if live else ''}"
     replay_dir.mkdir()
     recordings = live_device_recordings if live else real_device_recordings
     texts = recordings(devices, seconds, REPORT_HZ) if devices else []
@@ -365,7 +369,8 @@ def ratio(b: float, a: float) -> float | None:
 def print_scenario(name: str, results: dict[str, list[dict[str, float]]]) -> None:
     scenario = SCENARIOS[name]
     devices = f"{scenario.devices} devices x {REPORT_HZ:g} Hz" if scenario.devices else "no device"
-    print(f"\n{name}: {devices}, {' + '.join(scenario.protocols)}")
+    nodes = ", every node live" if scenario.live else ""
+    print(f"\n{name}: {devices}, {' + '.join(scenario.protocols)}{nodes}")
     trees = list(results)
     medians = {tree: median_figures(results[tree]) for tree in trees}
     print(f"  {'figure':34}" + "".join(f" {tree[-28:]:>30}" for tree in trees) + "   last/first")
@@ -429,26 +434,24 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="usb2rc-hot-path-") as tmp:
         workdir = Path(tmp)
         recording_s = max(RECORDING_S, args.seconds + 60.0)
+        live_of = {name: args.live or SCENARIOS[name].live for name in args.only}
         replay_dirs = {
-            n: write_recordings(workdir, n, recording_s, args.live)
-            for n in sorted({SCENARIOS[name].devices for name in args.only})
+            (n, live): write_recordings(workdir, n, recording_s, live)
+            for n, live in sorted({(SCENARIOS[name].devices, live_of[name]) for name in args.only})
         }
         for round_no in range(1, args.rounds + 1):
             for name in args.only:
-                scenario = SCENARIOS[name]
-                replay_dir = replay_dirs[scenario.devices]
+                scenario, live = SCENARIOS[name], live_of[name]
+                replay_dir = replay_dirs[scenario.devices, live]
                 if args.together:  # every other round started in the reverse order
                     order = trees if round_no % 2 else trees[::-1]
                     measured = measure_together(
-                        order, scenario, replay_dir, args.seconds, workdir, args.live
+                        order, scenario, replay_dir, args.seconds, workdir, live
                     )
                     runs = list(zip(order, measured, strict=True))
                 else:
                     runs = [
-                        (
-                            tree,
-                            measure(tree, scenario, replay_dir, args.seconds, workdir, args.live),
-                        )
+                        (tree, measure(tree, scenario, replay_dir, args.seconds, workdir, live))
                         for tree in trees
                     ]
                 for tree, figures_of_tree in runs:
@@ -457,7 +460,8 @@ def main() -> None:
                           f"{json.dumps(rounded(figures_of_tree))}", file=sys.stderr)  # fmt: skip
     print(
         f"hot path bench: {args.rounds} round(s), window {args.seconds:g} s after "
-        f"{WARMUP_S:g} s warm-up, {'live nodes' if args.live else 'random reports'}, "
+        f"{WARMUP_S:g} s warm-up, {'live nodes' if args.live else 'random reports'}"
+        f"{' (five-live: live nodes)' if 'five-live' in args.only and not args.live else ''}, "
         f"{'the trees at once' if args.together else 'the trees in turn'}, "
         f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} "
         "cores; per tree: median (each round)"
@@ -466,7 +470,10 @@ def main() -> None:
         print(f"  {tree}: {revision}")
     for name, by_tree in results.items():
         print_scenario(name, by_tree)
-    scenarios = {name: scenario_json(by_tree) for name, by_tree in results.items()}
+    scenarios = {
+        name: {"live": args.live or SCENARIOS[name].live, **scenario_json(by_tree)}
+        for name, by_tree in results.items()
+    }
     result = {
         "bench": "hot_path",
         "trees": revisions,
