@@ -15,6 +15,7 @@ a device.
 from __future__ import annotations
 
 import dataclasses
+import gc
 import logging
 import sys
 import threading
@@ -70,6 +71,14 @@ JOIN_TIMEOUT_S = 0.5
 # whole slice each time: up to ~15 ms late with 5 ms slices (bench/bench_daemon.py, plug
 # figures). Busy readers hold the GIL ~0.1 ms per wake-up: they are not sliced more often.
 GIL_SWITCH_S = 0.0005
+# A full (oldest-generation) garbage collection holds the GIL while it walks every object the
+# collector tracks: ~32,000 once the daemon's modules are imported, 2.5-3 ms on this VM
+# (5.5 ms in the bench's process), twice that on a slower Pi core, at an allocation-driven
+# moment: long enough to miss a tick of CRSF at 500 Hz. So the outputs start with what is
+# alive then frozen (`gc.freeze`: modules, classes, the config, the daemon's own objects),
+# after one collection while nothing ticks yet; a full collection then walks only what was
+# made since (0.3 ms in the bench). Unfrozen at stop (a process that runs daemons one after
+# another, as the tests do, collects each one's objects once it is gone).
 
 
 # Beside outputs the node clock is a safety net: every driver steps the table before each of
@@ -225,6 +234,7 @@ class Daemon:
         self._wire_wakes()
         self.started_at = 0.0
         self._switch_interval: float | None = None  # the GIL's, to restore on stop()
+        self._frozen = False  # gc.freeze() at start(): unfrozen on stop()
         self._judge = judge
         self._checked: tuple[Config, dict[str, Any]] | None = None  # config, its check
         status_period, status_phase = status_grid(grid, phase)
@@ -382,6 +392,9 @@ class Daemon:
         if self.outputs:
             self._switch_interval = sys.getswitchinterval()
             sys.setswitchinterval(GIL_SWITCH_S)
+            gc.collect()  # before the freeze: what is garbage now is not kept for good
+            gc.freeze()
+            self._frozen = True
         for out in self.outputs:
             out.link.open_now()
         present = self.monitor.initial_devices()
@@ -448,6 +461,9 @@ class Daemon:
         if self._switch_interval is not None:
             sys.setswitchinterval(self._switch_interval)
             self._switch_interval = None
+        if self._frozen:
+            gc.unfreeze()
+            self._frozen = False
 
     def prepare_reload(self, config: Config) -> PreparedReload:
         """Everything a reload changes, computed before anything is changed (docs/CONFIG.md,
