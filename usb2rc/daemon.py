@@ -71,14 +71,6 @@ JOIN_TIMEOUT_S = 0.5
 # whole slice each time: up to ~15 ms late with 5 ms slices (bench/bench_daemon.py, plug
 # figures). Busy readers hold the GIL ~0.1 ms per wake-up: they are not sliced more often.
 GIL_SWITCH_S = 0.0005
-# A full (oldest-generation) garbage collection holds the GIL while it walks every object the
-# collector tracks: ~32,000 once the daemon's modules are imported, 2.5-3 ms on this VM
-# (5.5 ms in the bench's process), twice that on a slower Pi core, at an allocation-driven
-# moment: long enough to miss a tick of CRSF at 500 Hz. So the outputs start with what is
-# alive then frozen (`gc.freeze`: modules, classes, the config, the daemon's own objects),
-# after one collection while nothing ticks yet; a full collection then walks only what was
-# made since (0.3 ms in the bench). Unfrozen at stop (a process that runs daemons one after
-# another, as the tests do, collects each one's objects once it is gone).
 
 
 # Beside outputs the node clock is a safety net: every driver steps the table before each of
@@ -392,7 +384,13 @@ class Daemon:
         if self.outputs:
             self._switch_interval = sys.getswitchinterval()
             sys.setswitchinterval(GIL_SWITCH_S)
-            gc.collect()  # before the freeze: what is garbage now is not kept for good
+            # A full garbage collection holds the GIL while it walks every tracked object
+            # (~32,000 once the modules are imported: milliseconds, a 500 Hz tick missed).
+            # What is alive now (modules, classes, the config, the daemon) is frozen out of
+            # the collections, after one collection while nothing ticks yet: a full one then
+            # walks only what was made since. Unfrozen at stop: a process that runs daemons
+            # one after another (the tests) collects each one's objects once it is gone.
+            gc.collect()
             gc.freeze()
             self._frozen = True
         for out in self.outputs:

@@ -405,9 +405,9 @@ class ChannelSession(SessionBase):
         return aligned(frame_due, SILENT_TICK_PERIOD_S) if self._silent else frame_due
 
     def frame_due(self, due: float, now: float) -> float:
-        """When the frame after the one due at `due` is due: one period later (a protocol
-        with a pace of its own says otherwise)."""
-        return due + self.period_s
+        """When the frame after the one due at `due` is due: every session's next tick (a
+        protocol with a pace of its own says otherwise)."""
+        return super().next_due(due, now)
 
     def wrote(self, sent: int, unsure: int = 0) -> Delivered:
         whole = self._last_len > 0 and sent >= self._last_len
