@@ -201,6 +201,14 @@ def test_five_outputs_map_fail_safe_and_come_back(tmp_path: Path, line: PtyLine,
         crsf_line.wait_for(
             lambda fr: (rc := crsf_rc(fr)[crsf_at + 1 :]) and rc[-1].channels[:5] == live, WAIT_S
         )
+        # back at its own rate (250 Hz), not the 20 ms grid of its silent ticks: over 30 of
+        # SBUS's frames (100 Hz, the same thread) CRSF sends ~2.5 times as many; more than
+        # 1.5 times (a CRSF output that kept the 20 ms grid sent as many as SBUS)
+        crsf_live_at, sbus_live_at = len(crsf_rc(crsf_line.frames())), len(sbus_line.frames())
+        sbus_line.wait_for(lambda fr: len(fr) >= sbus_live_at + 30, WAIT_S)
+        crsf_sent = len(crsf_rc(crsf_line.frames())) - crsf_live_at
+        sbus_sent = len(sbus_line.frames()) - sbus_live_at
+        assert 2 * crsf_sent > 3 * sbus_sent, (crsf_sent, sbus_sent)
         latest_state(
             sbus_line,
             (False, False, live),
