@@ -16,7 +16,7 @@
 #                              exposure at most MAX_WEB_EXPOSURE)
 set -eu
 
-MAX_EXPOSURE=${MAX_EXPOSURE:-1.0}
+MAX_EXPOSURE=${MAX_EXPOSURE:-1.2}
 MAX_NETWORK_EXPOSURE=${MAX_NETWORK_EXPOSURE:-2.0}
 MAX_WEB_EXPOSURE=${MAX_WEB_EXPOSURE:-1.2}
 here=$(cd "$(dirname "$0")/.." && pwd)

@@ -348,11 +348,15 @@ def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[
     return result
 
 
-# A plain Python sleep to absolute deadlines PERIOD_S apart on this host, for SECONDS: the
+# A plain Python sleep to absolute deadlines PERIOD_S apart on this host, at normal priority,
+# for SECONDS: the
 # p99 of how late it wakes, and the deadlines it missed (woke a whole period late or more),
 # counted as a driver counts them: the host's own share of a daemon's timing figures.
 HOST_SLEEP_PROBE = """
-import json, sys, time
+import json, os, sys, time
+# a plain program: normal priority, whatever the bench's thread that starts it runs at (an
+# in-process daemon makes its starter real-time: usb2rc/runtime/realtime.py)
+os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 seconds, period = float(sys.argv[1]), float(sys.argv[2])
 end = time.monotonic() + seconds
 deadline, late, missed = time.monotonic(), [], 0
@@ -419,12 +423,17 @@ def run_crsf500(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
     from usb2rc.configfile import load_config_text
     from usb2rc.daemon import Daemon
     from usb2rc.hid.replay import ReplayBackend
+    from usb2rc.runtime import realtime
 
     replay_dir = workdir / "crsf500"
     replay_dir.mkdir()
     for i in range(4):
         text = resting_recording(4.0, f"Thrustmaster T.16000M {i}")
         (replay_dir / f"device{i}.hid").write_text(text)
+    # Every thread of this process at the daemon's priority, as in `usb2rc run`'s process
+    # (the drain's thread shares the daemon's GIL here: at normal priority, preempted while
+    # it holds it, it would hold the daemon's ticks back, which `usb2rc run` does not have)
+    scheduling = realtime.request(realtime.DEFAULT_PRIORITY)
     drain = OutputDrain(["crsf", "crsf"])  # two ptys: C2-16B's and CRSF's far ends
     c2_port, crsf_port = drain.ports
     config = load_config_text(
@@ -463,6 +472,7 @@ def run_crsf500(workdir: Path, warmup: float, window: float) -> dict[str, Any]:
     finally:
         daemon.stop()
         drain.close()
+        realtime.release(scheduling)
     return {**figures, "crsf500_ticks": ticks, "crsf500_missed_ticks": missed,
             "crsf500_late_ticks": late}  # fmt: skip
 

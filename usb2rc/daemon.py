@@ -46,7 +46,7 @@ from usb2rc.nodes.step import (
 )
 from usb2rc.nodes.table import Expected, ExpectedEntry, NodeFrame, NodeTable
 from usb2rc.outputs import build, protocol
-from usb2rc.runtime import stats_text
+from usb2rc.runtime import realtime, stats_text
 from usb2rc.status_socket import PERIOD_S as STATUS_PERIOD_S
 from usb2rc.status_socket import (
     FailsafeWatch,
@@ -182,12 +182,15 @@ class Daemon:
         outputs: bool = True,
         status_socket: str | None = None,
         judge: Callable[[Config], dict[str, Any]] | None = None,
+        realtime_priority: int = realtime.DEFAULT_PRIORITY,
     ) -> None:
         """outputs=False: the input side only (hot-plug, readers, mapping, node table), as
         `usb2rc monitor` runs it; no port is needed or opened. status_socket: the path of
         the read-only status socket (usb2rc.status_socket); None: none. judge: `check`'s
         verdict on a config as a record, for the status socket (the command that runs the
-        daemon gives it: usb2rc.commands.check.check_record)."""
+        daemon gives it: usb2rc.commands.check.check_record). realtime_priority: the real-time
+        (SCHED_RR) priority for the daemon's threads while outputs run, where the system grants it
+        (usb2rc.runtime.realtime); 0: normal priority."""
         self.config = config
         self.backend = backend
         self.version = version
@@ -226,6 +229,8 @@ class Daemon:
         self._wire_wakes()
         self.started_at = 0.0
         self._switch_interval: float | None = None  # the GIL's, to restore on stop()
+        self._realtime_priority = realtime_priority
+        self.scheduling = realtime.Scheduling("normal", "not started")
         self._frozen = False  # gc.freeze() at start(): unfrozen on stop()
         self._judge = judge
         self._checked: tuple[Config, dict[str, Any]] | None = None  # config, its check
@@ -382,6 +387,9 @@ class Daemon:
     def start(self) -> None:
         self.started_at = time.monotonic()
         if self.outputs:
+            # first: every thread started from here on inherits it
+            self.scheduling = realtime.request(self._realtime_priority)
+            log.info("scheduling: %s", self.scheduling.describe())
             self._switch_interval = sys.getswitchinterval()
             sys.setswitchinterval(GIL_SWITCH_S)
             # A full garbage collection holds the GIL while it walks every tracked object
@@ -462,6 +470,7 @@ class Daemon:
         if self._frozen:
             gc.unfreeze()
             self._frozen = False
+        realtime.release(self.scheduling)
 
     def prepare_reload(self, config: Config) -> PreparedReload:
         """Everything a reload changes, computed before anything is changed (docs/CONFIG.md,
@@ -509,6 +518,7 @@ class Daemon:
         return {
             # µs: two dumps asked for back to back can be under a millisecond apart
             "uptime_s": round(uptime, 6),
+            "scheduling": self.scheduling.describe(),
             "outputs": [self._output_stats(out, frames) for out in self.outputs],
             "devices": [
                 self._device_stats(reader, now, uptime) for reader in self.lifecycle.readers

@@ -26,7 +26,7 @@ from usb2rc.daemon import Daemon, NoPortError, ReloadResult, log_reload
 from usb2rc.hid import speedups
 from usb2rc.hid.backend import Backend
 from usb2rc.hid.choose import choose_backend
-from usb2rc.runtime import log_escape
+from usb2rc.runtime import log_escape, realtime
 from usb2rc.service.sdnotify import Notifier
 from usb2rc.service.signals import DaemonSignals, ReloadAbandoned, install_daemon_signals
 
@@ -91,7 +91,28 @@ def add_parser(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) 
         "and /tmp/usb2rc-UID/status.sock (a private 0700 folder) for another user; "
         "`usb2rc web` looks in the same place); off: none",
     )
+    parser.add_argument(
+        "--realtime-priority",
+        type=realtime_priority,
+        default=realtime.DEFAULT_PRIORITY,
+        metavar="N",
+        help="real-time (SCHED_RR) priority of the daemon's threads, so that ticks are written on "
+        f"time on a busy machine (default {realtime.DEFAULT_PRIORITY}, at most "
+        f"{realtime.MAX_PRIORITY}); where the system refuses it, the daemon runs at normal "
+        "priority and logs why; 0: normal priority",
+    )
     parser.set_defaults(func=run)
+
+
+def realtime_priority(text: str) -> int:
+    """--realtime-priority's value: 0 (off) to realtime.MAX_PRIORITY."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+    if not 0 <= value <= realtime.MAX_PRIORITY:
+        raise argparse.ArgumentTypeError(f"{value} is not within 0..{realtime.MAX_PRIORITY}")
+    return value
 
 
 def status_socket_path(args: argparse.Namespace) -> str | None:
@@ -346,6 +367,7 @@ def run(args: argparse.Namespace) -> int:
             on_status=notifier.status,
             status_socket=status_socket_path(args),
             judge=functools.partial(check_record, port_override=args.port),
+            realtime_priority=getattr(args, "realtime_priority", realtime.DEFAULT_PRIORITY),
         )
     except NoPortError as exc:
         print(f"usb2rc: {exc}", file=sys.stderr)
