@@ -230,7 +230,10 @@ class Daemon:
         self.started_at = 0.0
         self._switch_interval: float | None = None  # the GIL's, to restore on stop()
         self._realtime_priority = realtime_priority
-        self.scheduling = realtime.Scheduling("normal", "not started")
+        # what its threads run at (start() asks, with outputs: none, nothing is kept on time)
+        self.scheduling = realtime.Scheduling(
+            "normal", "not started" if self.output_configs else "no outputs"
+        )
         self._frozen = False  # gc.freeze() at start(): unfrozen on stop()
         self._judge = judge
         self._checked: tuple[Config, dict[str, Any]] | None = None  # config, its check
