@@ -349,9 +349,9 @@ def run_period_latency(workdir: Path, seconds: float, report_ms: float) -> dict[
 
 
 # A plain Python sleep to absolute deadlines PERIOD_S apart on this host, at normal priority,
-# for SECONDS: the
-# p99 of how late it wakes, and the deadlines it missed (woke a whole period late or more),
-# counted as a driver counts them: the host's own share of a daemon's timing figures.
+# for SECONDS: the p99 of how late it wakes, and the deadlines it missed (woke a whole period
+# late or more), counted as a driver counts them: the host's own share of a daemon's timing
+# figures.
 HOST_SLEEP_PROBE = """
 import json, os, sys, time
 # a plain program: normal priority, whatever the bench's thread that starts it runs at (an

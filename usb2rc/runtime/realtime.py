@@ -37,10 +37,6 @@ class Scheduling:
     reason: str = ""
     restore: tuple[int, int] | None = None  # the calling thread's (policy, priority) before
 
-    @property
-    def realtime(self) -> bool:
-        return self.policy.startswith("SCHED_RR")
-
     def describe(self) -> str:
         """One line for the log and the stats."""
         return self.policy + (f" ({self.reason})" if self.reason else "")
