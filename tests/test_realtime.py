@@ -11,7 +11,14 @@ import sys
 from pathlib import Path
 
 import pytest
-from daemon_harness import DaemonProcess, PtyLine, real_device_recordings, wait_until
+from daemon_harness import (
+    DaemonProcess,
+    PtyLine,
+    data_frames,
+    install,
+    real_device_recordings,
+    wait_until,
+)
 
 from usb2rc.configfile import Config, OutputConfig
 from usb2rc.daemon import Daemon
@@ -74,6 +81,26 @@ def test_every_thread_of_a_running_daemon_is_real_time(tmp_path: Path) -> None:
         assert not normal, normal
         assert len(policies) >= 4, policies  # main, drivers, node clock, reader, ...
         assert "scheduling: SCHED_RR 10" in daemon.log()
+    finally:
+        assert daemon.stop() == 0
+        line.close()
+
+
+@needs_realtime
+def test_a_device_plugged_later_is_read_by_a_real_time_thread(tmp_path: Path) -> None:
+    """Where real-time priority meets hot-plug: the reader of a device plugged while the
+    daemon runs is started by the lifecycle thread, not by the one that asked, and inherits
+    the priority from it."""
+    daemon, line = started_daemon(tmp_path)
+    try:
+        before = set(thread_policies(daemon.proc.pid))
+        second = real_device_recordings(2, 30.0, 250.0)[1]
+        install(tmp_path / "replay" / "throttle.hid", second)  # plugged: node 1, zero config
+        line.wait_for(lambda frames: data_frames(frames, 1))  # frames of the plugged node 1
+        policies = thread_policies(daemon.proc.pid)
+        assert set(policies) - before, policies  # its reader is a new thread
+        normal = {name: p for name, p in policies.items() if p != (SCHED_RR, 10)}
+        assert not normal, normal
     finally:
         assert daemon.stop() == 0
         line.close()
