@@ -1,17 +1,29 @@
 """An output's channels evaluated again on frames equal to the last ones give what a fresh
 evaluation gives (usb2rc/protocols/channels.py, `OutputChannels.evaluate`: the last result is
-kept, and a tick whose nodes did not change does not evaluate every channel again)."""
+kept, and a tick whose nodes did not change does not evaluate every channel again); so do
+MAVLink's (`MavlinkChannels.evaluate`), and a channel session's frame of values equal to the
+last ones (`ChannelSession.frame`: the last bytes are sent again, a withheld tick is
+counted every time)."""
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from usb2rc.config.channel_ref import ChannelRef
 from usb2rc.configfile import load_config_text
+from usb2rc.lines.session import ChannelSession
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.step import NodeFrame
 from usb2rc.protocols.channels import OutputChannels
+from usb2rc.protocols.crsf.session import CrsfModule, CrsfSession
+from usb2rc.protocols.ibus.session import IbusSession
+from usb2rc.protocols.mavlink.session import MavlinkChannels
 from usb2rc.protocols.rc11_channels import RC11_SCALE
+from usb2rc.protocols.sbus.session import SbusSession
+from usb2rc.protocols.sumd.session import SumdSession
 
 CONFIG = """
 outputs:
@@ -84,3 +96,90 @@ def test_equal_frames_are_not_evaluated_again() -> None:
     assert len(calls) == 1
     kept.evaluate([NodeFrame(0, True, (100,) * 10, 3, 0)])  # a button: evaluated
     assert len(calls) == 2
+
+
+def mavlink_sources() -> list[ChannelRef]:
+    button = ChannelRef.parse("node0.button1")
+    assert button is not None
+    return [ChannelRef.axis(0, "x"), ChannelRef.axis(1, "x"), button]
+
+
+MAVLINK_SOURCES = mavlink_sources()
+
+
+@settings(max_examples=100, deadline=None)
+@given(pool=frame_sets, picks=st.lists(st.integers(0, 3), min_size=1, max_size=12))
+def test_mavlink_repeated_ticks_give_what_a_fresh_evaluation_gives(
+    pool: list[list[NodeFrame]], picks: list[int]
+) -> None:
+    for message in ("rc_channels_override", "manual_control"):
+        kept = MavlinkChannels(MAVLINK_SOURCES, message)
+        for pick in picks:
+            frames = pool[pick % len(pool)]
+            assert kept.evaluate(iter(frames)) == MavlinkChannels(
+                MAVLINK_SOURCES, message
+            ).evaluate(frames)
+
+
+def test_mavlink_equal_frames_are_not_read_again() -> None:
+    kept = MavlinkChannels(MAVLINK_SOURCES)
+    first = kept.evaluate([NodeFrame(0, False, (100,) * 10, 1, 0)])
+    again = kept.evaluate([NodeFrame(0, False, (100,) * 10, 1, 0)])  # equal, not the same
+    assert again is first
+    moved = kept.evaluate([NodeFrame(0, False, (200,) * 10, 1, 0)])
+    assert moved is not first and moved.channels != first.channels
+
+
+def sessions() -> list[ChannelSession]:
+    made: list[ChannelSession] = [
+        SumdSession("sumd", channels(), 29, 100.0),
+        SbusSession("sbus", channels(), 50.0),
+        CrsfSession("crsf", channels(), CrsfModule(0.004)),
+        IbusSession("ibus", channels(), 100.0),
+    ]
+    for session in made:
+        session.line_opened()
+    return made
+
+
+wire = st.lists(st.integers(172, 1811), min_size=6, max_size=6)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    pool=st.lists(st.tuples(wire, st.booleans()), min_size=1, max_size=3),
+    picks=st.lists(st.integers(0, 2), min_size=1, max_size=12),
+)
+def test_a_session_sends_for_repeated_values_what_it_encodes_afresh(
+    pool: list[tuple[list[int], bool]], picks: list[int]
+) -> None:
+    """Every tick's frame is the protocol's encoding of its values, whether the last bytes
+    were reused or not; a protocol that withholds failsafe frames counts every such tick."""
+    for index, session in enumerate(sessions()):
+        failsafe_ticks = 0
+        for pick in picks:
+            values, failsafe = pool[pick % len(pool)]
+            sent = list(values)
+            assert session.frame(sent, failsafe) == sessions()[index].encode(values, failsafe)
+            sent[0] = 0  # the caller owns its list: the next tick is not made of this
+            failsafe_ticks += failsafe
+        withheld = getattr(session, "withheld", None)
+        if withheld is not None:  # CRSF and iBus: silence is their failsafe
+            assert withheld == failsafe_ticks
+
+
+def test_equal_values_are_not_encoded_again() -> None:
+    session = SumdSession("sumd", channels(), 29, 100.0)
+    session.line_opened()
+    calls = []
+    encode = session.encode
+
+    def counted(values: Sequence[int], failsafe: bool) -> bytes:
+        calls.append(values)
+        return encode(values, failsafe)
+
+    session.encode = counted  # type: ignore[method-assign]
+    first = session.frame([992] * 6, False)
+    assert session.frame([992] * 6, False) is first and len(calls) == 1
+    assert session.frame([992] * 6, True) != first and len(calls) == 2  # the flag changed
+    assert session.frame([993] + [992] * 5, True) and len(calls) == 3

@@ -389,8 +389,15 @@ def test_udpout_sends_each_write_as_one_datagram() -> None:
             assert link.write(b"one").sent == 3 and link.write(b"two").sent == 3
             assert [far.recv(100), far.recv(100)] == [b"one", b"two"]
             far.sendto(b"reply", link._sock.getsockname())  # type: ignore[union-attr]
-            wait_until(lambda: link.line_event() is None and link.datagrams_received)
-            assert [data for data, _at in link.take_received()] == [b"reply"]
+            assert link.line_event() is None  # told once; the tick's read is take_received
+            received: list[bytes] = []
+
+            def taken() -> list[bytes]:
+                received.extend(d for d, _at in link.take_received())
+                return received
+
+            wait_until(taken)
+            assert received == [b"reply"] and link.datagrams_received == 1
             assert link.take_received() == []
         finally:
             link.close()
@@ -420,14 +427,20 @@ def test_udpin_locks_to_the_first_caller_and_moves_only_after_its_silence() -> N
         assert link.is_open and link.last_error == ""
         link.write(b"to-first")
         assert first.recv(100) == b"to-first"
+        # once open, the tick's one read is take_received's (line_event reads no more)
+        received: list[bytes] = []
+
+        def taken() -> list[bytes]:
+            received.extend(d for d, _at in link.take_received())
+            return received
+
         second.sendto(b"call too", ("127.0.0.1", port))  # the peer talks: no redirect
-        wait_until(lambda: link.line_event() is None and link.datagrams_from_others == 2)
-        assert link.peer == first.getsockname() and [d for d, _at in link.take_received()] == [
-            b"call"
-        ]
+        wait_until(lambda: taken() and link.datagrams_from_others == 2)
+        assert link.line_event() is None
+        assert link.peer == first.getsockname() and received == [b"call"]
         clock[0] += transport_udp.PEER_SILENT_S  # the first went silent: a new call is taken
         second.sendto(b"call again", ("127.0.0.1", port))
-        wait_until(lambda: link.line_event() is None and link.peer == second.getsockname())
+        wait_until(lambda: taken() and link.peer == second.getsockname())
         link.write(b"to-second")
         assert second.recv(100) == b"to-second"
         assert link.peer_locks == 2

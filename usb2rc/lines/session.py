@@ -361,6 +361,10 @@ class ChannelSession(SessionBase):
         # the last tick sent nothing because a channel is in failsafe (the protocol's
         # failsafe is silence): the next one is due on SILENT_TICK_PERIOD_S's grid
         self._silent = False
+        # the last frame made, and the wire values and failsafe flag it was made of: a
+        # protocol's frame is a function of those alone, so equal ones (nodes in failsafe,
+        # sticks at rest) send the same bytes without encoding them again
+        self._encoded: tuple[list[int], bool, bytes] | None = None
 
     def encode(self, values: Sequence[int], failsafe: bool) -> bytes:
         """The protocol's frame of the channels' wire values (b"": nothing this tick)."""
@@ -389,13 +393,23 @@ class ChannelSession(SessionBase):
         line = self.line
         if not line.is_open or line.stalled:
             return b""
-        frame = self.encode(values, failsafe or line.stopping)
+        frame = self._encoded_frame(values, failsafe or line.stopping)
         if not frame:
             if line.stopping:
                 self._stop_sent = True  # its failsafe is silence: nothing more to send
             else:
                 self._silent = failsafe
         self._last_len = len(frame)
+        return frame
+
+    def _encoded_frame(self, values: Sequence[int], failsafe: bool) -> bytes:
+        """`encode`, or the last frame it made when the values and the flag are the same.
+        Nothing sent (b"") is never reused: the protocol counts each tick it withholds."""
+        last = self._encoded
+        if last is not None and last[1] == failsafe and last[0] == values:
+            return last[2]
+        frame = self.encode(values, failsafe)
+        self._encoded = (list(values), failsafe, frame) if frame else None
         return frame
 
     def next_due(self, due: float, now: float) -> float:

@@ -176,9 +176,13 @@ class UdpLink:
         return sock
 
     def line_event(self) -> LineEvent | None:
-        """OPENED once the socket is there and there is somebody to send to."""
+        """OPENED once the socket is there and there is somebody to send to. Only until
+        then does it read (a `udpin` caller becomes the peer): after it, the driver's
+        `take_received` is the tick's one read."""
+        if self._sock is None or self._opened:
+            return None
         self._poll()
-        if self._sock is None or self._opened or self._peer is None:
+        if self._peer is None:
             return None
         self._opened = True
         return LineEvent.OPENED

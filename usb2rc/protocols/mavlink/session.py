@@ -167,15 +167,25 @@ class MavlinkChannels:
         self.triggers = tuple(trigger_value(source, target) for source, target in triggers)
         # the nodes the channels and the actions' buttons and switches read (None: any)
         self.node_ids = nodes_read([*self.sources, *(source for source, _ in triggers)])
+        # the last frames evaluated and what they gave: every reading and trigger is a
+        # function of the node frames alone, so equal frames (nodes in failsafe, sticks
+        # at rest) give the same (immutable) values without reading them again
+        self._last: tuple[list[NodeFrame], ControlValues] | None = None
 
     def __len__(self) -> int:
         return len(self.readings)
 
     def evaluate(self, frames: Iterable[NodeFrame]) -> ControlValues:
+        frames = list(frames)
+        last = self._last
+        if last is not None and last[0] == frames:
+            return last[1]
         nodes = {frame.node_id: frame for frame in frames}
+        values = self._values(nodes)
         if self.triggers:
-            return replace(self._values(nodes), **self._triggers(nodes))
-        return self._values(nodes)
+            values = replace(values, **self._triggers(nodes))
+        self._last = (frames, values)
+        return values
 
     def _triggers(self, nodes: Nodes) -> dict[str, Any]:
         """Each action's trigger (usb2rc.protocols.mavlink.actions), and whether a trigger's
