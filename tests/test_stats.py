@@ -180,6 +180,10 @@ def test_sigusr1_with_json_stats_writes_one_json_line(tmp_path, line, sumd_line,
     assert (device["reports"], device["bad_reports"]) == (len(STATES), 0)
     # a fresh record each dump (the pty is not read now: the writes may have stalled)
     assert second["uptime_s"] > first["uptime_s"]
+    # what usb2rc has taken of the host since it started, all threads and the drivers'
+    assert first["cpu_pct"] > 0 and 0 < first["drivers_cpu_pct"] < 100
+    assert first["drivers_cpu_pct"] <= first["cpu_pct"] + 1  # measured a moment apart
+    assert stats_text.daemon_line(first).startswith(f"usb2rc: up {first['uptime_s']:.1f} s, CPU ")
     assert second["outputs"][0]["ticks"] >= c2["ticks"]
     # the log lines are the same record in words: the text format's regexes read them
     assert C2_LINE.search("stats: " + stats_text.output_line(c2))

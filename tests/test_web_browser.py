@@ -8,6 +8,7 @@ running."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +38,7 @@ return {status: card.dataset.status, failsafe: card.dataset.failsafe,
         state: document.getElementById('connection').dataset.state,
         badge: document.getElementById('connection').textContent};
 """
+UPTIME = "return document.getElementById('uptime').textContent;"
 BADGE = "const b = document.getElementById('connection'); return [b.dataset.state, b.textContent];"
 
 
@@ -91,6 +93,12 @@ def test_page_follows_the_stick_an_unplug_and_a_daemon_restart(tmp_path: Path) -
             plug_and_see_the_bar_move(driver, stick)
             status = web.get("/api/status")
             assert status["stats"]["outputs"][0]["ticks"] > 0
+            # what usb2rc takes of the host, beside its uptime
+            uptime = wait_until(
+                lambda: (text := driver.execute_script(UPTIME)) and " % of a core" in text and text,
+                "the CPU share beside the uptime",
+            )
+            assert re.fullmatch(r"up \d+ s, CPU \d+\.\d % of a core", uptime)
             assert [n["status"] for n in status["nodes"] if n["node_id"] == 4] == [">"]
 
             stick.unlink()  # unplug

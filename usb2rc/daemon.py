@@ -47,6 +47,7 @@ from usb2rc.nodes.step import (
 from usb2rc.nodes.table import Expected, ExpectedEntry, NodeFrame, NodeTable
 from usb2rc.outputs import build, protocol
 from usb2rc.runtime import realtime, stats_text
+from usb2rc.runtime.load import CpuMark, thread_cpu_s
 from usb2rc.status_socket import PERIOD_S as STATUS_PERIOD_S
 from usb2rc.status_socket import (
     FailsafeWatch,
@@ -154,6 +155,15 @@ def outputs_with_port(config: Config, port_override: str | None) -> tuple[Output
     return tuple(outputs)
 
 
+def _share(cpu_s: float | None, elapsed_s: float) -> float | None:
+    """CPU time over a wall-clock span, in % of one core (None: not known)."""
+    return None if cpu_s is None or elapsed_s <= 0 else cpu_s / elapsed_s * 100
+
+
+def _rounded(pct: float | None) -> float | None:
+    return None if pct is None else round(pct, 2)
+
+
 def expected_nodes(config: Config | Mapping) -> Expected:
     """Config entries pinned to a Node-ID, as what they send before their device comes:
     the configured failsafe values, 0 for axes without one (docs/ICD.md, "Failsafe"), and
@@ -228,6 +238,7 @@ class Daemon:
         self.feedback = self._make_feedback(config) if self.outputs else None
         self._wire_wakes()
         self.started_at = 0.0
+        self.cpu_at_start = CpuMark.now()  # its CPU share in the stats counts from start()
         self._switch_interval: float | None = None  # the GIL's, to restore on stop()
         self._realtime_priority = realtime_priority
         # what its threads run at (start() asks, with outputs: none, nothing is kept on time)
@@ -388,7 +399,8 @@ class Daemon:
     # --- life cycle ------------------------------------------------------------------------
 
     def start(self) -> None:
-        self.started_at = time.monotonic()
+        self.cpu_at_start = CpuMark.now()
+        self.started_at = self.cpu_at_start.at
         if self.outputs:
             # first: every thread started from here on inherits it
             self.scheduling = realtime.request(self._realtime_priority)
@@ -521,6 +533,10 @@ class Daemon:
         return {
             # µs: two dumps asked for back to back can be under a millisecond apart
             "uptime_s": round(uptime, 6),
+            # % of one core since start (every thread; the drivers' thread alone): how much
+            # of the host usb2rc takes; None where it is not known
+            "cpu_pct": _rounded(self.cpu_at_start.share_pct(CpuMark.now())),
+            "drivers_cpu_pct": _rounded(_share(thread_cpu_s(self.drivers.native_id), uptime)),
             "scheduling": self.scheduling.describe(),
             "outputs": [self._output_stats(out, frames) for out in self.outputs],
             "devices": [

@@ -43,6 +43,7 @@ from usb2rc.lines.link import LineEvent, Link, Written
 from usb2rc.lines.session import Ask, LineSession
 from usb2rc.nodes.step import aligned
 from usb2rc.nodes.table import NodeSnapshot
+from usb2rc.runtime.load import CpuMark, MissedTickLog
 from usb2rc.runtime.samples import SampleRing
 from usb2rc.runtime.worker import Worker
 
@@ -198,6 +199,8 @@ class LineDriver:
         # the daemon's only output has no lead: it reads the records on its deadline
         self.lead = None if alone else Lead(period_s)
         self.stats = OutputStats()
+        # a missed tick is said in the log (rate limited), with usb2rc's CPU share
+        self._missed_log = MissedTickLog(f"{name} ({link.url})", CpuMark.now())
         self.on_tick = on_tick
         self.on_first_write = on_first_write
         # told when what the far end said changed the session's telemetry (feedback's ring);
@@ -304,6 +307,7 @@ class LineDriver:
         if behind >= 0:
             missed = int(behind // period) + 1
             self.stats.missed_ticks += missed
+            self._missed_log.note(missed, self.stats.missed_ticks)
             deadline += missed * period
         self.plan(deadline, period)
 

@@ -174,8 +174,22 @@ def missing_line(record: dict[str, Any]) -> str:
     )
 
 
+def daemon_line(record: dict[str, Any]) -> str:
+    """The daemon itself: how long it has run, the CPU it has taken since, how it is
+    scheduled."""
+    line = f"usb2rc: up {record['uptime_s']:.1f} s"
+    if record.get("cpu_pct") is not None:
+        line += f", CPU {record['cpu_pct']:.1f} % of a core since start"
+        if record.get("drivers_cpu_pct") is not None:
+            line += f" (drivers' thread {record['drivers_cpu_pct']:.1f} %)"
+    if record.get("scheduling"):
+        line += f", scheduling: {record['scheduling']}"
+    return line
+
+
 def stats_lines(record: dict[str, Any]) -> list[str]:
     return [
+        daemon_line(record),
         *map(output_line, record["outputs"]),
         *map(device_line, record["devices"]),
         *map(missing_line, record.get("missing_devices", [])),

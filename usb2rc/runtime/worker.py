@@ -44,6 +44,11 @@ class Worker:
     def is_alive(self) -> bool:
         return self._thread.is_alive()
 
+    @property
+    def native_id(self) -> int | None:
+        """The OS's id of its thread (None before it started)."""
+        return self._thread.native_id
+
     def join(self, timeout: float | None = None) -> bool:
         """Wait for the thread to end (never for itself, never before it started); True
         when it has ended. One that outlives `timeout` is named in the log."""

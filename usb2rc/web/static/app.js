@@ -295,7 +295,9 @@ function render(record) {
   const [state, text] = daemonState(record);
   setBadge(state, text, true, web.connects);
   const now = Date.now();
-  document.getElementById("uptime").textContent = "up " + Math.round(record.stats.uptime_s) + " s";
+  const cpu = record.stats.cpu_pct;  // % of one core since start (null: not known)
+  document.getElementById("uptime").textContent =
+    "up " + Math.round(record.stats.uptime_s) + " s" + (cpu == null ? "" : ", CPU " + cpu.toFixed(1) + " % of a core");
   document.getElementById("nodes").replaceChildren(...record.nodes.map(nodeCard));
   document.getElementById("outputs").replaceChildren(...record.stats.outputs.map((o) => outputCard(o, now)));
   feedbackPanel(record);
