@@ -255,3 +255,13 @@ def test_hot_path_trees_together(tmp_path: Path) -> None:
         (figures,) = idle["trees"][str(tree)]["rounds"]
         assert figures["cpu_pct"] > 0 and figures["rss_mb"] > 0
     assert idle["ratio_last_first"]["cpu_pct"] is not None
+
+
+def test_floor() -> None:
+    """Both loops tick and write: wake-ups at the five outputs' moments, CPU measured."""
+    out = run(sys.executable, "bench/bench_floor.py", "--rounds", "1", "--seconds", "1")
+    medians = last_json(out)["medians"]
+    assert set(medians) == ({"python", "c"} if shutil.which("gcc") else {"python"})
+    for figures in medians.values():
+        # 300 starts and 300 writes a second (fewer on a busy host: late ticks are skipped)
+        assert 100 < figures["wakes_per_s"] < 1000 and figures["cpu_pct"] > 0
