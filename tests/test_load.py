@@ -52,19 +52,25 @@ def marks(*times: float) -> Callable[[], CpuMark]:
 def test_the_first_miss_is_said_at_once_then_a_line_per_interval(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    missed = MissedTickLog("sbus (/dev/ttyAMA0)", CpuMark(0.0, 0.0), 10.0, marks(4, 5, 9, 15))
+    clock = marks(4, 5, 9, 15, 16, 30)
+    missed = MissedTickLog("sbus (/dev/ttyAMA0)", CpuMark(0.0, 0.0), 10.0, clock)
     with caplog.at_level(logging.WARNING, logger="usb2rc.load"):
         missed.note(1, 1)  # at 4 s: said
         missed.note(2, 3)  # at 5 s and 9 s: counted, not said
         missed.note(1, 4)
         missed.note(1, 5)  # at 15 s: the four since the first line
-    first, second = (record.getMessage() for record in caplog.records)
+        missed.note(1, 6)  # at 16 s: owed
+        missed.note(0, 6)  # no tick missed at 30 s, but the one owed is said
+        missed.note(0, 6)  # nothing owed: nothing said, no clock read
+    first, second, third = (record.getMessage() for record in caplog.records)
     assert first.startswith("sbus (/dev/ttyAMA0): 1 tick(s) missed (1 since start)")
     assert "usb2rc has used 50.0 % of a core since it started" in first
     assert "(more: a line every 10 s at most)" in first
     assert second.startswith(
         "sbus (/dev/ttyAMA0): 4 tick(s) missed in the 11 s since the last such line (5 since"
     )
+    assert third.startswith("sbus (/dev/ttyAMA0): 1 tick(s) missed in the 15 s since the last")
+    assert missed.unsaid == 0
 
 
 class StallOnce:

@@ -309,6 +309,8 @@ class LineDriver:
             self.stats.missed_ticks += missed
             self._missed_log.note(missed, self.stats.missed_ticks)
             deadline += missed * period
+        elif self._missed_log.unsaid:  # misses since its last line: said once it is due
+            self._missed_log.note(0, self.stats.missed_ticks)
         self.plan(deadline, period)
 
     def _failed(self, exc: Exception) -> None:

@@ -71,16 +71,19 @@ class MissedTickLog:
         self.interval_s = interval_s
         self._clock = clock
         self._said_at: float | None = None
-        self._unsaid = 0  # missed since the last line
+        self.unsaid = 0  # missed since the last line: said once the interval is over
 
     def note(self, missed: int, total: int) -> None:
-        """`missed` ticks were just skipped; `total`: the output's count so far."""
-        self._unsaid += missed
+        """`missed` ticks were just skipped (0: none, but a line may be owed: the driver
+        asks at each tick while `unsaid`); `total`: the output's count so far."""
+        self.unsaid += missed
+        if not self.unsaid:
+            return
         now = self._clock()
         if self._said_at is not None and now.at - self._said_at < self.interval_s:
             return
         before, self._said_at = self._said_at, now.at
-        count, self._unsaid = self._unsaid, 0
+        count, self.unsaid = self.unsaid, 0
         share = self.since.share_pct(now)
         used = (
             "" if share is None else f"; usb2rc has used {share:.1f} % of a core since it started"
