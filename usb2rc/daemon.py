@@ -47,7 +47,7 @@ from usb2rc.nodes.step import (
 from usb2rc.nodes.table import Expected, ExpectedEntry, NodeFrame, NodeTable
 from usb2rc.outputs import build, protocol
 from usb2rc.runtime import realtime, stats_text
-from usb2rc.runtime.load import CpuMark, thread_cpu_s
+from usb2rc.runtime.load import CpuMark, share_pct, thread_cpu_s
 from usb2rc.status_socket import PERIOD_S as STATUS_PERIOD_S
 from usb2rc.status_socket import (
     FailsafeWatch,
@@ -153,11 +153,6 @@ def outputs_with_port(config: Config, port_override: str | None) -> tuple[Output
             "socket://host:port), or set `port:` under `outputs:` in the config."
         )
     return tuple(outputs)
-
-
-def _share(cpu_s: float | None, elapsed_s: float) -> float | None:
-    """CPU time over a wall-clock span, in % of one core (None: not known)."""
-    return None if cpu_s is None or elapsed_s <= 0 else cpu_s / elapsed_s * 100
 
 
 def _rounded(pct: float | None) -> float | None:
@@ -536,7 +531,7 @@ class Daemon:
             # % of one core since start (every thread; the drivers' thread alone): how much
             # of the host usb2rc takes; None where it is not known
             "cpu_pct": _rounded(self.cpu_at_start.share_pct(CpuMark.now())),
-            "drivers_cpu_pct": _rounded(_share(thread_cpu_s(self.drivers.native_id), uptime)),
+            "drivers_cpu_pct": _rounded(share_pct(thread_cpu_s(self.drivers.native_id), uptime)),
             "scheduling": self.scheduling.describe(),
             "outputs": [self._output_stats(out, frames) for out in self.outputs],
             "devices": [

@@ -36,10 +36,12 @@ class CpuMark:
 
     def share_pct(self, later: CpuMark) -> float | None:
         """The CPU taken from this mark to `later`, in % of one core (None: no time passed)."""
-        elapsed = later.at - self.at
-        if elapsed <= 0:
-            return None
-        return (later.process_s - self.process_s) / elapsed * 100
+        return share_pct(later.process_s - self.process_s, later.at - self.at)
+
+
+def share_pct(cpu_s: float | None, elapsed_s: float) -> float | None:
+    """CPU time over a wall-clock span, in % of one core (None: not known, no time)."""
+    return None if cpu_s is None or elapsed_s <= 0 else cpu_s / elapsed_s * 100
 
 
 def thread_cpu_s(native_id: int | None) -> float | None:
