@@ -12,7 +12,7 @@ import errno
 import io
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import pytest
@@ -29,6 +29,7 @@ from usb2rc.hid.recording import (
     format_event,
     format_recording,
     open_recording_batches,
+    open_recording_played,
 )
 from usb2rc.hid.replay import ReplayBackend, ReplayDevice, install_file
 
@@ -51,12 +52,20 @@ def line_at_a_time(lines: list[str]) -> tuple[list[RecordedEvent], str | None]:
     return events, None
 
 
-def in_batches(lines: list[str], as_file: bool = False) -> tuple[list[RecordedEvent], str | None]:
-    """`as_file`: read from a text file (blocks of BLOCK_CHARS), not from a list of lines."""
+def in_batches(
+    lines: list[str], as_file: bool = False, played: bool = False
+) -> tuple[list[RecordedEvent], str | None]:
+    """`as_file`: read from a text file (blocks of BLOCK_CHARS), not from a list of lines;
+    `played`: as the replay backend takes them (`open_recording_played`: blocks of
+    PACKED_BLOCK_CHARS, packed)."""
     events: list[RecordedEvent] = []
     source: Iterable[str] = io.StringIO("".join(lines)) if as_file else lines
+    batches: Iterator[tuple[list[float], list[bytes]]]
     try:
-        _, batches = open_recording_batches(source, source="x")
+        if played:
+            batches = (b.pairs() for b in open_recording_played(source, source="x")[1])
+        else:
+            batches = open_recording_batches(source, source="x")[1]
         for times, reports in batches:
             assert times, "a batch is never empty"
             events += [RecordedEvent(t, r) for t, r in zip(times, reports, strict=True)]
@@ -105,18 +114,21 @@ def test_batches_give_what_a_line_at_a_time_gives(lines: list[str]) -> None:
     st.lists(st.one_of(_WRITTEN, _WRITTEN, _WRITTEN, _ODD), max_size=40),
     st.integers(1, 90),
     st.sampled_from(["", "\n"]),
+    st.booleans(),
 )
 def test_blocks_of_a_file_give_what_a_line_at_a_time_gives(
-    lines: list[str], block: int, last_end: str
+    lines: list[str], block: int, last_end: str, played: bool
 ) -> None:
     """Blocks that cut lines anywhere (a line's end waits for the next block), and a last
-    line with or without its newline."""
+    line with or without its newline; as a list of events or as the replay plays them."""
     lines = [line.rstrip("\n") + "\n" for line in lines]  # one line each in the file
     if lines:
         lines[-1] = lines[-1].rstrip("\n") + last_end
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(recording, "BLOCK_CHARS", block)
-        assert in_batches(HEADER + lines, as_file=True) == line_at_a_time(HEADER + lines)
+        patch.setattr(recording, "PACKED_BLOCK_CHARS", block)
+        got = in_batches(HEADER + lines, as_file=True, played=played)
+        assert got == line_at_a_time(HEADER + lines)
 
 
 def test_a_bad_line_in_a_batch_comes_after_the_good_ones_before_it() -> None:
@@ -166,6 +178,7 @@ def test_a_drain_gets_every_report_in_order_across_batches_and_laps(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(recording, "BATCH_LINES", 7)
+    monkeypatch.setattr(recording, "PACKED_BLOCK_CHARS", 100)  # a few lines a batch
     events = [(i / 1000, i.to_bytes(2, "little")) for i in range(50)]
     device = open_device(tmp_path, events, loop=True, speed=20.0)
     try:

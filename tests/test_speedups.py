@@ -18,6 +18,7 @@ answered (else the speed-up never runs).
 from __future__ import annotations
 
 import io
+import math
 import os
 import subprocess
 import sys
@@ -26,7 +27,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from usb2rc.hid import recording, replay, speedups
+from usb2rc.hid import recording, speedups
 from usb2rc.hid.descriptor import ButtonField, DeviceLayout, InputField, ReportDecoder
 from usb2rc.hid.recording import RecordedEvent, format_event
 
@@ -261,20 +262,71 @@ def test_a_block_of_complete_lines_gives_their_events_and_where_they_end(
     )
 
 
-@given(
-    st.lists(st.floats(min_value=0, max_value=1e6, allow_nan=False), max_size=30),
-    st.floats(min_value=0, max_value=1e6, allow_nan=False),
-    st.floats(min_value=0.01, max_value=1000, allow_nan=False),
-    st.floats(min_value=-1e6, max_value=2e6, allow_nan=False),
-)
-def test_running_dues_in_c_are_the_python_twins_bit_for_bit(
-    times: list[float], start: float, speed: float, floor: float
-) -> None:
+def c_packed(text: str) -> tuple[recording.PlayedEvents, int, int] | None:
     c_loops = speedups.compiled()
     assert c_loops is not None
-    got = c_loops.running_dues(times, start, speed, floor)
-    want = replay.running_dues_py(times, start, speed, floor)
-    assert [d.hex() for d in got] == [d.hex() for d in want]
+    packed: tuple[recording.PlayedEvents, int, int] | None = c_loops.parse_packed(text)
+    return packed
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.lists(EVENTS, max_size=20), st.sampled_from(["\n", "\r\n", "  \n"]), st.data())
+def test_a_block_packs_in_c_as_it_parses_in_python(
+    events: list[RecordedEvent], end: str, data: st.DataObject
+) -> None:
+    """`parse_packed` takes exactly the blocks `parse_block` takes, with the same events,
+    end and line count (cut anywhere, edited anywhere)."""
+    text = "".join(format_event(e) + end for e in events)
+    text = text[: data.draw(st.integers(0, len(text)))]
+    if text and data.draw(st.booleans()):
+        at = data.draw(st.integers(0, len(text)))
+        text = text[:at] + data.draw(EDITS) + text[at:]
+    packed, parsed = c_packed(text), c_block(text)
+    if parsed is None:
+        assert packed is None
+        return
+    assert packed is not None
+    events_c, end_c, lines_c = packed
+    assert (events_c.pairs(), end_c, lines_c) == ((parsed[0], parsed[1]), parsed[2], parsed[3])
+    assert (len(events_c), events_c.left, events_c.last_time) == (lines_c, lines_c, parsed[0][-1])
+
+
+FINITE = st.floats(min_value=-1e6, max_value=2e6, allow_nan=False)
+
+
+@given(
+    st.lists(st.floats(min_value=0, max_value=1e6, allow_nan=False), min_size=1, max_size=30),
+    st.floats(min_value=0, max_value=1e6, allow_nan=False),
+    st.floats(min_value=0.01, max_value=1000, allow_nan=False),
+    FINITE,
+    st.lists(st.tuples(FINITE, st.integers(-1, 40)), max_size=20),
+)
+def test_packed_events_play_as_their_python_twin(
+    times: list[float],
+    start: float,
+    speed: float,
+    floor: float,
+    takes: list[tuple[float, int]],
+) -> None:
+    """`_speedups.Events` against `recording.EventList` on the same events: the same due
+    times bit for bit (a running maximum from `floor`), the same reports taken at each
+    (now, limit), the same next due and count left after each take."""
+    reports = [bytes([k % 256]) * (1 + k % 5) for k in range(len(times))]
+    text = "".join(
+        format_event(RecordedEvent(t, r)) + "\n" for t, r in zip(times, reports, strict=True)
+    )
+    packed = c_packed(text)
+    assert packed is not None
+    c_events = packed[0]
+    py_events = recording.EventList(*c_events.pairs())
+    assert c_events.pairs() == py_events.pairs()
+    last = c_events.schedule(start, speed, floor)
+    assert last.hex() == py_events.schedule(start, speed, floor).hex()
+    for now, limit in sorted(takes):
+        assert c_events.take(now, limit) == py_events.take(now, limit)
+        assert (c_events.next_due, c_events.left) == (py_events.next_due, py_events.left)
+    assert c_events.take(math.inf, len(times)) == py_events.take(math.inf, len(times))
+    assert c_events.left == py_events.left == 0
 
 
 @settings(max_examples=50, deadline=None)
@@ -293,7 +345,9 @@ def test_a_recordings_batches_are_the_same_with_the_c_loops_off(
             got.append(
                 [(t, r) for times, reports in batches for t, r in zip(times, reports, strict=True)]
             )
+            played = recording.open_recording_played(io.StringIO(text, newline=None))[1]
+            got.append([(t, r) for b in played for t, r in zip(*b.pairs(), strict=True)])
         finally:
             speedups._SWITCHED_OFF = before
-    assert got[0] == got[1]
+    assert got[0] == got[1] == got[2] == got[3]
     assert [r for _, r in got[0]] == [e.report for e in events]

@@ -36,8 +36,12 @@
  * end, lines), `end` the index after the last '\n' and `lines` their count; None when the
  * text is not ASCII, holds no complete line, or one of them is not as written.
  *
- * running_dues(times, start, speed, floor): when each event is due, start + t / speed, and
- * never before the one before it nor before `floor` (a running maximum from `floor`).
+ * parse_packed(text): parse_block's lines packed in one Events object (the reports back to
+ * back, their times as doubles: no object per event until it is taken): (events, end, lines),
+ * or None as parse_block. Events.schedule(start, speed, floor): when each is due, start +
+ * t / speed, never before the one before it nor before `floor` (a running maximum from
+ * `floor`); the last due. Events.take(now, limit): the reports due at `now`, at most
+ * `limit`, from the first not taken. `recording.EventList` is its Python twin.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -345,19 +349,25 @@ plan_drain(PlanObject *self, PyObject *args)
                          changes);
 }
 
+/* Each character's value as a hex digit, -1 for any other (filled at import). */
+static signed char hex_values[256];
+
+static void
+fill_hex_values(void)
+{
+    memset(hex_values, -1, sizeof hex_values);
+    for (int k = 0; k < 10; k++) {
+        hex_values['0' + k] = (signed char)k;
+    }
+    for (int k = 0; k < 6; k++) {
+        hex_values['a' + k] = hex_values['A' + k] = (signed char)(10 + k);
+    }
+}
+
 static int
 hex_digit(unsigned char c)
 {
-    if (c >= '0' && c <= '9') {
-        return c - '0';
-    }
-    if (c >= 'a' && c <= 'f') {
-        return c - 'a' + 10;
-    }
-    if (c >= 'A' && c <= 'F') {
-        return c - 'A' + 10;
-    }
-    return -1;
+    return hex_values[c];
 }
 
 /* What str.rstrip() strips, of ASCII (str.isspace). */
@@ -406,9 +416,10 @@ stamp_seconds(const char *s, Py_ssize_t n)
     return isfinite(t) && t >= 0 ? t : -1;
 }
 
-/* One line as written: 1 and its time and report, 0 when it is not (no exception). */
+/* One line as written, up to its report's hex: 1 with its time, where the hex starts and
+ * how many bytes it gives; 0 when the line is not as written (no exception). */
 static int
-parse_event(const char *s, Py_ssize_t n, double *time_s, PyObject **report)
+event_head(const char *s, Py_ssize_t n, double *time_s, Py_ssize_t *hex, Py_ssize_t *length)
 {
     if (n < 3 || memcmp(s, "E: ", 3) != 0) {
         return 0;
@@ -429,16 +440,51 @@ parse_event(const char *s, Py_ssize_t n, double *time_s, PyObject **report)
     }
     i++;
     start = i;
-    Py_ssize_t length = 0;
+    Py_ssize_t count = 0;
     while (i < n && isdigit((unsigned char)s[i]) && i - start < 7) {
-        length = length * 10 + (s[i] - '0');
+        count = count * 10 + (s[i] - '0');
         i++;
     }
-    if (i == start || i >= n || s[i] != ' ' || length < 1) {
+    if (i == start || i >= n || s[i] != ' ' || count < 1) {
         return 0;
     }
     i++;
-    if (n - i < 3 * length - 1) {
+    if (n - i < 3 * count - 1) {
+        return 0;
+    }
+    *time_s = t;
+    *hex = i;
+    *length = count;
+    return 1;
+}
+
+/* The report's `length` bytes from the hex at `hex` into `out`: two digits a byte, one space
+ * apart, then whitespace only to the line's end (rstrip); 0 when they are not so. */
+static int
+event_bytes(const char *s, Py_ssize_t n, Py_ssize_t hex, Py_ssize_t length, unsigned char *out)
+{
+    Py_ssize_t i = hex;
+    for (Py_ssize_t k = 0; k < length; k++, i += 3) {
+        int hi = hex_digit((unsigned char)s[i]), lo = hex_digit((unsigned char)s[i + 1]);
+        if (hi < 0 || lo < 0 || (k + 1 < length && s[i + 2] != ' ')) {
+            return 0;
+        }
+        out[k] = (unsigned char)(hi << 4 | lo);
+    }
+    for (i -= 1; i < n; i++) { /* after the last pair: whitespace only (rstrip) */
+        if (!is_space((unsigned char)s[i])) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+/* One line as written: 1 and its time and report, 0 when it is not (no exception). */
+static int
+parse_event(const char *s, Py_ssize_t n, double *time_s, PyObject **report)
+{
+    Py_ssize_t hex, length;
+    if (!event_head(s, n, time_s, &hex, &length)) {
         return 0;
     }
     PyObject *bytes = PyBytes_FromStringAndSize(NULL, length);
@@ -446,22 +492,10 @@ parse_event(const char *s, Py_ssize_t n, double *time_s, PyObject **report)
         PyErr_Clear();
         return 0;
     }
-    unsigned char *out = (unsigned char *)PyBytes_AS_STRING(bytes);
-    for (Py_ssize_t k = 0; k < length; k++, i += 3) {
-        int hi = hex_digit((unsigned char)s[i]), lo = hex_digit((unsigned char)s[i + 1]);
-        if (hi < 0 || lo < 0 || (k + 1 < length && s[i + 2] != ' ')) {
-            Py_DECREF(bytes);
-            return 0;
-        }
-        out[k] = (unsigned char)(hi << 4 | lo);
+    if (!event_bytes(s, n, hex, length, (unsigned char *)PyBytes_AS_STRING(bytes))) {
+        Py_DECREF(bytes);
+        return 0;
     }
-    for (i -= 1; i < n; i++) { /* after the last pair: whitespace only (rstrip) */
-        if (!is_space((unsigned char)s[i])) {
-            Py_DECREF(bytes);
-            return 0;
-        }
-    }
-    *time_s = t;
     *report = bytes;
     return 1;
 }
@@ -523,10 +557,8 @@ parse_block(PyObject *module, PyObject *text)
     if (times == NULL || reports == NULL) {
         goto done;
     }
-    for (Py_ssize_t i = 0; i < n; i++) {
-        if (s[i] != '\n') {
-            continue;
-        }
+    for (const char *newline; (newline = memchr(s + start, '\n', (size_t)(n - start)));) {
+        Py_ssize_t i = newline - s;
         double t;
         PyObject *report = NULL, *stamp = NULL;
         if (!parse_event(s + start, i - start, &t, &report)) {
@@ -554,47 +586,263 @@ done:
     return result;
 }
 
+/* Events: a block's events packed, played by the replay backend. */
+typedef struct {
+    PyObject_HEAD
+    unsigned char *blob; /* the reports back to back */
+    Py_ssize_t *starts;  /* report k is blob[starts[k]:starts[k + 1]] */
+    double *times;       /* recorded, seconds */
+    double *dues;        /* when each is due (schedule()); +inf before */
+    Py_ssize_t n, next, blob_size;
+} EventsObject;
+
+static void
+events_dealloc(EventsObject *self)
+{
+    PyMem_Free(self->blob);
+    PyMem_Free(self->starts);
+    PyMem_Free(self->times);
+    PyMem_Free(self->dues);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+static int
+events_grow(EventsObject *self, Py_ssize_t lines, Py_ssize_t bytes)
+{
+    unsigned char *blob = PyMem_Realloc(self->blob, (size_t)(bytes > 0 ? bytes : 1));
+    if (blob == NULL) {
+        return -1;
+    }
+    self->blob = blob;
+    Py_ssize_t *starts = PyMem_Realloc(self->starts, sizeof(Py_ssize_t) * (size_t)(lines + 1));
+    if (starts == NULL) {
+        return -1;
+    }
+    self->starts = starts;
+    double *times = PyMem_Realloc(self->times, sizeof(double) * (size_t)(lines > 0 ? lines : 1));
+    if (times == NULL) {
+        return -1;
+    }
+    self->times = times;
+    return 0;
+}
+
+static PyTypeObject EventsType;
+
+/* parse_packed(text): parse_block's lines, packed: (events, end, lines), or None. */
 static PyObject *
-running_dues(PyObject *module, PyObject *args)
+parse_packed(PyObject *module, PyObject *text)
 {
     (void)module;
-    PyObject *times;
-    double start, speed, due;
-    if (!PyArg_ParseTuple(args, "O!ddd", &PyList_Type, &times, &start, &speed, &due)) {
+    if (!PyUnicode_Check(text)) {
+        PyErr_SetString(PyExc_TypeError, "text must be a str");
         return NULL;
     }
-    Py_ssize_t n = PyList_GET_SIZE(times);
-    PyObject *dues = PyList_New(n);
-    if (dues == NULL) {
+    if (!PyUnicode_IS_ASCII(text)) {
+        Py_RETURN_NONE;
+    }
+    const char *s = (const char *)PyUnicode_DATA(text);
+    Py_ssize_t n = PyUnicode_GET_LENGTH(text), start = 0;
+    EventsObject *events = PyObject_New(EventsObject, &EventsType);
+    if (events == NULL) {
         return NULL;
     }
-    for (Py_ssize_t k = 0; k < n; k++) {
-        double t = PyFloat_AsDouble(PyList_GET_ITEM(times, k));
-        if (t == -1.0 && PyErr_Occurred()) {
-            Py_DECREF(dues);
-            return NULL;
+    events->blob = NULL;
+    events->starts = NULL;
+    events->times = NULL;
+    events->dues = NULL;
+    events->n = events->next = 0;
+    /* a line gives at most a third of its characters as bytes: one allocation each */
+    Py_ssize_t lines_cap = 64, bytes_cap = n / 3 + 1;
+    if (events_grow(events, lines_cap, bytes_cap) < 0) {
+        Py_DECREF(events);
+        return PyErr_NoMemory();
+    }
+    Py_ssize_t used = 0;
+    events->starts[0] = 0;
+    for (const char *newline; (newline = memchr(s + start, '\n', (size_t)(n - start)));) {
+        Py_ssize_t i = newline - s;
+        double t;
+        Py_ssize_t hex, length;
+        if (!event_head(s + start, i - start, &t, &hex, &length)) {
+            Py_DECREF(events);
+            Py_RETURN_NONE; /* not as written: no verdict */
         }
-        double at = start + t / speed;
+        if (events->n == lines_cap || used + length > bytes_cap) {
+            lines_cap = events->n == lines_cap ? lines_cap * 2 : lines_cap;
+            bytes_cap = used + length > bytes_cap ? 2 * (used + length) : bytes_cap;
+            if (events_grow(events, lines_cap, bytes_cap) < 0) {
+                Py_DECREF(events);
+                return PyErr_NoMemory();
+            }
+        }
+        if (!event_bytes(s + start, i - start, hex, length, events->blob + used)) {
+            Py_DECREF(events);
+            Py_RETURN_NONE;
+        }
+        events->times[events->n] = t;
+        used += length;
+        events->n++;
+        events->starts[events->n] = used;
+        start = i + 1;
+    }
+    if (events->n == 0) {
+        Py_DECREF(events);
+        Py_RETURN_NONE;
+    }
+    events->blob_size = used;
+    events->dues = PyMem_Malloc(sizeof(double) * (size_t)events->n);
+    if (events->dues == NULL) {
+        Py_DECREF(events);
+        return PyErr_NoMemory();
+    }
+    for (Py_ssize_t k = 0; k < events->n; k++) {
+        events->dues[k] = INFINITY;
+    }
+    return Py_BuildValue("Nnn", (PyObject *)events, start, events->n);
+}
+
+static PyObject *
+events_schedule(EventsObject *self, PyObject *args)
+{
+    double start, speed, due;
+    if (!PyArg_ParseTuple(args, "ddd", &start, &speed, &due)) {
+        return NULL;
+    }
+    for (Py_ssize_t k = 0; k < self->n; k++) {
+        double at = start + self->times[k] / speed;
         if (at > due) { /* max(due, at), as Python's max keeps the first of equals */
             due = at;
         }
-        PyObject *value = PyFloat_FromDouble(due);
-        if (value == NULL) {
-            Py_DECREF(dues);
+        self->dues[k] = due;
+    }
+    return PyFloat_FromDouble(due);
+}
+
+static PyObject *
+events_take(EventsObject *self, PyObject *args)
+{
+    double now;
+    Py_ssize_t limit;
+    if (!PyArg_ParseTuple(args, "dn", &now, &limit)) {
+        return NULL;
+    }
+    Py_ssize_t first = self->next, end = first;
+    while (end < self->n && end - first < limit && self->dues[end] <= now) {
+        end++;
+    }
+    PyObject *taken = PyList_New(end - first);
+    if (taken == NULL) {
+        return NULL;
+    }
+    for (Py_ssize_t k = first; k < end; k++) {
+        PyObject *report = PyBytes_FromStringAndSize(
+            (const char *)self->blob + self->starts[k], self->starts[k + 1] - self->starts[k]);
+        if (report == NULL) {
+            Py_DECREF(taken);
             return NULL;
         }
-        PyList_SET_ITEM(dues, k, value);
+        PyList_SET_ITEM(taken, k - first, report);
     }
-    return dues;
+    self->next = end;
+    return taken;
 }
+
+static PyObject *
+events_next_due(EventsObject *self, void *closure)
+{
+    (void)closure;
+    return PyFloat_FromDouble(self->next < self->n ? self->dues[self->next] : INFINITY);
+}
+
+static PyObject *
+events_last_time(EventsObject *self, void *closure)
+{
+    (void)closure;
+    return PyFloat_FromDouble(self->times[self->n - 1]);
+}
+
+static PyObject *
+events_left(EventsObject *self, void *closure)
+{
+    (void)closure;
+    return PyLong_FromSsize_t(self->n - self->next);
+}
+
+static PyObject *
+events_pairs(EventsObject *self, PyObject *unused)
+{
+    (void)unused;
+    PyObject *times = PyList_New(self->n), *reports = PyList_New(self->n);
+    if (times == NULL || reports == NULL) {
+        Py_XDECREF(times);
+        Py_XDECREF(reports);
+        return NULL;
+    }
+    for (Py_ssize_t k = 0; k < self->n; k++) {
+        PyObject *t = PyFloat_FromDouble(self->times[k]);
+        PyObject *r = PyBytes_FromStringAndSize((const char *)self->blob + self->starts[k],
+                                                self->starts[k + 1] - self->starts[k]);
+        if (t == NULL || r == NULL) {
+            Py_XDECREF(t);
+            Py_XDECREF(r);
+            Py_DECREF(times);
+            Py_DECREF(reports);
+            return NULL;
+        }
+        PyList_SET_ITEM(times, k, t);
+        PyList_SET_ITEM(reports, k, r);
+    }
+    return Py_BuildValue("NN", times, reports);
+}
+
+static Py_ssize_t
+events_len(EventsObject *self)
+{
+    return self->n;
+}
+
+static PySequenceMethods events_as_sequence = {
+    .sq_length = (lenfunc)events_len,
+};
+
+static PyMethodDef events_methods[] = {
+    {"schedule", (PyCFunction)events_schedule, METH_VARARGS,
+     "schedule(start, speed, floor) -> the last due: each due start + t / speed, a running "
+     "maximum from floor"},
+    {"take", (PyCFunction)events_take, METH_VARARGS,
+     "take(now, limit) -> the reports due at now, at most limit, from the first not taken"},
+    {"pairs", (PyCFunction)events_pairs, METH_NOARGS,
+     "pairs() -> (times, reports): every event, as parse_block gives them"},
+    {NULL, NULL, 0, NULL},
+};
+
+static PyGetSetDef events_getset[] = {
+    {"next_due", (getter)events_next_due, NULL, "when the first not taken is due (inf: none)",
+     NULL},
+    {"last_time", (getter)events_last_time, NULL, "the last event's recorded time", NULL},
+    {"left", (getter)events_left, NULL, "how many are not taken yet", NULL},
+    {NULL, NULL, NULL, NULL, NULL},
+};
+
+static PyTypeObject EventsType = {
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "usb2rc.hid._speedups.Events",
+    .tp_basicsize = sizeof(EventsObject),
+    .tp_dealloc = (destructor)events_dealloc,
+    .tp_flags = Py_TPFLAGS_DEFAULT,
+    .tp_doc = "A block's events, packed (parse_packed), played in order.",
+    .tp_methods = events_methods,
+    .tp_getset = events_getset,
+    .tp_as_sequence = &events_as_sequence,
+};
 
 static PyMethodDef module_methods[] = {
     {"parse_events", parse_events, METH_O,
      "parse_events(lines) -> (times, reports), or None: not every line as hid-recorder writes"},
     {"parse_block", parse_block, METH_O,
      "parse_block(text) -> (times, reports, end, lines), or None: a line not as written"},
-    {"running_dues", running_dues, METH_VARARGS,
-     "running_dues(times, start, speed, floor) -> dues: start + t / speed, a running maximum"},
+    {"parse_packed", parse_packed, METH_O,
+     "parse_packed(text) -> (events, end, lines), or None: parse_block's lines, packed"},
     {NULL, NULL, 0, NULL},
 };
 
@@ -627,16 +875,16 @@ static struct PyModuleDef module = {
 PyMODINIT_FUNC
 PyInit__speedups(void)
 {
-    if (PyType_Ready(&PlanType) < 0) {
+    fill_hex_values();
+    if (PyType_Ready(&PlanType) < 0 || PyType_Ready(&EventsType) < 0) {
         return NULL;
     }
     PyObject *m = PyModule_Create(&module);
     if (m == NULL) {
         return NULL;
     }
-    Py_INCREF(&PlanType);
-    if (PyModule_AddObject(m, "Plan", (PyObject *)&PlanType) < 0) {
-        Py_DECREF(&PlanType);
+    if (PyModule_AddObjectRef(m, "Plan", (PyObject *)&PlanType) < 0
+        || PyModule_AddObjectRef(m, "Events", (PyObject *)&EventsType) < 0) {
         Py_DECREF(m);
         return NULL;
     }

@@ -15,9 +15,11 @@ Only the first device of a file is read; `D:` lines for other devices are skippe
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
-from itertools import islice
+from itertools import accumulate, islice
+from typing import Protocol, TypeVar
 
 from usb2rc.hid import speedups
 
@@ -26,18 +28,82 @@ class RecordingError(ValueError):
     """A hid-recorder file that cannot be used; the message names the line."""
 
 
-# A replayed device parses its file as it plays it, a batch at a time: from its file a block
-# of BLOCK_CHARS characters split into lines here (a text file's own line iteration cost
-# ~3.5x the split), from a list of lines BATCH_LINES of them. Its lines as hid-recorder
-# writes them are parsed in one C call (usb2rc.hid.speedups) or a few C loops over the
-# batch (`_events_as_written`). 8 KB (~40-140 lines) keeps the per-batch overhead below the
-# lines' own cost; 16 KB saved a little more CPU but cost the five outputs 0.5 MB of RSS,
-# past their 40 MB (bench/README.md, issue 40).
+# A recording is parsed a batch at a time: from a text file a block of BLOCK_CHARS
+# characters split into lines here (a text file's own line iteration cost ~3.5x the split),
+# from a list of lines BATCH_LINES of them. Its lines as hid-recorder writes them are
+# parsed in one C call (usb2rc.hid.speedups) or a few C loops over the batch
+# (`_events_as_written`). 8 KB (~40-140 lines) keeps the per-batch overhead below the
+# lines' own cost.
 BATCH_LINES = 64
 BLOCK_CHARS = 8192
+# A replayed device plays its file in blocks of PACKED_BLOCK_CHARS, each parsed packed
+# (`PlayedEvents`: the reports back to back and their times as doubles, no object per event
+# until it is handed over): twice the size, the per-batch overhead paid half as often. 32 KB
+# saved a little more CPU but cost the five outputs 0.5 MB of RSS, 64 KB 1.4 MB, against
+# their 40 MB (bench/README.md, issue 40).
+PACKED_BLOCK_CHARS = 16384
 
 # Recorded times (seconds since the recording's start) and reports, in file order.
 EventBatch = tuple[list[float], list[bytes]]
+
+
+class PlayedEvents(Protocol):
+    """A batch of events as the replay backend plays it, in file order: `schedule` gives
+    each its due time, `take` hands over those due, from the first not taken. The C loops'
+    `_speedups.Events` (a block parsed packed) or `EventList` (its Python twin, over an
+    `EventBatch`)."""
+
+    def __len__(self) -> int: ...
+    def schedule(self, start: float, speed: float, floor: float) -> float: ...
+    def take(self, now: float, limit: int) -> list[bytes]: ...
+    def pairs(self) -> EventBatch: ...
+    @property
+    def next_due(self) -> float: ...
+    @property
+    def last_time(self) -> float: ...
+    @property
+    def left(self) -> int: ...
+
+
+class EventList:
+    """`PlayedEvents` over an `EventBatch` (at least one event): each due at start + t /
+    speed, never before the one before it nor before `floor` (a running maximum)."""
+
+    def __init__(self, times: list[float], reports: list[bytes]) -> None:
+        self._times, self._reports = times, reports
+        self._dues = [math.inf] * len(times)
+        self._next = 0
+
+    def __len__(self) -> int:
+        return len(self._times)
+
+    def schedule(self, start: float, speed: float, floor: float) -> float:
+        """Each event's due time; the last one's."""
+        self._dues = list(accumulate((start + t / speed for t in self._times), max, initial=floor))
+        del self._dues[0]
+        return self._dues[-1]
+
+    def take(self, now: float, limit: int) -> list[bytes]:
+        """The reports due at `now` (at most `limit`) from the first not taken."""
+        first = self._next
+        end = bisect_right(self._dues, now, first, min(len(self._dues), first + max(0, limit)))
+        self._next = end
+        return self._reports[first:end]
+
+    def pairs(self) -> EventBatch:
+        return self._times, self._reports
+
+    @property
+    def next_due(self) -> float:
+        return self._dues[self._next] if self._next < len(self._dues) else math.inf
+
+    @property
+    def last_time(self) -> float:
+        return self._times[-1]
+
+    @property
+    def left(self) -> int:
+        return len(self._dues) - self._next
 
 
 @dataclass(frozen=True)
@@ -172,6 +238,17 @@ def _block_as_written_py(text: str) -> tuple[list[float], list[bytes], int, int]
     return None if parsed is None else (parsed[0], parsed[1], end, len(lines))
 
 
+def _block_packed(text: str) -> tuple[PlayedEvents, int, int] | None:
+    """`_block_as_written`'s events as `PlayedEvents`: packed in one C call where the HID
+    stage's C loops are built (`_speedups.parse_packed`), else an `EventList`."""
+    c_loops = speedups.compiled()
+    if c_loops is not None:
+        packed: tuple[PlayedEvents, int, int] | None = c_loops.parse_packed(text)
+        return packed
+    parsed = _block_as_written_py(text)
+    return None if parsed is None else (EventList(parsed[0], parsed[1]), parsed[2], parsed[3])
+
+
 def _parse_ids(rest: str, lineno: int, source: str) -> tuple[int, int, int]:
     parts = rest.split()
     try:
@@ -228,10 +305,23 @@ class _LineParser:
         time (`_line_chunks`; from a text file, a block whose lines are all as written is
         parsed whole, `_block_as_written`); a batch with no event is not yielded. At a bad
         line, the events before it come out first, then its RecordingError."""
-        for chunk in _line_chunks(lines, self._as_written_block):
-            if isinstance(chunk, tuple):  # a block as written: (times, reports, lines)
-                yield chunk[0], chunk[1]
-                lineno += chunk[2]
+        for batch in self._chunk_batches(lines, lineno, self._as_written_block, BLOCK_CHARS):
+            yield batch if isinstance(batch, tuple) else batch.pairs()
+
+    def played(self, lines: Iterator[str], lineno: int) -> Iterator[PlayedEvents]:
+        """`batches` as the replay backend plays them: a text file's blocks of
+        PACKED_BLOCK_CHARS, each parsed packed when its lines are all as written
+        (`_block_packed`), the others as `EventList`s."""
+        for batch in self._chunk_batches(lines, lineno, self._packed_block, PACKED_BLOCK_CHARS):
+            yield EventList(*batch) if isinstance(batch, tuple) else batch
+
+    def _chunk_batches(
+        self, lines: Iterator[str], lineno: int, parse: BlockParse, block_chars: int
+    ) -> Iterator[EventBatch | PlayedEvents]:
+        for chunk in _line_chunks(lines, parse, block_chars):
+            if isinstance(chunk, tuple):  # a block as written: (its events, its lines)
+                yield chunk[0]
+                lineno += chunk[1]
                 continue
             size = len(chunk)
             written = _events_as_written(chunk) if self.device_index == 0 else None
@@ -242,10 +332,15 @@ class _LineParser:
                 yield written
             lineno += size
 
-    def _as_written_block(self, text: str) -> tuple[list[float], list[bytes], int, int] | None:
+    def _as_written_block(self, text: str) -> tuple[EventBatch, int, int] | None:
         """`_block_as_written`, for the first device's lines only (the others' are read
-        for their `D:` lines)."""
-        return _block_as_written(text) if self.device_index == 0 else None
+        for their `D:` lines): (its events, the index after its last line, its lines)."""
+        parsed = _block_as_written(text) if self.device_index == 0 else None
+        return None if parsed is None else ((parsed[0], parsed[1]), parsed[2], parsed[3])
+
+    def _packed_block(self, text: str) -> tuple[PlayedEvents, int, int] | None:
+        """`_block_packed`, for the first device's lines only."""
+        return _block_packed(text) if self.device_index == 0 else None
 
     def _line_by_line(self, chunk: list[str], lineno: int) -> Iterator[EventBatch]:
         times: list[float] = []
@@ -268,28 +363,29 @@ class _LineParser:
         )
 
 
-BlockParse = Callable[[str], tuple[list[float], list[bytes], int, int] | None]
+# A block's complete lines parsed whole: (their events, the index after the last, their count)
+BlockParse = Callable[[str], "tuple[EventBatch | PlayedEvents, int, int] | None"]
 
 
 def _line_chunks(
-    lines: Iterator[str], parse_block: BlockParse | None = None
-) -> Iterator[list[str] | tuple[list[float], list[bytes], int]]:
-    """The lines in lists: from a text file (what has `read`), a block of BLOCK_CHARS at a
-    time split at its newlines (a line the block cuts waits for the next block; the lines
+    lines: Iterator[str], parse_block: BlockParse | None = None, block_chars: int = BLOCK_CHARS
+) -> Iterator[list[str] | tuple[EventBatch | PlayedEvents, int]]:
+    """The lines in lists: from a text file (what has `read`), a block of `block_chars` at
+    a time split at its newlines (a line the block cuts waits for the next block; the lines
     come without their newline), else BATCH_LINES lines at a time. With `parse_block`, a
-    block's complete lines it parses come as (times, reports, number of lines) instead."""
+    block's complete lines it parses come as (their events, number of lines) instead."""
     read = getattr(lines, "read", None)
     if read is None:
         while chunk := list(islice(lines, BATCH_LINES)):
             yield chunk
         return
     pending = ""
-    while block := read(BLOCK_CHARS):
+    while block := read(block_chars):
         text = pending + block
         if parse_block is not None and (parsed := parse_block(text)) is not None:
-            times, reports, end, count = parsed
+            events, end, count = parsed
             pending = text[end:]
-            yield times, reports, count
+            yield events, count
             continue
         chunk = text.split("\n")
         pending = chunk.pop()
@@ -336,27 +432,57 @@ def open_recording_batches(
     iterator raises RecordingError at the first bad line it reaches, after the events before
     it. Header lines after the first event are not in the header; a file whose `R:` comes
     after its first event is parsed whole here (and raises here if it has none)."""
-    parser = _LineParser(source)
-    rest = iter(lines)
-    first: RecordedEvent | None = None
-    lineno = 0
-    for lineno, raw in enumerate(rest, start=1):
-        if (first := parser.line(lineno, raw)) is not None:
-            break
-    if parser.descriptor is None:
-        numbered = enumerate(rest, start=lineno + 1)
-        others = [e for n, raw in numbered if (e := parser.line(n, raw)) is not None]
-        events = ([first] if first is not None else []) + others
-        header = parser.recording(())
-        times = [e.time_s for e in events]
-        return header, iter([(times, [e.report for e in events])] if events else [])
+    opened = _Opened(lines, source)
+    return opened.header, opened.rest(opened.parser.batches)
 
-    def later() -> Iterator[EventBatch]:
-        if first is not None:
-            yield [first.time_s], [first.report]
-        yield from parser.batches(rest, lineno)
 
-    return parser.recording(()), later()
+def open_recording_played(
+    lines: Iterable[str], source: str = "<recording>"
+) -> tuple[Recording, Iterator[PlayedEvents]]:
+    """`open_recording_batches` as the replay backend plays them (`_LineParser.played`)."""
+    opened = _Opened(lines, source)
+    return opened.header, (
+        EventList(*batch) if isinstance(batch, tuple) else batch
+        for batch in opened.rest(opened.parser.played)
+    )
+
+
+_Batch = TypeVar("_Batch")
+
+
+class _Opened:
+    """A recording read up to its first event (`open_recording_batches`), the rest to come."""
+
+    def __init__(self, lines: Iterable[str], source: str) -> None:
+        self.parser = parser = _LineParser(source)
+        self._lines = iter(lines)
+        self._first: RecordedEvent | None = None
+        self._whole: EventBatch | None = None
+        lineno = 0
+        for lineno, raw in enumerate(self._lines, start=1):
+            if (first := parser.line(lineno, raw)) is not None:
+                self._first = first
+                break
+        self._lineno = lineno
+        if parser.descriptor is None:
+            numbered = enumerate(self._lines, start=self._lineno + 1)
+            others = [e for n, raw in numbered if (e := parser.line(n, raw)) is not None]
+            events = ([self._first] if self._first is not None else []) + others
+            self._whole = [e.time_s for e in events], [e.report for e in events]
+        self.header = parser.recording(())
+
+    def rest(
+        self, batches: Callable[[Iterator[str], int], Iterator[_Batch]]
+    ) -> Iterator[_Batch | EventBatch]:
+        """The first event, then `batches` of the lines after it (a file parsed whole: its
+        events in one batch, if it has any)."""
+        if self._whole is not None:
+            if self._whole[0]:
+                yield self._whole
+            return
+        if self._first is not None:
+            yield [self._first.time_s], [self._first.report]
+        yield from batches(self._lines, self._lineno)
 
 
 def read_recording(path: str) -> Recording:

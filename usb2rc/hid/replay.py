@@ -12,8 +12,8 @@ A plug does not read the whole recording: the directory scan parses a new file's
 only (descriptor, name, IDs: what `DeviceInfo` needs) and looks for a fault mark (a scan in
 1 MB chunks), and a device reads its events from the file as they come due, in its reader's
 thread: it holds the open file, its position and one batch of parsed events
-(`recording.BLOCK_CHARS` of text), never the text nor the events it played (a loop reads the
-file again from the top each lap). So a 20 MB recording costs a batch's memory, and a plug
+(`recording.PACKED_BLOCK_CHARS` of text, packed), never the text nor the events it played
+(a loop reads the file again from the top each lap). So a 20 MB recording costs a batch's memory, and a plug
 does not parse thousands of lines at once on a thread that shares the GIL with the outputs
 (bench/bench_plug_cost.py). The price: an `E:` line that is not valid is found when its
 batch is played, not when the file appears. Its device's `read()` then raises
@@ -42,23 +42,21 @@ import os
 import re
 import threading
 import time
-from bisect import bisect_right
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from itertools import accumulate
 from pathlib import Path
 
-from usb2rc.hid import speedups
 from usb2rc.hid.backend import BUS_BLUETOOTH, BUS_USB, DeviceGone, DeviceInfo, DeviceOpenError
 from usb2rc.hid.descriptor import top_level_usage
 from usb2rc.hid.dirwatch import DirectoryWatch
 from usb2rc.hid.outputs import OutputWrite
 from usb2rc.hid.recording import (
-    EventBatch,
+    EventList,
+    PlayedEvents,
     Recording,
     RecordingError,
     open_recording,
-    open_recording_batches,
+    open_recording_played,
 )
 from usb2rc.runtime.flag import WakeFlag
 
@@ -111,16 +109,16 @@ class EventFile:
         if _id_of(os.fstat(self._fh.fileno())) != source.stat_id:  # replaced since its scan
             self.close()
             raise DeviceGone(f"{source.path}: replay file replaced")
-        self._batches: Iterator[EventBatch] = iter(())
+        self._batches: Iterator[PlayedEvents] = iter(())
         self.restart()
 
     def restart(self) -> None:
         with self._lock:
             if self._fh is not None:
                 self._fh.seek(0)
-                self._batches = open_recording_batches(self._fh, source=self.source)[1]
+                self._batches = open_recording_played(self._fh, source=self.source)[1]
 
-    def next_batch(self) -> EventBatch | None:
+    def next_batch(self) -> PlayedEvents | None:
         """The next events (at least one); None at the end (or once closed). RecordingError at
         a bad line, after the events before it."""
         with self._lock:
@@ -136,21 +134,6 @@ class EventFile:
 
     def __del__(self) -> None:  # a device dropped without close() (a test's) closes its file
         self.close()
-
-
-def running_dues(times: list[float], start: float, speed: float, floor: float) -> list[float]:
-    """When each event of a batch is due: `start + t / speed`, never before the one before
-    it nor before `floor` (the batch before's last). In one C call where the HID stage's C
-    loops are built."""
-    c_loops = speedups.compiled()
-    if c_loops is not None:
-        dues: list[float] = c_loops.running_dues(times, start, speed, floor)
-        return dues
-    return running_dues_py(times, start, speed, floor)
-
-
-def running_dues_py(times: list[float], start: float, speed: float, floor: float) -> list[float]:
-    return list(accumulate((start + t / speed for t in times), max, initial=floor))[1:]
 
 
 def _stat_id(path: Path) -> StatId | None:
@@ -336,10 +319,10 @@ class ReplayDevice:
     """Plays one recording; `read` sleeps until absolute monotonic deadlines (or close()).
 
     `read` and `read_due` are on the daemon's hot path (a pulled reader drains the due
-    reports at every node step: a few at 1 kHz). The batch in play is held as the reports
-    and their due times (`_dues`, monotonic, never earlier than the report before: reports
-    come out in file order), and `_next` is the first not handed over: a due report costs a
-    clock read and an index, a drain one bisection and one slice. `busy_s` is the time spent
+    reports at every node step: a few at 1 kHz). The batch in play (`_batch`,
+    `recording.PlayedEvents`: packed in C where the HID stage's C loops are built) holds
+    the reports and their due times (monotonic, never earlier than the report before:
+    reports come out in file order) and hands over those due in one call. `busy_s` is the time spent
     in `read` and `read_due` other than waiting: the replay backend's own cost, which a real
     device (the kernel) does not put on the daemon.
     """
@@ -371,9 +354,7 @@ class ReplayDevice:
         )
         self._fault = f"{self.info.path}: injected read error"
         self._gone: str | None = None  # once the file is seen gone, every read says so
-        self._reports: list[bytes] = []  # the batch in play
-        self._dues: list[float] = []  # when each of them is due
-        self._next = 0  # the first of them not handed over
+        self._batch: PlayedEvents = EventList([], [])  # the batch in play
         self._last_due = -math.inf  # the due time of the last report taken into a batch
         self._next_gone_check = 0.0
         self._quiet_until = 0.0  # before this, read needs neither a gone check nor a fault
@@ -397,16 +378,14 @@ class ReplayDevice:
             batch = self._read_batch()
         if batch is None:
             return False
-        times, self._reports = batch
         # From t0 each time (not a running sum): a device looped for hours does not drift.
         start = self._t0 + self._lap * self._lap_s
         # a time before the one before is due with it: the file's order is kept
-        self._dues = running_dues(times, start, self._speed, self._last_due)
-        self._last_due = self._dues[-1]
-        self._next = 0
+        self._last_due = batch.schedule(start, self._speed, self._last_due)
+        self._batch = batch
         return True
 
-    def _read_batch(self) -> EventBatch | None:
+    def _read_batch(self) -> PlayedEvents | None:
         try:
             batch = self._events.next_batch()
         except RecordingError as exc:
@@ -414,8 +393,8 @@ class ReplayDevice:
             self._bad_line(exc)
             return None
         if batch is not None and self._lap == 0:
-            self._lap_events += len(batch[0])
-            self._last_time_s = batch[0][-1]
+            self._lap_events += len(batch)
+            self._last_time_s = batch.last_time
         return batch
 
     def _next_lap(self) -> bool:
@@ -430,9 +409,9 @@ class ReplayDevice:
 
     def _next_due(self) -> float:
         """When the next report is due; inf when none is left."""
-        if self._next == len(self._dues) and not self._refill():
+        if not self._batch.left and not self._refill():
             return math.inf
-        return self._dues[self._next]
+        return self._batch.next_due
 
     def _bad_line(self, exc: RecordingError) -> None:
         """The events before the bad line were played: the next read fails (EIO), as a
@@ -473,13 +452,9 @@ class ReplayDevice:
             if self._quiet_until <= now < self._fault_due and self._gone is None:
                 self._check_gone(now)  # a stat, at most every GONE_CHECK_S
             if now < self._quiet_until and not self._closed.is_set():
-                while len(due) < limit and (self._next < len(self._dues) or self._refill()):
-                    first, dues = self._next, self._dues
-                    last = min(len(dues), first + limit - len(due))
-                    end = bisect_right(dues, now, first, last)
-                    due += self._reports[first:end]
-                    self._next = end
-                    if end < len(dues):  # the next one is not due yet (or the limit is reached)
+                while len(due) < limit and (self._batch.left or self._refill()):
+                    due += self._batch.take(now, limit - len(due))
+                    if self._batch.left:  # the next one is not due yet (or the limit is reached)
                         break
         finally:
             self.busy_s += time.perf_counter() - started
@@ -488,14 +463,13 @@ class ReplayDevice:
     def read(self, timeout_s: float) -> bytes | None:
         started = time.perf_counter()
         now = time.monotonic()
-        index = self._next
-        if index < len(self._dues) and now < self._quiet_until and not self._closed.is_set():
+        batch = self._batch
+        if batch.left and now < self._quiet_until and not self._closed.is_set():
             # The drain's cases, when neither a gone check nor a fault is due: a report is
             # due, or a poll finds none is.
-            if self._dues[index] <= now:
-                self._next = index + 1
+            if batch.next_due <= now:
                 self.busy_s += time.perf_counter() - started
-                return self._reports[index]
+                return batch.take(now, 1)[0]
             if timeout_s <= 0:
                 self.busy_s += time.perf_counter() - started
                 return None
@@ -510,8 +484,7 @@ class ReplayDevice:
                     raise OSError(errno.EIO, self._fault)
                 self._check_gone(now)
                 if due <= now:
-                    self._next += 1
-                    return self._reports[self._next - 1]
+                    return self._batch.take(now, 1)[0]
                 if now >= end:
                     return None
                 wake = min(end, due, self._quiet_until)
