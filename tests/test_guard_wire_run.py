@@ -4,10 +4,12 @@ step's hot path while a device waits): the same answer as the rule on the unit v
 
 from __future__ import annotations
 
+import dataclasses
+
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from usb2rc.nodes.guard import GuardedAxis, wire_to_unit
+from usb2rc.nodes.guard import GuardedAxis, NeutralGuard, wire_to_unit
 from usb2rc.nodes.scaling import INT16_MAX, INT16_MIN, UINT16_MAX
 
 axes = st.builds(
@@ -68,3 +70,29 @@ def test_the_run_of_a_centred_stick_is_its_tolerance_around_zero() -> None:
     assert axis.at_rest(first) and axis.at_rest(last)
     assert not axis.at_rest(first - 1) and not axis.at_rest(last + 1)
     assert abs(first + 3277) <= 2 and abs(last - 3276) <= 2  # ±0.1 of the half range
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    guarded=st.lists(axes, min_size=1, max_size=4),
+    data=st.data(),
+)
+def test_a_guards_waiting_axes_are_those_the_rule_finds_off_their_rest(
+    guarded: list[GuardedAxis], data: st.DataObject
+) -> None:
+    """`NeutralGuard.waiting_for` without a stepped trim (its runs of wire values, the
+    step's hot path) names the axes the rule finds off their rest, in the guard's order; an
+    axis with no value (None) waits for nothing."""
+    guard = NeutralGuard(tuple(dataclasses.replace(axis, slot=k) for k, axis in enumerate(guarded)))
+    for _ in range(5):
+        wire_axes: list[int | None] = [
+            data.draw(st.none() | st.integers(*wire_range(axis))) for axis in guard.axes
+        ]
+        wire_axes += [None] * (10 - len(wire_axes))
+        want = [
+            axis.describe()
+            for axis in guard.axes
+            if (wire := wire_axes[axis.slot]) is not None and not by_the_rule(axis, wire)
+        ]
+        assert guard.waiting_for(wire_axes) == want
+        assert guard.waiting_for(wire_axes, {}) == want

@@ -172,6 +172,12 @@ class NeutralGuard:
         self, wire_axes: Sequence[int | None], trims: Mapping[int, float] | None = None
     ) -> list[str]:
         """The guarded axes not at rest in `wire_axes` (a NodeInputs' axes), as "X centre"."""
+        if not trims:  # the step's hot path while a device waits: two comparisons an axis
+            return [
+                text
+                for slot, first, last, text in self._runs
+                if (value := wire_axes[slot]) is not None and not first <= value <= last
+            ]
         waiting = []
         for axis in self.axes:
             value = wire_axes[axis.slot]
@@ -183,6 +189,15 @@ class NeutralGuard:
     def describe(self) -> str:
         """For `icd`, `monitor` and the log: "X centre, Throttle low" or "none"."""
         return ", ".join(a.describe() for a in self.axes) or "none"
+
+    @cached_property
+    def _runs(self) -> tuple[tuple[int, int, int, str], ...]:
+        """Each axis as (slot, first, last, text): `at_rest` without a stepped trim is
+        first <= wire <= last (`GuardedAxis._wire_run`; an axis no value rests at has an
+        empty run)."""
+        return tuple(
+            (axis.slot, *(axis._wire_run or (1, 0)), axis.describe()) for axis in self.axes
+        )
 
 
 NO_GUARD = NeutralGuard()
@@ -216,6 +231,8 @@ class RestWatch:
     plugged: float | None = None  # the time of the first frame that read the device
     fixed: bool = False  # a centre axis stuck at an end since the plug (see above)
     waiting: tuple[str, ...] = ()
+    # the guard whose every axis is in `moved` (none yet): its records need no more noting
+    moved_all_of: object = None
 
     def check(
         self,
@@ -287,6 +304,8 @@ class RestWatch:
             self.run_since = at
 
     def _note_moves(self, guard: NeutralGuard, wire_axes: Sequence[int | None]) -> None:
+        if self.moved_all_of is guard:  # `moved` only grows: a moving stick, after its start
+            return
         for axis in guard.axes:
             value = wire_axes[axis.slot]
             if value is None:
@@ -294,6 +313,8 @@ class RestWatch:
             first = self.first.setdefault(axis.slot, value)
             if value != first:
                 self.moved.add(axis.slot)
+        if self._all_moved(guard):
+            self.moved_all_of = guard
 
     def _not_at_rest(
         self,
@@ -306,7 +327,7 @@ class RestWatch:
         waiting = list(outside)
         unmoved_s = now - (now if self.plugged is None else self.plugged)
         # not fixed before FIXED_S; after it, not once every guarded axis has moved
-        moving = unmoved_s < FIXED_S or all([a.slot in self.moved for a in guard.axes])
+        moving = unmoved_s < FIXED_S or self._all_moved(guard)
         fixed = [] if moving else [a.label for a in guard.axes if self._is_fixed(a, wire_axes)]
         self.fixed = bool(fixed)
         if not self.fixed:
@@ -316,6 +337,9 @@ class RestWatch:
             "set `arm: any` for it in a devices: entry"
         )
         return waiting
+
+    def _all_moved(self, guard: NeutralGuard) -> bool:
+        return self.moved_all_of is guard or all([a.slot in self.moved for a in guard.axes])
 
     def _is_fixed(self, axis: GuardedAxis, wire_axes: Sequence[int | None]) -> bool:
         """A centre axis that has not moved since the plug and sits at an end of its travel
