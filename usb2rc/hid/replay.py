@@ -13,17 +13,18 @@ only (descriptor, name, IDs: what `DeviceInfo` needs) and looks for a fault mark
 1 MB chunks), and a device reads its events from the file as they come due, in its reader's
 thread: it holds the open file, its position and one batch of parsed events
 (`recording.PACKED_BLOCK_CHARS` of text, packed), never the text nor the events it played
-(a loop reads the file again from the top each lap). So a 20 MB recording costs a batch's memory, and a plug
-does not parse thousands of lines at once on a thread that shares the GIL with the outputs
-(bench/bench_plug_cost.py). The price: an `E:` line that is not valid is found when its
-batch is played, not when the file appears. Its device's `read()` then raises
-`OSError(EIO)` naming the line, after the events before it (the daemon sends `3`, read
-failed), and from then on the file is listed in `problems` instead of as a device.
+(a loop reads the file again from the top each lap). So a 20 MB recording costs a batch's
+memory, and a plug does not parse thousands of lines at once on a thread that shares the
+GIL with the outputs (bench/bench_plug_cost.py). The price: an `E:` line that is not valid
+is found when its batch is played, not when the file appears. Its device's `read()` then
+raises `OSError(EIO)` naming the line, after the events before it (the daemon sends `3`,
+read failed), and from then on the file is listed in `problems` instead of as a device.
 
 A device costs what the kernel's hidraw queue costs a real one: no thread of its own, no
 wake-up per report. `read` hands over the next report if it is due; `read_due` every
-report due, found by one bisection of the batch's due times; only when none is due does
-`read` wait (a plain timed wait on the close flag) until the next one's time.
+report due, in one call to the batch in play (`recording.PlayedEvents.take`); only when
+none is due does `read` wait (a plain timed wait on the close flag) until the next one's
+time.
 
 Outputs: `open_output()` gives a port that takes every write (nothing is refused) and counts
 them, keeping the last few (`ReplayOutputPort.last`) for tests and the monitor.

@@ -372,14 +372,14 @@ class DeviceBinding:
             tuple(axes), groups[0], groups[1], bool(buttons & self._handover_mask), low
         )
 
-    def guarded_inputs(self, state: InputState) -> NodeInputs:
-        """`apply`'s values of the guarded axes only (every other slot None, no button): what
-        the neutral guard looks at while the device waits, without the rest of `apply`."""
+    def guarded_axes(self, state: InputState) -> list[int | None]:
+        """`apply`'s axis values of the guarded slots only (every other slot None): what the
+        neutral guard looks at while the device waits, without the rest of `apply`."""
         values, buttons = state.values, state.buttons
         axes: list[int | None] = [None] * NUM_AXES
         for slot, fn in self._guarded_axes:
             axes[slot] = fn(values, buttons)
-        return NodeInputs(tuple(axes), 0, 0)
+        return axes
 
     def failsafe(self, last: NodeInputs | None = None) -> NodeInputs:
         """Axes: the configured failsafe value, else the last value (0 if none); no buttons.

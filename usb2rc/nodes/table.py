@@ -209,11 +209,11 @@ class _Attached:
             return self._view(record, self.binding.failsafe(self.last_inputs), False)
         if not self.armed:
             # the guard looks at its own axes only: the rest of `apply` waits for the arming
-            guarded = self.binding.guarded_inputs(record.state)
+            guarded: Sequence[int | None] = self.binding.guarded_axes(record.state)
             if trims:
-                guarded = trimmed(guarded, trims, self.binding)
+                guarded = trimmed(NodeInputs(tuple(guarded), 0, 0), trims, self.binding).axes
             timed = (record, record.reports, record.at)
-            self.waiting = self.rest.check(self.binding.guard, guarded.axes, trims, timed, now)
+            self.waiting = self.rest.check(self.binding.guard, guarded, trims, timed, now)
             if self.waiting:
                 return self._view(record, self.binding.failsafe(self.last_inputs), False)
             self.armed = True
