@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 from usb2rc.lines.session import LinkState
 
@@ -34,8 +34,7 @@ class LinkStats:
     flushes: int = 0  # the link dropped what it held, when a stall began or drained
 
 
-@dataclass(frozen=True)
-class Written:
+class Written(NamedTuple):
     """What one write put out: `sent` bytes surely (a prefix), then `unsure` bytes that may
     or may not have gone; `lost`: the write failed and the port is closed."""
 

@@ -50,8 +50,7 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Any, Generic, NamedTuple, Protocol, TypeVar
 
 from usb2rc.feedback.model import Telemetry
 from usb2rc.nodes.step import LIVENESS_PERIOD_S, NodeFrame, TapLatch, aligned
@@ -135,9 +134,9 @@ class LineState:
         return self.stopping and (failsafe_out or self.now is Line.CLOSED or self.stalled)
 
 
-@dataclass(frozen=True)
-class LinkState:
-    """What a link reports, as the driver read it just now (the link only reports)."""
+class LinkState(NamedTuple):
+    """What a link reports, as the driver read it just now (the link only reports). A
+    NamedTuple, as the records made at every tick are (built in C, not field by field)."""
 
     queued: int | None = None  # bytes it holds for the far end; None: it does not say
     flushable: bool = False  # it can drop what it holds (a serial port, a pty)
@@ -199,8 +198,7 @@ class Backpressure:
         return False
 
 
-@dataclass(frozen=True)
-class Delivered:
+class Delivered(NamedTuple):
     """What `wrote()` found went out: frames counted once, as the stats want them."""
 
     service_frames: int = 0
