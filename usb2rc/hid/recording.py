@@ -40,7 +40,7 @@ BLOCK_CHARS = 8192
 # (`PlayedEvents`: the reports back to back and their times as doubles, no object per event
 # until it is handed over): twice the size, the per-batch overhead paid half as often. 32 KB
 # saved a little more CPU but cost the five outputs 0.5 MB of RSS, 64 KB 1.4 MB, against
-# their 40 MB (bench/README.md, issue 40).
+# their 40 MB (bench/README.md, "Where issue 40 stands", ninth pass).
 PACKED_BLOCK_CHARS = 16384
 
 # Recorded times (seconds since the recording's start) and reports, in file order.

@@ -323,9 +323,9 @@ class ReplayDevice:
     reports at every node step: a few at 1 kHz). The batch in play (`_batch`,
     `recording.PlayedEvents`: packed in C where the HID stage's C loops are built) holds
     the reports and their due times (monotonic, never earlier than the report before:
-    reports come out in file order) and hands over those due in one call. `busy_s` is the time spent
-    in `read` and `read_due` other than waiting: the replay backend's own cost, which a real
-    device (the kernel) does not put on the daemon.
+    reports come out in file order) and hands over those due in one call. `busy_s` is the
+    time spent in `read` and `read_due` other than waiting: the replay backend's own cost,
+    which a real device (the kernel) does not put on the daemon.
     """
 
     def __init__(
