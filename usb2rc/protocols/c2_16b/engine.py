@@ -47,7 +47,7 @@ import logging
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 from usb2rc.lines.link import BITS_PER_BYTE_ON_WIRE
 from usb2rc.lines.session import Delivered, LineState
@@ -119,9 +119,9 @@ class _Owed:
         return self.service is c2_16b.Service.DISCONNECTED
 
 
-@dataclass(frozen=True)
-class _Slot:
-    """One frame of the last output: where its 35 frame bytes end, and what it was."""
+class _Slot(NamedTuple):
+    """One frame of the last output: where its 35 frame bytes end, and what it was (a
+    NamedTuple: one is made per frame)."""
 
     end: int  # offset of the frame's last byte + 1 (its LF, if any, does not count)
     startup: bool = False
