@@ -222,10 +222,9 @@ def test_a_stamp_reads_as_float_reads_it(stamp: str, report: bytes) -> None:
 
 
 def c_block(text: str) -> tuple[list[float], list[bytes], int, int] | None:
-    c_loops = speedups.compiled()
-    assert c_loops is not None
-    parsed: tuple[list[float], list[bytes], int, int] | None = c_loops.parse_block(text)
-    return parsed
+    """`recording._block_as_written` on the C loops (`parse_packed`, its events as lists)."""
+    assert speedups.compiled() is not None
+    return recording._block_as_written(text)
 
 
 @settings(max_examples=500, deadline=None)
@@ -271,24 +270,23 @@ def c_packed(text: str) -> tuple[recording.PlayedEvents, int, int] | None:
 
 @settings(max_examples=500, deadline=None)
 @given(st.lists(EVENTS, max_size=20), st.sampled_from(["\n", "\r\n", "  \n"]), st.data())
-def test_a_block_packs_in_c_as_it_parses_in_python(
+def test_a_packed_block_holds_what_its_lists_hold(
     events: list[RecordedEvent], end: str, data: st.DataObject
 ) -> None:
-    """`parse_packed` takes exactly the blocks `parse_block` takes, with the same events,
-    end and line count (cut anywhere, edited anywhere)."""
+    """A block `parse_packed` takes (cut anywhere, edited anywhere): its Events object
+    counts its lines, has none taken yet, and ends at its last event's time."""
     text = "".join(format_event(e) + end for e in events)
     text = text[: data.draw(st.integers(0, len(text)))]
     if text and data.draw(st.booleans()):
         at = data.draw(st.integers(0, len(text)))
         text = text[:at] + data.draw(EDITS) + text[at:]
-    packed, parsed = c_packed(text), c_block(text)
-    if parsed is None:
-        assert packed is None
+    packed = c_packed(text)
+    if packed is None:
         return
-    assert packed is not None
-    events_c, end_c, lines_c = packed
-    assert (events_c.pairs(), end_c, lines_c) == ((parsed[0], parsed[1]), parsed[2], parsed[3])
-    assert (len(events_c), events_c.left, events_c.last_time) == (lines_c, lines_c, parsed[0][-1])
+    events_c, _, lines_c = packed
+    times, reports = events_c.pairs()
+    assert len(times) == len(reports) == lines_c >= 1
+    assert (len(events_c), events_c.left, events_c.last_time) == (lines_c, lines_c, times[-1])
 
 
 FINITE = st.floats(min_value=-1e6, max_value=2e6, allow_nan=False)

@@ -31,17 +31,15 @@
  * followed by whitespace only. None is no verdict: the Python parse then decides (it takes
  * a few more spellings, and names a bad line).
  *
- * parse_block(text): the complete lines of a block of a recording's text (those that end in
- * '\n'), each as parse_events takes it, without making a string per line: (times, reports,
- * end, lines), `end` the index after the last '\n' and `lines` their count; None when the
- * text is not ASCII, holds no complete line, or one of them is not as written.
- *
- * parse_packed(text): parse_block's lines packed in one Events object (the reports back to
- * back, their times as doubles: no object per event until it is taken): (events, end, lines),
- * or None as parse_block. Events.schedule(start, speed, floor): when each is due, start +
- * t / speed, never before the one before it nor before `floor` (a running maximum from
- * `floor`); the last due. Events.take(now, limit): the reports due at `now`, at most
- * `limit`, from the first not taken. `recording.EventList` is its Python twin.
+ * parse_packed(text): the complete lines of a block of a recording's text (those that end in
+ * '\n'), each as parse_events takes it, without making a string per line, packed in one Events
+ * object (the reports back to back, their times as doubles: no object per event until it is
+ * taken): (events, end, lines), `end` the index after the last '\n' and `lines` their
+ * count; None when the text is not ASCII, holds no complete line, or one of them is not as
+ * written. Events.pairs(): (times, reports) as lists. Events.schedule(start, speed, floor):
+ * when each is due, start + t / speed, never before the one before it nor before `floor` (a
+ * running maximum from `floor`); the last due. Events.take(now, limit): the reports due at
+ * `now`, at most `limit`, from the first not taken. `recording.EventList` is its Python twin.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -540,52 +538,6 @@ done:
     return result;
 }
 
-static PyObject *
-parse_block(PyObject *module, PyObject *text)
-{
-    (void)module;
-    if (!PyUnicode_Check(text)) {
-        PyErr_SetString(PyExc_TypeError, "text must be a str");
-        return NULL;
-    }
-    if (!PyUnicode_IS_ASCII(text)) {
-        Py_RETURN_NONE;
-    }
-    const char *s = (const char *)PyUnicode_DATA(text);
-    Py_ssize_t n = PyUnicode_GET_LENGTH(text), lines = 0, start = 0;
-    PyObject *times = PyList_New(0), *reports = PyList_New(0), *result = NULL;
-    if (times == NULL || reports == NULL) {
-        goto done;
-    }
-    for (const char *newline; (newline = memchr(s + start, '\n', (size_t)(n - start)));) {
-        Py_ssize_t i = newline - s;
-        double t;
-        PyObject *report = NULL, *stamp = NULL;
-        if (!parse_event(s + start, i - start, &t, &report)) {
-            goto done; /* not as written: no verdict */
-        }
-        int failed = (stamp = PyFloat_FromDouble(t)) == NULL || PyList_Append(times, stamp) < 0
-                     || PyList_Append(reports, report) < 0;
-        Py_XDECREF(stamp);
-        Py_DECREF(report);
-        if (failed) {
-            goto done;
-        }
-        lines++;
-        start = i + 1;
-    }
-    if (lines > 0) {
-        result = Py_BuildValue("OOnn", times, reports, start, lines);
-    }
-done:
-    Py_XDECREF(times);
-    Py_XDECREF(reports);
-    if (result == NULL && !PyErr_Occurred()) {
-        Py_RETURN_NONE;
-    }
-    return result;
-}
-
 /* Events: a block's events packed, played by the replay backend. */
 typedef struct {
     PyObject_HEAD
@@ -629,7 +581,7 @@ events_grow(EventsObject *self, Py_ssize_t lines, Py_ssize_t bytes)
 
 static PyTypeObject EventsType;
 
-/* parse_packed(text): parse_block's lines, packed: (events, end, lines), or None. */
+/* parse_packed(text): a block's complete lines, packed: (events, end, lines), or None. */
 static PyObject *
 parse_packed(PyObject *module, PyObject *text)
 {
@@ -813,7 +765,7 @@ static PyMethodDef events_methods[] = {
     {"take", (PyCFunction)events_take, METH_VARARGS,
      "take(now, limit) -> the reports due at now, at most limit, from the first not taken"},
     {"pairs", (PyCFunction)events_pairs, METH_NOARGS,
-     "pairs() -> (times, reports): every event, as parse_block gives them"},
+     "pairs() -> (times, reports): every event, as lists"},
     {NULL, NULL, 0, NULL},
 };
 
@@ -839,10 +791,8 @@ static PyTypeObject EventsType = {
 static PyMethodDef module_methods[] = {
     {"parse_events", parse_events, METH_O,
      "parse_events(lines) -> (times, reports), or None: not every line as hid-recorder writes"},
-    {"parse_block", parse_block, METH_O,
-     "parse_block(text) -> (times, reports, end, lines), or None: a line not as written"},
     {"parse_packed", parse_packed, METH_O,
-     "parse_packed(text) -> (events, end, lines), or None: parse_block's lines, packed"},
+     "parse_packed(text) -> (events, end, lines), or None: a line not as written"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -66,8 +66,9 @@ class PlayedEvents(Protocol):
 
 
 class EventList:
-    """`PlayedEvents` over an `EventBatch` (at least one event): each due at start + t /
-    speed, never before the one before it nor before `floor` (a running maximum)."""
+    """`PlayedEvents` over an `EventBatch`: each due at start + t / speed, never before the
+    one before it nor before `floor` (a running maximum). An empty one plays nothing (a
+    replayed device's batch before its first)."""
 
     def __init__(self, times: list[float], reports: list[bytes]) -> None:
         self._times, self._reports = times, reports
@@ -220,11 +221,14 @@ def _block_as_written(text: str) -> tuple[list[float], list[bytes], int, int] | 
     an `E:` line as written: (times, reports, end, lines), `end` the index after that
     newline, `lines` their count. None otherwise (the lines then take `_events_as_written`
     and the full parse). In one C call, without a string per line, where the HID stage's C
-    loops are built."""
+    loops are built (the packed parse, its events as lists)."""
     c_loops = speedups.compiled()
     if c_loops is not None:
-        parsed: tuple[list[float], list[bytes], int, int] | None = c_loops.parse_block(text)
-        return parsed
+        packed: tuple[PlayedEvents, int, int] | None = c_loops.parse_packed(text)
+        if packed is None:
+            return None
+        times, reports = packed[0].pairs()
+        return times, reports, packed[1], packed[2]
     return _block_as_written_py(text)
 
 
