@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import bisect
+import functools
 import itertools
 import json
 import logging
@@ -171,6 +172,27 @@ class PtyReader:
         self.proc.wait(5)
         self._out.close()
         os.close(self._slave)
+
+
+Frame = dict[str, Any]  # one frame the reader decoded (its "t", "k", "svc", "n" ...)
+
+
+def _connected_since(since: float, frames: list[Frame]) -> list[Frame]:
+    """The connect frames of a node but 0 that came at or after `since`."""
+    return [x for x in frames if x.get("svc") == "connected" and x["n"] != 0 and x["t"] >= since]
+
+
+def _first_since(since: float, service: str | None, frames: list[Frame]) -> Frame | None:
+    """The first frame at or after `since`: the service frame `service`, or (None) a data
+    frame."""
+    return next(
+        (
+            x
+            for x in frames
+            if x["t"] >= since and (x.get("svc") == service if service else x["k"] == "d")
+        ),
+        None,
+    )
 
 
 # --- recordings -------------------------------------------------------------------------------
@@ -715,10 +737,8 @@ def plug_round(
         plugged = time.monotonic()
         install_file(replay_dir / f"dev{k}.hid", text)
         seen = reader.wait_for(
-            lambda f, t=plugged: [x for x in f if x.get("svc") == "connected" and x["n"] != 0
-                                  and x["t"] >= t],
-            20, f"device {k + 1}'s connect sequence",
-        )  # fmt: skip
+            functools.partial(_connected_since, plugged), 20, f"device {k + 1}'s connect sequence"
+        )
         connect_s.append(seen[0]["t"] - plugged)
         time.sleep(max(0.0, start + (k + 1) * window / (len(texts) + 1) - time.monotonic()))
     time.sleep(max(0.0, start + window - time.monotonic()))
@@ -815,14 +835,10 @@ def run_starts(workdir: Path, starts: int) -> dict[str, Any]:
             t0 = daemon.spawned_at
             try:
                 startup = reader.wait_for(
-                    lambda f, t0=t0: next(
-                        (x for x in f if x["t"] >= t0 and x.get("svc") == "startup"), None
-                    ),
-                    20,
-                    "the startup frame",
+                    functools.partial(_first_since, t0, "startup"), 20, "the startup frame"
                 )
                 first = reader.wait_for(
-                    lambda f, t0=t0: next((x for x in f if x["t"] >= t0 and x["k"] == "d"), None),
+                    functools.partial(_first_since, t0, None),
                     20,
                     "the first data frame",
                 )

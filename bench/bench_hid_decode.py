@@ -64,6 +64,7 @@ def _hidtools(descriptor: bytes) -> Callable[[bytes], object]:
     def decode(report: bytes) -> object:
         data = list(report)
         hid_report = rdesc.get(data[0] if numbered else -1, len(data))
+        assert hid_report is not None, "a report the descriptor does not describe"
         return [f.get_values(data) for f in hid_report.fields]
 
     return decode

@@ -41,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from daemon_harness import StickState, recording
 
 from usb2rc.configfile import Config
-from usb2rc.hid.backend import DeviceInfo
+from usb2rc.hid.backend import DeviceGone, DeviceInfo, OutputPort
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import DeviceReader, ReaderRecord
 from usb2rc.hid.replay import ReplayBackend, install_file
@@ -160,6 +160,9 @@ class QueuedDevice:
 
     def read(self, timeout_s: float) -> bytes | None:
         return self.queue.popleft() if self.queue else None
+
+    def open_output(self) -> OutputPort:
+        raise DeviceGone("the bench's device has no outputs")
 
     def close(self) -> None:
         pass

@@ -45,7 +45,7 @@ class Timings:
 
 def one_trial(
     directory: Path, backend: ReplayBackend, timings: Timings, text: str, phase_s: float
-) -> tuple:
+) -> tuple[float, float]:
     timings.added.clear()
     time.sleep(phase_s)  # the plug's moment within the monitor's poll period
     t_plug = time.monotonic()

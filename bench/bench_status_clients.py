@@ -94,7 +94,8 @@ class Clients:
 def last_status(path: str) -> dict[str, Any]:
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
         sock.connect(path)
-        return json.loads(sock.makefile("rb").readline())
+        status: dict[str, Any] = json.loads(sock.makefile("rb").readline())
+        return status
 
 
 def window_errors(frames: list[dict[str, Any]], start: float, end: float) -> list[float]:

@@ -195,11 +195,11 @@ def _rest_reports(device: dict[str, str]) -> dict[int, bytes]:
     """Each input report ID's report at rest: guarded axes at their zero-config rest point
     (the device database's, else by usage), the other values at their centre, hats null,
     no button."""
+    from usb2rc.config.layout import AXIS_NAMES
     from usb2rc.hid.descriptor import parse_descriptor
     from usb2rc.hid.usages import GD_HAT_SWITCH
     from usb2rc.nodes import known_devices
     from usb2rc.nodes.binding import default_axis_fields, default_binding
-    from usb2rc.nodes.mapping import AXIS_NAMES
 
     layout = parse_descriptor(bytes.fromhex(device["hex"]))
     known = known_devices.lookup(int(device["vid"], 16), int(device["pid"], 16))

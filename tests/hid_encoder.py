@@ -77,10 +77,12 @@ def decode(ref: RefReport, report: bytes) -> tuple[dict[ValueKey, int], set[int]
     values = {key: _field_value(f, data) for key, f in ref.values.items()}
     pressed = {n for n, f in ref.buttons.items() if _field_value(f, data)}
     for f in ref.arrays:
+        usages = f.usages or []
         for v in f.get_values(data):
+            assert isinstance(v, int)  # a Button-page array holds indices, never strings
             index = v - f.logical_min
-            if 0 <= index < len(f.usages) and v <= f.logical_max:
-                usage = f.usages[index]
+            if 0 <= index < len(usages) and v <= f.logical_max:
+                usage = usages[index]
                 if usage >> 16 == BUTTON_PAGE and usage & 0xFFFF:
                     pressed.add(usage & 0xFFFF)
     return values, pressed
@@ -116,10 +118,12 @@ def encode(
     return bytes(buf)
 
 
-def _fill_array(buf: bytearray, f: hidtools.hid.HidField, buttons: set[int] | frozenset[int]):
+def _fill_array(
+    buf: bytearray, f: hidtools.hid.HidField, buttons: set[int] | frozenset[int]
+) -> None:
     slots = [
         f.logical_min + i
-        for i, usage in enumerate(f.usages)
+        for i, usage in enumerate(f.usages or [])
         if usage >> 16 == BUTTON_PAGE and (usage & 0xFFFF) in buttons
     ][: f.count]
     empty = f.logical_max + 1 if f.logical_min > 0 or f.logical_max + 1 < (1 << f.size) else 0

@@ -48,6 +48,7 @@ by the fstat() device number, which the testbed does not map back to sysfs).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 import threading
@@ -199,6 +200,7 @@ def check_enumerate_entry(rig: Rig) -> None:
 def check_open_missing_path(rig: Rig) -> None:
     handle = rig.hid.device()
     exc = raises(lambda: handle.open_path(MISSING_PATH), OSError, "open failed")
+    assert isinstance(exc, OSError)  # `raises` checked its type
     expect(exc.errno is None, f"errno {exc.errno}: the library gives none")
     raises(lambda: handle.open_path(MISSING_PATH.decode()), TypeError, _str_path_message())
 
@@ -272,7 +274,7 @@ def check_unplug_wakes_readers(rig: Rig) -> None:
     for read_args in ((64,), (64, 5000)):
         path = rig.plug()
         handle = opened(rig, path)
-        call = Call(lambda h=handle, a=read_args: h.read(*a))
+        call = Call(functools.partial(handle.read, *read_args))
         blocked_then(call, f"read{read_args}")
         rig.unplug(path)
         expect(call.wait(WOKEN_S), f"read{read_args} did not wake at the unplug")

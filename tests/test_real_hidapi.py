@@ -164,7 +164,8 @@ def send_and_follow(
                 return Delivery(written, s, i)
         return None
 
-    return line.wait_seen(first, timeout)
+    delivery: Delivery = line.wait_seen(first, timeout)
+    return delivery
 
 
 def assert_within_one_tick(deliveries: list[Delivery]) -> None:
@@ -255,8 +256,11 @@ def real_stick(index: int, device: dict[str, Any]) -> FakeStick:
     )
 
 
+EveryDevice = tuple[UsbBed, list[tuple[FakeStick, str]]]  # the bed, each stick and its hidraw
+
+
 @pytest.fixture(scope="module")
-def every_device() -> Iterator[tuple[UsbBed, list[tuple[FakeStick, str]]]]:
+def every_device() -> Iterator[EveryDevice]:
     """One testbed with every descriptor of real-devices.json plugged, in port order."""
     require_umockdev()
     with usb_bed() as tb:
@@ -267,7 +271,7 @@ def every_device() -> Iterator[tuple[UsbBed, list[tuple[FakeStick, str]]]]:
         yield tb, plugged
 
 
-def test_list_json_shows_every_real_device(every_device) -> None:
+def test_list_json_shows_every_real_device(every_device: EveryDevice) -> None:
     tb, plugged = every_device
     out = usb2rc(tb, "list", "--json")
     assert out.returncode == 0, out.stderr
@@ -295,7 +299,7 @@ def test_list_json_shows_every_real_device(every_device) -> None:
         assert {k: row[k] for k in want} == want
 
 
-def test_list_text_shows_every_real_device(every_device) -> None:
+def test_list_text_shows_every_real_device(every_device: EveryDevice) -> None:
     tb, plugged = every_device
     out = usb2rc(tb, "list")
     assert out.returncode == 0, out.stderr
@@ -323,7 +327,7 @@ print(json.dumps(out))
 """
 
 
-def test_open_gets_each_devices_own_descriptor(every_device) -> None:
+def test_open_gets_each_devices_own_descriptor(every_device: EveryDevice) -> None:
     """The backend's open (sysfs) and the library's own ioctl agree with the device."""
     tb, plugged = every_device
     out = subprocess.run(
@@ -378,7 +382,9 @@ def x_report(descriptor: bytes, at_max: bool) -> bytes:
     return encode(ref, {(GD_X, 0): value}, {1} if at_max else set())
 
 
-def test_every_real_device_reports_reach_the_frames(every_device, tmp_path: Path) -> None:
+def test_every_real_device_reports_reach_the_frames(
+    every_device: EveryDevice, tmp_path: Path
+) -> None:
     """X to the top of its range with button 1, then to the bottom, on every device: the
     ICD sends the ends of any range as +32767 / -32768 (zero config: X is axis 0)."""
     tb, plugged = every_device

@@ -151,7 +151,7 @@ class UsbBed:
             err = self.proc.stderr.read() if self.proc.stderr else ""
             raise BedError(f"umockdev bed ended: {err.strip()[-2000:]}")
         try:
-            reply = json.loads(line)
+            reply: dict[str, Any] = json.loads(line)
         except ValueError:
             raise BedError(f"umockdev bed said: {line!r}") from None
         if not reply.get("ok"):
