@@ -265,3 +265,38 @@ def test_floor() -> None:
     for figures in medians.values():
         # 300 starts and 300 writes a second (fewer on a busy host: late ticks are skipped)
         assert 100 < figures["wakes_per_s"] < 1000 and figures["cpu_pct"] > 0
+
+
+def test_engine_bound_copy_has_a_free_step_and_free_frames(tmp_path: Path) -> None:
+    """The bound's copy imports its own usb2rc with the hook in place: the step and each
+    session's tick are the hook's (a copy without it would measure the tree twice)."""
+    sys.path.insert(0, str(BENCH))
+    try:
+        from bench_engine_bound import bound_copy
+    finally:
+        sys.path.remove(str(BENCH))
+    copy = bound_copy(ROOT, tmp_path)
+    probe = (
+        "import usb2rc, usb2rc.nodes.table as t, usb2rc.lines.session as s, "
+        "usb2rc.protocols.c2_16b.session as c, usb2rc.protocols.mavlink.session as m; "
+        "print(usb2rc.__file__); print(t.NodeTable._step_locked.__qualname__); "
+        "print(*(k.tick.__qualname__ for k in (s.ChannelSession, c.C2Session, m.MavlinkSession)))"
+    )
+    env = dict(os.environ, PYTHONPATH=str(copy))
+    proc = subprocess.run(
+        [sys.executable, "-c", probe], cwd=copy, env=env, capture_output=True, text=True
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    where, step, ticks = proc.stdout.splitlines()
+    assert Path(where).is_relative_to(copy)
+    assert step == "_free_step.<locals>.step"
+    assert ticks.split() == ["_free_tick.<locals>.tick"] * 3
+
+
+def test_engine_bound_runs_the_hot_path_bench() -> None:
+    out = run(
+        sys.executable, "bench/bench_engine_bound.py", "--only", "idle", "--rounds", "1",
+        "--seconds", "1", "--together", timeout=180,
+    )  # fmt: skip
+    idle = last_json(out)["scenarios"]["idle"]
+    assert len(idle["trees"]) == 2 and idle["ratio_last_first"]["cpu_pct"] is not None
