@@ -2,7 +2,7 @@
 both made free, measured by bench_hot_path.py.
 
     .venv/bin/python bench/bench_engine_bound.py [--tree .] [--only c2 five] [--rounds 3]
-        [--seconds 10] [--together]
+        [--seconds 10] [--together] [--free step frames]
 
 The question it answers: how much of the daemon's CPU is the interpreted work of a tick (the
 node step, each output's frames), and how much the rest of the drivers' thread (its loop and
@@ -15,7 +15,9 @@ copy, once warmed up (the first WARM_STEPS steps and each session's first WARM_T
 as they are), a node step computes nothing (`NodeTable._step_locked` keeps the last snapshot)
 and every session's tick returns its last bytes (`tick` of C2Session, ChannelSession and
 MavlinkSession): what a compiled step and compiled frames taking no time at all would leave.
-Everything else runs as it is: the loop, its wake-ups and sleeps, every reader's pull (the
+`--free step` or `--free frames` makes only that
+part free (which of the two a compiled engine would take first). Everything else runs as it
+is: the loop, its wake-ups and sleeps, every reader's pull (the
 reports are still read and decoded), each link followed, every write. The copy's frames do not
 change (C2-16B's rolling code stands still): the far ends here only read and drop them.
 
@@ -36,14 +38,15 @@ ROOT = Path(__file__).resolve().parent.parent
 WARM_STEPS = 100  # node steps as they are, before the step becomes free
 WARM_TICKS = 50  # each session's ticks as they are, before its tick becomes free
 
-BOUND_HOOK = f'''"""bench_engine_bound.py's hook: a free node step and free frames, once warm."""
+PARTS = ("step", "frames")
+BOUND_HOOK = '''"""bench_engine_bound.py's hook: a free node step and free frames, once warm."""
 
 import importlib.abc
 import importlib.machinery
 import sys
 
-WARM_STEPS = {WARM_STEPS}
-WARM_TICKS = {WARM_TICKS}
+WARM_STEPS = {warm_steps}
+WARM_TICKS = {warm_ticks}
 
 
 def _free_step(module):
@@ -70,12 +73,14 @@ def _free_tick(cls):
     cls.tick = tick
 
 
-PATCHES = {{
-    "usb2rc.nodes.table": _free_step,
-    "usb2rc.protocols.c2_16b.session": lambda m: _free_tick(m.C2Session),
-    "usb2rc.lines.session": lambda m: _free_tick(m.ChannelSession),
-    "usb2rc.protocols.mavlink.session": lambda m: _free_tick(m.MavlinkSession),
-}}
+FREE = {free!r}
+PATCHES = {{}}
+if "step" in FREE:
+    PATCHES["usb2rc.nodes.table"] = _free_step
+if "frames" in FREE:
+    PATCHES["usb2rc.protocols.c2_16b.session"] = lambda m: _free_tick(m.C2Session)
+    PATCHES["usb2rc.lines.session"] = lambda m: _free_tick(m.ChannelSession)
+    PATCHES["usb2rc.protocols.mavlink.session"] = lambda m: _free_tick(m.MavlinkSession)
 
 
 class _PatchAfterImport(importlib.abc.MetaPathFinder):
@@ -100,11 +105,12 @@ sys.meta_path.insert(0, _PatchAfterImport())
 '''
 
 
-def bound_copy(tree: Path, directory: Path) -> Path:
-    """`tree`'s usb2rc (its built C loops too) with the hook beside it."""
+def bound_copy(tree: Path, directory: Path, free: tuple[str, ...] = PARTS) -> Path:
+    """`tree`'s usb2rc (its built C loops too) with the hook beside it, making `free` free."""
     copy = directory / "bound"
     shutil.copytree(tree / "usb2rc", copy / "usb2rc", ignore=shutil.ignore_patterns("__pycache__"))
-    (copy / "sitecustomize.py").write_text(BOUND_HOOK)
+    hook = BOUND_HOOK.format(free=tuple(free), warm_steps=WARM_STEPS, warm_ticks=WARM_TICKS)
+    (copy / "sitecustomize.py").write_text(hook)
     return copy
 
 
@@ -115,17 +121,21 @@ def main() -> None:
     parser.add_argument("--rounds", default="3")
     parser.add_argument("--seconds", default="10")
     parser.add_argument("--together", action="store_true", help="bench_hot_path's --together")
+    parser.add_argument(
+        "--free", nargs="+", choices=PARTS, default=list(PARTS), help="what is free (both)"
+    )
     args = parser.parse_args()
     tree = args.tree.resolve()
     with tempfile.TemporaryDirectory(prefix="usb2rc-bound-") as tmp:
-        copy = bound_copy(tree, Path(tmp))
+        copy = bound_copy(tree, Path(tmp), tuple(args.free))
         command = [
             sys.executable, str(ROOT / "bench" / "bench_hot_path.py"), "--trees", str(tree),
             str(copy), "--only", *args.only, "--rounds", args.rounds, "--seconds", args.seconds,
         ]  # fmt: skip
         if args.together:
             command.append("--together")
-        print(f"{tree}: as it is; {copy}: its step and frames free once warmed up", flush=True)
+        free = " and ".join(args.free)
+        print(f"{tree}: as it is; {copy}: its {free} free once warmed up", flush=True)
         sys.exit(subprocess.run(command).returncode)
 
 

@@ -267,15 +267,19 @@ def test_floor() -> None:
         assert 100 < figures["wakes_per_s"] < 1000 and figures["cpu_pct"] > 0
 
 
-def test_engine_bound_copy_has_a_free_step_and_free_frames(tmp_path: Path) -> None:
+@pytest.mark.parametrize("free", [("step", "frames"), ("step",), ("frames",)])
+def test_engine_bound_copy_makes_what_it_is_asked_free(
+    tmp_path: Path, free: tuple[str, ...]
+) -> None:
     """The bound's copy imports its own usb2rc with the hook in place: the step and each
-    session's tick are the hook's (a copy without it would measure the tree twice)."""
+    session's tick are the hook's when asked for, the tree's own otherwise (a copy without
+    the hook would measure the tree twice)."""
     sys.path.insert(0, str(BENCH))
     try:
         from bench_engine_bound import bound_copy
     finally:
         sys.path.remove(str(BENCH))
-    copy = bound_copy(ROOT, tmp_path)
+    copy = bound_copy(ROOT, tmp_path, free)
     probe = (
         "import usb2rc, usb2rc.nodes.table as t, usb2rc.lines.session as s, "
         "usb2rc.protocols.c2_16b.session as c, usb2rc.protocols.mavlink.session as m; "
@@ -289,8 +293,10 @@ def test_engine_bound_copy_has_a_free_step_and_free_frames(tmp_path: Path) -> No
     assert proc.returncode == 0, proc.stderr[-3000:]
     where, step, ticks = proc.stdout.splitlines()
     assert Path(where).is_relative_to(copy)
-    assert step == "_free_step.<locals>.step"
-    assert ticks.split() == ["_free_tick.<locals>.tick"] * 3
+    free_step, free_tick = "_free_step.<locals>.step", "_free_tick.<locals>.tick"
+    assert (step == free_step) == ("step" in free)
+    own_ticks = ["ChannelSession.tick", "C2Session.tick", "MavlinkSession.tick"]
+    assert ticks.split() == ([free_tick] * 3 if "frames" in free else own_ticks)
 
 
 def test_engine_bound_runs_the_hot_path_bench() -> None:
