@@ -15,11 +15,11 @@ copy, once warmed up (the first WARM_STEPS steps and each session's first WARM_T
 as they are), a node step computes nothing (`NodeTable._step_locked` keeps the last snapshot)
 and every session's tick returns its last bytes (`tick` of C2Session, ChannelSession and
 MavlinkSession): what a compiled step and compiled frames taking no time at all would leave.
-`--free step` or `--free frames` makes only that
-part free (which of the two a compiled engine would take first). Everything else runs as it
-is: the loop, its wake-ups and sleeps, every reader's pull (the
-reports are still read and decoded), each link followed, every write. The copy's frames do not
-change (C2-16B's rolling code stands still): the far ends here only read and drop them.
+`--free step` or `--free frames` makes only that part free (which of the two a compiled engine
+would take first). Everything else runs as it is: the loop, its wake-ups and sleeps, every
+reader's pull (the reports are still read and decoded), each link followed, every write. The
+copy's frames do not change (C2-16B's rolling code stands still): the far ends here only read
+and drop them.
 
 The ratio (copy over tree) is the bound: no compiled step and frames can do better on this
 host. bench/README.md, "Where issue 40 stands", has the figures.
