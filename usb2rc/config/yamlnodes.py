@@ -204,7 +204,7 @@ class NodeReader:
 
     One per load, with its own constructor: a SafeConstructor remembers every node it has
     built (`constructed_objects`) until a whole document is constructed, which we never do.
-    A shared one kept every config ever loaded alive (~100 KB per SIGHUP, issue 11).
+    A shared one kept every config ever loaded alive (~100 KB per SIGHUP).
     """
 
     def __init__(self, source: str) -> None:
