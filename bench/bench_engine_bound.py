@@ -2,7 +2,7 @@
 both made free, measured by bench_hot_path.py.
 
     .venv/bin/python bench/bench_engine_bound.py [--tree .] [--only c2 five] [--rounds 3]
-        [--seconds 10] [--together] [--free step frames]
+        [--seconds 10] [--together] [--free step frames] [--phases]
 
 The question it answers: how much of the daemon's CPU is the interpreted work of a tick (the
 node step, each output's frames), and how much the rest of the drivers' thread (its loop and
@@ -16,10 +16,12 @@ as they are), a node step computes nothing (`NodeTable._step_locked` keeps the l
 and every session's tick returns its last bytes (`tick` of C2Session, ChannelSession and
 MavlinkSession): what a compiled step and compiled frames taking no time at all would leave.
 `--free step` or `--free frames` makes only that part free (which of the two a compiled engine
-would take first). Everything else runs as it is: the loop, its wake-ups and sleeps, every
-reader's pull (the reports are still read and decoded), each link followed, every write. The
-copy's frames do not change (C2-16B's rolling code stands still): the far ends here only read
-and drop them.
+would take first). `--phases` (one scenario) also prints what each part of the copy's drivers'
+thread costs (thread CPU clocks around its loop's calls, written by each daemon at its exit);
+the clocks cost the copy CPU of their own, so its ratio is read from a run without it.
+Everything else runs as it is: the loop, its wake-ups and sleeps, every reader's pull (the
+reports are still read and decoded), each link followed, every write. The copy's frames do not
+change (C2-16B's rolling code stands still): the far ends here only read and drop them.
 
 The ratio (copy over tree) is the bound: no compiled step and frames can do better on this
 host. bench/README.md, "Where issue 40 stands", has the figures.
@@ -28,7 +30,10 @@ host. bench/README.md, "Where issue 40 stands", has the figures.
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -39,11 +44,16 @@ WARM_STEPS = 100  # node steps as they are, before the step becomes free
 WARM_TICKS = 50  # each session's ticks as they are, before its tick becomes free
 
 PARTS = ("step", "frames")
+PHASES_ENV = "USB2RC_BOUND_PHASES"  # --phases: the directory the copy's daemons write to
 BOUND_HOOK = '''"""bench_engine_bound.py's hook: a free node step and free frames, once warm."""
 
+import atexit
 import importlib.abc
 import importlib.machinery
+import json
+import os
 import sys
+import time
 
 WARM_STEPS = {warm_steps}
 WARM_TICKS = {warm_ticks}
@@ -83,6 +93,46 @@ if "frames" in FREE:
     PATCHES["usb2rc.protocols.mavlink.session"] = lambda m: _free_tick(m.MavlinkSession)
 
 
+# --phases: each daemon writes the thread CPU of the drivers' thread's parts to this directory
+PHASES_DIR = os.environ.get("{phases_env}", "")
+_spent = {{}}  # part -> [thread CPU ns, calls]
+_began = time.monotonic()
+
+
+def _timed(cls, name):
+    real, clock, key = getattr(cls, name), time.thread_time_ns, f"{{cls.__name__}}.{{name}}"
+
+    def timed(*args, **kwargs):
+        began = clock()
+        try:
+            return real(*args, **kwargs)
+        finally:
+            spent = _spent.setdefault(key, [0, 0])
+            spent[0] += clock() - began
+            spent[1] += 1
+
+    setattr(cls, name, timed)
+
+
+def _time_driver(module):
+    for name in ("_begin", "_wait"):
+        _timed(module.DriverThread, name)
+    for name in ("begin", "_follow_link", "_follow_backpressure", "_send", "finish"):
+        _timed(module.LineDriver, name)
+
+
+def _write_phases():
+    record = {{"seconds": time.monotonic() - _began, "parts": _spent}}
+    with open(os.path.join(PHASES_DIR, f"{{os.getpid()}}.json"), "w") as out:
+        json.dump(record, out)
+
+
+if PHASES_DIR:
+    PATCHES["usb2rc.lines.driver"] = _time_driver
+    PATCHES["usb2rc.hid.reader"] = lambda m: _timed(m.DeviceReader, "pull")
+    atexit.register(_write_phases)
+
+
 class _PatchAfterImport(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path, target=None):
         patch = PATCHES.get(name)
@@ -109,7 +159,9 @@ def bound_copy(tree: Path, directory: Path, free: tuple[str, ...] = PARTS) -> Pa
     """`tree`'s usb2rc (its built C loops too) with the hook beside it, making `free` free."""
     copy = directory / "bound"
     shutil.copytree(tree / "usb2rc", copy / "usb2rc", ignore=shutil.ignore_patterns("__pycache__"))
-    hook = BOUND_HOOK.format(free=tuple(free), warm_steps=WARM_STEPS, warm_ticks=WARM_TICKS)
+    hook = BOUND_HOOK.format(
+        free=tuple(free), warm_steps=WARM_STEPS, warm_ticks=WARM_TICKS, phases_env=PHASES_ENV
+    )
     (copy / "sitecustomize.py").write_text(hook)
     return copy
 
@@ -124,10 +176,19 @@ def main() -> None:
     parser.add_argument(
         "--free", nargs="+", choices=PARTS, default=list(PARTS), help="what is free (both)"
     )
+    parser.add_argument(
+        "--phases",
+        action="store_true",
+        help="also the copy's drivers' thread CPU per part (one scenario)",
+    )
     args = parser.parse_args()
+    if args.phases and len(args.only) != 1:
+        parser.error("--phases: one scenario (--only)")
     tree = args.tree.resolve()
     with tempfile.TemporaryDirectory(prefix="usb2rc-bound-") as tmp:
         copy = bound_copy(tree, Path(tmp), tuple(args.free))
+        phases = Path(tmp) / "phases"
+        phases.mkdir()
         command = [
             sys.executable, str(ROOT / "bench" / "bench_hot_path.py"), "--trees", str(tree),
             str(copy), "--only", *args.only, "--rounds", args.rounds, "--seconds", args.seconds,
@@ -136,7 +197,30 @@ def main() -> None:
             command.append("--together")
         free = " and ".join(args.free)
         print(f"{tree}: as it is; {copy}: its {free} free once warmed up", flush=True)
-        sys.exit(subprocess.run(command).returncode)
+        env = dict(os.environ, **({PHASES_ENV: str(phases)} if args.phases else {}))
+        code = subprocess.run(command, env=env).returncode
+        if args.phases:
+            print_phases(phases)
+        sys.exit(code)
+
+
+def print_phases(directory: Path) -> None:
+    """Each part of the copy's drivers' thread: thread CPU per call and calls a second
+    (medians over its daemons, each over its whole run, warm-up included); the parts nest
+    (`LineDriver.begin` holds `_follow_link`, `_follow_backpressure` and the free tick)."""
+    runs = [json.loads(path.read_text()) for path in sorted(directory.glob("*.json"))]
+    runs = [run for run in runs if run["parts"]]  # not the tree's `import usb2rc` checks
+    if not runs:
+        print("phases: no daemon wrote its parts")
+        return
+    print(f"\nthe copy's drivers' thread by part ({len(runs)} daemons; medians)")
+    print(f"  {'part':34} {'µs a call':>10} {'calls/s':>9} {'% of a core':>12}")
+    for part in sorted({part for run in runs for part in run["parts"]}):
+        spent = [(run["parts"][part], run["seconds"]) for run in runs if part in run["parts"]]
+        per_call = statistics.median(ns / calls / 1e3 for (ns, calls), _ in spent)
+        rate = statistics.median(calls / s for (_, calls), s in spent)
+        share = statistics.median(ns / s / 1e7 for (ns, _), s in spent)
+        print(f"  {part:34} {per_call:10.1f} {rate:9.0f} {share:12.2f}")
 
 
 if __name__ == "__main__":

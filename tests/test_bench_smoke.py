@@ -306,3 +306,29 @@ def test_engine_bound_runs_the_hot_path_bench() -> None:
     )  # fmt: skip
     idle = last_json(out)["scenarios"]["idle"]
     assert len(idle["trees"]) == 2 and idle["ratio_last_first"]["cpu_pct"] is not None
+
+
+def test_engine_bound_phases_are_written_at_exit(tmp_path: Path) -> None:
+    """With the phases' directory set, the copy's drivers' thread and readers are timed and
+    each process writes what its parts cost when it exits."""
+    sys.path.insert(0, str(BENCH))
+    try:
+        from bench_engine_bound import PHASES_ENV, bound_copy
+    finally:
+        sys.path.remove(str(BENCH))
+    copy = bound_copy(ROOT, tmp_path / "tree")
+    phases = tmp_path / "phases"
+    phases.mkdir()
+    probe = (
+        "import usb2rc.lines.driver as d, usb2rc.hid.reader as r; "
+        "print(d.LineDriver._send.__qualname__, r.DeviceReader.pull.__qualname__)"
+    )
+    env = dict(os.environ, PYTHONPATH=str(copy), **{PHASES_ENV: str(phases)})
+    proc = subprocess.run(
+        [sys.executable, "-c", probe], cwd=copy, env=env, capture_output=True, text=True
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.split() == ["_timed.<locals>.timed"] * 2
+    (written,) = phases.glob("*.json")
+    record = json.loads(written.read_text())
+    assert record["parts"] == {} and record["seconds"] > 0
