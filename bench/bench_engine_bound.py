@@ -45,7 +45,7 @@ WARM_TICKS = 50  # each session's ticks as they are, before its tick becomes fre
 
 PARTS = ("step", "frames")
 PHASES_ENV = "USB2RC_BOUND_PHASES"  # --phases: the directory the copy's daemons write to
-BOUND_HOOK = '''"""bench_engine_bound.py's hook: a free node step and free frames, once warm."""
+BOUND_HOOK = '''"""bench_engine_bound.py's hook: a free step and frames; --phases: parts timed."""
 
 import atexit
 import importlib.abc

@@ -6,6 +6,7 @@ and that what it prints is what bench/run parses.
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import re
@@ -13,6 +14,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -267,6 +269,25 @@ def test_floor() -> None:
         assert 100 < figures["wakes_per_s"] < 1000 and figures["cpu_pct"] > 0
 
 
+def engine_bound() -> ModuleType:
+    """bench/bench_engine_bound.py as a module (the benches are scripts, not a package)."""
+    sys.path.insert(0, str(BENCH))
+    try:
+        return importlib.import_module("bench_engine_bound")
+    finally:
+        sys.path.remove(str(BENCH))
+
+
+def python_in(copy: Path, code: str, **env: str) -> str:
+    """`code` run by this interpreter with `copy` first on its path (its sitecustomize)."""
+    environ = dict(os.environ, PYTHONPATH=str(copy), **env)
+    proc = subprocess.run(
+        [sys.executable, "-c", code], cwd=copy, env=environ, capture_output=True, text=True
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
 @pytest.mark.parametrize("free", [("step", "frames"), ("step",), ("frames",)])
 def test_engine_bound_copy_makes_what_it_is_asked_free(
     tmp_path: Path, free: tuple[str, ...]
@@ -274,24 +295,14 @@ def test_engine_bound_copy_makes_what_it_is_asked_free(
     """The bound's copy imports its own usb2rc with the hook in place: the step and each
     session's tick are the hook's when asked for, the tree's own otherwise (a copy without
     the hook would measure the tree twice)."""
-    sys.path.insert(0, str(BENCH))
-    try:
-        from bench_engine_bound import bound_copy
-    finally:
-        sys.path.remove(str(BENCH))
-    copy = bound_copy(ROOT, tmp_path, free)
+    copy = engine_bound().bound_copy(ROOT, tmp_path, free)
     probe = (
         "import usb2rc, usb2rc.nodes.table as t, usb2rc.lines.session as s, "
         "usb2rc.protocols.c2_16b.session as c, usb2rc.protocols.mavlink.session as m; "
         "print(usb2rc.__file__); print(t.NodeTable._step_locked.__qualname__); "
         "print(*(k.tick.__qualname__ for k in (s.ChannelSession, c.C2Session, m.MavlinkSession)))"
     )
-    env = dict(os.environ, PYTHONPATH=str(copy))
-    proc = subprocess.run(
-        [sys.executable, "-c", probe], cwd=copy, env=env, capture_output=True, text=True
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    where, step, ticks = proc.stdout.splitlines()
+    where, step, ticks = python_in(copy, probe).splitlines()
     assert Path(where).is_relative_to(copy)
     free_step, free_tick = "_free_step.<locals>.step", "_free_tick.<locals>.tick"
     assert (step == free_step) == ("step" in free)
@@ -311,24 +322,16 @@ def test_engine_bound_runs_the_hot_path_bench() -> None:
 def test_engine_bound_phases_are_written_at_exit(tmp_path: Path) -> None:
     """With the phases' directory set, the copy's drivers' thread and readers are timed and
     each process writes what its parts cost when it exits."""
-    sys.path.insert(0, str(BENCH))
-    try:
-        from bench_engine_bound import PHASES_ENV, bound_copy
-    finally:
-        sys.path.remove(str(BENCH))
-    copy = bound_copy(ROOT, tmp_path / "tree")
+    bench = engine_bound()
+    copy = bench.bound_copy(ROOT, tmp_path / "tree")
     phases = tmp_path / "phases"
     phases.mkdir()
     probe = (
         "import usb2rc.lines.driver as d, usb2rc.hid.reader as r; "
         "print(d.LineDriver._send.__qualname__, r.DeviceReader.pull.__qualname__)"
     )
-    env = dict(os.environ, PYTHONPATH=str(copy), **{PHASES_ENV: str(phases)})
-    proc = subprocess.run(
-        [sys.executable, "-c", probe], cwd=copy, env=env, capture_output=True, text=True
-    )
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert proc.stdout.split() == ["_timed.<locals>.timed"] * 2
+    out = python_in(copy, probe, **{bench.PHASES_ENV: str(phases)})
+    assert out.split() == ["_timed.<locals>.timed"] * 2
     (written,) = phases.glob("*.json")
     record = json.loads(written.read_text())
     assert record["parts"] == {} and record["seconds"] > 0
