@@ -126,7 +126,9 @@ def test_layouts_outside_the_c_drain_take_the_python_path() -> None:
 
 
 def test_the_pure_python_switch_turns_the_c_loops_off() -> None:
-    """Read at import, as the daemon starts: a process started with it runs the twins."""
+    """Read at import, as the daemon starts: a process started with it runs the twins, and
+    every node step in Python (usb2rc.nodes.steady: one switch for every C loop); each says
+    so at start."""
     field = InputField(0, 0, 0x10030, 0, 8, 0, 255, False, 0)
     assert DeviceLayout(0x10004, False, (field,), 0, {0: 1}).c_plan is not None
     script = (
@@ -136,13 +138,16 @@ def test_the_pure_python_switch_turns_the_c_loops_off() -> None:
         "assert speedups.compiled() is None\n"
         "assert DeviceLayout(0x10004, False, (field,), 0, {0: 1}).c_plan is None\n"
         "print(speedups.status())\n"
+        "from usb2rc.nodes import steady\n"
+        "assert steady.compiled() is None\n"
+        "print(steady.status())\n"
     )
     env = dict(os.environ, **{speedups.PURE_PYTHON_ENV: "1"})
     done = subprocess.run(
         [sys.executable, "-c", script], env=env, capture_output=True, text=True, check=False
     )
     assert done.returncode == 0, done.stderr
-    assert "switched off" in done.stdout
+    assert done.stdout.count("switched off") == 2
 
 
 EVENTS = st.builds(

@@ -26,6 +26,7 @@ from usb2rc.daemon import Daemon, NoPortError, ReloadResult, log_reload
 from usb2rc.hid import speedups
 from usb2rc.hid.backend import Backend
 from usb2rc.hid.choose import choose_backend
+from usb2rc.nodes import steady
 from usb2rc.runtime import log_escape, realtime
 from usb2rc.service.sdnotify import Notifier
 from usb2rc.service.signals import DaemonSignals, ReloadAbandoned, install_daemon_signals
@@ -207,6 +208,7 @@ def serve(
         log.info("stopped while starting")
         return 0
     log.info("%s", speedups.status())
+    log.info("%s", steady.status())
     try:
         daemon.start()  # inside: a start that fails half-way still stops what it started
         _main_loop(daemon, config_path, stats_interval, notifier, signals, stats_format)

@@ -372,6 +372,12 @@ class DeviceBinding:
             tuple(axes), groups[0], groups[1], bool(buttons & self._handover_mask), low
         )
 
+    @property
+    def guarded_functions(self) -> tuple[tuple[int, AxisFn], ...]:
+        """The guard's slots as (slot, its function of (values, buttons)), in `apply`'s
+        order (a slot given twice: the last one counts)."""
+        return self._guarded_axes
+
     def guarded_axes(self, state: InputState) -> list[int | None]:
         """`apply`'s axis values of the guarded slots only (every other slot None): what the
         neutral guard looks at while the device waits, without the rest of `apply`."""

@@ -190,6 +190,12 @@ class NeutralGuard:
         """For `icd`, `monitor` and the log: "X centre, Throttle low" or "none"."""
         return ", ".join(a.describe() for a in self.axes) or "none"
 
+    @property
+    def wire_runs(self) -> tuple[tuple[int, int, int, str], ...]:
+        """Each guarded axis as (slot, first, last, text): it rests, without a stepped
+        trim, when first <= its wire value <= last."""
+        return self._runs
+
     @cached_property
     def _runs(self) -> tuple[tuple[int, int, int, str], ...]:
         """Each axis as (slot, first, last, text): `at_rest` without a stepped trim is

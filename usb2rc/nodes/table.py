@@ -29,6 +29,7 @@ from usb2rc.config.controls_model import SwitchConfig, ThrottleCut
 from usb2rc.config.layout import AXIS_COUNT, AXIS_NAMES
 from usb2rc.hid.backend import DeviceInfo, ErrorCode
 from usb2rc.hid.reader import ReaderRecord
+from usb2rc.nodes import steady
 from usb2rc.nodes.binding import DeviceBinding, NodeInputs
 from usb2rc.nodes.guard import RestWatch
 from usb2rc.nodes.presses import NO_BUTTONS, SINCE_RELOAD, PressGate, button_mapping_changed
@@ -320,6 +321,7 @@ class _Node:
     logged: tuple[bool, tuple[str, ...]] | None = None  # state and reasons last logged
     stepped_reasons: list[tuple[str, str]] = field(default_factory=list)  # at the last step
     silenced: list[_Attached] = field(default_factory=list)  # went silent, `3` not sent yet
+    plan: steady.Plan | None = None  # its next steps' compiled path, while it is steady
 
     @property
     def failsafe(self) -> bool:
@@ -330,10 +332,25 @@ class _Node:
         return bool(self.expected) or not all(a.live for a in self.attached)
 
     def step(
-        self, trims: TrimStore, now: float, records: Iterator[ReaderRecord]
+        self, trims: TrimStore, now: float, records: Sequence[ReaderRecord], layout: int
     ) -> tuple[NodeView, list[str]]:
         """The node in this step: each device stepped once (trims, guard, press gate) on its
-        next record from `records`, then merged; the log lines of its press gates."""
+        record in `records`, then merged; the log lines of its press gates. A steady node
+        takes the compiled path (usb2rc.nodes.steady) while its plan is of this `layout`
+        (the table's devices); every other step is this one, which plans the next."""
+        plan = self.plan
+        if plan is not None and plan[0] == layout:
+            view = steady.step(plan, records, now)
+            if view is not None:
+                return view, []
+        view, notes = self._step(trims, now, iter(records))
+        self.plan = steady.plan_for(self, view, layout) if steady.compiled() else None
+        return view, notes
+
+    def _step(
+        self, trims: TrimStore, now: float, records: Iterator[ReaderRecord]
+    ) -> tuple[NodeView, list[str]]:
+        """The step, every decision in it (see `step`)."""
         base = [0] * AXIS_COUNT
         base_unsigned = 0
         for entry in self.expected.values():
@@ -596,7 +613,7 @@ class NodeTable:
         assignment; the lines to log (a node entered or left failsafe)."""
         views, changes = [], []
         for node, records in due:
-            view, notes = node.step(self._trims, now, iter(records))
+            view, notes = node.step(self._trims, now, records, self._layout)
             views.append(view)
             change = None if self._stopping else node.failsafe_change(view.frame.failsafe)
             if change:

@@ -1,0 +1,8 @@
+from typing import Any
+
+def configure(
+    classes: tuple[type[Any], type[Any], type[Any]],
+    fields: dict[str, int],
+    limits: dict[str, float],
+) -> None: ...
+def step(plan: tuple[Any, ...], records: tuple[Any, ...], now: float) -> Any: ...
