@@ -319,3 +319,20 @@ def test_a_silent_stick_and_bad_reports_hand_the_step_back(
         pair.refuse(2)
     pair.step()
     assert "refused" in " ".join(pair.compiled._snapshot.nodes[1].waiting_for)
+
+
+def test_an_axis_never_moved_is_noted_and_named_when_fixed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Sticks moved on X and Y but not on Rz, held at its end: the compiled path notes the
+    moves step by step (Rz never moved); from FIXED_S after the plug the Python step says
+    Rz may be fixed, with the same views and state on both paths."""
+    counts = counting(monkeypatch)
+    pair = Pair()
+    for i in range(300):  # 6 s at 20 ms
+        state = StickState(x=1000 + 700 * (i % 5), y=15000 - 300 * (i % 3), rz=255)
+        pair.tick([state] * len(NODES), 0.02)
+        if i == 200:  # 4 s: moving, nothing fixed yet
+            assert counts["taken"] > 300
+            declined = counts["declined"]
+            assert not any("fixed" in text for text in pair.compiled._snapshot.nodes[1].waiting_for)
+    assert "unmoved at an end" in " ".join(pair.compiled._snapshot.nodes[1].waiting_for)
+    assert counts["declined"] > declined

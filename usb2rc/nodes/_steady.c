@@ -26,6 +26,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <math.h>
 #include <string.h>
 
 #define MAX_DEVICES 16 /* a node fed by more takes the Python step */
@@ -35,7 +36,7 @@ static PyObject *s_attached, *s_expected, *s_present, *s_silence_news, *s_bad_sp
     *s_silence, *s_silent_since, *s_source, *s_record, *s_armed, *s_rest, *s_gate,
     *s_device_id, *s_binding, *s_apply, *s_failsafe, *s_last_inputs, *s_values, *s_buttons,
     *s_reports, *s_kind, *s_streaming, *s_interval_s, *s_window, *s_seen_reports, *s_since,
-    *s_moved_all_of, *s_guard, *s_fixed, *s_run_since, *s_plugged, *s_waiting, *s_is_open,
+    *s_moved_all_of, *s_moved, *s_first, *s_guard, *s_fixed, *s_run_since, *s_plugged, *s_waiting, *s_is_open,
     *s_held_hid, *s_held_groups, *s_counts_from, *s_last_serial, *s_stepped_reasons,
     *s_unsigned_slots, *s_handover;
 static PyObject *str_on_change, *str_streaming, *str_join;
@@ -49,7 +50,7 @@ static Py_ssize_t d_inputs, d_live;
 static Py_ssize_t i_axes, i_group1, i_group2, i_handover, i_low_battery;
 static Py_ssize_t n_device_view, n_node_view, n_node_frame;
 static long long bad_reports_limit, streaming_after;
-static double min_silence_s, silence_intervals, rate_window_s;
+static double min_silence_s, silence_intervals, rate_window_s, fixed_s, end_margin;
 static int configured = 0;
 
 /* A NamedTuple (a tuple subclass without a dict) from `n` borrowed items, as
@@ -264,18 +265,21 @@ silence_commit(PyObject *watch, PyObject *kind, const Silence *s)
     return rc;
 }
 
-/* The guarded axes not at rest in the record's state (guard.NeutralGuard.waiting_for on
- * binding.guarded_axes, no trims): a new tuple of their texts. */
+#define MAX_RUNS 16 /* guarded axes of one device (a node has ten slots) */
+
+/* Each guarded axis's wire value in the record's state, as binding.guarded_axes gives it
+ * (NULL: the binding does not feed the slot), new references in `values`; the texts of
+ * those not at rest (guard.NeutralGuard.waiting_for, no trims) as a new tuple. */
 static PyObject *
-outside_of(PyObject *runs, PyObject *state)
+guard_values(PyObject *runs, PyObject *state, PyObject **values)
 {
-    PyObject *values = PyObject_GetAttr(state, s_values);
-    if (values == NULL) {
+    PyObject *fields = PyObject_GetAttr(state, s_values);
+    if (fields == NULL) {
         return NULL;
     }
     PyObject *buttons = PyObject_GetAttr(state, s_buttons);
     if (buttons == NULL) {
-        Py_DECREF(values);
+        Py_DECREF(fields);
         return NULL;
     }
     PyObject *texts = PyList_New(0);
@@ -286,19 +290,19 @@ outside_of(PyObject *runs, PyObject *state)
         if (fn == Py_None) {
             continue; /* the binding sends nothing on this slot: never outside */
         }
-        PyObject *args[2] = {values, buttons};
+        PyObject *args[2] = {fields, buttons};
         PyObject *wire = PyObject_Vectorcall(fn, args, 2, NULL);
         long long value, first, last;
         int failed = wire == NULL || as_ll(wire, &value) < 0
                      || as_ll(PyTuple_GET_ITEM(run, 0), &first) < 0
                      || as_ll(PyTuple_GET_ITEM(run, 1), &last) < 0;
-        Py_XDECREF(wire);
+        values[k] = wire;
         if (failed || (!(first <= value && value <= last)
                        && PyList_Append(texts, PyTuple_GET_ITEM(run, 2)) < 0)) {
             Py_CLEAR(texts);
         }
     }
-    Py_DECREF(values);
+    Py_DECREF(fields);
     Py_DECREF(buttons);
     if (texts == NULL) {
         return NULL;
@@ -316,7 +320,10 @@ typedef struct {
     PyObject *rest;      /* new, waiting only */
     PyObject *inputs;    /* new */
     PyObject *waiting;   /* new, waiting only: the axes it waits for */
-    PyObject *kind;      /* borrowed (its `reports:`) */
+    PyObject *kind;      /* new (its `reports:`) */
+    PyObject *guard;     /* new, waiting only */
+    PyObject *moves;     /* new, waiting only: slots that moved at this step */
+    int all_moved;       /* waiting only: every guarded axis has moved, from this step */
     int live;
     Silence silence;
 } Device;
@@ -330,6 +337,119 @@ device_clear(Device *d)
     Py_CLEAR(d->waiting);
     Py_CLEAR(d->silence.window);
     Py_CLEAR(d->kind);
+    Py_CLEAR(d->guard);
+    Py_CLEAR(d->moves);
+}
+
+/* RestWatch.check of a device whose rest has not begun (nodes/guard.py), without writing
+ * anything: what it waits for (d->waiting), the moves to note, whether every guarded axis
+ * has moved. 0 when the Python step must decide: every guarded axis
+ * rests (a rest begins), or an unmoved centre axis sits at an end (the "fixed" hint). */
+static int
+rest_check(PyObject *runs, PyObject *state, PyObject *record, double now, Device *d)
+{
+    Py_ssize_t n = PyTuple_GET_SIZE(runs);
+    if (n > MAX_RUNS) {
+        return 0;
+    }
+    PyObject *values[MAX_RUNS] = {NULL};
+    int rc = 1;
+    PyObject *first = NULL, *moved = NULL;
+    d->waiting = guard_values(runs, state, values);
+    if (d->waiting == NULL) {
+        rc = -1;
+        goto done;
+    }
+    if (PyTuple_GET_SIZE(d->waiting) == 0) {
+        rc = 0; /* every guarded axis rests: a rest begins (the Python step) */
+        goto done;
+    }
+    int all_moved = attr_is(d->rest, s_moved_all_of, d->guard);
+    if (all_moved < 0) {
+        rc = -1;
+        goto done;
+    }
+    d->all_moved = 1;
+    if (all_moved) {
+        goto fixed; /* `moved` only grows: nothing to note */
+    }
+    moved = PyObject_GetAttr(d->rest, s_moved);
+    first = PyObject_GetAttr(d->rest, s_first);
+    d->moves = PySet_New(NULL);
+    if (moved == NULL || first == NULL || d->moves == NULL) {
+        rc = -1;
+        goto done;
+    }
+    if (!PyDict_Check(first) || !PyAnySet_Check(moved)) {
+        rc = 0;
+        goto done;
+    }
+    /* RestWatch._note_moves (noting a record twice notes nothing new: the same values
+     * against the same first values) */
+    for (Py_ssize_t k = 0; k < n; k++) {
+        PyObject *slot = PyTuple_GET_ITEM(PyTuple_GET_ITEM(runs, k), 4);
+        int has = PySet_Contains(moved, slot);
+        if (has < 0) {
+            rc = -1;
+            goto done;
+        }
+        if (values[k] != NULL && !has) {
+            PyObject *seen = PyDict_GetItemWithError(first, slot);
+            if (seen == NULL) {
+                /* its first value is noted by the first step that reads it: the Python one */
+                rc = PyErr_Occurred() ? -1 : 0;
+                goto done;
+            }
+            int same = PyObject_RichCompareBool(values[k], seen, Py_EQ);
+            if (same < 0 || (!same && PySet_Add(d->moves, slot) < 0)) {
+                rc = -1;
+                goto done;
+            }
+            has = !same;
+        }
+        d->all_moved = d->all_moved && has;
+    }
+fixed:
+    /* guard.RestWatch._not_at_rest: a centre axis unmoved since the plug and at an end of
+     * its travel, FIXED_S after the plug while not every axis has moved */
+    if (!d->all_moved) {
+        PyObject *plugged_o = PyObject_GetAttr(d->rest, s_plugged);
+        double plugged = plugged_o ? PyFloat_AsDouble(plugged_o) : -1.0;
+        Py_XDECREF(plugged_o);
+        if (plugged_o == NULL || (plugged == -1.0 && PyErr_Occurred())) {
+            rc = -1;
+            goto done;
+        }
+        if (!(now - plugged < fixed_s)) {
+            for (Py_ssize_t k = 0; k < n; k++) {
+                PyObject *run = PyTuple_GET_ITEM(runs, k);
+                PyObject *slot = PyTuple_GET_ITEM(run, 4);
+                if (values[k] == NULL || PyTuple_GET_ITEM(run, 5) != Py_True) {
+                    continue; /* not fed, or not a centre axis */
+                }
+                int has = PySet_Contains(moved, slot);
+                int now_moved = has == 1 ? 1 : PySet_Contains(d->moves, slot);
+                long long wire;
+                if (has < 0 || now_moved < 0 || as_ll(values[k], &wire) < 0) {
+                    rc = -1;
+                    goto done;
+                }
+                double offset = PyTuple_GET_ITEM(run, 6) == Py_True ? 0.0 : -32768.0;
+                double unit = ((double)wire - offset) * 2.0 / 65535.0 - 1.0;
+                if (!now_moved && fabs(unit) >= 1.0 - end_margin) {
+                    rc = 0; /* the hint: the Python step says it */
+                    goto done;
+                }
+            }
+        }
+    }
+done:
+    for (Py_ssize_t k = 0; k < n; k++) {
+        Py_XDECREF(values[k]);
+    }
+    Py_XDECREF(first);
+    Py_XDECREF(moved);
+    return rc;
 }
 
 /* 1: the device is steady (filled in), 0: not (the Python step decides), -1: error */
@@ -421,27 +541,18 @@ device_check(PyObject *dplan, PyObject *attached, PyObject *record, PyObject *pr
     if (d->rest == NULL) {
         return -1;
     }
-    PyObject *guard = PyObject_GetAttr(d->binding, s_guard);
-    if (guard == NULL) {
+    d->guard = PyObject_GetAttr(d->binding, s_guard);
+    if (d->guard == NULL) {
         return -1;
-    }
-    rc = attr_is(d->rest, s_moved_all_of, guard);
-    Py_DECREF(guard);
-    if (rc != 1) {
-        return rc; /* an axis not moved yet: the "fixed" hint is the Python step's */
     }
     if ((rc = attr_is(d->rest, s_since, Py_None)) != 1
         || (rc = attr_is(d->rest, s_run_since, Py_None)) != 1
-        || (rc = attr_is(d->rest, s_plugged, Py_None)) != 0
-        || (rc = attr_true(d->rest, s_fixed)) != 0) {
-        return rc < 0 ? -1 : 0;
+        || (rc = attr_is(d->rest, s_plugged, Py_None)) != 0) {
+        return rc < 0 ? -1 : 0; /* a rest began, or the first step: the Python step's */
     }
-    d->waiting = outside_of(PyTuple_GET_ITEM(dplan, 1), state);
-    if (d->waiting == NULL) {
-        return -1;
-    }
-    if (PyTuple_GET_SIZE(d->waiting) == 0) {
-        return 0; /* every guarded axis rests: a rest begins (the Python step) */
+    rc = rest_check(PyTuple_GET_ITEM(dplan, 1), state, record, now, d);
+    if (rc != 1) {
+        return rc;
     }
     PyObject *last = PyObject_GetAttr(attached, s_last_inputs);
     if (last == NULL) {
@@ -633,6 +744,39 @@ fail:
     return -1;
 }
 
+/* What RestWatch.check writes besides the record and the waiting texts: the moves noted,
+ * `moved_all_of` once every axis has moved, `fixed` (none, when steady). */
+static int
+rest_commit(Device *d)
+{
+    if (PyObject_SetAttr(d->rest, s_fixed, Py_False) < 0) {
+        return -1;
+    }
+    if (d->moves == NULL) {
+        return 0; /* every axis had moved already */
+    }
+    PyObject *moved = PyObject_GetAttr(d->rest, s_moved);
+    PyObject *slot;
+    int rc = moved == NULL ? -1 : 0;
+    PyObject *it = rc == 0 ? PyObject_GetIter(d->moves) : NULL;
+    if (rc == 0 && it == NULL) {
+        rc = -1;
+    }
+    while (rc == 0 && (slot = PyIter_Next(it)) != NULL) {
+        rc = PySet_Add(moved, slot);
+        Py_DECREF(slot);
+    }
+    if (rc == 0 && PyErr_Occurred()) {
+        rc = -1;
+    }
+    Py_XDECREF(it);
+    Py_XDECREF(moved);
+    if (rc == 0 && d->all_moved) {
+        rc = PyObject_SetAttr(d->rest, s_moved_all_of, d->guard);
+    }
+    return rc;
+}
+
 /* The state the Python step writes, written back: the silence watches; a waiting device's
  * rest (the record taken) and what it waits for; a closed gate's marks. */
 static int
@@ -647,6 +791,9 @@ commit(Device *devs, Py_ssize_t n, int node_live)
         int rc = silence_commit(watch, d->kind, &d->silence);
         Py_DECREF(watch);
         if (rc < 0) {
+            return -1;
+        }
+        if (!d->live && rest_commit(d) < 0) {
             return -1;
         }
         if (!d->live) {
@@ -930,7 +1077,9 @@ steady_configure(PyObject *self, PyObject *args)
         || limit_of(limits, "streaming_after", &after) < 0
         || limit_of(limits, "min_silence_s", &min_silence_s) < 0
         || limit_of(limits, "silence_intervals", &silence_intervals) < 0
-        || limit_of(limits, "rate_window_s", &rate_window_s) < 0) {
+        || limit_of(limits, "rate_window_s", &rate_window_s) < 0
+        || limit_of(limits, "fixed_s", &fixed_s) < 0
+        || limit_of(limits, "end_margin", &end_margin) < 0) {
         return NULL;
     }
     if (n_device_view != 9 || n_node_view != 6 || n_node_frame != 11) {
@@ -1000,6 +1149,8 @@ PyInit__steady(void)
     INTERN(s_seen_reports, "seen_reports");
     INTERN(s_since, "since");
     INTERN(s_moved_all_of, "moved_all_of");
+    INTERN(s_moved, "moved");
+    INTERN(s_first, "first");
     INTERN(s_guard, "guard");
     INTERN(s_fixed, "fixed");
     INTERN(s_run_since, "run_since");

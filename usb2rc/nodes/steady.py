@@ -22,7 +22,7 @@ from types import ModuleType
 from typing import Any, Protocol
 
 from usb2rc.hid import reader, speedups
-from usb2rc.nodes import silence
+from usb2rc.nodes import guard, silence
 from usb2rc.nodes.binding import NodeInputs
 from usb2rc.nodes.step import DeviceView, NodeFrame, NodeView
 
@@ -41,7 +41,8 @@ class PlannedNode(Protocol):
     def expected(self) -> Mapping[str, Any]: ...
 
 
-# (layout, node, its devices, one (binding, runs, kind, suffix) per device, [its last view])
+# (layout, node, its devices, one (binding, runs, kind, suffix) per device, [its last view]);
+# a run: (first, last, text, the slot's function or None, slot, a centre axis, unsigned)
 Plan = tuple[int, Any, tuple[Any, ...], tuple[tuple[Any, ...], ...], list[NodeView]]
 
 # the fields the C path reads by position, and the views it builds (all their fields)
@@ -81,6 +82,8 @@ def _configured(module: ModuleType) -> ModuleType | None:
         "min_silence_s": silence.MIN_SILENCE_S,
         "silence_intervals": float(silence.SILENCE_INTERVALS),
         "rate_window_s": silence.RATE_WINDOW_S,
+        "fixed_s": guard.FIXED_S,
+        "end_margin": guard.END_MARGIN,
     }
     module.configure((DeviceView, NodeView, NodeFrame), fields, limits)
     return module
@@ -108,10 +111,18 @@ def status() -> str:
     return "node step: steady nodes compiled"
 
 
-def plan_for(node: PlannedNode, view: NodeView, layout: int) -> Plan | None:
+def plan_for(
+    node: PlannedNode, view: NodeView, layout: int, last: Plan | None = None
+) -> Plan | None:
     """What the compiled path needs for the node's next steps, from the Python step that
     made `view` (the devices' table layout `layout`); None where it never applies: no
-    device, an expected entry (its failsafe values under the devices), a trim switch."""
+    device, an expected entry (its failsafe values under the devices), a trim switch.
+    The `last` plan serves again, with this view, while the layout is the same (a node the
+    compiled path hands back step after step, as one with a button held over, costs no new
+    plan each time)."""
+    if last is not None and last[0] == layout:
+        last[4][0] = view
+        return last
     attached = tuple(node.attached)
     if not attached or node.expected or any(a.binding.trim_switches for a in attached):
         return None
@@ -119,9 +130,10 @@ def plan_for(node: PlannedNode, view: NodeView, layout: int) -> Plan | None:
     for a in attached:
         binding = a.binding
         functions = dict(binding.guarded_functions)  # the last one of a slot, as `apply`
+        rests = binding.guard
         runs = tuple(
-            (first, last, text, functions.get(slot))
-            for slot, first, last, text in binding.guard.wire_runs
+            (first, last, text, functions.get(slot), slot, axis.arm == "centre", axis.unsigned)
+            for axis, (slot, first, last, text) in zip(rests.axes, rests.wire_runs, strict=True)
         )
         name = a.info.product or "device"
         devices.append((binding, runs, f"guard {name}", f" ({name})"))

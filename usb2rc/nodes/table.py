@@ -344,7 +344,7 @@ class _Node:
             if view is not None:
                 return view, []
         view, notes = self._step(trims, now, iter(records))
-        self.plan = steady.plan_for(self, view, layout) if steady.compiled() else None
+        self.plan = steady.plan_for(self, view, layout, plan) if steady.compiled() else None
         return view, notes
 
     def _step(
