@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 from collections.abc import Iterator
 from typing import Any
 
@@ -25,7 +26,12 @@ from usb2rc.nodes.binding import default_binding
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.table import NodeTable
 
-pytestmark = pytest.mark.skipif(steady.compiled() is None, reason="the C path is not built")
+if steady.compiled() is None:
+    if os.environ.get("CI"):
+        pytest.fail("the compiled step was not built (setup.py; a C compiler, Python headers)")
+    pytest.skip(
+        "the compiled step is not built here: every step runs in Python", allow_module_level=True
+    )
 
 LAYOUT = parse_descriptor(T16000M_DESCRIPTOR)
 BINDING = default_binding(LAYOUT, "T.16000M")  # X, Y, Rz guarded at the centre
