@@ -132,8 +132,8 @@ def plan_for(
         functions = dict(binding.guarded_functions)  # the last one of a slot, as `apply`
         rests = binding.guard
         runs = tuple(
-            (first, last, text, functions.get(slot), slot, axis.arm == "centre", axis.unsigned)
-            for axis, (slot, first, last, text) in zip(rests.axes, rests.wire_runs, strict=True)
+            (low, high, text, functions.get(slot), slot, axis.arm == "centre", axis.unsigned)
+            for axis, (slot, low, high, text) in zip(rests.axes, rests.wire_runs, strict=True)
         )
         name = a.info.product or "device"
         devices.append((binding, runs, f"guard {name}", f" ({name})"))
