@@ -21,21 +21,21 @@ from collections.abc import Iterable
 from typing import NamedTuple
 
 import usb.core
+from usb.backend import libusb1
 
 DEFAULT_TIMEOUT_MS = 1000  # usb.core._DEFAULT_TIMEOUT
 DIRECTION_IN = 0x80
 
-# libusb error codes and what pyusb's libusb1 backend raises for them (its _str_error_map
-# and _libusb_errno, used when the library has no libusb_strerror).
+# libusb error codes and the errno pyusb's libusb1 backend gives each (its _libusb_errno)
 LIBUSB_ERROR_IO = -1
 LIBUSB_ERROR_NO_DEVICE = -4
 LIBUSB_ERROR_TIMEOUT = -7
 LIBUSB_ERROR_PIPE = -9
-LIBUSB_ERRORS = {
-    LIBUSB_ERROR_IO: ("Input/output error", errno.EIO),
-    LIBUSB_ERROR_NO_DEVICE: ("No such device (it may have been disconnected)", errno.ENODEV),
-    LIBUSB_ERROR_TIMEOUT: ("Operation timed out", errno.ETIMEDOUT),
-    LIBUSB_ERROR_PIPE: ("Pipe error", errno.EPIPE),
+LIBUSB_ERRNOS = {
+    LIBUSB_ERROR_IO: errno.EIO,
+    LIBUSB_ERROR_NO_DEVICE: errno.ENODEV,
+    LIBUSB_ERROR_TIMEOUT: errno.ETIMEDOUT,
+    LIBUSB_ERROR_PIPE: errno.EPIPE,
 }
 
 
@@ -53,10 +53,13 @@ class ControlTransfer(NamedTuple):
 
 
 def usb_error(code: int) -> usb.core.USBError:
-    """The exception pyusb's libusb1 backend raises for a libusb error code."""
-    strerror, error_number = LIBUSB_ERRORS[code]
+    """The exception pyusb's libusb1 backend raises for a libusb error code. Its text is
+    pyusb's own (`libusb1._strerror`, as its `_check` words it): libusb's
+    `libusb_strerror` once a test in this process has loaded the library ("Input/Output
+    Error"), pyusb's table before ("Input/output error"), so the text depends on which
+    tests ran first in the process, for the real backend and the fake alike."""
     kind = usb.core.USBTimeoutError if code == LIBUSB_ERROR_TIMEOUT else usb.core.USBError
-    return kind(strerror, code, error_number)
+    return kind(libusb1._strerror(code), code, LIBUSB_ERRNOS[code])
 
 
 def as_buffer(data_or_length: object) -> array.array[int]:

@@ -172,10 +172,16 @@ def raised(call: Callable[[], object]) -> tuple[type[BaseException], int | None,
     return type(error), error.errno, error.backend_error_code, error.strerror
 
 
+@pytest.mark.parametrize("libusb_loaded", [False, True])
 @pytest.mark.parametrize(
     "code", [LIBUSB_ERROR_PIPE, LIBUSB_ERROR_TIMEOUT, LIBUSB_ERROR_NO_DEVICE, LIBUSB_ERROR_IO]
 )
-def test_a_failed_transfer_raises_the_same(code: int) -> None:
+def test_a_failed_transfer_raises_the_same(code: int, libusb_loaded: bool) -> None:
+    """Whether or not a test before this one in the process loaded libusb (pyusb then
+    words its errors with libusb's own `libusb_strerror`; where libusb is not installed
+    nothing loads, and both sides use pyusb's table)."""
+    if libusb_loaded:
+        libusb1.get_backend()
     (real, backend), (fake, record) = both()
     write = x52_writes()[0]
     backend.failures.append(code)
