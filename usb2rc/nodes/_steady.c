@@ -12,15 +12,17 @@
  *
  * configure(classes, fields, limits): once, at import (steady.py): the NamedTuple classes
  * (DeviceView, NodeView, NodeFrame) and the indices of the fields read in records, views
- * and inputs, the constants of nodes.silence and hid.reader.
+ * and inputs, the constants of nodes.silence, nodes.guard and hid.reader.
  *
  * step(plan, records, now) -> NodeView | None
  *   plan     (layout, node, attached, devices, box) from steady.plan_for: `attached` the
  *            node's _Attached objects when it was made, `devices` one
  *            (binding, runs, kind, suffix) per device: the guard's runs as
- *            (first, last, text, fn) (`fn` the binding's function of that slot, None: the
- *            binding does not feed it), the kind and the suffix of its reason ("guard X",
- *            " (X)"); `box` a one-item list holding the node's last view
+ *            (low, high, text, fn, slot, centre, unsigned): the wire values at rest, the
+ *            axis's text, the binding's function of that slot (None: the binding does
+ *            not feed it), whether it rests at the centre, whether it is unsigned; the
+ *            kind and the suffix of its reason ("guard X", " (X)"); `box` a one-item list
+ *            holding the node's last view
  *   records  the reader records of this step, one per device
  *   now      the step's time
  */
@@ -44,7 +46,7 @@ static PyObject *str_on_change, *str_streaming, *str_join;
 static PyObject *device_view_cls, *node_view_cls, *node_frame_cls;
 /* field indices (configure) */
 static Py_ssize_t r_state, r_reports, r_at, r_press_serial, r_refused, r_bad_spells, r_repeats;
-static Py_ssize_t v_frame, v_devices, v_base_axes, v_base_unsigned, v_waiting_for;
+static Py_ssize_t v_frame, v_devices, v_base_axes, v_base_unsigned;
 static Py_ssize_t f_failsafe, f_node_id;
 static Py_ssize_t d_inputs, d_live;
 static Py_ssize_t i_axes, i_group1, i_group2, i_handover, i_low_battery;
@@ -346,7 +348,7 @@ device_clear(Device *d)
  * has moved. 0 when the Python step must decide: every guarded axis
  * rests (a rest begins), or an unmoved centre axis sits at an end (the "fixed" hint). */
 static int
-rest_check(PyObject *runs, PyObject *state, PyObject *record, double now, Device *d)
+rest_check(PyObject *runs, PyObject *state, double now, Device *d)
 {
     Py_ssize_t n = PyTuple_GET_SIZE(runs);
     if (n > MAX_RUNS) {
@@ -550,7 +552,7 @@ device_check(PyObject *dplan, PyObject *attached, PyObject *record, PyObject *pr
         || (rc = attr_is(d->rest, s_plugged, Py_None)) != 0) {
         return rc < 0 ? -1 : 0; /* a rest began, or the first step: the Python step's */
     }
-    rc = rest_check(PyTuple_GET_ITEM(dplan, 1), state, record, now, d);
+    rc = rest_check(PyTuple_GET_ITEM(dplan, 1), state, now, d);
     if (rc != 1) {
         return rc;
     }
@@ -596,8 +598,7 @@ gate_ready(PyObject *gate, int node_live)
 
 /* nodes.step.compose, for a node without expected entries (its base axes are the view's) */
 static PyObject *
-compose(PyObject *prev, PyObject *node_id, int failsafe, Device *devs, Py_ssize_t n,
-        PyObject *const *views)
+compose(PyObject *prev, PyObject *node_id, int failsafe, Device *devs, Py_ssize_t n)
 {
     PyObject *base = PyTuple_GET_ITEM(prev, v_base_axes);
     Py_ssize_t slots = PyTuple_GET_SIZE(base);
@@ -606,11 +607,11 @@ compose(PyObject *prev, PyObject *node_id, int failsafe, Device *devs, Py_ssize_
     PyObject *unsigned_ = PyTuple_GET_ITEM(prev, v_base_unsigned);
     Py_INCREF(unsigned_);
     PyObject *handover = Py_None, *low = Py_False;
-    PyObject *p1 = PyLong_FromLong(0), *p2 = PyLong_FromLong(0);
+    PyObject *zero = PyLong_FromLong(0);
     PyObject *frame = NULL, *pressed = NULL, *empty = PyTuple_New(0);
     Py_INCREF(handover);
     Py_INCREF(low);
-    if (axes == NULL || g1 == NULL || g2 == NULL || p1 == NULL || p2 == NULL || empty == NULL) {
+    if (axes == NULL || g1 == NULL || g2 == NULL || zero == NULL || empty == NULL) {
         goto done;
     }
     for (Py_ssize_t k = 0; k < slots; k++) {
@@ -661,29 +662,10 @@ compose(PyObject *prev, PyObject *node_id, int failsafe, Device *devs, Py_ssize_
             Py_INCREF(PyTuple_GET_ITEM(inputs, i_low_battery));
             Py_SETREF(low, PyTuple_GET_ITEM(inputs, i_low_battery));
         }
-        if (!failsafe) { /* table._pressed: what is not held over (nothing, when steady) */
-            PyObject *held = PyTuple_GET_ITEM(views[i], 7);
-            PyObject *h1 = PyNumber_Invert(PyTuple_GET_ITEM(held, 0));
-            PyObject *h2 = PyNumber_Invert(PyTuple_GET_ITEM(held, 1));
-            PyObject *a1 = h1 ? PyNumber_And(PyTuple_GET_ITEM(inputs, i_group1), h1) : NULL;
-            PyObject *a2 = h2 ? PyNumber_And(PyTuple_GET_ITEM(inputs, i_group2), h2) : NULL;
-            Py_XDECREF(h1);
-            Py_XDECREF(h2);
-            if (a1 == NULL || a2 == NULL) {
-                Py_XDECREF(a1);
-                Py_XDECREF(a2);
-                goto done;
-            }
-            Py_SETREF(p1, PyNumber_Or(p1, a1));
-            Py_SETREF(p2, PyNumber_Or(p2, a2));
-            Py_DECREF(a1);
-            Py_DECREF(a2);
-            if (p1 == NULL || p2 == NULL) {
-                goto done;
-            }
-        }
     }
-    pressed = PyTuple_Pack(2, p1, p2);
+    /* table._pressed: what is not held over; a live steady node holds nothing over, so all
+     * of it (a node in failsafe acts on no press) */
+    pressed = failsafe ? PyTuple_Pack(2, zero, zero) : PyTuple_Pack(2, g1, g2);
     if (pressed == NULL) {
         goto done;
     }
@@ -697,8 +679,7 @@ done:
     Py_XDECREF(unsigned_);
     Py_XDECREF(handover);
     Py_XDECREF(low);
-    Py_XDECREF(p1);
-    Py_XDECREF(p2);
+    Py_XDECREF(zero);
     Py_XDECREF(pressed);
     Py_XDECREF(empty);
     return frame;
@@ -940,7 +921,7 @@ steady_step(PyObject *self, PyObject *args)
         frame = prev_frame;
         Py_INCREF(frame);
     } else {
-        frame = compose(prev, PyTuple_GET_ITEM(prev_frame, f_node_id), failsafe, devs, n, views);
+        frame = compose(prev, PyTuple_GET_ITEM(prev_frame, f_node_id), failsafe, devs, n);
         if (frame == NULL) {
             steady = -1;
             goto done;
@@ -1060,7 +1041,6 @@ steady_configure(PyObject *self, PyObject *args)
         || index_of(fields, "view.devices", &v_devices) < 0
         || index_of(fields, "view.base_axes", &v_base_axes) < 0
         || index_of(fields, "view.base_unsigned", &v_base_unsigned) < 0
-        || index_of(fields, "view.waiting_for", &v_waiting_for) < 0
         || index_of(fields, "frame.node_id", &f_node_id) < 0
         || index_of(fields, "frame.failsafe", &f_failsafe) < 0
         || index_of(fields, "device.inputs", &d_inputs) < 0

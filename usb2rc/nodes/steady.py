@@ -49,7 +49,7 @@ Plan = tuple[int, Any, tuple[Any, ...], tuple[tuple[Any, ...], ...], list[NodeVi
 _READ: dict[str, tuple[Any, tuple[str, ...]]] = {
     "record": (reader.ReaderRecord, ("state", "reports", "at", "press_serial",
                                      "refused_in_a_row", "bad_spells", "repeats")),
-    "view": (NodeView, ("frame", "devices", "base_axes", "base_unsigned", "waiting_for")),
+    "view": (NodeView, ("frame", "devices", "base_axes", "base_unsigned")),
     "frame": (NodeFrame, ("node_id", "failsafe")),
     "device": (DeviceView, ("inputs", "live")),
     "inputs": (NodeInputs, ("axes", "group1", "group2", "handover", "low_battery")),
