@@ -17,7 +17,9 @@ drains, `--nodes` T.16000M devices whose readers' records change every tick (as 
 Reader: a pulled `DeviceReader`'s `pull()` (its drain and publish) of `--batch` queued
 T.16000M reports (a device whose `read` costs nothing, so this is the reader's and the
 decoder's share):
-- `reader_pull_hot_us` (best of `--runs` means), `reader_pull_paced_us` (one every 10 ms).
+- `reader_pull_hot_us` (best of `--runs` means), `reader_pull_paced_us` (one every 10 ms);
+- `replay_pull_c_paced_us`, `replay_pull_python_paced_us`: the pull of a real replay device
+  playing at 1 kHz, one every 10 ms, compiled (`_speedups.pull`) and in Python.
 
     .venv/bin/python bench/bench_hot_paths.py [--nodes 4] [--ticks 2000] [--paced 250]
 """
@@ -200,6 +202,37 @@ def reader_figures(batch: int, pulls: int, runs: int, paced_pulls: int) -> dict[
     }
 
 
+def replay_pull_figures(paced_pulls: int) -> dict[str, float]:
+    """A pulled reader's pull of a real replay device playing a T.16000M at 1 kHz (random
+    axes and buttons), one every 10 ms (about ten reports each), compiled
+    (`_speedups.pull`, where built) and in Python: the replay backend's share included."""
+    states = [
+        StickState(x=(7 * i) % 16384, y=(13 * i) % 16384, buttons=(37 * i) % 256)
+        for i in range(int(paced_pulls * 10 * 1.5) + 100)
+    ]
+    figures: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        install_file(Path(tmp) / "s.hid", recording(states, 0.001, rest_s=0.001))
+        for path in ("c", "python"):
+            backend = ReplayBackend(tmp)
+            device = backend.open(backend.enumerate()[0])
+            decoder = parse_descriptor(device.report_descriptor()).make_decoder()
+            reader = DeviceReader(device, decoder, lambda r, c: None, pulled=True)
+            if path == "python":
+                reader._c_pull = None
+            elif reader._c_pull is None:
+                continue  # the C loops are not built here
+            costs = []
+            for _ in range(paced_pulls):
+                time.sleep(0.01)
+                began = time.thread_time()
+                reader.pull()
+                costs.append(time.thread_time() - began)
+            device.close()
+            figures[f"replay_pull_{path}_paced_us"] = statistics.median(costs) * 1e6
+    return figures
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--nodes", type=int, default=4)
@@ -223,8 +256,9 @@ def main() -> None:
         os.close(master)
         os.close(slave)
     figures.update(reader_figures(args.batch, args.ticks, args.runs, args.paced))
+    figures.update(replay_pull_figures(args.paced))
     for name, value in figures.items():
-        print(f"{name:24s} {value:8.1f} µs")
+        print(f"{name:28s} {value:8.1f} µs")
     print(json.dumps({"bench": "hot_paths", "nodes": args.nodes, "figures": figures}))
 
 

@@ -40,6 +40,12 @@
  * when each is due, start + t / speed, never before the one before it nor before `floor` (a
  * running maximum from `floor`); the last due. Events.take(now, limit): the reports due at
  * `now`, at most `limit`, from the first not taken. `recording.EventList` is its Python twin.
+ *
+ * pull(reader, device, now, limit, kept, bad_limit): a pulled reader's pull of a replay
+ * device in one call (below): the reports due taken from the packed batches in place,
+ * drained as Plan.drain drains them, counted and published as the reader's Python pull
+ * does, on the reader's, decoder's and device's own fields. tests/test_compiled_pull.py
+ * holds it to the Python pull.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -47,6 +53,7 @@
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
+#include <time.h>
 
 typedef struct {
     Py_ssize_t index;
@@ -71,6 +78,8 @@ typedef struct {
     Button *buttons;
     Py_ssize_t n_buttons;
 } Report;
+
+static PyTypeObject PlanType;
 
 typedef struct {
     PyObject_HEAD
@@ -788,11 +797,714 @@ static PyTypeObject EventsType = {
     .tp_as_sequence = &events_as_sequence,
 };
 
+/* pull(reader, device, now, limit, kept, bad_limit): a pulled reader's pull of a replay
+ * device in one call, the compiled form of `reader.DeviceReader.pull` over
+ * `replay.ReplayDevice.read_due`. It takes the reports due at `now` (at most `limit`) from
+ * the batches in play (packed batches in place; a batch the Python parse made, and the next
+ * block read from the file, through the replay's own methods), decodes each report ID's
+ * last one into the decoder's values, notes every press (the press log keeps `kept`),
+ * counts refused reports (`bad_limit` in a row: in error) and publishes the reader's
+ * record, telling `on_bad_reports` of an edge: the Python pull's steps, on the reader's,
+ * the decoder's and the device's own fields (it keeps no state of its own).
+ * True: pulled (or nothing due, or the reader closed). False: declined before anything was
+ * written: the device lock is taken (a close in progress), or the replay owes a read error
+ * (a fault due, the file gone, the device closed); the Python pull then runs and raises it.
+ * None: never (the decoder has no C plan, or the reader no button decoder). */
+
+static PyObject *str_device_lock, *str_acquire, *str_release, *str_closed, *str_pull_error,
+    *str_press_decoder, *str_refused_in_a_row, *str_last_report, *str_repeats, *str_reports,
+    *str_bad_reports, *str_record, *str_presses, *str_press_serial, *str_bad_spells,
+    *str_c_plan, *str_values, *str_buttons, *str_state, *str_dec_reports, *str_dec_bad_reports,
+    *str_quiet_until, *str_set, *str_batch, *str_busy_s, *str_fault_due,
+    *str_gone, *str_refill, *str_left, *str_on_bad_reports,
+    *str_field_values, *str_field_buttons;
+
+static int
+intern_pull_names(void)
+{
+    struct {
+        PyObject **slot;
+        const char *text;
+    } names[] = {
+        {&str_device_lock, "_device_lock"}, {&str_acquire, "acquire"},
+        {&str_release, "release"}, {&str_closed, "_closed"},
+        {&str_pull_error, "_pull_error"}, {&str_press_decoder, "_press_decoder"},
+        {&str_refused_in_a_row, "_refused_in_a_row"}, {&str_last_report, "_last_report"},
+        {&str_repeats, "_repeats"}, {&str_reports, "_reports"},
+        {&str_bad_reports, "_bad_reports"}, {&str_record, "record"},
+        {&str_presses, "_presses"}, {&str_press_serial, "_press_serial"},
+        {&str_bad_spells, "_bad_spells"}, {&str_c_plan, "_c_plan"},
+        {&str_values, "_values"}, {&str_buttons, "_buttons"}, {&str_state, "_state"},
+        {&str_dec_reports, "reports"}, {&str_dec_bad_reports, "bad_reports"},
+        {&str_quiet_until, "_quiet_until"}, {&str_set, "_set"}, {&str_batch, "_batch"},
+        {&str_busy_s, "busy_s"},
+        {&str_fault_due, "_fault_due"}, {&str_gone, "_gone"},
+        {&str_refill, "_refill"}, {&str_left, "left"},
+        {&str_on_bad_reports, "on_bad_reports"},
+        {&str_field_values, "values"}, {&str_field_buttons, "buttons"},
+    };
+    for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
+        if ((*names[i].slot = PyUnicode_InternFromString(names[i].text)) == NULL) {
+            return -1;
+        }
+    }
+    return 0;
+}
+
+/* obj.name as a double; -1 with an exception. */
+static int
+attr_double(PyObject *obj, PyObject *name, double *out)
+{
+    PyObject *v = PyObject_GetAttr(obj, name);
+    if (v == NULL) {
+        return -1;
+    }
+    *out = PyFloat_AsDouble(v);
+    Py_DECREF(v);
+    return *out == -1.0 && PyErr_Occurred() ? -1 : 0;
+}
+
+/* obj.name as a Py_ssize_t; -1 with an exception. */
+static int
+attr_ssize(PyObject *obj, PyObject *name, Py_ssize_t *out)
+{
+    PyObject *v = PyObject_GetAttr(obj, name);
+    if (v == NULL) {
+        return -1;
+    }
+    *out = PyLong_AsSsize_t(v);
+    Py_DECREF(v);
+    return *out == -1 && PyErr_Occurred() ? -1 : 0;
+}
+
+/* obj.name = value (a new reference, taken); -1 with an exception. */
+static int
+attr_set_new(PyObject *obj, PyObject *name, PyObject *value)
+{
+    if (value == NULL) {
+        return -1;
+    }
+    int rc = PyObject_SetAttr(obj, name, value);
+    Py_DECREF(value);
+    return rc;
+}
+
+/* obj.name += add (an int); -1 with an exception. */
+static int
+attr_add(PyObject *obj, PyObject *name, Py_ssize_t add)
+{
+    Py_ssize_t v;
+    if (attr_ssize(obj, name, &v) < 0) {
+        return -1;
+    }
+    return attr_set_new(obj, name, PyLong_FromSsize_t(v + add));
+}
+
+/* obj.name += add (a float); -1 with an exception. */
+static int
+attr_add_double(PyObject *obj, PyObject *name, double add)
+{
+    double v;
+    if (attr_double(obj, name, &v) < 0) {
+        return -1;
+    }
+    return attr_set_new(obj, name, PyFloat_FromDouble(v + add));
+}
+
+/* obj.name is truthy: 1, 0, or -1 with an exception. */
+static int
+attr_true(PyObject *obj, PyObject *name)
+{
+    PyObject *v = PyObject_GetAttr(obj, name);
+    if (v == NULL) {
+        return -1;
+    }
+    int truth = PyObject_IsTrue(v);
+    Py_DECREF(v);
+    return truth;
+}
+
+static double
+monotonic_now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + (double)ts.tv_nsec * 1e-9;
+}
+
+#define MAX_TAKE 1024 /* reports a pull takes at most (the reader's MAX_BATCH is less) */
+
+/* A pull in progress: what it took and what it made of it. */
+typedef struct {
+    PyObject *decoder, *plan, *values, *held; /* held: what keeps the taken reports alive */
+    const unsigned char *report[MAX_TAKE];
+    Py_ssize_t length[MAX_TAKE], n;
+    uint64_t mask, pressed[MAX_TAKE];
+    Py_ssize_t presses, refused, last_of[256];
+    double taken_at; /* when the reports due were taken: the replay's own part ends */
+} Pull;
+
+static void
+pull_clear(Pull *s)
+{
+    Py_CLEAR(s->decoder);
+    Py_CLEAR(s->plan);
+    Py_CLEAR(s->values);
+    Py_CLEAR(s->held);
+}
+
+/* The replay's gone check when it is due, as `ReplayDevice.read_due` makes it (a stat at
+ * most every GONE_CHECK_S, DeviceGone raised once the file is gone); then whether the
+ * replay may hand reports over now: 1 yes, 0 no (its read raises: a fault due, the file
+ * gone, the device closed), -1 with an exception. */
+static int
+replay_ready(PyObject *device, double now)
+{
+    double quiet_until, fault_due;
+    if (attr_double(device, str_quiet_until, &quiet_until) < 0) {
+        return -1;
+    }
+    if (!(now < quiet_until)) {
+        PyObject *gone = PyObject_GetAttr(device, str_gone);
+        if (gone == NULL || attr_double(device, str_fault_due, &fault_due) < 0) {
+            Py_XDECREF(gone);
+            return -1;
+        }
+        int known_gone = gone != Py_None;
+        Py_DECREF(gone);
+        if (quiet_until <= now && now < fault_due && !known_gone) {
+            PyObject *done = PyObject_CallMethod(device, "_check_gone", "d", now);
+            if (done == NULL) {
+                return -1;
+            }
+            Py_DECREF(done);
+        }
+        if (attr_double(device, str_quiet_until, &quiet_until) < 0) {
+            return -1;
+        }
+        if (!(now < quiet_until)) {
+            return 0;
+        }
+    }
+    PyObject *flag = PyObject_GetAttr(device, str_closed);
+    if (flag == NULL) {
+        return -1;
+    }
+    int closed = attr_true(flag, str_set);
+    Py_DECREF(flag);
+    return closed < 0 ? -1 : !closed;
+}
+
+/* A report taken: kept for the decode (its owner is in s->held). */
+static void
+took(Pull *s, const unsigned char *p, Py_ssize_t len)
+{
+    s->report[s->n] = p;
+    s->length[s->n] = len;
+    s->n++;
+}
+
+/* One batch's reports due, at most `room`: a packed batch's in place, another's through its
+ * `take`; 1 when the batch holds more (the next is not due, or the room is used up), 0
+ * when it is spent, -1 with an exception. */
+static int
+take_from(Pull *s, PyObject *batch, double now, Py_ssize_t room)
+{
+    if (PyList_Append(s->held, batch) < 0) {
+        return -1;
+    }
+    if (PyObject_TypeCheck(batch, &EventsType)) {
+        EventsObject *events = (EventsObject *)batch;
+        Py_ssize_t k = events->next;
+        for (; k < events->n && k - events->next < room && events->dues[k] <= now; k++) {
+            took(s, events->blob + events->starts[k], events->starts[k + 1] - events->starts[k]);
+        }
+        events->next = k;
+        return k < events->n;
+    }
+    PyObject *taken = PyObject_CallMethod(batch, "take", "dn", now, room);
+    if (taken == NULL || PyList_Append(s->held, taken) < 0) {
+        Py_XDECREF(taken);
+        return -1;
+    }
+    Py_ssize_t count = PyList_Check(taken) ? PyList_GET_SIZE(taken) : -1;
+    for (Py_ssize_t i = 0; i < count && i < room; i++) {
+        PyObject *report = PyList_GET_ITEM(taken, i);
+        if (!PyBytes_Check(report)) {
+            count = -1;
+            break;
+        }
+        took(s, (const unsigned char *)PyBytes_AS_STRING(report), PyBytes_GET_SIZE(report));
+    }
+    Py_DECREF(taken);
+    if (count < 0 || count > room) {
+        PyErr_SetString(PyExc_TypeError, "a batch's take gives at most room reports, as bytes");
+        return -1;
+    }
+    Py_ssize_t left;
+    return attr_ssize(batch, str_left, &left) < 0 ? -1 : left > 0;
+}
+
+/* The reports due, as `ReplayDevice.read_due(limit)` takes them: from the batch in play, the
+ * next block read when it is spent (`_refill`), until one is not due or `limit` are taken.
+ * 0, or -1 with an exception. */
+static int
+take_due(PyObject *device, double now, Py_ssize_t limit, Pull *s)
+{
+    while (s->n < limit) {
+        PyObject *batch = PyObject_GetAttr(device, str_batch);
+        if (batch == NULL) {
+            return -1;
+        }
+        Py_ssize_t left = 0;
+        int more = 0;
+        if (PyObject_TypeCheck(batch, &EventsType)) {
+            left = ((EventsObject *)batch)->n - ((EventsObject *)batch)->next;
+        } else if (attr_ssize(batch, str_left, &left) < 0) {
+            Py_DECREF(batch);
+            return -1;
+        }
+        if (left > 0) {
+            more = take_from(s, batch, now, limit - s->n);
+            Py_DECREF(batch);
+            if (more != 0) {
+                return more < 0 ? -1 : 0; /* the next one is not due yet (or the limit) */
+            }
+            continue;
+        }
+        Py_DECREF(batch);
+        PyObject *refilled = PyObject_CallMethodNoArgs(device, str_refill);
+        int next = refilled == NULL ? -1 : PyObject_IsTrue(refilled);
+        Py_XDECREF(refilled);
+        if (next <= 0) {
+            return next; /* no batch left (or its block is bad: the next read says so) */
+        }
+    }
+    return 0;
+}
+
+/* The reports taken, scanned as `plan.drain(..., edges=True)` takes them: the refused ones
+ * counted, each report ID's last accepted one found, the mask after them, and the buttons
+ * each accepted report pressed, for each that pressed one. */
+static void
+scan(Pull *s)
+{
+    const PlanObject *plan = (const PlanObject *)s->plan;
+    for (Py_ssize_t i = 0; i < plan->n_reports; i++) {
+        s->last_of[i] = -1;
+    }
+    s->presses = s->refused = 0;
+    for (Py_ssize_t k = 0; k < s->n; k++) {
+        const unsigned char *p = s->report[k];
+        Py_ssize_t len = s->length[k];
+        int which = plan->uses_ids ? (len > 0 ? plan->by_id[p[0]] : -1) : 0;
+        if (which < 0 || len < plan->reports[which].length) {
+            s->refused++;
+            continue;
+        }
+        const Report *r = &plan->reports[which];
+        uint64_t b = report_buttons(r, p, len) | (s->mask & r->keep);
+        if (b & ~s->mask) {
+            s->pressed[s->presses++] = b & ~s->mask;
+        }
+        s->mask = b;
+        s->last_of[which] = k;
+    }
+}
+
+/* Reports taken byte for byte the same as the one before (the first against `before`), as
+ * the reader counts `repeats`. */
+static Py_ssize_t
+count_repeats(const Pull *s, PyObject *before)
+{
+    const unsigned char *prev = (const unsigned char *)PyBytes_AS_STRING(before);
+    Py_ssize_t prev_len = PyBytes_GET_SIZE(before), repeats = 0;
+    for (Py_ssize_t k = 0; k < s->n; k++) {
+        repeats += s->length[k] == prev_len && memcmp(s->report[k], prev, (size_t)prev_len) == 0;
+        prev = s->report[k];
+        prev_len = s->length[k];
+    }
+    return repeats;
+}
+
+/* Every press noted, as `DeviceReader._note_presses`: the press log the last `kept` of the
+ * old one and these, the serial on by their count. */
+static int
+note_presses(PyObject *reader, const Pull *s, Py_ssize_t kept)
+{
+    PyObject *old = PyObject_GetAttr(reader, str_presses);
+    if (old == NULL) {
+        return -1;
+    }
+    if (!PyTuple_Check(old)) {
+        Py_DECREF(old);
+        PyErr_SetString(PyExc_TypeError, "a reader's presses are a tuple");
+        return -1;
+    }
+    Py_ssize_t n_old = PyTuple_GET_SIZE(old), total = n_old + s->presses;
+    Py_ssize_t skip = total > kept ? total - kept : 0, size = total - skip;
+    PyObject *log = PyTuple_New(size);
+    for (Py_ssize_t i = 0; log != NULL && i < size; i++) {
+        Py_ssize_t at = skip + i;
+        PyObject *item = at < n_old ? Py_NewRef(PyTuple_GET_ITEM(old, at))
+                                    : PyLong_FromUnsignedLongLong(s->pressed[at - n_old]);
+        if (item == NULL) {
+            Py_CLEAR(log);
+            break;
+        }
+        PyTuple_SET_ITEM(log, i, item);
+    }
+    Py_DECREF(old);
+    if (log == NULL) {
+        return -1;
+    }
+    if (attr_add(reader, str_press_serial, s->presses) < 0) {
+        Py_DECREF(log);
+        return -1;
+    }
+    return attr_set_new(reader, str_presses, log);
+}
+
+/* What the decoder takes from the batch, as `ReportDecoder.feed_presses` with the C drain:
+ * each report ID's last accepted report decoded into its values, its mask and counts. */
+static int
+decode(Pull *s)
+{
+    const PlanObject *plan = (const PlanObject *)s->plan;
+    for (Py_ssize_t k = 0; k < plan->n_reports; k++) {
+        Py_ssize_t at = s->last_of[k];
+        if (at >= 0 && decode_values(&plan->reports[k], s->report[at], s->length[at], s->values) < 0) {
+            return -1;
+        }
+    }
+    Py_ssize_t accepted = s->n - s->refused;
+    if (accepted
+        && (attr_set_new(s->decoder, str_buttons, PyLong_FromUnsignedLongLong(s->mask)) < 0
+            || PyObject_SetAttr(s->decoder, str_state, Py_None) < 0)) {
+        return -1;
+    }
+    return attr_add(s->decoder, str_dec_reports, accepted) < 0
+                   || attr_add(s->decoder, str_dec_bad_reports, s->refused) < 0
+               ? -1
+               : 0;
+}
+
+/* The reader's counts after the batch, as `DeviceReader._drain` and `_count_refused`. */
+static int
+count(PyObject *reader, const Pull *s, Py_ssize_t kept, Py_ssize_t bad_limit)
+{
+    Py_ssize_t accepted = s->n - s->refused, in_a_row;
+    if (s->presses && note_presses(reader, s, kept) < 0) {
+        return -1;
+    }
+    if (!s->refused) { /* a run of the same refused report is no sign of streaming */
+        PyObject *before = PyObject_GetAttr(reader, str_last_report);
+        if (before == NULL) {
+            return -1;
+        }
+        Py_ssize_t repeats = PyBytes_Check(before) ? count_repeats(s, before) : -1;
+        Py_DECREF(before);
+        if (repeats < 0) {
+            PyErr_SetString(PyExc_TypeError, "a reader's last report is bytes");
+            return -1;
+        }
+        if (attr_add(reader, str_repeats, repeats) < 0) {
+            return -1;
+        }
+    }
+    PyObject *last = PyBytes_FromStringAndSize((const char *)s->report[s->n - 1],
+                                               s->length[s->n - 1]);
+    if (attr_set_new(reader, str_last_report, last) < 0 || attr_add(reader, str_reports, accepted) < 0
+        || attr_add(reader, str_bad_reports, s->refused) < 0) {
+        return -1;
+    }
+    if (accepted) {
+        return attr_set_new(reader, str_refused_in_a_row, PyLong_FromLong(0));
+    }
+    if (attr_ssize(reader, str_refused_in_a_row, &in_a_row) < 0
+        || attr_set_new(reader, str_refused_in_a_row, PyLong_FromSsize_t(in_a_row + s->refused))
+               < 0) {
+        return -1;
+    }
+    if (in_a_row < bad_limit && bad_limit <= in_a_row + s->refused) {
+        return attr_add(reader, str_bad_spells, 1);
+    }
+    return 0;
+}
+
+/* A record's field `i` as a Py_ssize_t; -1 with an exception. */
+static int
+field_ssize(PyObject *record, Py_ssize_t i, Py_ssize_t *out)
+{
+    *out = PyLong_AsSsize_t(PyTuple_GET_ITEM(record, i));
+    return *out == -1 && PyErr_Occurred() ? -1 : 0;
+}
+
+enum { R_REPORTS = 1, R_BAD = 2, R_AT = 3, R_IN_A_ROW = 6, R_SPELLS = 7, R_FIELDS = 9 };
+
+/* The decoder's state, as `ReportDecoder.state()`: its last one while its values did not
+ * change, else a new InputState (of the class of `like`, the last record's) of its values
+ * and mask, kept as its last. Made as the frozen dataclass's __init__ makes it (its two
+ * fields set through object.__setattr__), without running Python code. */
+static PyObject *
+decoder_state(PyObject *decoder, PyObject *like)
+{
+    PyObject *state = PyObject_GetAttr(decoder, str_state);
+    if (state == NULL || state != Py_None) {
+        return state;
+    }
+    Py_DECREF(state);
+    PyObject *values = PyObject_GetAttr(decoder, str_values);
+    PyObject *buttons = PyObject_GetAttr(decoder, str_buttons);
+    PyObject *frozen = values == NULL ? NULL : PySequence_Tuple(values);
+    PyObject *none = PyTuple_New(0);
+    state = frozen == NULL || buttons == NULL || none == NULL
+                ? NULL
+                : PyBaseObject_Type.tp_new(Py_TYPE(like), none, NULL);
+    if (state != NULL
+        && (PyObject_GenericSetAttr(state, str_field_values, frozen) < 0
+            || PyObject_GenericSetAttr(state, str_field_buttons, buttons) < 0
+            || PyObject_SetAttr(decoder, str_state, state) < 0)) {
+        Py_CLEAR(state);
+    }
+    Py_XDECREF(values);
+    Py_XDECREF(buttons);
+    Py_XDECREF(frozen);
+    Py_XDECREF(none);
+    return state;
+}
+
+/* A ReaderRecord (`cls`, a NamedTuple) of `fields`, as its __new__ makes it (tuple.__new__),
+ * without running Python code. */
+static PyObject *
+new_record(PyTypeObject *cls, PyObject *const *fields)
+{
+    PyObject *items = PyTuple_New(R_FIELDS);
+    if (items == NULL) {
+        return NULL;
+    }
+    for (int i = 0; i < R_FIELDS; i++) {
+        PyTuple_SET_ITEM(items, i, Py_NewRef(fields[i]));
+    }
+    PyObject *args = PyTuple_Pack(1, items);
+    Py_DECREF(items);
+    if (args == NULL) {
+        return NULL;
+    }
+    PyObject *record = PyTuple_Type.tp_new(cls, args, NULL);
+    Py_DECREF(args);
+    return record;
+}
+
+/* The reader's record published anew when its counts changed, as `DeviceReader._publish`;
+ * `on_bad_reports` told of an edge. */
+static int
+publish(PyObject *reader, PyObject *decoder, double now, Py_ssize_t bad_limit)
+{
+    static PyObject *const *fields[] = {&str_reports, &str_bad_reports, NULL,
+                                        &str_presses, &str_press_serial, &str_refused_in_a_row,
+                                        &str_bad_spells, &str_repeats};
+    PyObject *last = PyObject_GetAttr(reader, str_record), *record = NULL;
+    PyObject *args[R_FIELDS] = {NULL};
+    Py_ssize_t reports, bad, last_reports, last_bad, v[4];
+    int rc = -1;
+    if (last == NULL || attr_ssize(reader, str_reports, &reports) < 0
+        || attr_ssize(reader, str_bad_reports, &bad) < 0) {
+        goto done;
+    }
+    if (!PyTuple_Check(last) || PyTuple_GET_SIZE(last) != R_FIELDS) {
+        PyErr_SetString(PyExc_TypeError, "a reader's record is a ReaderRecord");
+        goto done;
+    }
+    if (field_ssize(last, R_REPORTS, &last_reports) < 0 || field_ssize(last, R_BAD, &last_bad) < 0) {
+        goto done;
+    }
+    if (last_reports == reports && last_bad == bad) {
+        rc = 0;
+        goto done;
+    }
+    args[0] = decoder_state(decoder, PyTuple_GET_ITEM(last, 0));
+    for (int i = 0; args[i] != NULL && i < R_FIELDS - 1; i++) {
+        if (fields[i] != NULL) {
+            args[i + 1] = PyObject_GetAttr(reader, *fields[i]);
+        } else if (reports != last_reports) {
+            args[i + 1] = PyFloat_FromDouble(now);
+        } else {
+            args[i + 1] = Py_NewRef(PyTuple_GET_ITEM(last, R_AT));
+        }
+    }
+    if (args[R_FIELDS - 1] == NULL || (record = new_record(Py_TYPE(last), args)) == NULL
+        || PyObject_SetAttr(reader, str_record, record) < 0) {
+        goto done;
+    }
+    if (field_ssize(record, R_IN_A_ROW, &v[0]) < 0 || field_ssize(last, R_IN_A_ROW, &v[1]) < 0
+        || field_ssize(record, R_SPELLS, &v[2]) < 0 || field_ssize(last, R_SPELLS, &v[3]) < 0) {
+        goto done;
+    }
+    int edge = v[2] != v[3] || (v[0] != v[1] && (v[0] >= bad_limit) != (v[1] >= bad_limit));
+    rc = 0;
+    if (edge) {
+        PyObject *tell = PyObject_GetAttr(reader, str_on_bad_reports);
+        if (tell == NULL) {
+            rc = -1;
+        } else if (tell != Py_None) {
+            PyObject *told = PyObject_CallFunctionObjArgs(tell, reader, record, NULL);
+            rc = told == NULL ? -1 : 0;
+            Py_XDECREF(told);
+        }
+        Py_XDECREF(tell);
+    }
+done:
+    for (int i = 0; i < R_FIELDS; i++) {
+        Py_XDECREF(args[i]);
+    }
+    Py_XDECREF(record);
+    Py_XDECREF(last);
+    return rc;
+}
+
+/* The decoder the pull feeds, its C plan, its values and mask: 1, 0 (never: no button
+ * decoder, or no C plan), -1 with an exception. */
+static int
+pull_decoder(PyObject *reader, Pull *s)
+{
+    if ((s->decoder = PyObject_GetAttr(reader, str_press_decoder)) == NULL) {
+        return -1;
+    }
+    if (s->decoder == Py_None) {
+        return 0;
+    }
+    if ((s->plan = PyObject_GetAttr(s->decoder, str_c_plan)) == NULL) {
+        return -1;
+    }
+    if (!PyObject_TypeCheck(s->plan, &PlanType)) {
+        return 0;
+    }
+    PyObject *buttons = PyObject_GetAttr(s->decoder, str_buttons);
+    if (buttons == NULL) {
+        return -1;
+    }
+    s->mask = PyLong_AsUnsignedLongLong(buttons);
+    Py_DECREF(buttons);
+    if (s->mask == (uint64_t)-1 && PyErr_Occurred()) {
+        return -1;
+    }
+    if ((s->values = PyObject_GetAttr(s->decoder, str_values)) == NULL) {
+        return -1;
+    }
+    return PyList_Check(s->values) ? 1 : 0;
+}
+
+/* The pull under the device lock: 1 pulled, 0 declined, -2 never, -1 with an exception. */
+static int
+pull_locked(PyObject *reader, PyObject *device, double now, const Py_ssize_t *limits,
+            Pull *s)
+{
+    int gone = attr_true(reader, str_closed);
+    if (gone == 0) {
+        PyObject *error = PyObject_GetAttr(reader, str_pull_error);
+        gone = error == NULL ? -1 : error != Py_None;
+        Py_XDECREF(error);
+    }
+    if (gone != 0) {
+        return gone < 0 ? -1 : 1; /* closed, or a pull failed: nothing more, as in Python */
+    }
+    int ready = pull_decoder(reader, s);
+    if (ready <= 0) {
+        return ready < 0 ? -1 : -2;
+    }
+    double started = monotonic_now();
+    if ((ready = replay_ready(device, now)) <= 0) {
+        return ready;
+    }
+    if ((s->held = PyList_New(0)) == NULL || take_due(device, now, limits[0], s) < 0) {
+        return -1;
+    }
+    s->taken_at = monotonic_now();
+    if (attr_add_double(device, str_busy_s, s->taken_at - started) < 0) {
+        return -1;
+    }
+    if (s->n == 0) {
+        return 1;
+    }
+    scan(s);
+    if (decode(s) < 0 || count(reader, s, limits[1], limits[2]) < 0
+        || publish(reader, s->decoder, now, limits[2]) < 0) {
+        return -1;
+    }
+    return 1;
+}
+
+static PyObject *
+pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)module;
+    double now;
+    Py_ssize_t limits[3]; /* limit, kept, bad_limit */
+    if (nargs != 6) {
+        PyErr_SetString(PyExc_TypeError, "pull(reader, device, now, limit, kept, bad_limit)");
+        return NULL;
+    }
+    if ((now = PyFloat_AsDouble(args[2])) == -1.0 && PyErr_Occurred()) {
+        return NULL;
+    }
+    for (int i = 0; i < 3; i++) {
+        if ((limits[i] = PyLong_AsSsize_t(args[3 + i])) == -1 && PyErr_Occurred()) {
+            return NULL;
+        }
+    }
+    if (limits[0] < 1 || limits[0] > MAX_TAKE || limits[1] < 1 || limits[2] < 1) {
+        PyErr_SetString(PyExc_ValueError, "pull: limit 1..1024, kept and bad_limit 1 or more");
+        return NULL;
+    }
+    PyObject *reader = args[0], *device = args[1];
+    PyObject *lock = PyObject_GetAttr(reader, str_device_lock);
+    if (lock == NULL) {
+        return NULL;
+    }
+    PyObject *got = PyObject_CallMethodOneArg(lock, str_acquire, Py_False);
+    int locked = got == NULL ? -1 : PyObject_IsTrue(got);
+    Py_XDECREF(got);
+    if (locked <= 0) {
+        Py_DECREF(lock);
+        if (locked < 0) {
+            return NULL;
+        }
+        Py_RETURN_FALSE; /* a close in progress: the Python pull waits for it */
+    }
+    Pull s; /* not zeroed whole: its arrays are written before they are read */
+    s.decoder = s.plan = s.values = s.held = NULL;
+    s.n = 0;
+    int rc = pull_locked(reader, device, now, limits, &s);
+    pull_clear(&s);
+    PyObject *type, *value, *traceback;
+    PyErr_Fetch(&type, &value, &traceback);
+    PyObject *released = PyObject_CallMethodNoArgs(lock, str_release);
+    Py_DECREF(lock);
+    if (released == NULL) {
+        Py_XDECREF(type);
+        Py_XDECREF(value);
+        Py_XDECREF(traceback);
+        return NULL;
+    }
+    Py_DECREF(released);
+    if (rc == -1) {
+        PyErr_Restore(type, value, traceback);
+        return NULL;
+    }
+    if (rc == -2) {
+        Py_RETURN_NONE;
+    }
+    return PyBool_FromLong(rc);
+}
+
 static PyMethodDef module_methods[] = {
     {"parse_events", parse_events, METH_O,
      "parse_events(lines) -> (times, reports), or None: not every line as hid-recorder writes"},
     {"parse_packed", parse_packed, METH_O,
      "parse_packed(text) -> (events, end, lines), or None: a line not as written"},
+    {"pull", (PyCFunction)(void (*)(void))pull, METH_FASTCALL,
+     "pull(reader, device, now, limit, kept, bad_limit) -> True pulled, False declined, None never"},
     {NULL, NULL, 0, NULL},
 };
 
@@ -826,6 +1538,9 @@ PyMODINIT_FUNC
 PyInit__speedups(void)
 {
     fill_hex_values();
+    if (intern_pull_names() < 0) {
+        return NULL;
+    }
     if (PyType_Ready(&PlanType) < 0 || PyType_Ready(&EventsType) < 0) {
         return NULL;
     }

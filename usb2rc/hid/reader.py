@@ -15,7 +15,10 @@ is noted). A 1 kHz device then costs one short drain per step and no wake-up at 
 kernel (or the replay backend) queues the reports meanwhile, as hidraw does for 64 of them.
 The thread only holds the device: it waits for `stop()` or for a failure a pull met, which it
 then reports as its own read would (`on_exit`), and it closes the device; a pull and the
-close never overlap (`_device_lock`), and a pull after the close does nothing.
+close never overlap (`_device_lock`), and a pull after the close does nothing. A replay
+device's pull runs in one C call where the HID stage's C loops are built
+(`_speedups.pull`: the same steps on this reader's own fields; it hands the pull back to
+Python when the lock is taken or the replay owes a read error).
 
 Outputs (pulled readers only): `post_output(driver, state)` leaves the newest state a device
 should show in a mailbox (the feedback thread's call; a newer post replaces one not written
@@ -50,6 +53,7 @@ from collections.abc import Callable, Sequence
 from functools import reduce
 from typing import NamedTuple, Protocol, runtime_checkable
 
+from usb2rc.hid import speedups
 from usb2rc.hid.backend import Device, DeviceGone, ErrorCode, OutputPort
 from usb2rc.hid.descriptor import InputState
 from usb2rc.hid.outputs import OutputDriver, OutputState
@@ -165,6 +169,9 @@ class DeviceReader(Worker):
         self._press_decoder = decoder if isinstance(decoder, ButtonsDecoder) else None
         # the replay backend's `read_due` (everything due, in one call), if the device has it
         self._read_due: Callable[[int], list[bytes]] | None = getattr(device, "read_due", None)
+        # the compiled steady pull of a replay device (usb2rc.hid._speedups.pull), if built
+        c_loops = speedups.compiled()
+        self._c_pull = c_loops.pull if c_loops is not None and self._read_due is not None else None
         self._last_report = b""  # the raw report before, for `repeats`
         self._repeats = 0
         self._presses: tuple[int, ...] = ()
@@ -315,6 +322,20 @@ class DeviceReader(Worker):
         before it). Not pulled: nothing (the thread reads)."""
         if not self._pulled:
             return
+        c_pull = self._c_pull
+        if c_pull is not None:
+            try:
+                pulled = c_pull(
+                    self, self.device, time.monotonic(), MAX_BATCH, PRESSES_KEPT, BAD_REPORTS_LIMIT
+                )
+            except Exception as exc:
+                with self._device_lock:
+                    self._pull_failed(exc)
+                return
+            if pulled:
+                return
+            if pulled is None:  # never compiled for this device: the Python pull from now on
+                self._c_pull = None
         with self._device_lock:
             if self._closed or self._pull_error is not None:
                 return
@@ -323,9 +344,15 @@ class DeviceReader(Worker):
                 if batch:
                     self._drain(batch)
                     self._publish()
-            except Exception as exc:  # the thread reports it (on_exit), as its own read would
-                self._pull_error = exc
-                self._woken.set()
+            except Exception as exc:
+                self._pull_failed(exc)
+
+    def _pull_failed(self, exc: Exception) -> None:
+        """The thread reports what a pull met (on_exit), as its own read would (under
+        `_device_lock`)."""
+        if not self._closed and self._pull_error is None:
+            self._pull_error = exc
+            self._woken.set()
 
     def stop(self) -> None:
         super().stop()

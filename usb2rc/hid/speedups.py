@@ -3,7 +3,8 @@ where a C compiler and Python's headers are (a bare Pi may have neither).
 
 `compiled()` is the built module, or None: not built, or switched off by PURE_PYTHON_ENV.
 Each user keeps its Python twin and takes it on None; tests/test_speedups.py holds each C
-function to its twin.
+function to its twin, tests/test_compiled_pull.py the compiled pull of a replay device
+(`_speedups.pull`) to the reader's Python pull.
 """
 
 from __future__ import annotations
