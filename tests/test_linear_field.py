@@ -1,6 +1,7 @@
 """`scaling.linear_field` (the node step's axis scaling) is docs/ICD.md's "Axis scaling" to
 the bit: clamp, `round((v - lo) * 65535 / (hi - lo)) - 32768` with halves to even, worked out
-here with exact fractions; `invert` scales lo + hi - v."""
+here with exact fractions; `invert` scales lo + hi - v. The compiled steady step works it out
+from the function's terms (`scaling.linear_terms`, `_steady.linear_wire`) to the same bit."""
 
 from __future__ import annotations
 
@@ -9,7 +10,17 @@ from fractions import Fraction
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from usb2rc.nodes.scaling import linear_field, scale_linear
+from usb2rc.nodes import steady
+from usb2rc.nodes.scaling import linear_field, linear_terms, scale_linear
+
+
+def compiled_wire(lo: int, hi: int, unsigned: bool, invert: bool, v: int) -> int | None:
+    """What the compiled step works out for field 2 = v (None: not built here, or it would
+    call the function)."""
+    built = steady.compiled()
+    if built is None:
+        return None
+    return built.linear_wire(linear_terms(linear_field(2, lo, hi, unsigned, invert)), (0, 0, v))
 
 
 def by_the_icd(v: int, lo: int, hi: int, unsigned: bool) -> int:
@@ -37,6 +48,10 @@ def test_the_axis_scaling_of_the_icd(
         raw, lo, hi, unsigned
     )
     assert scale_linear(raw, lo, hi, unsigned) == by_the_icd(raw, lo, hi, unsigned)
+    in_c = compiled_wire(lo, hi, unsigned, invert, v)
+    assert in_c is None or in_c == by_the_icd(raw, lo, hi, unsigned)
+    if steady.compiled() is not None and lo < hi and -(1 << 31) <= v < (1 << 31):
+        assert in_c is not None  # every 32-bit field of a real range is worked out in C
 
 
 def test_a_ten_bit_axis_at_its_ends_and_centre() -> None:
@@ -55,3 +70,5 @@ def test_a_half_rounds_to_even() -> None:
     # 1 * 65535 / 6 = 10922.5 and 3 * 65535 / 6 = 32767.5: halves, to the even neighbour
     scale = linear_field(0, 0, 6, unsigned=True)
     assert [scale((1,), 0), scale((3,), 0)] == [10922, 32768]
+    if steady.compiled() is not None:
+        assert [compiled_wire(0, 6, True, False, v) for v in (1, 3)] == [10922, 32768]

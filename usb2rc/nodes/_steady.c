@@ -18,9 +18,11 @@
  *   plan     (layout, node, attached, devices, box) from steady.plan_for: `attached` the
  *            node's _Attached objects when it was made, `devices` one
  *            (binding, runs, kind, suffix) per device: the guard's runs as
- *            (low, high, text, fn, slot, centre, unsigned): the wire values at rest, the
- *            axis's text, the binding's function of that slot (None: the binding does
- *            not feed it), whether it rests at the centre, whether it is unsigned; the
+ *            (low, high, text, fn, slot, centre, unsigned, terms): the wire values at
+ *            rest, the axis's text, the binding's function of that slot (None: the
+ *            binding does not feed it), whether it rests at the centre, whether it is
+ *            unsigned, the function's terms where `scaling.linear_field` made it
+ *            (computed here without calling it; None: it is called); the
  *            kind and the suffix of its reason ("guard X", " (X)"); `box` a one-item list
  *            holding the node's last view
  *   records  the reader records of this step, one per device
@@ -29,6 +31,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <math.h>
+#include <stdint.h>
 #include <string.h>
 
 #define MAX_DEVICES 16 /* a node fed by more takes the Python step */
@@ -40,7 +43,7 @@ static PyObject *s_attached, *s_expected, *s_present, *s_silence_news, *s_bad_sp
     *s_reports, *s_kind, *s_streaming, *s_interval_s, *s_window, *s_seen_reports, *s_since,
     *s_moved_all_of, *s_moved, *s_first, *s_guard, *s_fixed, *s_run_since, *s_plugged, *s_waiting, *s_is_open,
     *s_held_hid, *s_held_groups, *s_counts_from, *s_last_serial, *s_stepped_reasons,
-    *s_unsigned_slots, *s_handover;
+    *s_unsigned_slots, *s_handover, *s_failsafe_of;
 static PyObject *str_on_change, *str_streaming, *str_join;
 
 static PyObject *device_view_cls, *node_view_cls, *node_frame_cls;
@@ -269,6 +272,37 @@ silence_commit(PyObject *watch, PyObject *kind, const Silence *s)
 
 #define MAX_RUNS 16 /* guarded axes of one device (a node has ten slots) */
 
+/* The wire value `scaling.linear_field` gives for the state's `fields` (a tuple), from its
+ * terms (index, lo, hi, offset, invert) as `scaling.linear_terms` gives them: the same
+ * integers, without calling the function. NULL without an exception when it cannot be
+ * worked out here (no terms, a field out of range or too wide): the caller calls it. */
+static PyObject *
+linear_wire(PyObject *terms, PyObject *fields)
+{
+    long long index, lo, hi, offset, v;
+    if (terms == Py_None || !PyTuple_Check(fields) || !PyTuple_Check(terms)
+        || PyTuple_GET_SIZE(terms) != 5 || as_ll(PyTuple_GET_ITEM(terms, 0), &index) < 0
+        || as_ll(PyTuple_GET_ITEM(terms, 1), &lo) < 0 || as_ll(PyTuple_GET_ITEM(terms, 2), &hi) < 0
+        || as_ll(PyTuple_GET_ITEM(terms, 3), &offset) < 0 || index < 0
+        || index >= PyTuple_GET_SIZE(fields) || as_ll(PyTuple_GET_ITEM(fields, index), &v) < 0) {
+        PyErr_Clear();
+        return NULL;
+    }
+    /* HID logical bounds are 32-bit: (v - lo) * 65535 stays far inside 64 bits */
+    if (hi <= lo || lo < INT32_MIN || hi > INT32_MAX || v < INT32_MIN || v > INT32_MAX) {
+        return NULL;
+    }
+    if (PyTuple_GET_ITEM(terms, 4) == Py_True) {
+        v = lo + hi - v;
+    }
+    v = v < lo ? lo : v > hi ? hi : v;
+    long long span = hi - lo, num = (v - lo) * 65535, q = num / span, r = num % span;
+    if (2 * r > span || (2 * r == span && (q & 1))) { /* halves to even, as round_div */
+        q++;
+    }
+    return PyLong_FromLongLong(q - offset);
+}
+
 /* Each guarded axis's wire value in the record's state, as binding.guarded_axes gives it
  * (NULL: the binding does not feed the slot), new references in `values`; the texts of
  * those not at rest (guard.NeutralGuard.waiting_for, no trims) as a new tuple. */
@@ -292,8 +326,11 @@ guard_values(PyObject *runs, PyObject *state, PyObject **values)
         if (fn == Py_None) {
             continue; /* the binding sends nothing on this slot: never outside */
         }
-        PyObject *args[2] = {fields, buttons};
-        PyObject *wire = PyObject_Vectorcall(fn, args, 2, NULL);
+        PyObject *wire = linear_wire(PyTuple_GET_ITEM(run, 7), fields);
+        if (wire == NULL && !PyErr_Occurred()) {
+            PyObject *args[2] = {fields, buttons};
+            wire = PyObject_Vectorcall(fn, args, 2, NULL);
+        }
         long long value, first, last;
         int failed = wire == NULL || as_ll(wire, &value) < 0
                      || as_ll(PyTuple_GET_ITEM(run, 0), &first) < 0
@@ -454,6 +491,24 @@ done:
     return rc;
 }
 
+/* `binding.failsafe(last)`: its memo's value while `last` is the one it was worked out for
+ * (as the method answers it), else the method's answer. */
+static PyObject *
+binding_failsafe(PyObject *binding, PyObject *last)
+{
+    PyObject *memo = PyObject_GetAttr(binding, s_failsafe_of);
+    if (memo == NULL) {
+        return NULL;
+    }
+    if (PyTuple_Check(memo) && PyTuple_GET_SIZE(memo) == 2 && PyTuple_GET_ITEM(memo, 0) == last) {
+        PyObject *inputs = Py_NewRef(PyTuple_GET_ITEM(memo, 1));
+        Py_DECREF(memo);
+        return inputs;
+    }
+    Py_DECREF(memo);
+    return PyObject_CallMethodOneArg(binding, s_failsafe, last);
+}
+
 /* 1: the device is steady (filled in), 0: not (the Python step decides), -1: error */
 static int
 device_check(PyObject *dplan, PyObject *attached, PyObject *record, PyObject *prev_device,
@@ -560,7 +615,7 @@ device_check(PyObject *dplan, PyObject *attached, PyObject *record, PyObject *pr
     if (last == NULL) {
         return -1;
     }
-    d->inputs = PyObject_CallMethodOneArg(d->binding, s_failsafe, last);
+    d->inputs = binding_failsafe(d->binding, last);
     Py_DECREF(last);
     return d->inputs == NULL ? -1 : 1;
 }
@@ -1078,11 +1133,29 @@ steady_configure(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+static PyObject *
+steady_linear_wire(PyObject *module, PyObject *args)
+{
+    (void)module;
+    PyObject *terms, *fields;
+    if (!PyArg_ParseTuple(args, "OO", &terms, &fields)) {
+        return NULL;
+    }
+    PyObject *wire = linear_wire(terms, fields);
+    if (wire == NULL && !PyErr_Occurred()) {
+        Py_RETURN_NONE;
+    }
+    return wire;
+}
+
 static PyMethodDef module_methods[] = {
     {"configure", steady_configure, METH_VARARGS,
      "configure((DeviceView, NodeView, NodeFrame), fields, limits)"},
     {"step", steady_step, METH_VARARGS,
      "step(plan, records, now) -> NodeView, or None: not steady (the Python step decides)"},
+    {"linear_wire", steady_linear_wire, METH_VARARGS,
+     "linear_wire(terms, fields) -> the wire value the step works out for a linear axis, or "
+     "None: it calls the axis's function (tests hold it to scaling.linear_field)"},
     {NULL, NULL, 0, NULL},
 };
 
@@ -1144,6 +1217,7 @@ PyInit__steady(void)
     INTERN(s_stepped_reasons, "stepped_reasons");
     INTERN(s_unsigned_slots, "unsigned_slots");
     INTERN(s_handover, "handover");
+    INTERN(s_failsafe_of, "_failsafe_of");
     INTERN(str_on_change, "on_change");
     INTERN(str_streaming, "streaming");
     INTERN(str_join, ", ");

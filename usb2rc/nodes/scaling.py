@@ -13,6 +13,7 @@ its codec (`usb2rc.protocols`).
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable, Sequence
 
 from usb2rc.config.layout import GROUP1_BUTTONS, NODE_BUTTONS
@@ -54,7 +55,23 @@ def linear_field(
             q += 1
         return q - offset
 
+    _LINEAR[scale] = (index, lo, hi, offset, invert)
     return scale
+
+
+# What each function `linear_field` made computes: (index, lo, hi, offset, invert), for a
+# compiled step that computes it without calling it (usb2rc.nodes.steady). Weak: a reload's
+# functions go with their mapping.
+_LINEAR: weakref.WeakKeyDictionary[Callable[..., int], tuple[int, int, int, int, bool]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def linear_terms(fn: Callable[..., int] | None) -> tuple[int, int, int, int, bool] | None:
+    """(index, lo, hi, offset, invert) of a function `linear_field` made (it returns
+    `round((v' - lo) * 65535 / (hi - lo)) - offset`, v' the field clamped to [lo, hi], or
+    lo + hi - it inverted), None for any other."""
+    return None if fn is None else _LINEAR.get(fn)
 
 
 def to_wire(x: float, unsigned: bool = False) -> int:

@@ -22,7 +22,7 @@ from types import ModuleType
 from typing import Any, Protocol
 
 from usb2rc.hid import reader, speedups
-from usb2rc.nodes import guard, silence
+from usb2rc.nodes import guard, scaling, silence
 from usb2rc.nodes.binding import NodeInputs
 from usb2rc.nodes.step import DeviceView, NodeFrame, NodeView
 
@@ -132,7 +132,16 @@ def plan_for(
         functions = dict(binding.guarded_functions)  # the last one of a slot, as `apply`
         rests = binding.guard
         runs = tuple(
-            (low, high, text, functions.get(slot), slot, axis.arm == "centre", axis.unsigned)
+            (
+                low,
+                high,
+                text,
+                functions.get(slot),
+                slot,
+                axis.arm == "centre",
+                axis.unsigned,
+                scaling.linear_terms(functions.get(slot)),
+            )
             for axis, (slot, low, high, text) in zip(rests.axes, rests.wire_runs, strict=True)
         )
         name = a.info.product or "device"
