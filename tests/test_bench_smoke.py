@@ -70,9 +70,20 @@ def test_hot_paths() -> None:
     result = last_json(out)
     assert result["bench"] == "hot_paths" and result["nodes"] == 4
     for key in ("tick_hot_us", "tick_paced_us", "collect_paced_us", "session_paced_us",
-                "write_paced_us", "reader_pull_hot_us", "reader_pull_paced_us"):  # fmt: skip
+                "write_paced_us", "reader_pull_hot_us", "reader_pull_paced_us",
+                "replay_pull_python_paced_us"):  # fmt: skip
         assert result["figures"][key] > 0, key
     assert re.search(r"^tick_hot_us\s+[0-9.]+ µs$", out, re.MULTILINE)
+
+
+def test_cold() -> None:
+    """The same pull after each pause, spun and slept, in Python and (where built) in C."""
+    out = run(sys.executable, "bench/bench_cold.py", "--samples", "2")
+    result = last_json(out)
+    assert result["bench"] == "cold"
+    for pause in ("spin", "sleep"):
+        assert result["figures"][f"python_after_{pause}_10ms_us"] > 0
+    assert re.search(r"^python +pull after a sleep of +20 ms: +[0-9.]+ µs$", out, re.MULTILINE)
 
 
 def test_tick_budget() -> None:

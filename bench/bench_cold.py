@@ -1,0 +1,95 @@
+"""How the host cools what the daemon touches: the same small piece of work, repeated after a
+pause of each length, its thread CPU.
+
+    .venv/bin/python bench/bench_cold.py [--samples 100]
+
+The work is a pulled reader's pull of a replay device that has nothing due (the replay's
+checks, the reader's fields, the device lock: a few dozen Python objects), compiled
+(`_speedups.pull`, where built) and in Python; the pause is either a sleep or a spin (the
+thread never leaves the CPU: it reads the clock in a loop). Back to back the pull costs a few
+µs; the figure that matters is how it grows with the pause, at the periods the daemon works
+at (2-20 ms). Where it grows in a spin as it does in a sleep, what cools the caches is not
+the daemon's own sleep nor its other work but the host (its own ticks and guests), and a
+tick's cost follows the memory it touches more than the code it runs (bench/README.md,
+"Issue 40: a replay device's pull compiled").
+
+Prints one line per pause and path (median µs of thread CPU), then one JSON line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+
+from daemon_harness import StickState, recording
+
+from usb2rc.hid.descriptor import parse_descriptor
+from usb2rc.hid.reader import DeviceReader
+from usb2rc.hid.replay import ReplayBackend, install_file
+
+PAUSES_S = (0.0001, 0.001, 0.003, 0.010, 0.020)
+
+
+def spin(seconds: float) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        pass
+
+
+def idle_reader(directory: str, compiled: bool) -> DeviceReader:
+    """A pulled reader on a replay device whose reports are a minute apart: every pull
+    finds nothing due (after the first)."""
+    backend = ReplayBackend(directory)
+    device = backend.open(backend.enumerate()[0])
+    decoder = parse_descriptor(device.report_descriptor()).make_decoder()
+    reader = DeviceReader(device, decoder, lambda r, c: None, pulled=True)
+    if not compiled:
+        reader._c_pull = None
+    reader.pull()
+    return reader
+
+
+def cost_us(
+    work: Callable[[], None], pause: Callable[[float], None], seconds: float, n: int
+) -> float:
+    costs = []
+    for _ in range(n):
+        pause(seconds)
+        began = time.thread_time_ns()
+        work()
+        costs.append((time.thread_time_ns() - began) / 1000)
+    return statistics.median(costs)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--samples", type=int, default=100, help="pulls per pause and path")
+    args = parser.parse_args()
+    figures: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        states = [StickState(x=i, y=i) for i in range(3)]
+        install_file(Path(tmp) / "s.hid", recording(states, 60.0, rest_s=60.0))
+        readers = {"c": idle_reader(tmp, True), "python": idle_reader(tmp, False)}
+        if readers["c"]._c_pull is None:
+            del readers["c"]  # the C loops are not built here
+        for pause_name, pause in (("spin", spin), ("sleep", time.sleep)):
+            for seconds in PAUSES_S:
+                for path, reader in readers.items():
+                    us = cost_us(reader.pull, pause, seconds, args.samples)
+                    key = f"{path}_after_{pause_name}_{seconds * 1000:g}ms_us"
+                    figures[key] = round(us, 1)
+                    after = f"{pause_name:5s} of {seconds * 1000:5g} ms"
+                    print(f"{path:7s} pull after a {after}: {us:6.1f} µs")
+    print(json.dumps({"bench": "cold", "samples": args.samples, "figures": figures}))
+
+
+if __name__ == "__main__":
+    main()
