@@ -9,7 +9,8 @@ values, and their devices at the same report; a pull that fails must fail alike.
 use real descriptors with and without report IDs, reports that are short or carry an unknown
 ID, runs of refused reports long enough to put the device in error, repeated reports, button
 presses, recordings longer than one block of the file (a pull that spans two blocks),
-looped plays, an injected read error and a file removed while it plays. Deterministic tests
+blocks the Python parse reads (a line in another spelling), looped plays, an injected read
+error and a file removed while it plays. Deterministic tests
 check that the C path takes the pulls (not only hands them back to Python) and hands back
 what it must.
 """
@@ -187,8 +188,15 @@ def plays(draw: st.DrawFn) -> dict[str, Any]:
     if draw(st.booleans()):
         extra = f"# usb2rc-fault: read-error at {draw(st.floats(0.0, at + 0.1)):.4f}"
     steps = draw(st.lists(st.sampled_from([0.0, 0.0003, 0.002, 0.01, 0.02, 0.06]), max_size=120))
+    text = timed_recording(events, descriptor=desc, extra=extra)
+    if draw(st.booleans()):  # lines in another spelling: blocks the Python parse reads
+        lines = text.split("\n")
+        for k in range(len(lines)):
+            if lines[k].startswith("E: ") and rng.random() < 0.05:
+                lines[k] = "E:  " + lines[k][3:]
+        text = "\n".join(lines)
     return {
-        "text": timed_recording(events, descriptor=desc, extra=extra),
+        "text": text,
         "steps": [0.0, *steps],
         "loop": draw(st.booleans()),
         "remove_at": draw(st.none() | st.integers(1, 120)),

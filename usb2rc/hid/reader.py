@@ -169,7 +169,7 @@ class DeviceReader(Worker):
         self._press_decoder = decoder if isinstance(decoder, ButtonsDecoder) else None
         # the replay backend's `read_due` (everything due, in one call), if the device has it
         self._read_due: Callable[[int], list[bytes]] | None = getattr(device, "read_due", None)
-        # the compiled steady pull of a replay device (usb2rc.hid._speedups.pull), if built
+        # the compiled pull of a replay device (usb2rc.hid._speedups.pull), if built
         c_loops = speedups.compiled()
         self._c_pull = c_loops.pull if c_loops is not None and self._read_due is not None else None
         self._last_report = b""  # the raw report before, for `repeats`
