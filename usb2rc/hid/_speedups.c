@@ -894,6 +894,9 @@ static int
 attr_add(PyObject *obj, PyObject *name, Py_ssize_t add)
 {
     Py_ssize_t v;
+    if (add == 0) {
+        return 0; /* `+= 0` leaves the same int: nothing to read or write */
+    }
     if (attr_ssize(obj, name, &v) < 0) {
         return -1;
     }
@@ -1274,25 +1277,18 @@ decoder_state(PyObject *decoder, PyObject *like)
     return state;
 }
 
-/* A ReaderRecord (`cls`, a NamedTuple) of `fields`, as its __new__ makes it (tuple.__new__),
- * without running Python code. */
+/* A ReaderRecord (`cls`, a NamedTuple: a tuple subclass without a dict) of `fields`, as
+ * tuple.__new__(cls, fields) makes it, without running Python code (as _steady.c's make). */
 static PyObject *
 new_record(PyTypeObject *cls, PyObject *const *fields)
 {
-    PyObject *items = PyTuple_New(R_FIELDS);
-    if (items == NULL) {
+    PyObject *record = cls->tp_alloc(cls, R_FIELDS);
+    if (record == NULL) {
         return NULL;
     }
     for (int i = 0; i < R_FIELDS; i++) {
-        PyTuple_SET_ITEM(items, i, Py_NewRef(fields[i]));
+        PyTuple_SET_ITEM(record, i, Py_NewRef(fields[i]));
     }
-    PyObject *args = PyTuple_Pack(1, items);
-    Py_DECREF(items);
-    if (args == NULL) {
-        return NULL;
-    }
-    PyObject *record = PyTuple_Type.tp_new(cls, args, NULL);
-    Py_DECREF(args);
     return record;
 }
 
@@ -1301,15 +1297,20 @@ new_record(PyTypeObject *cls, PyObject *const *fields)
 static int
 publish(PyObject *reader, PyObject *decoder, double now, Py_ssize_t bad_limit)
 {
-    static PyObject *const *fields[] = {&str_reports, &str_bad_reports, NULL,
-                                        &str_presses, &str_press_serial, &str_refused_in_a_row,
-                                        &str_bad_spells, &str_repeats};
+    /* the record's fields after its time, by the reader's attribute (index as the record's,
+     * less one) */
+    static PyObject *const *fields[] = {NULL, NULL, NULL, &str_presses, &str_press_serial,
+                                        &str_refused_in_a_row, &str_bad_spells, &str_repeats};
     PyObject *last = PyObject_GetAttr(reader, str_record), *record = NULL;
     PyObject *args[R_FIELDS] = {NULL};
     Py_ssize_t reports, bad, last_reports, last_bad, v[4];
     int rc = -1;
-    if (last == NULL || attr_ssize(reader, str_reports, &reports) < 0
-        || attr_ssize(reader, str_bad_reports, &bad) < 0) {
+    /* the counts read once: compared here, published as they are */
+    args[1] = PyObject_GetAttr(reader, str_reports);
+    args[2] = PyObject_GetAttr(reader, str_bad_reports);
+    if (last == NULL || args[1] == NULL || args[2] == NULL
+        || ((reports = PyLong_AsSsize_t(args[1])) == -1 && PyErr_Occurred())
+        || ((bad = PyLong_AsSsize_t(args[2])) == -1 && PyErr_Occurred())) {
         goto done;
     }
     if (!PyTuple_Check(last) || PyTuple_GET_SIZE(last) != R_FIELDS) {
@@ -1324,14 +1325,10 @@ publish(PyObject *reader, PyObject *decoder, double now, Py_ssize_t bad_limit)
         goto done;
     }
     args[0] = decoder_state(decoder, PyTuple_GET_ITEM(last, 0));
-    for (int i = 0; args[i] != NULL && i < R_FIELDS - 1; i++) {
-        if (fields[i] != NULL) {
-            args[i + 1] = PyObject_GetAttr(reader, *fields[i]);
-        } else if (reports != last_reports) {
-            args[i + 1] = PyFloat_FromDouble(now);
-        } else {
-            args[i + 1] = Py_NewRef(PyTuple_GET_ITEM(last, R_AT));
-        }
+    args[R_AT] = reports != last_reports ? PyFloat_FromDouble(now)
+                                         : Py_NewRef(PyTuple_GET_ITEM(last, R_AT));
+    for (int i = R_AT; args[0] != NULL && args[i] != NULL && i < R_FIELDS - 1; i++) {
+        args[i + 1] = PyObject_GetAttr(reader, *fields[i]);
     }
     if (args[R_FIELDS - 1] == NULL || (record = new_record(Py_TYPE(last), args)) == NULL
         || PyObject_SetAttr(reader, str_record, record) < 0) {

@@ -136,13 +136,14 @@ def plan_for(
                 low,
                 high,
                 text,
-                functions.get(slot),
+                fn,
                 slot,
                 axis.arm == "centre",
                 axis.unsigned,
-                scaling.linear_terms(functions.get(slot)),
+                scaling.linear_terms(fn),
             )
             for axis, (slot, low, high, text) in zip(rests.axes, rests.wire_runs, strict=True)
+            for fn in [functions.get(slot)]
         )
         name = a.info.product or "device"
         devices.append((binding, runs, f"guard {name}", f" ({name})"))
