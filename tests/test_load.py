@@ -43,17 +43,31 @@ def test_a_threads_cpu_time_is_read_from_the_os() -> None:
     assert thread_cpu_s(None) is None and thread_cpu_s(2**31 - 1) is None  # no such thread
 
 
-def marks(*times: float) -> Callable[[], CpuMark]:
-    """A clock that gives these moments in turn (the process CPU half of each)."""
-    given = iter(times)
-    return lambda: (lambda t: CpuMark(t, t / 2))(next(given))
+class Moments:
+    """A clock that gives these moments in turn, and a CPU mark of the moment last given
+    (the process's CPU half of it), counted."""
+
+    def __init__(self, *times: float) -> None:
+        self._given = iter(times)
+        self.now = 0.0
+        self.marks = 0
+
+    def clock(self) -> float:
+        self.now = next(self._given)
+        return self.now
+
+    def cpu_mark(self) -> CpuMark:
+        self.marks += 1
+        return CpuMark(self.now, self.now / 2)
 
 
 def test_the_first_miss_is_said_at_once_then_a_line_per_interval(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    clock = marks(4, 5, 9, 15, 16, 30)
-    missed = MissedTickLog("sbus (/dev/ttyAMA0)", CpuMark(0.0, 0.0), 10.0, clock)
+    moments = Moments(4, 5, 9, 15, 16, 30)
+    missed = MissedTickLog(
+        "sbus (/dev/ttyAMA0)", CpuMark(0.0, 0.0), 10.0, moments.clock, moments.cpu_mark
+    )
     with caplog.at_level(logging.WARNING, logger="usb2rc.load"):
         missed.note(1, 1)  # at 4 s: said
         missed.note(2, 3)  # at 5 s and 9 s: counted, not said
@@ -71,6 +85,7 @@ def test_the_first_miss_is_said_at_once_then_a_line_per_interval(
     )
     assert third.startswith("sbus (/dev/ttyAMA0): 1 tick(s) missed in the 15 s since the last")
     assert missed.unsaid == 0
+    assert moments.marks == 3  # the process's CPU time read for the lines only
 
 
 class StallOnce:

@@ -66,12 +66,16 @@ class MissedTickLog:
         name: str,
         since: CpuMark,
         interval_s: float = MISSED_LOG_INTERVAL_S,
-        clock: Callable[[], CpuMark] = CpuMark.now,
+        clock: Callable[[], float] = time.monotonic,
+        cpu_mark: Callable[[], CpuMark] = CpuMark.now,
     ) -> None:
         self.name = name
         self.since = since
         self.interval_s = interval_s
         self._clock = clock
+        # the CPU share a line gives (all threads' time: a system call), read for the line
+        # only: `note` is asked at every tick while a line is owed
+        self._cpu_mark = cpu_mark
         self._said_at: float | None = None
         self.unsaid = 0  # missed since the last line: said once the interval is over
 
@@ -82,11 +86,11 @@ class MissedTickLog:
         if not self.unsaid:
             return
         now = self._clock()
-        if self._said_at is not None and now.at - self._said_at < self.interval_s:
+        if self._said_at is not None and now - self._said_at < self.interval_s:
             return
-        before, self._said_at = self._said_at, now.at
+        before, self._said_at = self._said_at, now
         count, self.unsaid = self.unsaid, 0
-        share = self.since.share_pct(now)
+        share = self.since.share_pct(self._cpu_mark())
         used = (
             "" if share is None else f"; usb2rc has used {share:.1f} % of a core since it started"
         )
@@ -96,7 +100,7 @@ class MissedTickLog:
             "this config (fewer outputs or lower rates help), or a stall of the host%s%s",
             self.name,
             count,
-            "" if before is None else f" in the {now.at - before:.0f} s since the last such line",
+            "" if before is None else f" in the {now - before:.0f} s since the last such line",
             total,
             used,
             "" if before is not None else f" (more: a line every {self.interval_s:g} s at most)",
