@@ -13,19 +13,30 @@ the daemon's own sleep nor its other work but the host (its own ticks and guests
 tick's cost follows the memory it touches more than the code it runs (bench/README.md,
 "Issue 40: a replay device's pull compiled").
 
+With --touch it also builds `cold_touch.c` (gcc, this interpreter's headers) and measures
+one call from Python after each sleep, by what the call touches: nothing (the call alone),
+sixteen fields of one small C struct (state kept compact, as a C engine would keep it), and
+eighteen names looked up on six Python objects in turn (state kept in Python objects, as the
+compiled pull and step keep it). Skipped, and said, without a compiler.
+
 Prints one line per pause and path (median µs of thread CPU), then one JSON line.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
+import shutil
 import statistics
+import subprocess
 import sys
+import sysconfig
 import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
@@ -35,6 +46,7 @@ from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import DeviceReader
 from usb2rc.hid.replay import ReplayBackend, install_file
 
+HERE = Path(__file__).resolve().parent
 PAUSES_S = (0.0001, 0.001, 0.003, 0.010, 0.020)
 
 
@@ -69,9 +81,53 @@ def cost_us(
     return statistics.median(costs)
 
 
+def build_touch(workdir: Path) -> ModuleType | None:
+    """cold_touch.c built and imported; None without a compiler or Python's headers."""
+    gcc = shutil.which("gcc")
+    include = Path(sysconfig.get_paths()["include"])
+    if gcc is None or not (include / "Python.h").exists():
+        return None
+    target = workdir / f"cold_touch{sysconfig.get_config_var('EXT_SUFFIX')}"
+    command = [gcc, "-O2", "-fPIC", "-shared", f"-I{include}", str(HERE / "cold_touch.c")]
+    subprocess.run([*command, "-o", str(target)], check=True)
+    spec = importlib.util.spec_from_file_location("cold_touch", target)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+class Holder:
+    """A Python object with eight float fields, as the readers and replays hold theirs."""
+
+    def __init__(self, base: float) -> None:
+        for i in range(8):
+            setattr(self, f"field{i}", base + i)
+
+
+def touch_costs(touch: ModuleType, samples: int) -> dict[str, float]:
+    """One call after each sleep, by what it touches (see the module docstring)."""
+    compact = touch.Compact()
+    objects = tuple(Holder(k) for k in range(6))
+    names = tuple(f"field{i % 8}" for i in range(18))
+    works: dict[str, Callable[[], None]] = {
+        "call": lambda: touch.nothing(None),
+        "compact_fields": lambda: touch.fields(compact),
+        "object_attrs": lambda: touch.attrs(objects, names),
+    }
+    figures = {}
+    for seconds in PAUSES_S:
+        for name, work in works.items():
+            us = cost_us(work, time.sleep, seconds, samples)
+            figures[f"touch_{name}_after_sleep_{seconds * 1000:g}ms_us"] = round(us, 1)
+            print(f"{name:15s} after a sleep of {seconds * 1000:5g} ms: {us:6.1f} µs")
+    return figures
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--samples", type=int, default=100, help="pulls per pause and path")
+    parser.add_argument("--touch", action="store_true", help="also one call, by what it touches")
     args = parser.parse_args()
     figures: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -88,6 +144,12 @@ def main() -> None:
                     figures[key] = round(us, 1)
                     after = f"{pause_name:5s} of {seconds * 1000:5g} ms"
                     print(f"{path:7s} pull after a {after}: {us:6.1f} µs")
+        if args.touch:
+            touch = build_touch(Path(tmp))
+            if touch is None:
+                print("--touch: no gcc or no Python headers here: not measured")
+            else:
+                figures.update(touch_costs(touch, args.samples))
     print(json.dumps({"bench": "cold", "samples": args.samples, "figures": figures}))
 
 

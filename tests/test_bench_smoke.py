@@ -13,6 +13,7 @@ import re
 import shutil
 import subprocess
 import sys
+import sysconfig
 from pathlib import Path
 from types import ModuleType
 
@@ -77,13 +78,21 @@ def test_hot_paths() -> None:
 
 
 def test_cold() -> None:
-    """The same pull after each pause, spun and slept, in Python and (where built) in C."""
-    out = run(sys.executable, "bench/bench_cold.py", "--samples", "2")
+    """The same pull after each pause, spun and slept, in Python and (where built) in C;
+    one call by what it touches, where gcc can build it."""
+    out = run(sys.executable, "bench/bench_cold.py", "--samples", "2", "--touch")
     result = last_json(out)
     assert result["bench"] == "cold"
     for pause in ("spin", "sleep"):
         assert result["figures"][f"python_after_{pause}_10ms_us"] > 0
     assert re.search(r"^python +pull after a sleep of +20 ms: +[0-9.]+ µs$", out, re.MULTILINE)
+    headers = Path(sysconfig.get_paths()["include"]) / "Python.h"
+    if shutil.which("gcc") is None or not headers.exists():  # a machine that cannot build it
+        assert "--touch: no gcc or no Python headers here: not measured" in out
+        return
+    for work in ("call", "compact_fields", "object_attrs"):
+        assert result["figures"][f"touch_{work}_after_sleep_20ms_us"] > 0
+    assert re.search(r"^object_attrs +after a sleep of +20 ms: +[0-9.]+ µs$", out, re.MULTILINE)
 
 
 def test_tick_budget() -> None:
