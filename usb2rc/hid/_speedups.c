@@ -1297,10 +1297,9 @@ new_record(PyTypeObject *cls, PyObject *const *fields)
 static int
 publish(PyObject *reader, PyObject *decoder, double now, Py_ssize_t bad_limit)
 {
-    /* the record's fields after its time, by the reader's attribute (index as the record's,
-     * less one) */
-    static PyObject *const *fields[] = {NULL, NULL, NULL, &str_presses, &str_press_serial,
-                                        &str_refused_in_a_row, &str_bad_spells, &str_repeats};
+    /* the record's fields after its time, in order, by the reader's attribute */
+    static PyObject *const *after_at[R_FIELDS - R_AT - 1] = {
+        &str_presses, &str_press_serial, &str_refused_in_a_row, &str_bad_spells, &str_repeats};
     PyObject *last = PyObject_GetAttr(reader, str_record), *record = NULL;
     PyObject *args[R_FIELDS] = {NULL};
     Py_ssize_t reports, bad, last_reports, last_bad, v[4];
@@ -1324,11 +1323,13 @@ publish(PyObject *reader, PyObject *decoder, double now, Py_ssize_t bad_limit)
         rc = 0;
         goto done;
     }
-    args[0] = decoder_state(decoder, PyTuple_GET_ITEM(last, 0));
+    if ((args[0] = decoder_state(decoder, PyTuple_GET_ITEM(last, 0))) == NULL) {
+        goto done;
+    }
     args[R_AT] = reports != last_reports ? PyFloat_FromDouble(now)
                                          : Py_NewRef(PyTuple_GET_ITEM(last, R_AT));
-    for (int i = R_AT; args[0] != NULL && args[i] != NULL && i < R_FIELDS - 1; i++) {
-        args[i + 1] = PyObject_GetAttr(reader, *fields[i]);
+    for (int i = R_AT; args[i] != NULL && i < R_FIELDS - 1; i++) {
+        args[i + 1] = PyObject_GetAttr(reader, *after_at[i - R_AT]);
     }
     if (args[R_FIELDS - 1] == NULL || (record = new_record(Py_TYPE(last), args)) == NULL
         || PyObject_SetAttr(reader, str_record, record) < 0) {
