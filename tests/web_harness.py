@@ -15,6 +15,7 @@ import shutil
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import urllib.error
 import urllib.request
@@ -170,14 +171,19 @@ def browser(width: int = 900, height: int = 1000) -> Iterator[Any]:
     for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage"):
         options.add_argument(arg)
     options.add_argument(f"--window-size={width},{height}")
-    driver = webdriver.Chrome(service=Service(driver_path), options=options)
-    try:
-        # headless chromium keeps a window at least 500 px wide from --window-size; set
-        # again, the viewport is what was asked (a phone's 390 px)
-        driver.set_window_size(width, height)
-        yield driver
-    finally:
-        driver.quit()
+    # chromium leaves its singleton socket's directory in TMPDIR after it quits: given one
+    # of its own, removed with the session, nothing of it outlives the test
+    with tempfile.TemporaryDirectory(prefix="usb2rc-chromium-") as scratch:
+        options.add_argument(f"--user-data-dir={scratch}/profile")
+        service = Service(driver_path, env={**os.environ, "TMPDIR": scratch})
+        driver = webdriver.Chrome(service=service, options=options)
+        try:
+            # headless chromium keeps a window at least 500 px wide from --window-size; set
+            # again, the viewport is what was asked (a phone's 390 px)
+            driver.set_window_size(width, height)
+            yield driver
+        finally:
+            driver.quit()
 
 
 def led_stick_recording() -> str:
