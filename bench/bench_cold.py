@@ -1,7 +1,7 @@
 """How the host cools what the daemon touches: the same small piece of work, repeated after a
 pause of each length, its thread CPU.
 
-    .venv/bin/python bench/bench_cold.py [--samples 100]
+    .venv/bin/python bench/bench_cold.py [--samples 100] [--due] [--touch]
 
 The work is a pulled reader's pull of a replay device that has nothing due (the replay's
 checks, the reader's fields, the device lock: a few dozen Python objects), compiled
@@ -12,6 +12,10 @@ at (2-20 ms). Where it grows in a spin as it does in a sleep, what cools the cac
 the daemon's own sleep nor its other work but the host (its own ticks and guests), and a
 tick's cost follows the memory it touches more than the code it runs (bench/README.md,
 "Issue 40: a replay device's pull compiled").
+
+With --due it also pulls what a node step pulls: four real devices (tests/data) replaying
+random reports at 1 kHz, every reader pulled after each sleep of 10 and 20 ms (~10 and ~20
+reports due each), the four pulls' thread CPU together, compiled and in Python.
 
 With --touch it also builds `cold_touch.c` (gcc, this interpreter's headers) and measures
 one call from Python after each sleep, by what the call touches: nothing (the call alone),
@@ -40,7 +44,7 @@ from types import ModuleType
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from daemon_harness import StickState, recording
+from daemon_harness import StickState, real_device_recordings, recording
 
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.reader import DeviceReader
@@ -67,6 +71,46 @@ def idle_reader(directory: str, compiled: bool) -> DeviceReader:
         reader._c_pull = None
     reader.pull()
     return reader
+
+
+def due_readers(directory: str, compiled: bool) -> list[DeviceReader]:
+    """A step's pulled readers: four real devices playing random reports at 1 kHz."""
+    backend = ReplayBackend(directory)
+    readers = []
+    for info in backend.enumerate():
+        device = backend.open(info)
+        decoder = parse_descriptor(device.report_descriptor()).make_decoder()
+        reader = DeviceReader(device, decoder, lambda r, c: None, pulled=True)
+        if not compiled:
+            reader._c_pull = None
+        reader.pull()
+        readers.append(reader)
+    return readers
+
+
+def due_costs(samples: int) -> dict[str, float]:
+    """A step's four pulls after each sleep, with the reports of that sleep due."""
+    figures = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        recordings = real_device_recordings(4, 3 * samples * 0.020 + 10.0, 1000.0)
+        for k, text in enumerate(recordings):
+            install_file(Path(tmp) / f"device{k}.hid", text)
+        for compiled in (True, False):
+            readers = due_readers(tmp, compiled)
+            if compiled and readers[0]._c_pull is None:
+                continue  # the C loops are not built here
+            path = "c" if compiled else "python"
+            for seconds in (0.010, 0.020):
+
+                def pulls(readers: list[DeviceReader] = readers) -> None:
+                    for reader in readers:
+                        reader.pull()
+
+                us = cost_us(pulls, time.sleep, seconds, samples)
+                figures[f"due_{path}_after_sleep_{seconds * 1000:g}ms_us"] = round(us, 1)
+                print(f"{path:7s} 4 pulls, reports due, after a sleep of {seconds * 1000:g} ms: "
+                      f"{us:6.1f} µs")  # fmt: skip
+    return figures
 
 
 def cost_us(
@@ -128,6 +172,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--samples", type=int, default=100, help="pulls per pause and path")
     parser.add_argument("--touch", action="store_true", help="also one call, by what it touches")
+    parser.add_argument("--due", action="store_true", help="also a step's pulls, reports due")
     args = parser.parse_args()
     figures: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -144,6 +189,8 @@ def main() -> None:
                     figures[key] = round(us, 1)
                     after = f"{pause_name:5s} of {seconds * 1000:5g} ms"
                     print(f"{path:7s} pull after a {after}: {us:6.1f} µs")
+        if args.due:
+            figures.update(due_costs(args.samples))
         if args.touch:
             touch = build_touch(Path(tmp))
             if touch is None:

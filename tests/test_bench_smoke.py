@@ -79,12 +79,13 @@ def test_hot_paths() -> None:
 
 def test_cold() -> None:
     """The same pull after each pause, spun and slept, in Python and (where built) in C;
-    one call by what it touches, where gcc can build it."""
-    out = run(sys.executable, "bench/bench_cold.py", "--samples", "2", "--touch")
+    a step's pulls with reports due; one call by what it touches, where gcc can build it."""
+    out = run(sys.executable, "bench/bench_cold.py", "--samples", "2", "--due", "--touch")
     result = last_json(out)
     assert result["bench"] == "cold"
     for pause in ("spin", "sleep"):
         assert result["figures"][f"python_after_{pause}_10ms_us"] > 0
+    assert result["figures"]["due_python_after_sleep_20ms_us"] > 0
     assert re.search(r"^python +pull after a sleep of +20 ms: +[0-9.]+ µs$", out, re.MULTILINE)
     headers = Path(sysconfig.get_paths()["include"]) / "Python.h"
     if shutil.which("gcc") is None or not headers.exists():  # a machine that cannot build it

@@ -10,7 +10,8 @@ use real descriptors with and without report IDs, reports that are short or carr
 ID, runs of refused reports long enough to put the device in error, repeated reports, button
 presses, recordings longer than one block of the file (a pull that spans two blocks),
 blocks the Python parse reads (a line in another spelling), looped plays, an injected read
-error and a file removed while it plays. Deterministic tests
+error and a file removed or replaced while it plays (the gone check, made in C while the
+file is there). Deterministic tests
 check that the C path takes the pulls (not only hands them back to Python) and hands back
 what it must.
 """
@@ -20,6 +21,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import shutil
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -151,21 +153,49 @@ class Side:
             self.device._batch.left,
             self.device._batch.next_due,
             self.device._lap,
+            self.device._next_gone_check,
+            self.device._quiet_until,
+            self.device._gone,
         )
 
 
+def change_file(path: Path, how: str) -> None:
+    """The played file removed, or made another file at its path: renamed over by a copy
+    (a new inode: its time and size the same), touched (a new time only), grown (a new
+    size only)."""
+    if how == "remove":
+        path.unlink()
+    elif how == "replace":
+        copy = path.with_name(".copy")
+        shutil.copy2(path, copy)
+        copy.replace(path)
+    elif how == "touch":
+        st = path.stat()
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 1))
+    else:  # grown, its time kept: only its size tells
+        st = path.stat()
+        with path.open("a") as file:
+            file.write("# grown\n")
+        os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+
+
 def play(
-    tmp: Path, text: str, steps: list[float], loop: bool = False, remove_at: int | None = None
+    tmp: Path,
+    text: str,
+    steps: list[float],
+    loop: bool = False,
+    change_at: int | None = None,
+    change: str = "remove",
 ) -> tuple[Side, Side]:
     """Both sides pulled after each of `steps` (seconds the clock moves first); the file
-    removed before step `remove_at`. Their views compared at every step."""
+    changed before step `change_at` (`change_file`). Their views compared at every step."""
     path = install_file(tmp / "dev.hid", text)
     with stopped_clock() as clock:
         backend = ReplayBackend(tmp, loop=loop)
         c_side, py_side = Side(backend, c=True), Side(backend, c=False)
         for k, step in enumerate(steps):
-            if k == remove_at:
-                path.unlink()
+            if k == change_at:
+                change_file(path, change)
             clock.now += step
             c_side.pull()
             py_side.pull()
@@ -201,7 +231,8 @@ def plays(draw: st.DrawFn) -> dict[str, Any]:
         "text": text,
         "steps": [0.0, *steps, 0.5, 2.0],  # and the rest of the play, in two pulls
         "loop": draw(st.booleans()),
-        "remove_at": draw(st.integers(1, 120)) if draw(st.integers(0, 3)) == 0 else None,
+        "change_at": draw(st.integers(1, 120)) if draw(st.integers(0, 3)) == 0 else None,
+        "change": draw(st.sampled_from(["remove", "replace", "touch", "grow"])),
     }
 
 
@@ -250,8 +281,10 @@ def test_a_fault_and_a_removed_file_are_the_python_reads_to_raise(tmp_path: Path
     )
     assert isinstance(c_side.reader._pull_error, OSError)
     (tmp_path / "gone").mkdir()
-    c_side, _ = play(tmp_path / "gone", text, [0.0, 0.05, 0.1, 0.1], remove_at=2)
-    assert "removed" in str(c_side.reader._pull_error)
+    for how in ("remove", "replace", "touch", "grow"):
+        (tmp_path / how).mkdir()
+        c_side, _ = play(tmp_path / how, text, [0.0, 0.05, 0.1, 0.1], change_at=2, change=how)
+        assert "removed or replaced" in str(c_side.reader._pull_error), how
 
 
 def test_a_close_in_progress_hands_the_pull_back(tmp_path: Path) -> None:

@@ -53,6 +53,7 @@
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
+#include <sys/stat.h>
 #include <time.h>
 
 typedef struct {
@@ -817,7 +818,8 @@ static PyObject *str_device_lock, *str_acquire, *str_release, *str_closed, *str_
     *str_c_plan, *str_values, *str_buttons, *str_state, *str_dec_reports, *str_dec_bad_reports,
     *str_quiet_until, *str_set, *str_batch, *str_busy_s, *str_fault_due,
     *str_gone, *str_refill, *str_left, *str_on_bad_reports,
-    *str_field_values, *str_field_buttons;
+    *str_field_values, *str_field_buttons, *str_next_gone_check, *str_stat_path, *str_stat_id,
+    *str_gone_check_s;
 
 static int
 intern_pull_names(void)
@@ -842,6 +844,8 @@ intern_pull_names(void)
         {&str_refill, "_refill"}, {&str_left, "left"},
         {&str_on_bad_reports, "on_bad_reports"},
         {&str_field_values, "values"}, {&str_field_buttons, "buttons"},
+        {&str_next_gone_check, "_next_gone_check"}, {&str_stat_path, "_stat_path"},
+        {&str_stat_id, "_stat_id"}, {&str_gone_check_s, "_gone_check_s"},
     };
     for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
         if ((*names[i].slot = PyUnicode_InternFromString(names[i].text)) == NULL) {
@@ -956,8 +960,67 @@ pull_clear(Pull *s)
     Py_CLEAR(s->held);
 }
 
+/* Whether the file at `path` (bytes) is the one of `id`, a stat id as `replay._id_of` makes
+ * it (inode, mtime in ns, size): 1 yes, 0 no (or it cannot be stat'ed), -1 with an
+ * exception. */
+static int
+same_file(PyObject *path, PyObject *id)
+{
+    if (!PyBytes_Check(path) || !PyTuple_Check(id) || PyTuple_GET_SIZE(id) != 3) {
+        PyErr_SetString(PyExc_TypeError, "a replay's stat path is bytes, its stat id 3 ints");
+        return -1;
+    }
+    unsigned long long inode = PyLong_AsUnsignedLongLong(PyTuple_GET_ITEM(id, 0));
+    long long mtime_ns = PyLong_AsLongLong(PyTuple_GET_ITEM(id, 1));
+    long long size = PyLong_AsLongLong(PyTuple_GET_ITEM(id, 2));
+    if (PyErr_Occurred()) {
+        return -1;
+    }
+    struct stat st;
+    if (stat(PyBytes_AS_STRING(path), &st) != 0) {
+        return 0; /* gone (or unreadable): the Python check says which */
+    }
+    long long st_mtime_ns = (long long)st.st_mtim.tv_sec * 1000000000LL + st.st_mtim.tv_nsec;
+    return (unsigned long long)st.st_ino == inode && st_mtime_ns == mtime_ns
+           && (long long)st.st_size == size;
+}
+
+/* `ReplayDevice._check_gone(now)` while its file is there, without a Python call: nothing
+ * before the next check is due; then a stat, and the next check `_gone_check_s` later. 1:
+ * done; 0: the file is not the one plugged (the Python check then says so, and raises); -1
+ * with an exception. */
+static int
+gone_check(PyObject *device, double now, double fault_due)
+{
+    double next_check, every;
+    if (attr_double(device, str_next_gone_check, &next_check) < 0) {
+        return -1;
+    }
+    if (now < next_check) {
+        return 1;
+    }
+    PyObject *path = PyObject_GetAttr(device, str_stat_path);
+    PyObject *id = path == NULL ? NULL : PyObject_GetAttr(device, str_stat_id);
+    int same = id == NULL ? -1 : same_file(path, id);
+    Py_XDECREF(path);
+    Py_XDECREF(id);
+    if (same <= 0) {
+        return same;
+    }
+    if (attr_double(device, str_gone_check_s, &every) < 0) {
+        return -1;
+    }
+    next_check = now + every;
+    if (attr_set_new(device, str_next_gone_check, PyFloat_FromDouble(next_check)) < 0) {
+        return -1;
+    }
+    return attr_set_new(device, str_quiet_until,
+                        PyFloat_FromDouble(fault_due < next_check ? fault_due : next_check));
+}
+
 /* The replay's gone check when it is due, as `ReplayDevice.read_due` makes it (a stat at
- * most every GONE_CHECK_S, DeviceGone raised once the file is gone); then whether the
+ * most every GONE_CHECK_S, made here while the file is there; DeviceGone raised by the
+ * Python check once it is not); then whether the
  * replay may hand reports over now: 1 yes, 0 no (its read raises: a fault due, the file
  * gone, the device closed), -1 with an exception. */
 static int
@@ -976,11 +1039,17 @@ replay_ready(PyObject *device, double now)
         int known_gone = gone != Py_None;
         Py_DECREF(gone);
         if (quiet_until <= now && now < fault_due && !known_gone) {
-            PyObject *done = PyObject_CallMethod(device, "_check_gone", "d", now);
-            if (done == NULL) {
+            int there = gone_check(device, now, fault_due);
+            if (there < 0) {
                 return -1;
             }
-            Py_DECREF(done);
+            if (!there) { /* the Python check says how it is gone, and raises */
+                PyObject *done = PyObject_CallMethod(device, "_check_gone", "d", now);
+                if (done == NULL) {
+                    return -1;
+                }
+                Py_DECREF(done);
+            }
         }
         if (attr_double(device, str_quiet_until, &quiet_until) < 0) {
             return -1;

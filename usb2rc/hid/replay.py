@@ -355,6 +355,10 @@ class ReplayDevice:
         )
         self._fault = f"{self.info.path}: injected read error"
         self._gone: str | None = None  # once the file is seen gone, every read says so
+        # what the gone check compares (the compiled pull reads these three too)
+        self._stat_path = os.fsencode(self._path)
+        self._stat_id = source.stat_id
+        self._gone_check_s = GONE_CHECK_S
         self._batch: PlayedEvents = EventList([], [])  # the batch in play
         self._last_due = -math.inf  # the due time of the last report taken into a batch
         self._next_gone_check = 0.0
@@ -430,9 +434,9 @@ class ReplayDevice:
         if self._gone is None:
             if now < self._next_gone_check:
                 return
-            self._next_gone_check = now + GONE_CHECK_S
+            self._next_gone_check = now + self._gone_check_s
             self._quiet_until = min(self._next_gone_check, self._fault_due)
-            if _stat_id_of(self._path) == self._source.stat_id:
+            if _stat_id_of(self._path) == self._stat_id:
                 return
             self._gone = f"{self._source.path}: replay file removed or replaced"
             self._quiet_until = -math.inf
