@@ -272,7 +272,7 @@ def test_refused_runs_and_their_edges_are_pulled_in_c(tmp_path: Path) -> None:
     assert c_side.compiled_pulls == len(steps)
 
 
-def test_a_fault_and_a_removed_file_are_the_python_reads_to_raise(tmp_path: Path) -> None:
+def test_a_fault_and_a_changed_file_are_the_python_reads_to_raise(tmp_path: Path) -> None:
     text = steady_text(400)
     c_side, _ = play(
         tmp_path,
@@ -280,7 +280,6 @@ def test_a_fault_and_a_removed_file_are_the_python_reads_to_raise(tmp_path: Path
         [0.0, 0.05, 0.1],
     )
     assert isinstance(c_side.reader._pull_error, OSError)
-    (tmp_path / "gone").mkdir()
     for how in ("remove", "replace", "touch", "grow"):
         (tmp_path / how).mkdir()
         c_side, _ = play(tmp_path / how, text, [0.0, 0.05, 0.1, 0.1], change_at=2, change=how)
