@@ -60,21 +60,9 @@ def spin(seconds: float) -> None:
         pass
 
 
-def idle_reader(directory: str, compiled: bool) -> DeviceReader:
-    """A pulled reader on a replay device whose reports are a minute apart: every pull
-    finds nothing due (after the first)."""
-    backend = ReplayBackend(directory)
-    device = backend.open(backend.enumerate()[0])
-    decoder = parse_descriptor(device.report_descriptor()).make_decoder()
-    reader = DeviceReader(device, decoder, lambda r, c: None, pulled=True)
-    if not compiled:
-        reader._c_pull = None
-    reader.pull()
-    return reader
-
-
-def due_readers(directory: str, compiled: bool) -> list[DeviceReader]:
-    """A step's pulled readers: four real devices playing random reports at 1 kHz."""
+def pulled_readers(directory: str, compiled: bool) -> list[DeviceReader]:
+    """A pulled reader on each replay device of `directory` (`compiled`: with the C pull,
+    where built; else the Python pull only), pulled once."""
     backend = ReplayBackend(directory)
     readers = []
     for info in backend.enumerate():
@@ -88,15 +76,24 @@ def due_readers(directory: str, compiled: bool) -> list[DeviceReader]:
     return readers
 
 
+def idle_reader(directory: str, compiled: bool) -> DeviceReader:
+    """A pulled reader on a replay device whose reports are a minute apart: every pull
+    finds nothing due (after the first)."""
+    (reader,) = pulled_readers(directory, compiled)
+    return reader
+
+
 def due_costs(samples: int) -> dict[str, float]:
     """A step's four pulls after each sleep, with the reports of that sleep due."""
     figures = {}
     with tempfile.TemporaryDirectory() as tmp:
+        # long enough for either path's pulls (samples x 30 ms of sleeps), each on devices
+        # opened anew: a replay plays from its open
         recordings = real_device_recordings(4, 3 * samples * 0.020 + 10.0, 1000.0)
         for k, text in enumerate(recordings):
             install_file(Path(tmp) / f"device{k}.hid", text)
         for compiled in (True, False):
-            readers = due_readers(tmp, compiled)
+            readers = pulled_readers(tmp, compiled)
             if compiled and readers[0]._c_pull is None:
                 continue  # the C loops are not built here
             path = "c" if compiled else "python"
