@@ -217,14 +217,15 @@ class TimedWrites(NamedTuple):
     steps: list[float]  # when the node table was asked for a step (a snapshot)
 
 
-def timed_writes(outputs: int) -> TimedWrites:
-    """`outputs` C2-16B drivers at 100 Hz, each over its own pty, on one drivers' thread,
-    60 ticks or more; per write: which output, the tick's deadline and planned start, when
-    the tick began, made its bytes (from which snapshot) and wrote them. The final ticks
-    (at once, on stop) are left out."""
+def timed_writes(protocols: list[str]) -> TimedWrites:
+    """A driver of each of `protocols` ("c2-16b" at 100 Hz, "sumd" at 200 Hz), each over its
+    own pty, on one drivers' thread, 60 ticks each or more; per write: which output, the
+    tick's deadline and planned start, when the tick began, made its bytes (from which
+    snapshot) and wrote them. The final ticks (at once, on stop) are left out."""
     table = NodeTable()
     table.add_device(0, info("k0", "1-0"), BINDING, Source.of(StickState()), "JOYSTICK")
-    fars = [PtyLine("c2-16b") for _ in range(outputs)]
+    outputs = len(protocols)
+    fars = [PtyLine(protocol) for protocol in protocols]
     drivers = []
     written: list[dict[str, Any]] = []
     steps: list[float] = []
@@ -234,10 +235,18 @@ def timed_writes(outputs: int) -> TimedWrites:
         steps.append(time.monotonic())
         return table.step_if_due(node_ids)
 
-    for index, far in enumerate(fars):
+    for index, (protocol, far) in enumerate(zip(protocols, fars, strict=True)):
         link = SerialLink(far.path, 921600)
-        session = C2Session(far.path, C2Settings(rate_hz=100, baudrate=921600, version="0.1.0"))
-        driver = LineDriver(f"c2-{index}", link, session, step_if_due, 0.01, alone=outputs == 1)
+        session: C2Session | SumdSession
+        if protocol == "sumd":
+            channels = SumdChannels.of([ChannelSource(0, "axis", 0), ChannelSource(0, "axis", 1)])
+            session = SumdSession(far.path, channels, channels.frame_length, 200.0)
+        else:
+            settings = C2Settings(rate_hz=100, baudrate=921600, version="0.1.0")
+            session = C2Session(far.path, settings)
+        period_s = session.period_s
+        name = f"{protocol}-{index}"
+        driver = LineDriver(name, link, session, step_if_due, period_s, alone=outputs == 1)
         drivers.append(driver)
         _timed(driver, index, written, stopping)
         assert link.open_now()
@@ -297,7 +306,7 @@ def test_outputs_due_together_are_made_ahead_from_one_snapshot_and_written_in_co
     start on the earliest of their starts, are made from one step of the node table, asked
     for once, and are written on their deadline, never before it, in config order, after
     all of them were made."""
-    drivers, on_grid, steps = timed_writes(outputs=3)
+    drivers, on_grid, steps = timed_writes(["c2-16b"] * 3)
     for driver in drivers:
         assert driver.lead is not None and 0.0 < driver.lead.s <= 0.01 * LEAD_MAX_SHARE
     ticks: dict[float, list[dict[str, Any]]] = {}
@@ -328,11 +337,45 @@ def test_the_only_output_reads_the_records_on_its_deadline_and_writes_them_at_on
     """No lead: each tick wakes on its deadline (on the grid, from its epoch), makes its
     frame from the records then and writes it at once: never before the deadline, never
     from records read ahead of it (a lead would age every frame's records by itself)."""
-    (driver,), on_grid, _ = timed_writes(outputs=1)
+    (driver,), on_grid, _ = timed_writes(["c2-16b"])
     assert len(on_grid) >= 60 and driver.lead is None
     for w in on_grid:
         assert w["start"] == w["deadline"] and on_the_grid(w["start"], 0.01)
         assert w["deadline"] <= w["began"] <= w["made"] <= w["written"]
+
+
+def test_a_protocol_whose_far_end_does_not_time_its_frames_writes_them_as_soon_as_made() -> None:
+    """Beside C2-16B, whose far end times its frames (it leads), SUMD's receiver takes a frame
+    whenever it comes: SUMD has no lead. Its ticks on their own wake on their deadline, read
+    the records then and write at once (one wake-up a tick); those due with C2-16B's are
+    made with it, from one snapshot, and written on the deadline after it."""
+    (c2, sumd), on_grid, _ = timed_writes(["c2-16b", "sumd"])
+    assert c2.lead is not None and sumd.lead is None
+    ticks: dict[float, list[dict[str, Any]]] = {}
+    for w in on_grid:
+        ticks.setdefault(round(w["deadline"], 6), []).append(w)
+    own = {at: tick[0] for at, tick in ticks.items() if [w["output"] for w in tick] == [1]}
+    together = [tick for tick in ticks.values() if [w["output"] for w in tick] == [0, 1]]
+    for w in own.values():
+        assert w["start"] == w["deadline"] and on_the_grid(w["deadline"], 0.005)
+        assert w["deadline"] <= w["began"] <= w["made"] <= w["written"]
+    # SUMD's tick before, held up past C2-16B's start (a loaded host), is made with C2-16B's
+    # batch, and SUMD's tick due with C2-16B then starts after it: those are not judged
+    on_time = [
+        (c2_write, sumd_write)
+        for c2_write, sumd_write in together
+        if (before := own.get(round(sumd_write["deadline"] - 0.005, 6))) is not None
+        and before["written"] < c2_write["began"]
+    ]
+    assert len(own) >= 20 and len(on_time) >= 20
+    for c2_write, sumd_write in on_time:
+        assert (
+            sumd_write["start"] == sumd_write["deadline"]
+            and c2_write["start"] < c2_write["deadline"]
+        )
+        assert c2_write["snapshot"] is sumd_write["snapshot"]  # made together, one step
+        assert sumd_write["made"] <= c2_write["written"] <= sumd_write["written"]
+        assert sumd_write["deadline"] <= c2_write["written"]
 
 
 def test_the_lead_is_the_ticks_recent_cost_and_one_held_up_tick_does_not_move_it() -> None:

@@ -13,13 +13,15 @@ It knows no protocol: what to send, when to stall, when to flush, when the next 
 (`session.next_due`) are the session's. A late tick is counted, never caught up with a burst.
 
 One thread drives every output (`DriverThread`). The daemon's only output (`alone`) wakes on
-its deadline, reads the records and writes its bytes as soon as they are made. Several make
-their bytes `Lead.s` before their deadline (what their ticks took together, recently) and
-write them on it, as a transmitter's mixer runs ahead of its frame timer; the lead costs
-every frame's records that much age, which the only output has no reason to pay. Ticks due
-together are made together, from one snapshot, and written in config order: threads of
-their own would queue for the one interpreter, and C2-16B's write would move with the
-others' work.
+its deadline, reads the records and writes its bytes as soon as they are made. Beside
+others, an output whose far end times its frames (`session.on_deadline`: C2-16B, CRSF)
+makes its bytes `Lead.s` before its deadline (what its ticks took together, recently) and
+writes them on it, as a transmitter's mixer runs ahead of its frame timer; the lead costs
+every frame's records that much age, which the only output, and a protocol whose receiver
+takes a frame whenever it comes (SUMD, SBUS, iBus, MAVLink), have no reason to pay: those
+wake on their deadline and write as soon as their bytes are made. Ticks due together are
+made together, from one snapshot, and written in config order: threads of their own would
+queue for the one interpreter, and C2-16B's write would move with the others' work.
 
 One clock: a driver's ticks fall on the multiples of its period from the grid's epoch on the
 monotonic clock (`aligned`, `nodes.step.GRID_EPOCH_S`: 3/4 of a kernel tick, off the kernel's
@@ -173,9 +175,11 @@ class LineDriver:
     asked for those its session reads, or those of every output due with it); `on_tick`
     after every tick (the watchdog hook), `on_first_write` once, after the first write
     that went out.
-    `alone`: the daemon's only output, which has no lead (`lead` is None) and writes as soon
-    as its bytes are made; each of several makes them `lead.s` ahead (or with a tick due
-    on the same deadline that leads more, `DriverThread`) and writes them on its deadline.
+    `alone`: the daemon's only output. It has no lead (`lead` is None) and writes as soon
+    as its bytes are made, as does one whose session is not `on_deadline`; beside others,
+    an `on_deadline` one makes them `lead.s` ahead and writes them on its deadline. A
+    tick due on the same deadline as one that leads is made with it (`DriverThread`) and
+    written on the deadline too.
     Every field is written by the drivers' thread only; `period_s` and `stats` are read by
     others."""
 
@@ -196,8 +200,9 @@ class LineDriver:
         self.snapshot = snapshot
         # the period now (a CRSF module may change it: `plan`)
         self.period_s = period_s
-        # the daemon's only output has no lead: it reads the records on its deadline
-        self.lead = None if alone else Lead(period_s)
+        # the only output, and one whose far end does not time its frames, has no lead: it
+        # reads the records on its deadline
+        self.lead = None if alone or not session.on_deadline else Lead(period_s)
         self.stats = OutputStats()
         # a missed tick is said in the log (rate limited), with usb2rc's CPU share
         self._missed_log = MissedTickLog(f"{name} ({link.url})", CpuMark.now())
@@ -521,9 +526,11 @@ class DriverThread(Worker):
     together, the default outputs' every 20 ms, start together from one snapshot, so the
     readers wake once for all of them, and write on their deadline in config order, one
     right after another (each counted after all of them went out): no write waits for
-    another thread's work. Each of several outputs has its own lead, which learns what its
-    ticks took with those due together; ticks due together start on the earliest of their
-    starts. The only output has none (`LineDriver`'s `alone`)."""
+    another thread's work. Each output whose far end times its frames has its own lead,
+    beside others, which learns what its ticks took with those due together; ticks due
+    together start on the earliest of their starts. The only output has none
+    (`LineDriver`'s `alone`), nor does one whose far end does not time its frames: its
+    ticks on their own start on their deadline and write at once."""
 
     def __init__(self, name: str, drivers: Sequence[LineDriver]) -> None:
         super().__init__(name)

@@ -211,6 +211,7 @@ class LineSession(Protocol):
 
     name: str
     reads: frozenset[int] | None
+    on_deadline: bool
 
     @property
     def line_open(self) -> bool: ...
@@ -237,7 +238,15 @@ class LineSession(Protocol):
 class SessionBase:
     """What every session shares: its line's state (`line`), the back-pressure decision,
     the period, the tap latch. The line's events move the state; a session whose protocol
-    has an engine hands them to it (`EngineSession`)."""
+    has an engine hands them to it (`EngineSession`).
+
+    `on_deadline`: the far end times this protocol's frames (C2-16B's period, a CRSF
+    module's packet timing), so beside other outputs they are made ahead and written on
+    their deadline (`lines.driver.Lead`). Other protocols' receivers take a frame whenever
+    it comes (SUMD, SBUS, iBus, MAVLink): theirs are written as soon as they are made, from
+    records read at the deadline, not a lead before it."""
+
+    on_deadline = False
 
     def __init__(
         self, name: str, line: LineState, backpressure: Backpressure, period_s: float

@@ -44,6 +44,10 @@ class C2Session(EngineSession[C2Engine]):
     """A C2-16B output's session: its engine fed the snapshot's events and node frames, and
     the far end's requests."""
 
+    # the far end times its frames: one every period, on the grid (docs/ICD.md, "Timing and
+    # bandwidth")
+    on_deadline = True
+
     def __init__(self, name: str, settings: C2Settings) -> None:
         engine = C2Engine(settings, name=name)
         tick_bytes = engine.capacity * engine.frame_len

@@ -156,6 +156,9 @@ class CrsfSession(ChannelSession):
     """CRSF to a transmitter module (or a flight controller's receiver UART): RC frames on
     the module's timing while it sends corrections (`module`)."""
 
+    # a module follows the handset's packet timing, and corrects its phase to the microsecond
+    on_deadline = True
+
     def __init__(
         self,
         name: str,
