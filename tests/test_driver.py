@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -219,7 +220,7 @@ class TimedWrites(NamedTuple):
 
 def timed_writes(protocols: list[str]) -> TimedWrites:
     """A driver of each of `protocols` ("c2-16b" at 100 Hz, "sumd" at 200 Hz), each over its
-    own pty, on one drivers' thread, 60 ticks each or more; per write: which output, the
+    own pty, on one drivers' thread, until each wrote 60 ticks; per write: which output, the
     tick's deadline and planned start, when the tick began, made its bytes (from which
     snapshot) and wrote them. The final ticks (at once, on stop) are left out."""
     table = NodeTable()
@@ -253,7 +254,7 @@ def timed_writes(protocols: list[str]) -> TimedWrites:
     thread = DriverThread("drivers", drivers)
     thread.start()
     try:
-        until(lambda: len(written) >= 60 * outputs, f"{60 * outputs} written ticks")
+        until(lambda: _each_wrote(written, outputs, 60), "60 written ticks of each output")
     finally:
         stopping.set()
         thread.stop()
@@ -261,6 +262,12 @@ def timed_writes(protocols: list[str]) -> TimedWrites:
         for far in fars:
             far.close()
     return TimedWrites(drivers, [w for w in written if not w["final"]], steps)
+
+
+def _each_wrote(written: list[dict[str, Any]], outputs: int, ticks: int) -> bool:
+    """Whether each of the outputs `0..outputs-1` wrote `ticks` ticks or more."""
+    counts = Counter(w["output"] for w in list(written))
+    return all(counts[index] >= ticks for index in range(outputs))
 
 
 def _timed(
