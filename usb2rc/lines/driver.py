@@ -526,11 +526,9 @@ class DriverThread(Worker):
     together, the default outputs' every 20 ms, start together from one snapshot, so the
     readers wake once for all of them, and write on their deadline in config order, one
     right after another (each counted after all of them went out): no write waits for
-    another thread's work. Each output whose far end times its frames has its own lead,
-    beside others, which learns what its ticks took with those due together; ticks due
-    together start on the earliest of their starts. The only output has none
-    (`LineDriver`'s `alone`), nor does one whose far end does not time its frames: its
-    ticks on their own start on their deadline and write at once."""
+    another thread's work. Ticks due together start on the earliest of their starts: the
+    lead of any of them (`LineDriver.lead`, which learns what its ticks took with those due
+    together), or their deadline when none leads."""
 
     def __init__(self, name: str, drivers: Sequence[LineDriver]) -> None:
         super().__init__(name)
