@@ -2,7 +2,7 @@
 both made free, measured by bench_hot_path.py.
 
     .venv/bin/python bench/bench_engine_bound.py [--tree .] [--only c2 five] [--rounds 3]
-        [--seconds 10] [--together] [--free step frames] [--phases]
+        [--seconds 10] [--together] [--free step frames | --free none] [--phases]
 
 The question it answers: how much of the daemon's CPU is the interpreted work of a tick (the
 node step, each output's frames), and how much the rest of the drivers' thread (its loop and
@@ -16,9 +16,11 @@ as they are), a node step computes nothing (`NodeTable._step_locked` keeps the l
 and every session's tick returns its last bytes (`tick` of C2Session, ChannelSession and
 MavlinkSession): what a compiled step and compiled frames taking no time at all would leave.
 `--free step` or `--free frames` makes only that part free (which of the two a compiled engine
-would take first). `--phases` (one scenario) also prints what each part of the copy's drivers'
-thread costs (thread CPU clocks around its loop's calls, written by each daemon at its exit);
-the clocks cost the copy CPU of their own, so its ratio is read from a run without it.
+would take first); `--free none` leaves the copy as the tree is. `--phases` (one scenario) also
+prints what each part of the copy's drivers' thread costs (thread CPU clocks around its loop's
+calls, the node table's step and each reader's pull, written by each daemon at its exit; a
+driver's parts per protocol); the clocks cost the copy CPU of their own, so its ratio is read
+from a run without it.
 Everything else runs as it is: the loop, its wake-ups and sleeps, every reader's pull (the
 reports are still read and decoded), each link followed, every write. The copy's frames do not
 change (C2-16B's rolling code stands still): the far ends here only read and drop them.
@@ -44,6 +46,7 @@ WARM_STEPS = 100  # node steps as they are, before the step becomes free
 WARM_TICKS = 50  # each session's ticks as they are, before its tick becomes free
 
 PARTS = ("step", "frames")
+NOTHING = "none"  # --free none: the copy is the tree as it is (for --phases)
 PHASES_ENV = "USB2RC_BOUND_PHASES"  # --phases: the directory the copy's daemons write to
 BOUND_HOOK = '''"""bench_engine_bound.py's hook: a free step and frames; --phases: parts timed."""
 
@@ -84,13 +87,19 @@ def _free_tick(cls):
 
 
 FREE = {free!r}
-PATCHES = {{}}
+PATCHES = {{}}  # module -> what is done to it once imported, in order
+
+
+def _patch(module_name, change):
+    PATCHES.setdefault(module_name, []).append(change)
+
+
 if "step" in FREE:
-    PATCHES["usb2rc.nodes.table"] = _free_step
+    _patch("usb2rc.nodes.table", _free_step)
 if "frames" in FREE:
-    PATCHES["usb2rc.protocols.c2_16b.session"] = lambda m: _free_tick(m.C2Session)
-    PATCHES["usb2rc.lines.session"] = lambda m: _free_tick(m.ChannelSession)
-    PATCHES["usb2rc.protocols.mavlink.session"] = lambda m: _free_tick(m.MavlinkSession)
+    _patch("usb2rc.protocols.c2_16b.session", lambda m: _free_tick(m.C2Session))
+    _patch("usb2rc.lines.session", lambda m: _free_tick(m.ChannelSession))
+    _patch("usb2rc.protocols.mavlink.session", lambda m: _free_tick(m.MavlinkSession))
 
 
 # --phases: each daemon writes the thread CPU of the drivers' thread's parts to this directory
@@ -99,15 +108,18 @@ _spent = {{}}  # part -> [thread CPU ns, calls]
 _began = time.monotonic()
 
 
-def _timed(cls, name):
+def _timed(cls, name, by_session=False):
+    """`cls.name` timed; `by_session`: a driver's method, one part per protocol (its
+    session's class in brackets)."""
     real, clock, key = getattr(cls, name), time.thread_time_ns, f"{{cls.__name__}}.{{name}}"
 
-    def timed(*args, **kwargs):
+    def timed(self, *args, **kwargs):
         began = clock()
         try:
-            return real(*args, **kwargs)
+            return real(self, *args, **kwargs)
         finally:
-            spent = _spent.setdefault(key, [0, 0])
+            part = f"{{key}}[{{type(self.session).__name__}}]" if by_session else key
+            spent = _spent.setdefault(part, [0, 0])
             spent[0] += clock() - began
             spent[1] += 1
 
@@ -118,7 +130,7 @@ def _time_driver(module):
     for name in ("_begin", "_wait"):
         _timed(module.DriverThread, name)
     for name in ("begin", "_follow_link", "_follow_backpressure", "_send", "finish"):
-        _timed(module.LineDriver, name)
+        _timed(module.LineDriver, name, by_session=True)
 
 
 def _write_phases():
@@ -128,15 +140,16 @@ def _write_phases():
 
 
 if PHASES_DIR:
-    PATCHES["usb2rc.lines.driver"] = _time_driver
-    PATCHES["usb2rc.hid.reader"] = lambda m: _timed(m.DeviceReader, "pull")
+    _patch("usb2rc.lines.driver", _time_driver)
+    _patch("usb2rc.hid.reader", lambda m: _timed(m.DeviceReader, "pull"))
+    _patch("usb2rc.nodes.table", lambda m: _timed(m.NodeTable, "step_if_due"))
     atexit.register(_write_phases)
 
 
 class _PatchAfterImport(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path, target=None):
-        patch = PATCHES.get(name)
-        if patch is None:
+        changes = PATCHES.get(name)
+        if changes is None:
             return None
         spec = importlib.machinery.PathFinder.find_spec(name, path)
         if spec is None or spec.loader is None:
@@ -145,7 +158,8 @@ class _PatchAfterImport(importlib.abc.MetaPathFinder):
 
         def exec_module(module):
             run_module(module)
-            patch(module)
+            for change in changes:
+                change(module)
 
         spec.loader.exec_module = exec_module
         return spec
@@ -174,7 +188,11 @@ def main() -> None:
     parser.add_argument("--seconds", default="10")
     parser.add_argument("--together", action="store_true", help="bench_hot_path's --together")
     parser.add_argument(
-        "--free", nargs="+", choices=PARTS, default=list(PARTS), help="what is free (both)"
+        "--free",
+        nargs="+",
+        choices=[*PARTS, NOTHING],
+        default=list(PARTS),
+        help=f"what is free (both; {NOTHING}: nothing, the tree's parts timed with --phases)",
     )
     parser.add_argument(
         "--phases",
@@ -186,7 +204,8 @@ def main() -> None:
         parser.error("--phases: one scenario (--only)")
     tree = args.tree.resolve()
     with tempfile.TemporaryDirectory(prefix="usb2rc-bound-") as tmp:
-        copy = bound_copy(tree, Path(tmp), tuple(args.free))
+        free_parts = tuple(part for part in args.free if part != NOTHING)
+        copy = bound_copy(tree, Path(tmp), free_parts)
         phases = Path(tmp) / "phases"
         phases.mkdir()
         command = [
@@ -195,8 +214,8 @@ def main() -> None:
         ]  # fmt: skip
         if args.together:
             command.append("--together")
-        free = " and ".join(args.free)
-        print(f"{tree}: as it is; {copy}: its {free} free once warmed up", flush=True)
+        free = " and ".join(free_parts) or "nothing"
+        print(f"{tree}: as it is; {copy}: {free} free once warmed up", flush=True)
         env = dict(os.environ, **({PHASES_ENV: str(phases)} if args.phases else {}))
         code = subprocess.run(command, env=env).returncode
         if args.phases:

@@ -309,7 +309,7 @@ def python_in(copy: Path, code: str, **env: str) -> str:
     return proc.stdout
 
 
-@pytest.mark.parametrize("free", [("step", "frames"), ("step",), ("frames",)])
+@pytest.mark.parametrize("free", [("step", "frames"), ("step",), ("frames",), ()])
 def test_engine_bound_copy_makes_what_it_is_asked_free(
     tmp_path: Path, free: tuple[str, ...]
 ) -> None:
@@ -344,15 +344,17 @@ def test_engine_bound_phases_are_written_at_exit(tmp_path: Path) -> None:
     """With the phases' directory set, the copy's drivers' thread and readers are timed and
     each process writes what its parts cost when it exits."""
     bench = engine_bound()
-    copy = bench.bound_copy(ROOT, tmp_path / "tree")
+    copy = bench.bound_copy(ROOT, tmp_path / "tree", ("step",))
     phases = tmp_path / "phases"
     phases.mkdir()
     probe = (
-        "import usb2rc.lines.driver as d, usb2rc.hid.reader as r; "
-        "print(d.LineDriver._send.__qualname__, r.DeviceReader.pull.__qualname__)"
+        "import usb2rc.lines.driver as d, usb2rc.hid.reader as r, usb2rc.nodes.table as t; "
+        "print(d.LineDriver._send.__qualname__, r.DeviceReader.pull.__qualname__, "
+        "t.NodeTable.step_if_due.__qualname__, t.NodeTable._step_locked.__qualname__)"
     )
     out = python_in(copy, probe, **{bench.PHASES_ENV: str(phases)})
-    assert out.split() == ["_timed.<locals>.timed"] * 2
+    # the table's step timed, and its `_step_locked` still the free one: both changes made
+    assert out.split() == ["_timed.<locals>.timed"] * 3 + ["_free_step.<locals>.step"]
     (written,) = phases.glob("*.json")
     record = json.loads(written.read_text())
     assert record["parts"] == {} and record["seconds"] > 0
