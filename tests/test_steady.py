@@ -158,12 +158,13 @@ class Pair:
         self.now += dt
         self.step()
 
-    def step(self) -> None:
-        """One step of each table; their results and state compared."""
+    def step(self, node_ids: frozenset[int] | None = None) -> None:
+        """One step of each table (of the nodes `node_ids`, as an output asks; None:
+        every node); their results and state compared."""
         with self.compiled._lock:
-            changes = self.compiled._step_if_due_locked(None)
+            changes = self.compiled._step_if_due_locked(node_ids)
         with python_only(), self.python._lock:
-            expected = self.python._step_if_due_locked(None)
+            expected = self.python._step_if_due_locked(node_ids)
         assert changes == expected
         assert self.compiled._snapshot == self.python._snapshot
         assert table_state(self.compiled) == table_state(self.python)
@@ -206,6 +207,8 @@ OPS = st.lists(
         st.tuples(st.just("wait"), st.sampled_from([0.06, 0.3, 1.2])),
         st.tuples(st.just("unplug"), DEVICE),
         st.tuples(st.just("replug"), DEVICE),
+        # a step of the nodes one output reads, `dt` after the last reports
+        st.tuples(st.just("some"), st.sampled_from([frozenset({0}), frozenset({1})]), TICK),
     ),
     max_size=60,
 )
@@ -237,6 +240,9 @@ def play(pair: Pair, ops: list[Any]) -> None:
         elif kind == "replug":
             pair.replug(op[1])
             pair.step()
+        elif kind == "some":
+            pair.now += op[2]
+            pair.step(op[1])
 
 
 @settings(max_examples=300, deadline=None)
