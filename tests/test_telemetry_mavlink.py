@@ -188,9 +188,10 @@ def test_a_second_vehicle_is_ignored_until_the_first_has_been_silent() -> None:
 
 def test_the_mode_maps_load_no_dialect_but_common_and_leave_the_environment_as_it_was() -> None:
     """pymavlink's mavutil, imported for its mode maps, would load the `all` dialect (9 MB
-    of RSS on a Pi): in a fresh process, after `mode_maps()`, only `common` is loaded (and
-    v10's empty package), the names still come out, and MAVLINK20 / MAVLINK_DIALECT are
-    unset again."""
+    of RSS on a Pi) and curses: in a fresh process, after `mode_maps()`, only `common` is
+    loaded (and v10's empty package), no curses, the names still come out, MAVLINK20 /
+    MAVLINK_DIALECT are unset again, and `sys.modules` holds no block left behind (curses
+    imports after it)."""
     import subprocess
     import sys
 
@@ -201,11 +202,16 @@ def test_the_mode_maps_load_no_dialect_but_common_and_leave_the_environment_as_i
         "dialects = sorted(n for n in sys.modules if n.startswith('pymavlink.dialects.v'))\n"
         "print(dialects, m.mavlink.__name__, os.environ.get('MAVLINK20'),"
         " os.environ.get('MAVLINK_DIALECT'), m.mode_mapping_acm[5])\n"
+        "print(sorted(n for n in sys.modules if 'curses' in n), None in sys.modules.values())\n"
+        "import curses.ascii\n"
+        "print(curses.ascii.isprint('a'))\n"
     )
     out = subprocess.run(
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
     ).stdout.strip()
-    assert out == (
+    assert out.splitlines() == [
         "['pymavlink.dialects.v10', 'pymavlink.dialects.v20', 'pymavlink.dialects.v20.common'] "
-        "pymavlink.dialects.v20.common None None LOITER"
-    )
+        "pymavlink.dialects.v20.common None None LOITER",
+        "[] False",
+        "True",
+    ]

@@ -43,9 +43,10 @@ log = logging.getLogger(__name__)
 NEEDS_MODE_MAPS = ("mode", "rtl", "land")  # action kinds that look up a mode by name
 
 
-# pymavlink's own dialects, beside `common` (which usb2rc speaks): mavutil imports
-# `v10.all` at its top for pyinstaller's sake only, in a try that lets it be missing.
-UNUSED_DIALECT = "pymavlink.dialects.v10.all"
+# What mavutil imports at its top in a try that lets it be missing, and usb2rc never uses:
+# pymavlink's `all` dialect beside `common` (which usb2rc speaks; imported for pyinstaller's
+# sake only), and curses (for `is_printable`, which has a fallback of its own).
+UNUSED_MODULES = ("pymavlink.dialects.v10.all", "curses")
 
 
 def mode_maps() -> Any:  # pymavlink has no types
@@ -54,30 +55,31 @@ def mode_maps() -> Any:  # pymavlink has no types
     never in a tick or on a read. As it is, importing it loads the `all` dialect twice over
     (its own import of `v10.all`, and the dialect its environment names, `all` over MAVLink
     1 unless told): 9 MB of RSS, on a Pi that may have 512 MB, for messages usb2rc never
-    parses. So `v10.all` is kept out while it imports (a `None` in `sys.modules`: its try
-    lets it be missing; a pymavlink whose import needs it imports it), and unless the user
-    set them, mavutil is told MAVLink 2's `common`, which usb2rc already loaded: the mode
-    maps are the same (they name autopilots and vehicle types by `common`'s constants).
-    The environment and `sys.modules` are as they were after the import."""
+    parses; and curses with its terminal libraries (0.6 MB). So the UNUSED_MODULES not
+    loaded yet are kept out while it imports (a `None` in `sys.modules`: its tries let them
+    be missing; a pymavlink whose import needs them imports them), and unless the user set
+    them, mavutil is told MAVLink 2's `common`, which usb2rc already loaded: the mode maps
+    are the same (they name autopilots and vehicle types by `common`'s constants). The
+    environment and `sys.modules` are as they were after the import."""
     if "pymavlink.mavutil" in sys.modules:
         return sys.modules["pymavlink.mavutil"]
     told = {"MAVLINK20": "1", "MAVLINK_DIALECT": "common"}
     added = [key for key in told if key not in os.environ]
     os.environ.update({key: told[key] for key in added})
-    blocked = UNUSED_DIALECT not in sys.modules
-    if blocked:
-        sys.modules[UNUSED_DIALECT] = None  # type: ignore[assignment]
+    blocked = [name for name in UNUSED_MODULES if name not in sys.modules]
+    for name in blocked:
+        sys.modules[name] = None  # type: ignore[assignment]
     try:
         try:
             from pymavlink import mavutil
-        except ImportError:  # a pymavlink that needs it: load it after all
-            if blocked:
-                del sys.modules[UNUSED_DIALECT]
-                blocked = False
+        except ImportError:  # a pymavlink that needs them: load them after all
+            for name in blocked:
+                del sys.modules[name]
+            blocked = []
             from pymavlink import mavutil
     finally:
-        if blocked:
-            sys.modules.pop(UNUSED_DIALECT, None)
+        for name in blocked:
+            sys.modules.pop(name, None)
         for key in added:
             os.environ.pop(key, None)
     return mavutil
