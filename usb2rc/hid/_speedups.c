@@ -49,6 +49,7 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <structmember.h>
 #include <ctype.h>
 #include <math.h>
 #include <stdint.h>
@@ -812,14 +813,100 @@ static PyTypeObject EventsType = {
  * (a fault due, the file gone, the device closed); the Python pull then runs and raises it.
  * None: never (the decoder has no C plan, or the reader no button decoder). */
 
-static PyObject *str_device_lock, *str_acquire, *str_release, *str_closed, *str_pull_error,
-    *str_press_decoder, *str_refused_in_a_row, *str_last_report, *str_repeats, *str_reports,
-    *str_bad_reports, *str_record, *str_presses, *str_press_serial, *str_bad_spells,
-    *str_c_plan, *str_values, *str_buttons, *str_state, *str_dec_reports, *str_dec_bad_reports,
-    *str_quiet_until, *str_set, *str_batch, *str_busy_s, *str_fault_due,
+/* ReaderCounts: a reader's own counts, its press log and its last report, and whether it is
+ * closed or a pull failed (reader.ReaderCounts is its Python twin: the same fields, the same
+ * defaults). A C structure, so the compiled pull reads and writes them without a look-up on
+ * the reader's objects: after the drivers' thread slept, each look-up costs memory gone
+ * cold. */
+typedef struct {
+    PyObject_HEAD
+    Py_ssize_t reports, bad_reports, refused_in_a_row, bad_spells, repeats, press_serial;
+    PyObject *last_report; /* bytes */
+    PyObject *presses;     /* tuple of ints, the last PRESSES_KEPT */
+    char closed;
+    PyObject *pull_error; /* None, or what a pull met */
+} CountsObject;
+
+static PyObject *
+counts_new(PyTypeObject *type, PyObject *args, PyObject *kwargs)
+{
+    if (PyTuple_GET_SIZE(args) != 0 || (kwargs != NULL && PyDict_GET_SIZE(kwargs) != 0)) {
+        PyErr_SetString(PyExc_TypeError, "ReaderCounts() takes no arguments");
+        return NULL;
+    }
+    CountsObject *self = (CountsObject *)type->tp_alloc(type, 0);
+    if (self == NULL) {
+        return NULL;
+    }
+    self->last_report = PyBytes_FromStringAndSize(NULL, 0);
+    self->presses = PyTuple_New(0);
+    self->pull_error = Py_NewRef(Py_None);
+    if (self->last_report == NULL || self->presses == NULL) {
+        Py_DECREF(self);
+        return NULL;
+    }
+    return (PyObject *)self;
+}
+
+static void
+counts_dealloc(CountsObject *self)
+{
+    PyObject_GC_UnTrack(self);
+    Py_CLEAR(self->last_report);
+    Py_CLEAR(self->presses);
+    Py_CLEAR(self->pull_error);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+static int
+counts_traverse(CountsObject *self, visitproc visit, void *arg)
+{
+    Py_VISIT(self->pull_error); /* an exception holds its traceback's frames */
+    return 0;
+}
+
+static int
+counts_clear(CountsObject *self)
+{
+    Py_CLEAR(self->pull_error);
+    return 0;
+}
+
+static PyMemberDef counts_members[] = {
+    {"reports", T_PYSSIZET, offsetof(CountsObject, reports), 0, "reports accepted"},
+    {"bad_reports", T_PYSSIZET, offsetof(CountsObject, bad_reports), 0, "reports refused"},
+    {"refused_in_a_row", T_PYSSIZET, offsetof(CountsObject, refused_in_a_row), 0,
+     "reports refused since the last accepted one"},
+    {"bad_spells", T_PYSSIZET, offsetof(CountsObject, bad_spells), 0,
+     "runs of BAD_REPORTS_LIMIT refused reports"},
+    {"repeats", T_PYSSIZET, offsetof(CountsObject, repeats), 0,
+     "reports byte for byte the one before"},
+    {"press_serial", T_PYSSIZET, offsetof(CountsObject, press_serial), 0, "presses noted"},
+    {"last_report", T_OBJECT_EX, offsetof(CountsObject, last_report), 0, "the raw report before"},
+    {"presses", T_OBJECT_EX, offsetof(CountsObject, presses), 0, "the last presses noted"},
+    {"closed", T_BOOL, offsetof(CountsObject, closed), 0, "the reader closed its device"},
+    {"pull_error", T_OBJECT, offsetof(CountsObject, pull_error), 0, "what a pull met, or None"},
+    {NULL, 0, 0, 0, NULL},
+};
+
+static PyTypeObject CountsType = {
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "usb2rc.hid._speedups.ReaderCounts",
+    .tp_basicsize = sizeof(CountsObject),
+    .tp_new = counts_new,
+    .tp_dealloc = (destructor)counts_dealloc,
+    .tp_traverse = (traverseproc)counts_traverse,
+    .tp_clear = (inquiry)counts_clear,
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
+    .tp_doc = "A reader's counts, press log, last report and state (reader.ReaderCounts).",
+    .tp_members = counts_members,
+};
+
+static PyObject *str_device_lock, *str_acquire, *str_release, *str_closed,
+    *str_press_decoder, *str_record, *str_c_plan, *str_values, *str_buttons, *str_state,
+    *str_dec_reports, *str_dec_bad_reports, *str_quiet_until, *str_set, *str_batch, *str_busy_s, *str_fault_due,
     *str_gone, *str_refill, *str_left, *str_on_bad_reports,
     *str_field_values, *str_field_buttons, *str_next_gone_check, *str_stat_path, *str_stat_id,
-    *str_gone_check_s;
+    *str_gone_check_s, *str_counts;
 
 static int
 intern_pull_names(void)
@@ -830,12 +917,8 @@ intern_pull_names(void)
     } names[] = {
         {&str_device_lock, "_device_lock"}, {&str_acquire, "acquire"},
         {&str_release, "release"}, {&str_closed, "_closed"},
-        {&str_pull_error, "_pull_error"}, {&str_press_decoder, "_press_decoder"},
-        {&str_refused_in_a_row, "_refused_in_a_row"}, {&str_last_report, "_last_report"},
-        {&str_repeats, "_repeats"}, {&str_reports, "_reports"},
-        {&str_bad_reports, "_bad_reports"}, {&str_record, "record"},
-        {&str_presses, "_presses"}, {&str_press_serial, "_press_serial"},
-        {&str_bad_spells, "_bad_spells"}, {&str_c_plan, "_c_plan"},
+        {&str_press_decoder, "_press_decoder"}, {&str_record, "record"},
+        {&str_c_plan, "_c_plan"},
         {&str_values, "_values"}, {&str_buttons, "_buttons"}, {&str_state, "_state"},
         {&str_dec_reports, "reports"}, {&str_dec_bad_reports, "bad_reports"},
         {&str_quiet_until, "_quiet_until"}, {&str_set, "_set"}, {&str_batch, "_batch"},
@@ -846,6 +929,7 @@ intern_pull_names(void)
         {&str_field_values, "values"}, {&str_field_buttons, "buttons"},
         {&str_next_gone_check, "_next_gone_check"}, {&str_stat_path, "_stat_path"},
         {&str_stat_id, "_stat_id"}, {&str_gone_check_s, "_gone_check_s"},
+        {&str_counts, "_counts"},
     };
     for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
         if ((*names[i].slot = PyUnicode_InternFromString(names[i].text)) == NULL) {
@@ -1202,14 +1286,10 @@ count_repeats(const Pull *s, PyObject *before)
 /* Every press noted, as `DeviceReader._note_presses`: the press log the last `kept` of the
  * old one and these, the serial on by their count. */
 static int
-note_presses(PyObject *reader, const Pull *s, Py_ssize_t kept)
+note_presses(CountsObject *c, const Pull *s, Py_ssize_t kept)
 {
-    PyObject *old = PyObject_GetAttr(reader, str_presses);
-    if (old == NULL) {
-        return -1;
-    }
-    if (!PyTuple_Check(old)) {
-        Py_DECREF(old);
+    PyObject *old = c->presses;
+    if (old == NULL || !PyTuple_Check(old)) {
         PyErr_SetString(PyExc_TypeError, "a reader's presses are a tuple");
         return -1;
     }
@@ -1226,15 +1306,12 @@ note_presses(PyObject *reader, const Pull *s, Py_ssize_t kept)
         }
         PyTuple_SET_ITEM(log, i, item);
     }
-    Py_DECREF(old);
     if (log == NULL) {
         return -1;
     }
-    if (attr_add(reader, str_press_serial, s->presses) < 0) {
-        Py_DECREF(log);
-        return -1;
-    }
-    return attr_set_new(reader, str_presses, log);
+    c->press_serial += s->presses;
+    Py_SETREF(c->presses, log);
+    return 0;
 }
 
 /* What the decoder takes from the batch, as `ReportDecoder.feed_presses` with the C drain:
@@ -1263,43 +1340,35 @@ decode(Pull *s)
 
 /* The reader's counts after the batch, as `DeviceReader._drain` and `_count_refused`. */
 static int
-count(PyObject *reader, const Pull *s, Py_ssize_t kept, Py_ssize_t bad_limit)
+count(CountsObject *c, const Pull *s, Py_ssize_t kept, Py_ssize_t bad_limit)
 {
-    Py_ssize_t accepted = s->n - s->refused, in_a_row;
-    if (s->presses && note_presses(reader, s, kept) < 0) {
+    Py_ssize_t accepted = s->n - s->refused;
+    if (s->presses && note_presses(c, s, kept) < 0) {
         return -1;
     }
     if (!s->refused) { /* a run of the same refused report is no sign of streaming */
-        PyObject *before = PyObject_GetAttr(reader, str_last_report);
-        if (before == NULL) {
-            return -1;
-        }
-        Py_ssize_t repeats = PyBytes_Check(before) ? count_repeats(s, before) : -1;
-        Py_DECREF(before);
-        if (repeats < 0) {
+        if (c->last_report == NULL || !PyBytes_Check(c->last_report)) {
             PyErr_SetString(PyExc_TypeError, "a reader's last report is bytes");
             return -1;
         }
-        if (attr_add(reader, str_repeats, repeats) < 0) {
-            return -1;
-        }
+        c->repeats += count_repeats(s, c->last_report);
     }
     PyObject *last = PyBytes_FromStringAndSize((const char *)s->report[s->n - 1],
                                                s->length[s->n - 1]);
-    if (attr_set_new(reader, str_last_report, last) < 0 || attr_add(reader, str_reports, accepted) < 0
-        || attr_add(reader, str_bad_reports, s->refused) < 0) {
+    if (last == NULL) {
         return -1;
     }
+    Py_SETREF(c->last_report, last);
+    c->reports += accepted;
+    c->bad_reports += s->refused;
     if (accepted) {
-        return attr_set_new(reader, str_refused_in_a_row, PyLong_FromLong(0));
+        c->refused_in_a_row = 0;
+        return 0;
     }
-    if (attr_ssize(reader, str_refused_in_a_row, &in_a_row) < 0
-        || attr_set_new(reader, str_refused_in_a_row, PyLong_FromSsize_t(in_a_row + s->refused))
-               < 0) {
-        return -1;
-    }
+    Py_ssize_t in_a_row = c->refused_in_a_row;
+    c->refused_in_a_row = in_a_row + s->refused;
     if (in_a_row < bad_limit && bad_limit <= in_a_row + s->refused) {
-        return attr_add(reader, str_bad_spells, 1);
+        c->bad_spells += 1;
     }
     return 0;
 }
@@ -1364,22 +1433,15 @@ new_record(PyTypeObject *cls, PyObject *const *fields)
 /* The reader's record published anew when its counts changed, as `DeviceReader._publish`;
  * `on_bad_reports` told of an edge. */
 static int
-publish(PyObject *reader, PyObject *decoder, double now, Py_ssize_t bad_limit)
+publish(PyObject *reader, const CountsObject *c, PyObject *decoder, double now,
+        Py_ssize_t bad_limit)
 {
-    /* the record's fields after its time, in order, by the reader's attribute */
-    static PyObject *const *after_at[R_FIELDS - R_AT - 1] = {
-        &str_presses, &str_press_serial, &str_refused_in_a_row, &str_bad_spells, &str_repeats};
     PyObject *last = PyObject_GetAttr(reader, str_record), *record = NULL;
     PyObject *args[R_FIELDS] = {NULL};
-    Py_ssize_t reports, bad, last_reports, last_bad, v[4];
+    Py_ssize_t last_reports, last_bad, v[4];
     int rc = -1;
-    /* the counts read once: compared here, published as they are */
-    args[1] = PyObject_GetAttr(reader, str_reports);
-    args[2] = PyObject_GetAttr(reader, str_bad_reports);
-    if (last == NULL || args[1] == NULL || args[2] == NULL
-        || ((reports = PyLong_AsSsize_t(args[1])) == -1 && PyErr_Occurred())
-        || ((bad = PyLong_AsSsize_t(args[2])) == -1 && PyErr_Occurred())) {
-        goto done;
+    if (last == NULL) {
+        return -1;
     }
     if (!PyTuple_Check(last) || PyTuple_GET_SIZE(last) != R_FIELDS) {
         PyErr_SetString(PyExc_TypeError, "a reader's record is a ReaderRecord");
@@ -1388,26 +1450,40 @@ publish(PyObject *reader, PyObject *decoder, double now, Py_ssize_t bad_limit)
     if (field_ssize(last, R_REPORTS, &last_reports) < 0 || field_ssize(last, R_BAD, &last_bad) < 0) {
         goto done;
     }
-    if (last_reports == reports && last_bad == bad) {
+    if (last_reports == c->reports && last_bad == c->bad_reports) {
         rc = 0;
         goto done;
     }
+    /* the fields in ReaderRecord's order */
     if ((args[0] = decoder_state(decoder, PyTuple_GET_ITEM(last, 0))) == NULL) {
         goto done;
     }
-    args[R_AT] = reports != last_reports ? PyFloat_FromDouble(now)
-                                         : Py_NewRef(PyTuple_GET_ITEM(last, R_AT));
-    for (int i = R_AT; args[i] != NULL && i < R_FIELDS - 1; i++) {
-        args[i + 1] = PyObject_GetAttr(reader, *after_at[i - R_AT]);
+    args[1] = PyLong_FromSsize_t(c->reports);
+    args[2] = PyLong_FromSsize_t(c->bad_reports);
+    args[R_AT] = c->reports != last_reports ? PyFloat_FromDouble(now)
+                                            : Py_NewRef(PyTuple_GET_ITEM(last, R_AT));
+    args[4] = Py_XNewRef(c->presses); /* a tuple: note_presses and the Python pull keep it */
+    args[5] = PyLong_FromSsize_t(c->press_serial);
+    args[R_IN_A_ROW] = PyLong_FromSsize_t(c->refused_in_a_row);
+    args[R_SPELLS] = PyLong_FromSsize_t(c->bad_spells);
+    args[8] = PyLong_FromSsize_t(c->repeats);
+    for (int i = 0; i < R_FIELDS; i++) {
+        if (args[i] == NULL) {
+            if (!PyErr_Occurred()) {
+                PyErr_SetString(PyExc_TypeError, "a reader's counts lack their press log");
+            }
+            goto done;
+        }
     }
-    if (args[R_FIELDS - 1] == NULL || (record = new_record(Py_TYPE(last), args)) == NULL
+    if ((record = new_record(Py_TYPE(last), args)) == NULL
         || PyObject_SetAttr(reader, str_record, record) < 0) {
         goto done;
     }
-    if (field_ssize(record, R_IN_A_ROW, &v[0]) < 0 || field_ssize(last, R_IN_A_ROW, &v[1]) < 0
-        || field_ssize(record, R_SPELLS, &v[2]) < 0 || field_ssize(last, R_SPELLS, &v[3]) < 0) {
+    if (field_ssize(last, R_IN_A_ROW, &v[1]) < 0 || field_ssize(last, R_SPELLS, &v[3]) < 0) {
         goto done;
     }
+    v[0] = c->refused_in_a_row;
+    v[2] = c->bad_spells;
     int edge = v[2] != v[3] || (v[0] != v[1] && (v[0] >= bad_limit) != (v[1] >= bad_limit));
     rc = 0;
     if (edge) {
@@ -1464,17 +1540,11 @@ pull_decoder(PyObject *reader, Pull *s)
 
 /* The pull under the device lock: 1 pulled, 0 declined, -2 never, -1 with an exception. */
 static int
-pull_locked(PyObject *reader, PyObject *device, double now, const Py_ssize_t *limits,
-            Pull *s)
+pull_locked(PyObject *reader, CountsObject *c, PyObject *device, double now,
+            const Py_ssize_t *limits, Pull *s)
 {
-    int gone = attr_true(reader, str_closed);
-    if (gone == 0) {
-        PyObject *error = PyObject_GetAttr(reader, str_pull_error);
-        gone = error == NULL ? -1 : error != Py_None;
-        Py_XDECREF(error);
-    }
-    if (gone != 0) {
-        return gone < 0 ? -1 : 1; /* closed, or a pull failed: nothing more, as in Python */
+    if (c->closed || (c->pull_error != NULL && c->pull_error != Py_None)) {
+        return 1; /* closed, or a pull failed: nothing more, as in Python */
     }
     int ready = pull_decoder(reader, s);
     if (ready <= 0) {
@@ -1495,8 +1565,8 @@ pull_locked(PyObject *reader, PyObject *device, double now, const Py_ssize_t *li
         return 1;
     }
     scan(s);
-    if (decode(s) < 0 || count(reader, s, limits[1], limits[2]) < 0
-        || publish(reader, s->decoder, now, limits[2]) < 0) {
+    if (decode(s) < 0 || count(c, s, limits[1], limits[2]) < 0
+        || publish(reader, c, s->decoder, now, limits[2]) < 0) {
         return -1;
     }
     return 1;
@@ -1525,8 +1595,17 @@ pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
         return NULL;
     }
     PyObject *reader = args[0], *device = args[1];
+    PyObject *counts = PyObject_GetAttr(reader, str_counts);
+    if (counts == NULL) {
+        return NULL;
+    }
+    if (!PyObject_TypeCheck(counts, &CountsType)) {
+        Py_DECREF(counts);
+        Py_RETURN_NONE; /* the Python twin's counts: the Python pull keeps them */
+    }
     PyObject *lock = PyObject_GetAttr(reader, str_device_lock);
     if (lock == NULL) {
+        Py_DECREF(counts);
         return NULL;
     }
     PyObject *got = PyObject_CallMethodOneArg(lock, str_acquire, Py_False);
@@ -1534,6 +1613,7 @@ pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
     Py_XDECREF(got);
     if (locked <= 0) {
         Py_DECREF(lock);
+        Py_DECREF(counts);
         if (locked < 0) {
             return NULL;
         }
@@ -1542,8 +1622,9 @@ pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
     Pull s; /* not zeroed whole: its arrays are written before they are read */
     s.decoder = s.plan = s.values = s.held = NULL;
     s.n = 0;
-    int rc = pull_locked(reader, device, now, limits, &s);
+    int rc = pull_locked(reader, (CountsObject *)counts, device, now, limits, &s);
     pull_clear(&s);
+    Py_DECREF(counts);
     PyObject *type, *value, *traceback;
     PyErr_Fetch(&type, &value, &traceback);
     PyObject *released = PyObject_CallMethodNoArgs(lock, str_release);
@@ -1608,7 +1689,8 @@ PyInit__speedups(void)
     if (intern_pull_names() < 0) {
         return NULL;
     }
-    if (PyType_Ready(&PlanType) < 0 || PyType_Ready(&EventsType) < 0) {
+    if (PyType_Ready(&PlanType) < 0 || PyType_Ready(&EventsType) < 0
+        || PyType_Ready(&CountsType) < 0) {
         return NULL;
     }
     PyObject *m = PyModule_Create(&module);
@@ -1616,7 +1698,8 @@ PyInit__speedups(void)
         return NULL;
     }
     if (PyModule_AddObjectRef(m, "Plan", (PyObject *)&PlanType) < 0
-        || PyModule_AddObjectRef(m, "Events", (PyObject *)&EventsType) < 0) {
+        || PyModule_AddObjectRef(m, "Events", (PyObject *)&EventsType) < 0
+        || PyModule_AddObjectRef(m, "ReaderCounts", (PyObject *)&CountsType) < 0) {
         Py_DECREF(m);
         return NULL;
     }
