@@ -35,7 +35,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from usb2rc.hid import speedups
-from usb2rc.hid.descriptor import ReportDecoder, parse_descriptor
+from usb2rc.hid.descriptor import DecoderState, ReportDecoder, parse_descriptor
 from usb2rc.hid.reader import DeviceReader, ReaderCounts, ReaderRecord
 from usb2rc.hid.replay import ReplayBackend, ReplayDevice, install_file
 
@@ -150,8 +150,9 @@ class Side:
                 for name in ReaderCounts.__slots__
                 for value in [getattr(reader._counts, name)]
             ),
-            list(decoder._values),  # type: ignore[attr-defined]
-            decoder._buttons,  # type: ignore[attr-defined]
+            list(decoder._held.values),  # type: ignore[attr-defined]
+            decoder._held.buttons,  # type: ignore[attr-defined]
+            decoder._held.state,  # type: ignore[attr-defined]
             decoder.reports,  # type: ignore[attr-defined]
             decoder.bad_reports,  # type: ignore[attr-defined]
             self.device._batch.left,
@@ -329,3 +330,25 @@ def test_the_c_counts_are_the_python_counts_twin(tmp_path: Path) -> None:
     install_file(tmp_path / "dev.hid", steady_text(10))
     side = Side(ReplayBackend(tmp_path), c=True)
     assert type(side.reader._counts) is built.ReaderCounts
+
+
+def test_the_c_decoder_state_is_the_python_twin(tmp_path: Path) -> None:
+    """The compiled pull's decoder state (`_speedups.DecoderState`) has the Python twin's
+    fields, their defaults, and keeps what is set; a decoder whose layout a C plan holds
+    takes it, one whose layout no C plan holds (masks over 64 bits) the Python twin."""
+    built = speedups.compiled()
+    assert built is not None
+    c_state, py_state = built.DecoderState(), DecoderState()
+    values: dict[str, object] = {"values": [1, 2], "buttons": (1 << 64) - 1, "state": None}
+    for k, name in enumerate(DecoderState.__slots__):
+        assert getattr(c_state, name) == getattr(py_state, name), name
+        value = values.get(name, 10 + k)
+        setattr(c_state, name, value)
+        assert getattr(c_state, name) == value, name
+    assert not hasattr(c_state, "__dict__")
+    install_file(tmp_path / "dev.hid", steady_text(10))
+    side = Side(ReplayBackend(tmp_path), c=True)
+    assert type(side.reader.decoder._held) is built.DecoderState  # type: ignore[attr-defined]
+    no_plan = ReportDecoder(parse_descriptor(descriptor("Saitek/Logitech X52")))
+    no_plan.layout.__dict__["c_plan"] = None  # as for a layout outside the C drain
+    assert type(ReportDecoder(no_plan.layout)._held) is DecoderState

@@ -901,12 +901,92 @@ static PyTypeObject CountsType = {
     .tp_members = counts_members,
 };
 
+/* DecoderState: a report decoder's values (a list, one raw value per field), its button
+ * mask, its last state (an InputState, None once a report changed them) and its counts
+ * (descriptor.DecoderState is its Python twin). The compiled pull decodes into it with no
+ * look-up on the decoder. */
+typedef struct {
+    PyObject_HEAD
+    PyObject *values; /* list of ints */
+    unsigned long long buttons;
+    PyObject *state; /* InputState, or None */
+    Py_ssize_t reports, bad_reports;
+} DecoderStateObject;
+
+static PyObject *
+decoder_state_new(PyTypeObject *type, PyObject *args, PyObject *kwargs)
+{
+    if (PyTuple_GET_SIZE(args) != 0 || (kwargs != NULL && PyDict_GET_SIZE(kwargs) != 0)) {
+        PyErr_SetString(PyExc_TypeError, "DecoderState() takes no arguments");
+        return NULL;
+    }
+    DecoderStateObject *self = (DecoderStateObject *)type->tp_alloc(type, 0);
+    if (self == NULL) {
+        return NULL;
+    }
+    self->values = PyList_New(0);
+    self->state = Py_NewRef(Py_None);
+    if (self->values == NULL) {
+        Py_DECREF(self);
+        return NULL;
+    }
+    return (PyObject *)self;
+}
+
+static int
+decoder_state_traverse(DecoderStateObject *self, visitproc visit, void *arg)
+{
+    Py_VISIT(self->values);
+    Py_VISIT(self->state);
+    return 0;
+}
+
+static int
+decoder_state_clear(DecoderStateObject *self)
+{
+    Py_CLEAR(self->values);
+    Py_CLEAR(self->state);
+    return 0;
+}
+
+static void
+decoder_state_dealloc(DecoderStateObject *self)
+{
+    PyObject_GC_UnTrack(self);
+    decoder_state_clear(self);
+    Py_TYPE(self)->tp_free((PyObject *)self);
+}
+
+static PyMemberDef decoder_state_members[] = {
+    {"values", T_OBJECT_EX, offsetof(DecoderStateObject, values), 0,
+     "one raw value per field (a list)"},
+    {"buttons", T_ULONGLONG, offsetof(DecoderStateObject, buttons), 0, "the button mask"},
+    {"state", T_OBJECT, offsetof(DecoderStateObject, state), 0,
+     "the last InputState, None once a report changed the values or the mask"},
+    {"reports", T_PYSSIZET, offsetof(DecoderStateObject, reports), 0, "reports decoded"},
+    {"bad_reports", T_PYSSIZET, offsetof(DecoderStateObject, bad_reports), 0,
+     "reports refused"},
+    {NULL, 0, 0, 0, NULL},
+};
+
+static PyTypeObject DecoderStateType = {
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "usb2rc.hid._speedups.DecoderState",
+    .tp_basicsize = sizeof(DecoderStateObject),
+    .tp_new = decoder_state_new,
+    .tp_dealloc = (destructor)decoder_state_dealloc,
+    .tp_traverse = (traverseproc)decoder_state_traverse,
+    .tp_clear = (inquiry)decoder_state_clear,
+    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
+    .tp_doc = "A report decoder's values, mask, last state and counts (descriptor.DecoderState).",
+    .tp_members = decoder_state_members,
+};
+
 static PyObject *str_device_lock, *str_acquire, *str_release, *str_closed,
-    *str_press_decoder, *str_record, *str_c_plan, *str_values, *str_buttons, *str_state,
-    *str_dec_reports, *str_dec_bad_reports, *str_quiet_until, *str_set, *str_batch, *str_busy_s, *str_fault_due,
+    *str_press_decoder, *str_record, *str_c_plan, *str_quiet_until, *str_set, *str_batch,
+    *str_busy_s, *str_fault_due,
     *str_gone, *str_refill, *str_left, *str_on_bad_reports,
     *str_field_values, *str_field_buttons, *str_next_gone_check, *str_stat_path, *str_stat_id,
-    *str_gone_check_s, *str_counts;
+    *str_gone_check_s, *str_counts, *str_held;
 
 static int
 intern_pull_names(void)
@@ -919,8 +999,6 @@ intern_pull_names(void)
         {&str_release, "release"}, {&str_closed, "_closed"},
         {&str_press_decoder, "_press_decoder"}, {&str_record, "record"},
         {&str_c_plan, "_c_plan"},
-        {&str_values, "_values"}, {&str_buttons, "_buttons"}, {&str_state, "_state"},
-        {&str_dec_reports, "reports"}, {&str_dec_bad_reports, "bad_reports"},
         {&str_quiet_until, "_quiet_until"}, {&str_set, "_set"}, {&str_batch, "_batch"},
         {&str_busy_s, "busy_s"},
         {&str_fault_due, "_fault_due"}, {&str_gone, "_gone"},
@@ -929,7 +1007,7 @@ intern_pull_names(void)
         {&str_field_values, "values"}, {&str_field_buttons, "buttons"},
         {&str_next_gone_check, "_next_gone_check"}, {&str_stat_path, "_stat_path"},
         {&str_stat_id, "_stat_id"}, {&str_gone_check_s, "_gone_check_s"},
-        {&str_counts, "_counts"},
+        {&str_counts, "_counts"}, {&str_held, "_held"},
     };
     for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
         if ((*names[i].slot = PyUnicode_InternFromString(names[i].text)) == NULL) {
@@ -977,20 +1055,6 @@ attr_set_new(PyObject *obj, PyObject *name, PyObject *value)
     return rc;
 }
 
-/* obj.name += add (an int); -1 with an exception. */
-static int
-attr_add(PyObject *obj, PyObject *name, Py_ssize_t add)
-{
-    Py_ssize_t v;
-    if (add == 0) {
-        return 0; /* `+= 0` leaves the same int: nothing to read or write */
-    }
-    if (attr_ssize(obj, name, &v) < 0) {
-        return -1;
-    }
-    return attr_set_new(obj, name, PyLong_FromSsize_t(v + add));
-}
-
 /* obj.name += add (a float); -1 with an exception. */
 static int
 attr_add_double(PyObject *obj, PyObject *name, double add)
@@ -1028,6 +1092,7 @@ monotonic_now(void)
 /* A pull in progress: what it took and what it made of it. */
 typedef struct {
     PyObject *decoder, *plan, *values, *held; /* held: what keeps the taken reports alive */
+    DecoderStateObject *dstate; /* the decoder's state, decoded into */
     const unsigned char *report[MAX_TAKE];
     Py_ssize_t length[MAX_TAKE], n;
     uint64_t mask, pressed[MAX_TAKE];
@@ -1038,6 +1103,7 @@ typedef struct {
 static void
 pull_clear(Pull *s)
 {
+    Py_CLEAR(s->dstate);
     Py_CLEAR(s->decoder);
     Py_CLEAR(s->plan);
     Py_CLEAR(s->values);
@@ -1327,15 +1393,14 @@ decode(Pull *s)
         }
     }
     Py_ssize_t accepted = s->n - s->refused;
-    if (accepted
-        && (attr_set_new(s->decoder, str_buttons, PyLong_FromUnsignedLongLong(s->mask)) < 0
-            || PyObject_SetAttr(s->decoder, str_state, Py_None) < 0)) {
-        return -1;
+    DecoderStateObject *d = s->dstate;
+    if (accepted) {
+        d->buttons = s->mask;
+        Py_XSETREF(d->state, Py_NewRef(Py_None));
     }
-    return attr_add(s->decoder, str_dec_reports, accepted) < 0
-                   || attr_add(s->decoder, str_dec_bad_reports, s->refused) < 0
-               ? -1
-               : 0;
+    d->reports += accepted;
+    d->bad_reports += s->refused;
+    return 0;
 }
 
 /* The reader's counts after the batch, as `DeviceReader._drain` and `_count_refused`. */
@@ -1388,27 +1453,29 @@ enum { R_REPORTS = 1, R_BAD = 2, R_AT = 3, R_IN_A_ROW = 6, R_SPELLS = 7, R_FIELD
  * and mask, kept as its last. Made as the frozen dataclass's __init__ makes it (its two
  * fields set through object.__setattr__), without running Python code. */
 static PyObject *
-decoder_state(PyObject *decoder, PyObject *like)
+decoder_state(DecoderStateObject *d, PyObject *like)
 {
-    PyObject *state = PyObject_GetAttr(decoder, str_state);
-    if (state == NULL || state != Py_None) {
-        return state;
+    if (d->state != NULL && d->state != Py_None) {
+        return Py_NewRef(d->state);
     }
-    Py_DECREF(state);
-    PyObject *values = PyObject_GetAttr(decoder, str_values);
-    PyObject *buttons = PyObject_GetAttr(decoder, str_buttons);
-    PyObject *frozen = values == NULL ? NULL : PySequence_Tuple(values);
+    if (d->values == NULL) {
+        PyErr_SetString(PyExc_TypeError, "a decoder's values are a list");
+        return NULL;
+    }
+    PyObject *frozen = PySequence_Tuple(d->values);
+    PyObject *buttons = PyLong_FromUnsignedLongLong(d->buttons);
     PyObject *none = PyTuple_New(0);
-    state = frozen == NULL || buttons == NULL || none == NULL
-                ? NULL
-                : PyBaseObject_Type.tp_new(Py_TYPE(like), none, NULL);
+    PyObject *state = frozen == NULL || buttons == NULL || none == NULL
+                          ? NULL
+                          : PyBaseObject_Type.tp_new(Py_TYPE(like), none, NULL);
     if (state != NULL
         && (PyObject_GenericSetAttr(state, str_field_values, frozen) < 0
-            || PyObject_GenericSetAttr(state, str_field_buttons, buttons) < 0
-            || PyObject_SetAttr(decoder, str_state, state) < 0)) {
+            || PyObject_GenericSetAttr(state, str_field_buttons, buttons) < 0)) {
         Py_CLEAR(state);
     }
-    Py_XDECREF(values);
+    if (state != NULL) {
+        Py_XSETREF(d->state, Py_NewRef(state));
+    }
     Py_XDECREF(buttons);
     Py_XDECREF(frozen);
     Py_XDECREF(none);
@@ -1433,7 +1500,7 @@ new_record(PyTypeObject *cls, PyObject *const *fields)
 /* The reader's record published anew when its counts changed, as `DeviceReader._publish`;
  * `on_bad_reports` told of an edge. */
 static int
-publish(PyObject *reader, const CountsObject *c, PyObject *decoder, double now,
+publish(PyObject *reader, const CountsObject *c, DecoderStateObject *decoder, double now,
         Py_ssize_t bad_limit)
 {
     PyObject *last = PyObject_GetAttr(reader, str_record), *record = NULL;
@@ -1506,8 +1573,8 @@ done:
     return rc;
 }
 
-/* The decoder the pull feeds, its C plan, its values and mask: 1, 0 (never: no button
- * decoder, or no C plan), -1 with an exception. */
+/* The decoder the pull feeds, its C plan, its state (values and mask): 1, 0 (never: no
+ * button decoder, no C plan, or the Python twin's state), -1 with an exception. */
 static int
 pull_decoder(PyObject *reader, Pull *s)
 {
@@ -1523,19 +1590,18 @@ pull_decoder(PyObject *reader, Pull *s)
     if (!PyObject_TypeCheck(s->plan, &PlanType)) {
         return 0;
     }
-    PyObject *buttons = PyObject_GetAttr(s->decoder, str_buttons);
-    if (buttons == NULL) {
+    PyObject *held = PyObject_GetAttr(s->decoder, str_held);
+    if (held == NULL) {
         return -1;
     }
-    s->mask = PyLong_AsUnsignedLongLong(buttons);
-    Py_DECREF(buttons);
-    if (s->mask == (uint64_t)-1 && PyErr_Occurred()) {
-        return -1;
+    if (!PyObject_TypeCheck(held, &DecoderStateType)) {
+        Py_DECREF(held);
+        return 0;
     }
-    if ((s->values = PyObject_GetAttr(s->decoder, str_values)) == NULL) {
-        return -1;
-    }
-    return PyList_Check(s->values) ? 1 : 0;
+    s->dstate = (DecoderStateObject *)held;
+    s->mask = s->dstate->buttons;
+    s->values = Py_XNewRef(s->dstate->values);
+    return s->values != NULL && PyList_Check(s->values) ? 1 : 0;
 }
 
 /* The pull under the device lock: 1 pulled, 0 declined, -2 never, -1 with an exception. */
@@ -1566,7 +1632,7 @@ pull_locked(PyObject *reader, CountsObject *c, PyObject *device, double now,
     }
     scan(s);
     if (decode(s) < 0 || count(c, s, limits[1], limits[2]) < 0
-        || publish(reader, c, s->decoder, now, limits[2]) < 0) {
+        || publish(reader, c, s->dstate, now, limits[2]) < 0) {
         return -1;
     }
     return 1;
@@ -1621,6 +1687,7 @@ pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
     }
     Pull s; /* not zeroed whole: its arrays are written before they are read */
     s.decoder = s.plan = s.values = s.held = NULL;
+    s.dstate = NULL;
     s.n = 0;
     int rc = pull_locked(reader, (CountsObject *)counts, device, now, limits, &s);
     pull_clear(&s);
@@ -1690,7 +1757,7 @@ PyInit__speedups(void)
         return NULL;
     }
     if (PyType_Ready(&PlanType) < 0 || PyType_Ready(&EventsType) < 0
-        || PyType_Ready(&CountsType) < 0) {
+        || PyType_Ready(&CountsType) < 0 || PyType_Ready(&DecoderStateType) < 0) {
         return NULL;
     }
     PyObject *m = PyModule_Create(&module);
@@ -1699,7 +1766,8 @@ PyInit__speedups(void)
     }
     if (PyModule_AddObjectRef(m, "Plan", (PyObject *)&PlanType) < 0
         || PyModule_AddObjectRef(m, "Events", (PyObject *)&EventsType) < 0
-        || PyModule_AddObjectRef(m, "ReaderCounts", (PyObject *)&CountsType) < 0) {
+        || PyModule_AddObjectRef(m, "ReaderCounts", (PyObject *)&CountsType) < 0
+        || PyModule_AddObjectRef(m, "DecoderState", (PyObject *)&DecoderStateType) < 0) {
         Py_DECREF(m);
         return NULL;
     }

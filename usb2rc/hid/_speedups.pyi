@@ -47,3 +47,10 @@ class ReaderCounts:
     presses: tuple[int, ...]
     closed: bool
     pull_error: BaseException | None
+
+class DecoderState:
+    values: list[int]
+    buttons: int
+    state: object
+    reports: int
+    bad_reports: int
