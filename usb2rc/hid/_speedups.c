@@ -827,14 +827,21 @@ typedef struct {
     PyObject *pull_error; /* None, or what a pull met */
 } CountsObject;
 
+/* A new object of `type`, a state structure made with no arguments (its fields zero). */
+static PyObject *
+new_state(PyTypeObject *type, PyObject *args, PyObject *kwargs)
+{
+    if (PyTuple_GET_SIZE(args) != 0 || (kwargs != NULL && PyDict_GET_SIZE(kwargs) != 0)) {
+        PyErr_Format(PyExc_TypeError, "%s() takes no arguments", type->tp_name);
+        return NULL;
+    }
+    return type->tp_alloc(type, 0);
+}
+
 static PyObject *
 counts_new(PyTypeObject *type, PyObject *args, PyObject *kwargs)
 {
-    if (PyTuple_GET_SIZE(args) != 0 || (kwargs != NULL && PyDict_GET_SIZE(kwargs) != 0)) {
-        PyErr_SetString(PyExc_TypeError, "ReaderCounts() takes no arguments");
-        return NULL;
-    }
-    CountsObject *self = (CountsObject *)type->tp_alloc(type, 0);
+    CountsObject *self = (CountsObject *)new_state(type, args, kwargs);
     if (self == NULL) {
         return NULL;
     }
@@ -916,11 +923,7 @@ typedef struct {
 static PyObject *
 decoder_state_new(PyTypeObject *type, PyObject *args, PyObject *kwargs)
 {
-    if (PyTuple_GET_SIZE(args) != 0 || (kwargs != NULL && PyDict_GET_SIZE(kwargs) != 0)) {
-        PyErr_SetString(PyExc_TypeError, "DecoderState() takes no arguments");
-        return NULL;
-    }
-    DecoderStateObject *self = (DecoderStateObject *)type->tp_alloc(type, 0);
+    DecoderStateObject *self = (DecoderStateObject *)new_state(type, args, kwargs);
     if (self == NULL) {
         return NULL;
     }
