@@ -35,8 +35,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from usb2rc.hid import speedups
-from usb2rc.hid.descriptor import DecoderState, ReportDecoder, parse_descriptor
-from usb2rc.hid.reader import DeviceReader, ReaderCounts, ReaderRecord
+from usb2rc.hid.descriptor import ReportDecoder, parse_descriptor
+from usb2rc.hid.reader import DeviceReader, ReaderRecord
 from usb2rc.hid.replay import ReplayBackend, ReplayDevice, install_file
 
 if not speedups.built():
@@ -144,15 +144,10 @@ class Side:
         return (
             reader.record,
             tuple(self.edges),
-            # every count, the press log, the last report, closed, and what a pull met
-            *(
-                repr(value) if name == "pull_error" else value
-                for name in ReaderCounts.__slots__
-                for value in [getattr(reader._counts, name)]
-            ),
-            list(decoder._held.values),  # type: ignore[attr-defined]
-            decoder._held.buttons,  # type: ignore[attr-defined]
-            decoder._held.state,  # type: ignore[attr-defined]
+            repr(reader._pull_error),
+            reader._last_report,
+            list(decoder._values),  # type: ignore[attr-defined]
+            decoder._buttons,  # type: ignore[attr-defined]
             decoder.reports,  # type: ignore[attr-defined]
             decoder.bad_reports,  # type: ignore[attr-defined]
             self.device._batch.left,
@@ -284,11 +279,11 @@ def test_a_fault_and_a_changed_file_are_the_python_reads_to_raise(tmp_path: Path
         text.replace("\nE:", "\n# usb2rc-fault: read-error at 0.1\nE:", 1),
         [0.0, 0.05, 0.1],
     )
-    assert isinstance(c_side.reader._counts.pull_error, OSError)
+    assert isinstance(c_side.reader._pull_error, OSError)
     for how in ("remove", "replace", "touch", "grow"):
         (tmp_path / how).mkdir()
         c_side, _ = play(tmp_path / how, text, [0.0, 0.05, 0.1, 0.1], change_at=2, change=how)
-        assert "removed or replaced" in str(c_side.reader._counts.pull_error), how
+        assert "removed or replaced" in str(c_side.reader._pull_error), how
 
 
 def test_a_close_in_progress_hands_the_pull_back(tmp_path: Path) -> None:
@@ -309,46 +304,3 @@ def test_a_decoder_without_the_c_drain_is_never_pulled_in_c(tmp_path: Path) -> N
     assert reader._c_pull is not None
     reader.pull()
     assert reader._c_pull is None
-
-
-def test_the_c_counts_are_the_python_counts_twin(tmp_path: Path) -> None:
-    """The compiled pull's counts (`_speedups.ReaderCounts`) have the Python twin's fields,
-    their defaults, and keep what is set; a reader takes them where the C loops run."""
-    built = speedups.compiled()
-    assert built is not None
-    c_counts, py_counts = built.ReaderCounts(), ReaderCounts()
-    error = OSError("gone")
-    values = {"last_report": b"\x01\x02", "presses": (1, 4), "closed": True, "pull_error": error}
-    for k, name in enumerate(ReaderCounts.__slots__):
-        assert getattr(c_counts, name) == getattr(py_counts, name), name
-        value = values.get(name, 10 + k)
-        setattr(c_counts, name, value)
-        assert getattr(c_counts, name) == value, name
-    assert not hasattr(c_counts, "__dict__")  # no field but these
-    with pytest.raises(TypeError):
-        built.ReaderCounts(1)
-    install_file(tmp_path / "dev.hid", steady_text(10))
-    side = Side(ReplayBackend(tmp_path), c=True)
-    assert type(side.reader._counts) is built.ReaderCounts
-
-
-def test_the_c_decoder_state_is_the_python_twin(tmp_path: Path) -> None:
-    """The compiled pull's decoder state (`_speedups.DecoderState`) has the Python twin's
-    fields, their defaults, and keeps what is set; a decoder whose layout a C plan holds
-    takes it, one whose layout no C plan holds (masks over 64 bits) the Python twin."""
-    built = speedups.compiled()
-    assert built is not None
-    c_state, py_state = built.DecoderState(), DecoderState()
-    values: dict[str, object] = {"values": [1, 2], "buttons": (1 << 64) - 1, "state": None}
-    for k, name in enumerate(DecoderState.__slots__):
-        assert getattr(c_state, name) == getattr(py_state, name), name
-        value = values.get(name, 10 + k)
-        setattr(c_state, name, value)
-        assert getattr(c_state, name) == value, name
-    assert not hasattr(c_state, "__dict__")
-    install_file(tmp_path / "dev.hid", steady_text(10))
-    side = Side(ReplayBackend(tmp_path), c=True)
-    assert type(side.reader.decoder._held) is built.DecoderState  # type: ignore[attr-defined]
-    no_plan = ReportDecoder(parse_descriptor(descriptor("Saitek/Logitech X52")))
-    no_plan.layout.__dict__["c_plan"] = None  # as for a layout outside the C drain
-    assert type(ReportDecoder(no_plan.layout)._held) is DecoderState

@@ -49,7 +49,6 @@
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
-#include <structmember.h>
 #include <ctype.h>
 #include <math.h>
 #include <stdint.h>
@@ -813,183 +812,14 @@ static PyTypeObject EventsType = {
  * (a fault due, the file gone, the device closed); the Python pull then runs and raises it.
  * None: never (the decoder has no C plan, or the reader no button decoder). */
 
-/* ReaderCounts: a reader's own counts, its press log and its last report, and whether it is
- * closed or a pull failed (reader.ReaderCounts is its Python twin: the same fields, the same
- * defaults). A C structure, so the compiled pull reads and writes them without a look-up on
- * the reader's objects: after the drivers' thread slept, each look-up costs memory gone
- * cold. */
-typedef struct {
-    PyObject_HEAD
-    Py_ssize_t reports, bad_reports, refused_in_a_row, bad_spells, repeats, press_serial;
-    PyObject *last_report; /* bytes */
-    PyObject *presses;     /* tuple of ints, the last PRESSES_KEPT */
-    char closed;
-    PyObject *pull_error; /* None, or what a pull met */
-} CountsObject;
-
-/* A new object of `type`, a state structure made with no arguments (its fields zero). */
-static PyObject *
-new_state(PyTypeObject *type, PyObject *args, PyObject *kwargs)
-{
-    if (PyTuple_GET_SIZE(args) != 0 || (kwargs != NULL && PyDict_GET_SIZE(kwargs) != 0)) {
-        PyErr_Format(PyExc_TypeError, "%s() takes no arguments", type->tp_name);
-        return NULL;
-    }
-    return type->tp_alloc(type, 0);
-}
-
-static PyObject *
-counts_new(PyTypeObject *type, PyObject *args, PyObject *kwargs)
-{
-    CountsObject *self = (CountsObject *)new_state(type, args, kwargs);
-    if (self == NULL) {
-        return NULL;
-    }
-    self->last_report = PyBytes_FromStringAndSize(NULL, 0);
-    self->presses = PyTuple_New(0);
-    self->pull_error = Py_NewRef(Py_None);
-    if (self->last_report == NULL || self->presses == NULL) {
-        Py_DECREF(self);
-        return NULL;
-    }
-    return (PyObject *)self;
-}
-
-static void
-counts_dealloc(CountsObject *self)
-{
-    PyObject_GC_UnTrack(self);
-    Py_CLEAR(self->last_report);
-    Py_CLEAR(self->presses);
-    Py_CLEAR(self->pull_error);
-    Py_TYPE(self)->tp_free((PyObject *)self);
-}
-
-static int
-counts_traverse(CountsObject *self, visitproc visit, void *arg)
-{
-    Py_VISIT(self->pull_error); /* an exception holds its traceback's frames */
-    return 0;
-}
-
-static int
-counts_clear(CountsObject *self)
-{
-    Py_CLEAR(self->pull_error);
-    return 0;
-}
-
-static PyMemberDef counts_members[] = {
-    {"reports", T_PYSSIZET, offsetof(CountsObject, reports), 0, "reports accepted"},
-    {"bad_reports", T_PYSSIZET, offsetof(CountsObject, bad_reports), 0, "reports refused"},
-    {"refused_in_a_row", T_PYSSIZET, offsetof(CountsObject, refused_in_a_row), 0,
-     "reports refused since the last accepted one"},
-    {"bad_spells", T_PYSSIZET, offsetof(CountsObject, bad_spells), 0,
-     "runs of BAD_REPORTS_LIMIT refused reports"},
-    {"repeats", T_PYSSIZET, offsetof(CountsObject, repeats), 0,
-     "reports byte for byte the one before"},
-    {"press_serial", T_PYSSIZET, offsetof(CountsObject, press_serial), 0, "presses noted"},
-    {"last_report", T_OBJECT_EX, offsetof(CountsObject, last_report), 0, "the raw report before"},
-    {"presses", T_OBJECT_EX, offsetof(CountsObject, presses), 0, "the last presses noted"},
-    {"closed", T_BOOL, offsetof(CountsObject, closed), 0, "the reader closed its device"},
-    {"pull_error", T_OBJECT, offsetof(CountsObject, pull_error), 0, "what a pull met, or None"},
-    {NULL, 0, 0, 0, NULL},
-};
-
-static PyTypeObject CountsType = {
-    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "usb2rc.hid._speedups.ReaderCounts",
-    .tp_basicsize = sizeof(CountsObject),
-    .tp_new = counts_new,
-    .tp_dealloc = (destructor)counts_dealloc,
-    .tp_traverse = (traverseproc)counts_traverse,
-    .tp_clear = (inquiry)counts_clear,
-    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
-    .tp_doc = "A reader's counts, press log, last report and state (reader.ReaderCounts).",
-    .tp_members = counts_members,
-};
-
-/* DecoderState: a report decoder's values (a list, one raw value per field), its button
- * mask, its last state (an InputState, None once a report changed them) and its counts
- * (descriptor.DecoderState is its Python twin). The compiled pull decodes into it with no
- * look-up on the decoder. */
-typedef struct {
-    PyObject_HEAD
-    PyObject *values; /* list of ints */
-    unsigned long long buttons;
-    PyObject *state; /* InputState, or None */
-    Py_ssize_t reports, bad_reports;
-} DecoderStateObject;
-
-static PyObject *
-decoder_state_new(PyTypeObject *type, PyObject *args, PyObject *kwargs)
-{
-    DecoderStateObject *self = (DecoderStateObject *)new_state(type, args, kwargs);
-    if (self == NULL) {
-        return NULL;
-    }
-    self->values = PyList_New(0);
-    self->state = Py_NewRef(Py_None);
-    if (self->values == NULL) {
-        Py_DECREF(self);
-        return NULL;
-    }
-    return (PyObject *)self;
-}
-
-static int
-decoder_state_traverse(DecoderStateObject *self, visitproc visit, void *arg)
-{
-    Py_VISIT(self->values);
-    Py_VISIT(self->state);
-    return 0;
-}
-
-static int
-decoder_state_clear(DecoderStateObject *self)
-{
-    Py_CLEAR(self->values);
-    Py_CLEAR(self->state);
-    return 0;
-}
-
-static void
-decoder_state_dealloc(DecoderStateObject *self)
-{
-    PyObject_GC_UnTrack(self);
-    decoder_state_clear(self);
-    Py_TYPE(self)->tp_free((PyObject *)self);
-}
-
-static PyMemberDef decoder_state_members[] = {
-    {"values", T_OBJECT_EX, offsetof(DecoderStateObject, values), 0,
-     "one raw value per field (a list)"},
-    {"buttons", T_ULONGLONG, offsetof(DecoderStateObject, buttons), 0, "the button mask"},
-    {"state", T_OBJECT, offsetof(DecoderStateObject, state), 0,
-     "the last InputState, None once a report changed the values or the mask"},
-    {"reports", T_PYSSIZET, offsetof(DecoderStateObject, reports), 0, "reports decoded"},
-    {"bad_reports", T_PYSSIZET, offsetof(DecoderStateObject, bad_reports), 0,
-     "reports refused"},
-    {NULL, 0, 0, 0, NULL},
-};
-
-static PyTypeObject DecoderStateType = {
-    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "usb2rc.hid._speedups.DecoderState",
-    .tp_basicsize = sizeof(DecoderStateObject),
-    .tp_new = decoder_state_new,
-    .tp_dealloc = (destructor)decoder_state_dealloc,
-    .tp_traverse = (traverseproc)decoder_state_traverse,
-    .tp_clear = (inquiry)decoder_state_clear,
-    .tp_flags = Py_TPFLAGS_DEFAULT | Py_TPFLAGS_HAVE_GC,
-    .tp_doc = "A report decoder's values, mask, last state and counts (descriptor.DecoderState).",
-    .tp_members = decoder_state_members,
-};
-
-static PyObject *str_device_lock, *str_acquire, *str_release, *str_closed,
-    *str_press_decoder, *str_record, *str_c_plan, *str_quiet_until, *str_set, *str_batch,
-    *str_busy_s, *str_fault_due,
+static PyObject *str_device_lock, *str_acquire, *str_release, *str_closed, *str_pull_error,
+    *str_press_decoder, *str_refused_in_a_row, *str_last_report, *str_repeats, *str_reports,
+    *str_bad_reports, *str_record, *str_presses, *str_press_serial, *str_bad_spells,
+    *str_c_plan, *str_values, *str_buttons, *str_state, *str_dec_reports, *str_dec_bad_reports,
+    *str_quiet_until, *str_set, *str_batch, *str_busy_s, *str_fault_due,
     *str_gone, *str_refill, *str_left, *str_on_bad_reports,
     *str_field_values, *str_field_buttons, *str_next_gone_check, *str_stat_path, *str_stat_id,
-    *str_gone_check_s, *str_counts, *str_held;
+    *str_gone_check_s;
 
 static int
 intern_pull_names(void)
@@ -1000,8 +830,14 @@ intern_pull_names(void)
     } names[] = {
         {&str_device_lock, "_device_lock"}, {&str_acquire, "acquire"},
         {&str_release, "release"}, {&str_closed, "_closed"},
-        {&str_press_decoder, "_press_decoder"}, {&str_record, "record"},
-        {&str_c_plan, "_c_plan"},
+        {&str_pull_error, "_pull_error"}, {&str_press_decoder, "_press_decoder"},
+        {&str_refused_in_a_row, "_refused_in_a_row"}, {&str_last_report, "_last_report"},
+        {&str_repeats, "_repeats"}, {&str_reports, "_reports"},
+        {&str_bad_reports, "_bad_reports"}, {&str_record, "record"},
+        {&str_presses, "_presses"}, {&str_press_serial, "_press_serial"},
+        {&str_bad_spells, "_bad_spells"}, {&str_c_plan, "_c_plan"},
+        {&str_values, "_values"}, {&str_buttons, "_buttons"}, {&str_state, "_state"},
+        {&str_dec_reports, "reports"}, {&str_dec_bad_reports, "bad_reports"},
         {&str_quiet_until, "_quiet_until"}, {&str_set, "_set"}, {&str_batch, "_batch"},
         {&str_busy_s, "busy_s"},
         {&str_fault_due, "_fault_due"}, {&str_gone, "_gone"},
@@ -1010,7 +846,6 @@ intern_pull_names(void)
         {&str_field_values, "values"}, {&str_field_buttons, "buttons"},
         {&str_next_gone_check, "_next_gone_check"}, {&str_stat_path, "_stat_path"},
         {&str_stat_id, "_stat_id"}, {&str_gone_check_s, "_gone_check_s"},
-        {&str_counts, "_counts"}, {&str_held, "_held"},
     };
     for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
         if ((*names[i].slot = PyUnicode_InternFromString(names[i].text)) == NULL) {
@@ -1058,6 +893,20 @@ attr_set_new(PyObject *obj, PyObject *name, PyObject *value)
     return rc;
 }
 
+/* obj.name += add (an int); -1 with an exception. */
+static int
+attr_add(PyObject *obj, PyObject *name, Py_ssize_t add)
+{
+    Py_ssize_t v;
+    if (add == 0) {
+        return 0; /* `+= 0` leaves the same int: nothing to read or write */
+    }
+    if (attr_ssize(obj, name, &v) < 0) {
+        return -1;
+    }
+    return attr_set_new(obj, name, PyLong_FromSsize_t(v + add));
+}
+
 /* obj.name += add (a float); -1 with an exception. */
 static int
 attr_add_double(PyObject *obj, PyObject *name, double add)
@@ -1095,7 +944,6 @@ monotonic_now(void)
 /* A pull in progress: what it took and what it made of it. */
 typedef struct {
     PyObject *decoder, *plan, *values, *held; /* held: what keeps the taken reports alive */
-    DecoderStateObject *dstate; /* the decoder's state, decoded into */
     const unsigned char *report[MAX_TAKE];
     Py_ssize_t length[MAX_TAKE], n;
     uint64_t mask, pressed[MAX_TAKE];
@@ -1106,7 +954,6 @@ typedef struct {
 static void
 pull_clear(Pull *s)
 {
-    Py_CLEAR(s->dstate);
     Py_CLEAR(s->decoder);
     Py_CLEAR(s->plan);
     Py_CLEAR(s->values);
@@ -1355,10 +1202,14 @@ count_repeats(const Pull *s, PyObject *before)
 /* Every press noted, as `DeviceReader._note_presses`: the press log the last `kept` of the
  * old one and these, the serial on by their count. */
 static int
-note_presses(CountsObject *c, const Pull *s, Py_ssize_t kept)
+note_presses(PyObject *reader, const Pull *s, Py_ssize_t kept)
 {
-    PyObject *old = c->presses;
-    if (old == NULL || !PyTuple_Check(old)) {
+    PyObject *old = PyObject_GetAttr(reader, str_presses);
+    if (old == NULL) {
+        return -1;
+    }
+    if (!PyTuple_Check(old)) {
+        Py_DECREF(old);
         PyErr_SetString(PyExc_TypeError, "a reader's presses are a tuple");
         return -1;
     }
@@ -1375,12 +1226,15 @@ note_presses(CountsObject *c, const Pull *s, Py_ssize_t kept)
         }
         PyTuple_SET_ITEM(log, i, item);
     }
+    Py_DECREF(old);
     if (log == NULL) {
         return -1;
     }
-    c->press_serial += s->presses;
-    Py_SETREF(c->presses, log);
-    return 0;
+    if (attr_add(reader, str_press_serial, s->presses) < 0) {
+        Py_DECREF(log);
+        return -1;
+    }
+    return attr_set_new(reader, str_presses, log);
 }
 
 /* What the decoder takes from the batch, as `ReportDecoder.feed_presses` with the C drain:
@@ -1396,47 +1250,56 @@ decode(Pull *s)
         }
     }
     Py_ssize_t accepted = s->n - s->refused;
-    DecoderStateObject *d = s->dstate;
-    if (accepted) {
-        d->buttons = s->mask;
-        Py_XSETREF(d->state, Py_NewRef(Py_None));
+    if (accepted
+        && (attr_set_new(s->decoder, str_buttons, PyLong_FromUnsignedLongLong(s->mask)) < 0
+            || PyObject_SetAttr(s->decoder, str_state, Py_None) < 0)) {
+        return -1;
     }
-    d->reports += accepted;
-    d->bad_reports += s->refused;
-    return 0;
+    return attr_add(s->decoder, str_dec_reports, accepted) < 0
+                   || attr_add(s->decoder, str_dec_bad_reports, s->refused) < 0
+               ? -1
+               : 0;
 }
 
 /* The reader's counts after the batch, as `DeviceReader._drain` and `_count_refused`. */
 static int
-count(CountsObject *c, const Pull *s, Py_ssize_t kept, Py_ssize_t bad_limit)
+count(PyObject *reader, const Pull *s, Py_ssize_t kept, Py_ssize_t bad_limit)
 {
-    Py_ssize_t accepted = s->n - s->refused;
-    if (s->presses && note_presses(c, s, kept) < 0) {
+    Py_ssize_t accepted = s->n - s->refused, in_a_row;
+    if (s->presses && note_presses(reader, s, kept) < 0) {
         return -1;
     }
     if (!s->refused) { /* a run of the same refused report is no sign of streaming */
-        if (c->last_report == NULL || !PyBytes_Check(c->last_report)) {
+        PyObject *before = PyObject_GetAttr(reader, str_last_report);
+        if (before == NULL) {
+            return -1;
+        }
+        Py_ssize_t repeats = PyBytes_Check(before) ? count_repeats(s, before) : -1;
+        Py_DECREF(before);
+        if (repeats < 0) {
             PyErr_SetString(PyExc_TypeError, "a reader's last report is bytes");
             return -1;
         }
-        c->repeats += count_repeats(s, c->last_report);
+        if (attr_add(reader, str_repeats, repeats) < 0) {
+            return -1;
+        }
     }
     PyObject *last = PyBytes_FromStringAndSize((const char *)s->report[s->n - 1],
                                                s->length[s->n - 1]);
-    if (last == NULL) {
+    if (attr_set_new(reader, str_last_report, last) < 0 || attr_add(reader, str_reports, accepted) < 0
+        || attr_add(reader, str_bad_reports, s->refused) < 0) {
         return -1;
     }
-    Py_SETREF(c->last_report, last);
-    c->reports += accepted;
-    c->bad_reports += s->refused;
     if (accepted) {
-        c->refused_in_a_row = 0;
-        return 0;
+        return attr_set_new(reader, str_refused_in_a_row, PyLong_FromLong(0));
     }
-    Py_ssize_t in_a_row = c->refused_in_a_row;
-    c->refused_in_a_row = in_a_row + s->refused;
+    if (attr_ssize(reader, str_refused_in_a_row, &in_a_row) < 0
+        || attr_set_new(reader, str_refused_in_a_row, PyLong_FromSsize_t(in_a_row + s->refused))
+               < 0) {
+        return -1;
+    }
     if (in_a_row < bad_limit && bad_limit <= in_a_row + s->refused) {
-        c->bad_spells += 1;
+        return attr_add(reader, str_bad_spells, 1);
     }
     return 0;
 }
@@ -1456,29 +1319,27 @@ enum { R_REPORTS = 1, R_BAD = 2, R_AT = 3, R_IN_A_ROW = 6, R_SPELLS = 7, R_FIELD
  * and mask, kept as its last. Made as the frozen dataclass's __init__ makes it (its two
  * fields set through object.__setattr__), without running Python code. */
 static PyObject *
-decoder_state(DecoderStateObject *d, PyObject *like)
+decoder_state(PyObject *decoder, PyObject *like)
 {
-    if (d->state != NULL && d->state != Py_None) {
-        return Py_NewRef(d->state);
+    PyObject *state = PyObject_GetAttr(decoder, str_state);
+    if (state == NULL || state != Py_None) {
+        return state;
     }
-    if (d->values == NULL) {
-        PyErr_SetString(PyExc_TypeError, "a decoder's values are a list");
-        return NULL;
-    }
-    PyObject *frozen = PySequence_Tuple(d->values);
-    PyObject *buttons = PyLong_FromUnsignedLongLong(d->buttons);
+    Py_DECREF(state);
+    PyObject *values = PyObject_GetAttr(decoder, str_values);
+    PyObject *buttons = PyObject_GetAttr(decoder, str_buttons);
+    PyObject *frozen = values == NULL ? NULL : PySequence_Tuple(values);
     PyObject *none = PyTuple_New(0);
-    PyObject *state = frozen == NULL || buttons == NULL || none == NULL
-                          ? NULL
-                          : PyBaseObject_Type.tp_new(Py_TYPE(like), none, NULL);
+    state = frozen == NULL || buttons == NULL || none == NULL
+                ? NULL
+                : PyBaseObject_Type.tp_new(Py_TYPE(like), none, NULL);
     if (state != NULL
         && (PyObject_GenericSetAttr(state, str_field_values, frozen) < 0
-            || PyObject_GenericSetAttr(state, str_field_buttons, buttons) < 0)) {
+            || PyObject_GenericSetAttr(state, str_field_buttons, buttons) < 0
+            || PyObject_SetAttr(decoder, str_state, state) < 0)) {
         Py_CLEAR(state);
     }
-    if (state != NULL) {
-        Py_XSETREF(d->state, Py_NewRef(state));
-    }
+    Py_XDECREF(values);
     Py_XDECREF(buttons);
     Py_XDECREF(frozen);
     Py_XDECREF(none);
@@ -1503,15 +1364,22 @@ new_record(PyTypeObject *cls, PyObject *const *fields)
 /* The reader's record published anew when its counts changed, as `DeviceReader._publish`;
  * `on_bad_reports` told of an edge. */
 static int
-publish(PyObject *reader, const CountsObject *c, DecoderStateObject *decoder, double now,
-        Py_ssize_t bad_limit)
+publish(PyObject *reader, PyObject *decoder, double now, Py_ssize_t bad_limit)
 {
+    /* the record's fields after its time, in order, by the reader's attribute */
+    static PyObject *const *after_at[R_FIELDS - R_AT - 1] = {
+        &str_presses, &str_press_serial, &str_refused_in_a_row, &str_bad_spells, &str_repeats};
     PyObject *last = PyObject_GetAttr(reader, str_record), *record = NULL;
     PyObject *args[R_FIELDS] = {NULL};
-    Py_ssize_t last_reports, last_bad, v[4];
+    Py_ssize_t reports, bad, last_reports, last_bad, v[4];
     int rc = -1;
-    if (last == NULL) {
-        return -1;
+    /* the counts read once: compared here, published as they are */
+    args[1] = PyObject_GetAttr(reader, str_reports);
+    args[2] = PyObject_GetAttr(reader, str_bad_reports);
+    if (last == NULL || args[1] == NULL || args[2] == NULL
+        || ((reports = PyLong_AsSsize_t(args[1])) == -1 && PyErr_Occurred())
+        || ((bad = PyLong_AsSsize_t(args[2])) == -1 && PyErr_Occurred())) {
+        goto done;
     }
     if (!PyTuple_Check(last) || PyTuple_GET_SIZE(last) != R_FIELDS) {
         PyErr_SetString(PyExc_TypeError, "a reader's record is a ReaderRecord");
@@ -1520,40 +1388,26 @@ publish(PyObject *reader, const CountsObject *c, DecoderStateObject *decoder, do
     if (field_ssize(last, R_REPORTS, &last_reports) < 0 || field_ssize(last, R_BAD, &last_bad) < 0) {
         goto done;
     }
-    if (last_reports == c->reports && last_bad == c->bad_reports) {
+    if (last_reports == reports && last_bad == bad) {
         rc = 0;
         goto done;
     }
-    /* the fields in ReaderRecord's order */
     if ((args[0] = decoder_state(decoder, PyTuple_GET_ITEM(last, 0))) == NULL) {
         goto done;
     }
-    args[1] = PyLong_FromSsize_t(c->reports);
-    args[2] = PyLong_FromSsize_t(c->bad_reports);
-    args[R_AT] = c->reports != last_reports ? PyFloat_FromDouble(now)
-                                            : Py_NewRef(PyTuple_GET_ITEM(last, R_AT));
-    args[4] = Py_XNewRef(c->presses); /* a tuple: note_presses and the Python pull keep it */
-    args[5] = PyLong_FromSsize_t(c->press_serial);
-    args[R_IN_A_ROW] = PyLong_FromSsize_t(c->refused_in_a_row);
-    args[R_SPELLS] = PyLong_FromSsize_t(c->bad_spells);
-    args[8] = PyLong_FromSsize_t(c->repeats);
-    for (int i = 0; i < R_FIELDS; i++) {
-        if (args[i] == NULL) {
-            if (!PyErr_Occurred()) {
-                PyErr_SetString(PyExc_TypeError, "a reader's counts lack their press log");
-            }
-            goto done;
-        }
+    args[R_AT] = reports != last_reports ? PyFloat_FromDouble(now)
+                                         : Py_NewRef(PyTuple_GET_ITEM(last, R_AT));
+    for (int i = R_AT; args[i] != NULL && i < R_FIELDS - 1; i++) {
+        args[i + 1] = PyObject_GetAttr(reader, *after_at[i - R_AT]);
     }
-    if ((record = new_record(Py_TYPE(last), args)) == NULL
+    if (args[R_FIELDS - 1] == NULL || (record = new_record(Py_TYPE(last), args)) == NULL
         || PyObject_SetAttr(reader, str_record, record) < 0) {
         goto done;
     }
-    if (field_ssize(last, R_IN_A_ROW, &v[1]) < 0 || field_ssize(last, R_SPELLS, &v[3]) < 0) {
+    if (field_ssize(record, R_IN_A_ROW, &v[0]) < 0 || field_ssize(last, R_IN_A_ROW, &v[1]) < 0
+        || field_ssize(record, R_SPELLS, &v[2]) < 0 || field_ssize(last, R_SPELLS, &v[3]) < 0) {
         goto done;
     }
-    v[0] = c->refused_in_a_row;
-    v[2] = c->bad_spells;
     int edge = v[2] != v[3] || (v[0] != v[1] && (v[0] >= bad_limit) != (v[1] >= bad_limit));
     rc = 0;
     if (edge) {
@@ -1576,8 +1430,8 @@ done:
     return rc;
 }
 
-/* The decoder the pull feeds, its C plan, its state (values and mask): 1, 0 (never: no
- * button decoder, no C plan, or the Python twin's state), -1 with an exception. */
+/* The decoder the pull feeds, its C plan, its values and mask: 1, 0 (never: no button
+ * decoder, or no C plan), -1 with an exception. */
 static int
 pull_decoder(PyObject *reader, Pull *s)
 {
@@ -1593,27 +1447,34 @@ pull_decoder(PyObject *reader, Pull *s)
     if (!PyObject_TypeCheck(s->plan, &PlanType)) {
         return 0;
     }
-    PyObject *held = PyObject_GetAttr(s->decoder, str_held);
-    if (held == NULL) {
+    PyObject *buttons = PyObject_GetAttr(s->decoder, str_buttons);
+    if (buttons == NULL) {
         return -1;
     }
-    if (!PyObject_TypeCheck(held, &DecoderStateType)) {
-        Py_DECREF(held);
-        return 0;
+    s->mask = PyLong_AsUnsignedLongLong(buttons);
+    Py_DECREF(buttons);
+    if (s->mask == (uint64_t)-1 && PyErr_Occurred()) {
+        return -1;
     }
-    s->dstate = (DecoderStateObject *)held;
-    s->mask = s->dstate->buttons;
-    s->values = Py_XNewRef(s->dstate->values);
-    return s->values != NULL && PyList_Check(s->values) ? 1 : 0;
+    if ((s->values = PyObject_GetAttr(s->decoder, str_values)) == NULL) {
+        return -1;
+    }
+    return PyList_Check(s->values) ? 1 : 0;
 }
 
 /* The pull under the device lock: 1 pulled, 0 declined, -2 never, -1 with an exception. */
 static int
-pull_locked(PyObject *reader, CountsObject *c, PyObject *device, double now,
-            const Py_ssize_t *limits, Pull *s)
+pull_locked(PyObject *reader, PyObject *device, double now, const Py_ssize_t *limits,
+            Pull *s)
 {
-    if (c->closed || (c->pull_error != NULL && c->pull_error != Py_None)) {
-        return 1; /* closed, or a pull failed: nothing more, as in Python */
+    int gone = attr_true(reader, str_closed);
+    if (gone == 0) {
+        PyObject *error = PyObject_GetAttr(reader, str_pull_error);
+        gone = error == NULL ? -1 : error != Py_None;
+        Py_XDECREF(error);
+    }
+    if (gone != 0) {
+        return gone < 0 ? -1 : 1; /* closed, or a pull failed: nothing more, as in Python */
     }
     int ready = pull_decoder(reader, s);
     if (ready <= 0) {
@@ -1634,8 +1495,8 @@ pull_locked(PyObject *reader, CountsObject *c, PyObject *device, double now,
         return 1;
     }
     scan(s);
-    if (decode(s) < 0 || count(c, s, limits[1], limits[2]) < 0
-        || publish(reader, c, s->dstate, now, limits[2]) < 0) {
+    if (decode(s) < 0 || count(reader, s, limits[1], limits[2]) < 0
+        || publish(reader, s->decoder, now, limits[2]) < 0) {
         return -1;
     }
     return 1;
@@ -1664,17 +1525,8 @@ pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
         return NULL;
     }
     PyObject *reader = args[0], *device = args[1];
-    PyObject *counts = PyObject_GetAttr(reader, str_counts);
-    if (counts == NULL) {
-        return NULL;
-    }
-    if (!PyObject_TypeCheck(counts, &CountsType)) {
-        Py_DECREF(counts);
-        Py_RETURN_NONE; /* the Python twin's counts: the Python pull keeps them */
-    }
     PyObject *lock = PyObject_GetAttr(reader, str_device_lock);
     if (lock == NULL) {
-        Py_DECREF(counts);
         return NULL;
     }
     PyObject *got = PyObject_CallMethodOneArg(lock, str_acquire, Py_False);
@@ -1682,7 +1534,6 @@ pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
     Py_XDECREF(got);
     if (locked <= 0) {
         Py_DECREF(lock);
-        Py_DECREF(counts);
         if (locked < 0) {
             return NULL;
         }
@@ -1690,11 +1541,9 @@ pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
     }
     Pull s; /* not zeroed whole: its arrays are written before they are read */
     s.decoder = s.plan = s.values = s.held = NULL;
-    s.dstate = NULL;
     s.n = 0;
-    int rc = pull_locked(reader, (CountsObject *)counts, device, now, limits, &s);
+    int rc = pull_locked(reader, device, now, limits, &s);
     pull_clear(&s);
-    Py_DECREF(counts);
     PyObject *type, *value, *traceback;
     PyErr_Fetch(&type, &value, &traceback);
     PyObject *released = PyObject_CallMethodNoArgs(lock, str_release);
@@ -1759,8 +1608,7 @@ PyInit__speedups(void)
     if (intern_pull_names() < 0) {
         return NULL;
     }
-    if (PyType_Ready(&PlanType) < 0 || PyType_Ready(&EventsType) < 0
-        || PyType_Ready(&CountsType) < 0 || PyType_Ready(&DecoderStateType) < 0) {
+    if (PyType_Ready(&PlanType) < 0 || PyType_Ready(&EventsType) < 0) {
         return NULL;
     }
     PyObject *m = PyModule_Create(&module);
@@ -1768,9 +1616,7 @@ PyInit__speedups(void)
         return NULL;
     }
     if (PyModule_AddObjectRef(m, "Plan", (PyObject *)&PlanType) < 0
-        || PyModule_AddObjectRef(m, "Events", (PyObject *)&EventsType) < 0
-        || PyModule_AddObjectRef(m, "ReaderCounts", (PyObject *)&CountsType) < 0
-        || PyModule_AddObjectRef(m, "DecoderState", (PyObject *)&DecoderStateType) < 0) {
+        || PyModule_AddObjectRef(m, "Events", (PyObject *)&EventsType) < 0) {
         Py_DECREF(m);
         return NULL;
     }

@@ -35,22 +35,3 @@ class Events:
     def last_time(self) -> float: ...
     @property
     def left(self) -> int: ...
-
-class ReaderCounts:
-    reports: int
-    bad_reports: int
-    refused_in_a_row: int
-    bad_spells: int
-    repeats: int
-    press_serial: int
-    last_report: bytes
-    presses: tuple[int, ...]
-    closed: bool
-    pull_error: BaseException | None
-
-class DecoderState:
-    values: list[int]
-    buttons: int
-    state: object
-    reports: int
-    bad_reports: int

@@ -1037,23 +1037,6 @@ def _ignore(_mask: int) -> None:
     """`on_buttons` for a caller that does not ask for the masks."""
 
 
-class DecoderState:
-    """A report decoder's values (one raw value per field), its button mask, its last state
-    (None once a report changed them) and its counts. Where the HID stage's C loops are
-    built, `usb2rc.hid._speedups.DecoderState` takes its place: a C structure with these
-    fields and defaults (its mask 64 bits: for a layout a C plan holds), which the compiled
-    pull decodes into without a look-up."""
-
-    __slots__ = ("bad_reports", "buttons", "reports", "state", "values")
-
-    def __init__(self) -> None:
-        self.values: list[int] = []
-        self.buttons = 0  # HID button n -> bit n-1
-        self.state: InputState | None = None
-        self.reports = 0  # reports decoded
-        self.bad_reports = 0  # reports refused (unknown ID, too short)
-
-
 class ReportDecoder:
     """Decodes one device's raw input reports into an InputState. Not thread-safe: one reader
     thread feeds it and takes its states."""
@@ -1062,53 +1045,36 @@ class ReportDecoder:
         """`compiled`: drain batches in C where the layout allows and the C drain is built
         (False: the Python path, as tests/test_speedups.py compares them)."""
         self.layout = layout
+        self.reports = 0
+        self.bad_reports = 0
         self._plans = layout.report_plans
         self._plan = None if layout.uses_report_ids else self._plans[0]
         self._id_scan = layout.id_scan if layout.uses_report_ids else None
         self._c_plan = layout.c_plan if compiled else None
-        # the C structure where a C plan holds the layout (its masks fit in 64 bits)
-        c_loops = speedups.compiled()
-        held = self._held = (
-            c_loops.DecoderState()
-            if c_loops is not None and layout.c_plan is not None
-            else DecoderState()
-        )
         initial = layout.initial_state()
-        held.values = list(initial.values)
-        held.state = initial
-
-    @property
-    def reports(self) -> int:
-        """Reports decoded."""
-        count: int = self._held.reports
-        return count
-
-    @property
-    def bad_reports(self) -> int:
-        """Reports refused: an unknown report ID, or too short."""
-        count: int = self._held.bad_reports
-        return count
+        self._values = list(initial.values)
+        self._buttons = 0
+        self._state: InputState | None = initial
 
     def feed(self, report: bytes) -> bool:
         """Take one raw input report (ID byte first when the device uses IDs). False, and
         counted in bad_reports, for an unknown report ID or a too short report."""
-        plan, held = self._plan, self._held
+        plan = self._plan
         if plan is None:
             plan = self._plans.get(report[0]) if report else None
         if plan is None or len(report) < plan.length:
-            held.bad_reports += 1
+            self.bad_reports += 1
             return False
-        pressed = plan.decode(report, held.values)
-        held.buttons = (held.buttons & plan.keep_buttons) | pressed
-        held.state = None
-        held.reports += 1
+        pressed = plan.decode(report, self._values)
+        self._buttons = (self._buttons & plan.keep_buttons) | pressed
+        self._state = None
+        self.reports += 1
         return True
 
     @property
     def buttons(self) -> int:
         """The current button mask (HID button n -> bit n-1), without building a state."""
-        mask: int = self._held.buttons
-        return mask
+        return self._buttons
 
     def feed_batch(
         self, reports: Sequence[bytes], on_buttons: Callable[[int], None] | None = None
@@ -1126,11 +1092,11 @@ class ReportDecoder:
         batch."""
         if self._c_plan is not None:
             return self._c_drain(self._c_plan, reports, on_buttons)
-        single, held = self._plan, self._held
+        single = self._plan
         refused = 0
         if single is not None:
             if on_buttons is not None:
-                last, refused = single.scan(reports, held.buttons, on_buttons)
+                last, refused = single.scan(reports, self._buttons, on_buttons)
             else:
                 need = single.length
                 last = None
@@ -1142,14 +1108,14 @@ class ReportDecoder:
             survivors = [last] if last is not None else []
         else:
             assert self._id_scan is not None  # a layout with report IDs
-            last_of, refused = self._id_scan(reports, held.buttons, on_buttons or _ignore)
+            last_of, refused = self._id_scan(reports, self._buttons, on_buttons or _ignore)
             # in the order of each ID's last occurrence
             survivors = [reports[i] for i in sorted(last_of.values())]
         for report in survivors:
             self.feed(report)
         accepted = len(reports) - refused
-        held.reports += accepted - len(survivors)
-        held.bad_reports += refused
+        self.reports += accepted - len(survivors)
+        self.bad_reports += refused
         return accepted, refused
 
     def feed_presses(self, reports: list[bytes]) -> tuple[int, int, list[int]]:
@@ -1157,14 +1123,13 @@ class ReportDecoder:
         up before it), for every report that pressed one, in order: a pulled reader's
         press log (no tap lost, even one released within the batch). Returns (accepted,
         refused, pressed)."""
-        held = self._held
         if self._c_plan is not None:
             accepted, refused, mask, pressed = self._c_plan.drain(
-                reports, held.values, held.buttons, True
+                reports, self._values, self._buttons, True
             )
             self._took(accepted, refused, mask)
             return accepted, refused, pressed
-        before = held.buttons
+        before = self._buttons
         masks: list[int] = []
         accepted, refused = self.feed_batch(reports, masks.append)
         pressed = []
@@ -1175,13 +1140,12 @@ class ReportDecoder:
         return accepted, refused, pressed
 
     def _took(self, accepted: int, refused: int, mask: int) -> None:
-        """The C drain's counts and mask (its values are already in the decoder's)."""
-        held = self._held
+        """The C drain's counts and mask (its values are already in `_values`)."""
         if accepted:
-            held.buttons = mask
-            held.state = None
-        held.reports += accepted
-        held.bad_reports += refused
+            self._buttons = mask
+            self._state = None
+        self.reports += accepted
+        self.bad_reports += refused
 
     def _c_drain(
         self,
@@ -1191,8 +1155,7 @@ class ReportDecoder:
     ) -> tuple[int, int]:
         """`feed_batch` in one C call: the same values, masks and counts."""
         batch = reports if isinstance(reports, list) else list(reports)
-        held = self._held
-        accepted, refused, mask, changes = plan.drain(batch, held.values, held.buttons, False)
+        accepted, refused, mask, changes = plan.drain(batch, self._values, self._buttons, False)
         if on_buttons is not None:
             for changed in changes:
                 on_buttons(changed)
@@ -1201,8 +1164,7 @@ class ReportDecoder:
 
     def state(self) -> InputState:
         """The current state merged over all report IDs."""
-        held = self._held
-        state: InputState | None = held.state
+        state = self._state
         if state is None:
-            state = held.state = InputState(tuple(held.values), held.buttons)
+            state = self._state = InputState(tuple(self._values), self._buttons)
         return state

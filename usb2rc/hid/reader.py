@@ -146,38 +146,6 @@ class OutputRecord(NamedTuple):
     shown: OutputState | None = None  # what the device shows (None: not known, or nothing)
 
 
-class ReaderCounts:
-    """A reader's own counts, its press log and its last report, and whether it is closed or
-    a pull failed: what `_publish` makes its record of. The compiled pull's twin
-    (`usb2rc.hid._speedups.ReaderCounts`, a C structure with these fields and defaults)
-    takes its place where the C loops are built."""
-
-    __slots__ = (
-        "bad_reports",
-        "bad_spells",
-        "closed",
-        "last_report",
-        "press_serial",
-        "presses",
-        "pull_error",
-        "refused_in_a_row",
-        "repeats",
-        "reports",
-    )
-
-    def __init__(self) -> None:
-        self.reports = 0  # reports accepted
-        self.bad_reports = 0  # reports refused
-        self.refused_in_a_row = 0  # refused since the last accepted one
-        self.bad_spells = 0  # runs of BAD_REPORTS_LIMIT refused reports
-        self.repeats = 0  # reports byte for byte the one before
-        self.press_serial = 0  # presses noted
-        self.last_report = b""  # the raw report before, for `repeats`
-        self.presses: tuple[int, ...] = ()  # the last PRESSES_KEPT presses noted
-        self.closed = False  # the reader closed its device
-        self.pull_error: BaseException | None = None  # what a pull met
-
-
 class DeviceReader(Worker):
     def __init__(
         self,
@@ -191,11 +159,10 @@ class DeviceReader(Worker):
         self.info = device.info
         self.decoder = decoder
         self.record = ReaderRecord(decoder.state())
-        # its counts, press log and last report, and whether it is closed (the reader thread's,
-        # or the pulls' under `_device_lock`; published with the state): a C structure where
-        # the compiled pull is built (it writes them without a look-up on this object)
-        c_loops = speedups.compiled()
-        self._counts = ReaderCounts() if c_loops is None else c_loops.ReaderCounts()
+        self._reports = 0  # counted by the reader thread; published with the state
+        self._bad_reports = 0
+        self._refused_in_a_row = 0
+        self._bad_spells = 0
         # Told when the device enters or leaves error (bad reports); set before start().
         self.on_bad_reports: OnBadReports | None = None
         # the decoder, where its button mask can be read per report (fakes in tests: None)
@@ -203,7 +170,12 @@ class DeviceReader(Worker):
         # the replay backend's `read_due` (everything due, in one call), if the device has it
         self._read_due: Callable[[int], list[bytes]] | None = getattr(device, "read_due", None)
         # the compiled pull of a replay device (usb2rc.hid._speedups.pull), if built
+        c_loops = speedups.compiled()
         self._c_pull = c_loops.pull if c_loops is not None and self._read_due is not None else None
+        self._last_report = b""  # the raw report before, for `repeats`
+        self._repeats = 0
+        self._presses: tuple[int, ...] = ()
+        self._press_serial = 0
         self.exit_code: ErrorCode | None = None
         self.error: BaseException | None = None  # what ended it, if not stop()
         self._on_exit = on_exit
@@ -212,6 +184,8 @@ class DeviceReader(Worker):
         # at once, and a failure the pull meets ends this thread as a read's would.
         self._pulled = pulled
         self._device_lock = threading.Lock()
+        self._closed = False
+        self._pull_error: BaseException | None = None
         # stop(), a failure a pull met, or an output post: the pulled thread's wake-up
         self._woken = threading.Event()
         # Outputs (module docstring): the mailbox, replaced whole by post_output; the rest is
@@ -243,42 +217,39 @@ class DeviceReader(Worker):
         return self.record.at
 
     def _handle(self, report: bytes) -> None:
-        counts = self._counts
-        repeated = report == counts.last_report
-        counts.last_report = report
+        repeated = report == self._last_report
+        self._last_report = report
         before = self._press_decoder.buttons if self._press_decoder is not None else 0
         if self.decoder.feed(report):
-            counts.repeats += repeated
-            counts.reports += 1
+            self._repeats += repeated
+            self._reports += 1
             if self._press_decoder is not None and (
                 rising := self._press_decoder.buttons & ~before
             ):
                 self._note_presses([rising])
             self._count_refused(accepted=1, refused=0)
         else:
-            counts.bad_reports += 1
+            self._bad_reports += 1
             self._count_refused(accepted=0, refused=1)
 
     def _count_refused(self, accepted: int, refused: int) -> None:
         """Refused reports in a row. A batch is decoded as a whole: one accepted report in
         it ends the run (a device with good reports in every batch is not in error)."""
-        counts = self._counts
         if accepted:
-            counts.refused_in_a_row = 0
+            self._refused_in_a_row = 0
             return
-        before = counts.refused_in_a_row
-        counts.refused_in_a_row += refused
-        if before < BAD_REPORTS_LIMIT <= counts.refused_in_a_row:
-            counts.bad_spells += 1
+        before = self._refused_in_a_row
+        self._refused_in_a_row += refused
+        if before < BAD_REPORTS_LIMIT <= self._refused_in_a_row:
+            self._bad_spells += 1
 
     def _note_presses(self, pressed: list[int]) -> None:
         """Every press, even one released before the record is published (a tap): `pressed`
         holds the buttons each report pressed, for every report that pressed one, in order
         (a batch's, as `ReportDecoder.feed_presses` gives them); one entry each, numbered on
         from the last, the press log rebuilt once."""
-        counts = self._counts
-        counts.press_serial += len(pressed)
-        counts.presses = (*counts.presses, *pressed)[-PRESSES_KEPT:]
+        self._press_serial += len(pressed)
+        self._presses = (*self._presses, *pressed)[-PRESSES_KEPT:]
 
     def _queued(self) -> list[bytes]:
         """What the device has queued, read without blocking, at most MAX_BATCH reports. The
@@ -311,31 +282,30 @@ class DeviceReader(Worker):
                 self._note_presses(pressed)
         else:
             accepted, refused = self.decoder.feed_batch(batch)
-        counts = self._counts
         if not refused:  # a run of the same refused report is no sign of streaming
-            counts.repeats += sum(map(operator.eq, batch, [counts.last_report, *batch[:-1]]))
-        counts.last_report = batch[-1]
-        counts.reports += accepted
-        counts.bad_reports += refused
+            self._repeats += sum(map(operator.eq, batch, [self._last_report, *batch[:-1]]))
+        self._last_report = batch[-1]
+        self._reports += accepted
+        self._bad_reports += refused
         self._count_refused(accepted, refused)
 
     def _publish(self) -> None:
         """One assignment: the state, its counts and its time are seen together or not at all.
         Only when something changed (a refused report changes the counts, not the state)."""
-        last, counts = self.record, self._counts
-        if last.reports == counts.reports and last.bad_reports == counts.bad_reports:
+        last = self.record
+        if last.reports == self._reports and last.bad_reports == self._bad_reports:
             return
-        at = time.monotonic() if counts.reports != last.reports else last.at
+        at = time.monotonic() if self._reports != last.reports else last.at
         record = ReaderRecord(
             self.decoder.state(),
-            counts.reports,
-            counts.bad_reports,
+            self._reports,
+            self._bad_reports,
             at,
-            counts.presses,
-            counts.press_serial,
-            counts.refused_in_a_row,
-            counts.bad_spells,
-            counts.repeats,
+            self._presses,
+            self._press_serial,
+            self._refused_in_a_row,
+            self._bad_spells,
+            self._repeats,
         )
         self.record = record
         # an edge: a new run of bad reports, or the device in error or out of it (which only
@@ -367,7 +337,7 @@ class DeviceReader(Worker):
             if pulled is None:  # never compiled for this device: the Python pull from now on
                 self._c_pull = None
         with self._device_lock:
-            if self._counts.closed or self._counts.pull_error is not None:
+            if self._closed or self._pull_error is not None:
                 return
             try:
                 batch = self._queued()
@@ -380,9 +350,8 @@ class DeviceReader(Worker):
     def _pull_failed(self, exc: Exception) -> None:
         """The thread reports what a pull met (on_exit), as its own read would (under
         `_device_lock`)."""
-        counts = self._counts
-        if not counts.closed and counts.pull_error is None:
-            counts.pull_error = exc
+        if not self._closed and self._pull_error is None:
+            self._pull_error = exc
             self._woken.set()
 
     def stop(self) -> None:
@@ -486,8 +455,8 @@ class DeviceReader(Worker):
             self._woken.clear()  # before the mailbox is read: a later post wakes it again
             if self.stopping:
                 break
-            if self._counts.pull_error is not None:
-                raise self._counts.pull_error
+            if self._pull_error is not None:
+                raise self._pull_error
             timeout = self._serve_outputs(time.monotonic())
 
     def _loop(self) -> None:
@@ -517,7 +486,7 @@ class DeviceReader(Worker):
                 self._serve_outputs(time.monotonic(), flush=True)  # the last post, once
             self._close_output_port()
             with self._device_lock, contextlib.suppress(Exception):
-                self._counts.closed = True
+                self._closed = True
                 self.device.close()
         if ended is not None and not self.stopping:
             self.exit_code = ended[0]
