@@ -55,12 +55,13 @@ def mode_maps() -> Any:  # pymavlink has no types
     never in a tick or on a read. As it is, importing it loads the `all` dialect twice over
     (its own import of `v10.all`, and the dialect its environment names, `all` over MAVLink
     1 unless told): 9 MB of RSS, on a Pi that may have 512 MB, for messages usb2rc never
-    parses; and curses with its terminal libraries (0.6 MB). So the UNUSED_MODULES not
-    loaded yet are kept out while it imports (a `None` in `sys.modules`: its tries let them
-    be missing; a pymavlink whose import needs them imports them), and unless the user set
-    them, mavutil is told MAVLink 2's `common`, which usb2rc already loaded: the mode maps
-    are the same (they name autopilots and vehicle types by `common`'s constants). The
-    environment and `sys.modules` are as they were after the import."""
+    parses; and curses with its terminal libraries (1.3 MB in the daemon). So the
+    UNUSED_MODULES not loaded yet are kept out while it imports (a `None` in `sys.modules`:
+    its tries let them be missing; a pymavlink whose import needs them imports them), and
+    unless the user set them, mavutil is told MAVLink 2's `common`, which usb2rc already
+    loaded: the mode maps are the same (they name autopilots and vehicle types by
+    `common`'s constants). The environment and `sys.modules` are as they were after the
+    import."""
     if "pymavlink.mavutil" in sys.modules:
         return sys.modules["pymavlink.mavutil"]
     told = {"MAVLINK20": "1", "MAVLINK_DIALECT": "common"}
