@@ -111,16 +111,14 @@ def stopped_clock() -> Iterator[Clock]:
         yield clock
 
 
-class Side:
-    """One reader on its own replay device; `c`: the compiled pull, else Python only."""
+class WatchedReader:
+    """A pulled reader on `device`, the edges it told kept; `c`: its compiled pull, counted,
+    else the Python pull only."""
 
-    def __init__(self, backend: ReplayBackend, c: bool) -> None:
-        self.device: ReplayDevice = backend.open(backend.enumerate()[0])
-        layout = parse_descriptor(self.device.report_descriptor())
+    def __init__(self, device: Any, c: bool) -> None:
+        layout = parse_descriptor(device.report_descriptor())
         self.edges: list[ReaderRecord] = []
-        self.reader = DeviceReader(
-            self.device, layout.make_decoder(), lambda r, c: None, pulled=True
-        )
+        self.reader = DeviceReader(device, layout.make_decoder(), lambda r, c: None, pulled=True)
         self.reader.on_bad_reports = lambda reader, record: self.edges.append(record)
         self.compiled_pulls = 0
         if c:
@@ -135,6 +133,14 @@ class Side:
             self.reader._c_pull = counted
         else:
             self.reader._c_pull = None
+
+
+class Side(WatchedReader):
+    """One reader on its own replay device; `c`: the compiled pull, else Python only."""
+
+    def __init__(self, backend: ReplayBackend, c: bool) -> None:
+        self.device: ReplayDevice = backend.open(backend.enumerate()[0])
+        super().__init__(self.device, c)
 
     def pull(self) -> None:
         self.reader.pull()

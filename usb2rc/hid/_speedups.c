@@ -50,11 +50,14 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <ctype.h>
+#include <errno.h>
+#include <limits.h>
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
 #include <sys/stat.h>
 #include <time.h>
+#include <unistd.h>
 
 typedef struct {
     Py_ssize_t index;
@@ -819,7 +822,7 @@ static PyObject *str_device_lock, *str_acquire, *str_release, *str_closed, *str_
     *str_quiet_until, *str_set, *str_batch, *str_busy_s, *str_fault_due,
     *str_gone, *str_refill, *str_left, *str_on_bad_reports,
     *str_field_values, *str_field_buttons, *str_next_gone_check, *str_stat_path, *str_stat_id,
-    *str_gone_check_s;
+    *str_gone_check_s, *str_read_fd, *str_pending, *str_failed_read;
 
 static int
 intern_pull_names(void)
@@ -846,6 +849,8 @@ intern_pull_names(void)
         {&str_field_values, "values"}, {&str_field_buttons, "buttons"},
         {&str_next_gone_check, "_next_gone_check"}, {&str_stat_path, "_stat_path"},
         {&str_stat_id, "_stat_id"}, {&str_gone_check_s, "_gone_check_s"},
+        {&str_read_fd, "read_fd"}, {&str_pending, "_pending"},
+        {&str_failed_read, "failed_read"},
     };
     for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
         if ((*names[i].slot = PyUnicode_InternFromString(names[i].text)) == NULL) {
@@ -1462,10 +1467,11 @@ pull_decoder(PyObject *reader, Pull *s)
     return PyList_Check(s->values) ? 1 : 0;
 }
 
-/* The pull under the device lock: 1 pulled, 0 declined, -2 never, -1 with an exception. */
+/* What every pull checks first, under the lock: 1 it goes on (the decoder and its C plan in
+ * `s`), 0 it does nothing more (the reader closed, or a pull failed: as in Python), -2 never
+ * (no button decoder, or no C plan), -1 with an exception. */
 static int
-pull_locked(PyObject *reader, PyObject *device, double now, const Py_ssize_t *limits,
-            Pull *s)
+pull_begins(PyObject *reader, Pull *s)
 {
     int gone = attr_true(reader, str_closed);
     if (gone == 0) {
@@ -1474,11 +1480,36 @@ pull_locked(PyObject *reader, PyObject *device, double now, const Py_ssize_t *li
         Py_XDECREF(error);
     }
     if (gone != 0) {
-        return gone < 0 ? -1 : 1; /* closed, or a pull failed: nothing more, as in Python */
+        return gone < 0 ? -1 : 0;
     }
     int ready = pull_decoder(reader, s);
-    if (ready <= 0) {
-        return ready < 0 ? -1 : -2;
+    return ready < 0 ? -1 : ready == 0 ? -2 : 1;
+}
+
+/* The reports taken, decoded, counted and published: 1, or -1 with an exception. */
+static int
+pull_taken(PyObject *reader, double now, const Py_ssize_t *limits, Pull *s)
+{
+    if (s->n == 0) {
+        return 1;
+    }
+    scan(s);
+    if (decode(s) < 0 || count(reader, s, limits[1], limits[2]) < 0
+        || publish(reader, s->decoder, now, limits[2]) < 0) {
+        return -1;
+    }
+    return 1;
+}
+
+/* The replay's pull under the device lock: 1 pulled, 0 declined, -2 never, -1 with an
+ * exception. */
+static int
+pull_locked(PyObject *reader, PyObject *device, double now, const Py_ssize_t *limits,
+            Pull *s)
+{
+    int ready = pull_begins(reader, s);
+    if (ready != 1) {
+        return ready == 0 ? 1 : ready; /* closed, or a pull failed: pulled (nothing more) */
     }
     double started = monotonic_now();
     if ((ready = replay_ready(device, now)) <= 0) {
@@ -1491,21 +1522,100 @@ pull_locked(PyObject *reader, PyObject *device, double now, const Py_ssize_t *li
     if (attr_add_double(device, str_busy_s, s->taken_at - started) < 0) {
         return -1;
     }
-    if (s->n == 0) {
-        return 1;
-    }
-    scan(s);
-    if (decode(s) < 0 || count(reader, s, limits[1], limits[2]) < 0
-        || publish(reader, s->decoder, now, limits[2]) < 0) {
-        return -1;
-    }
-    return 1;
+    return pull_taken(reader, now, limits, s);
 }
 
-static PyObject *
-pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
+#define FD_READ_SIZE 1024 /* hidapi_backend.READ_SIZE: more than any input report */
+
+/* The reports a hidraw node has queued, as `HidapiDevice.read(0.0)` reads them on its own
+ * non-blocking fd: one report a read(), until none is left (EAGAIN) or `limit` are taken,
+ * kept in one bytearray (s->held). 0; 1: a read failed, its errno in *failed (ENODEV: it
+ * read nothing, the node hung up; the reports read before it are dropped, as the Python
+ * pull drops the batch its read raised in); -1 with an exception. */
+static int
+take_fd(int fd, Py_ssize_t limit, Pull *s, int *failed)
 {
-    (void)module;
+    Py_ssize_t size = 0, capacity = 16 * FD_READ_SIZE, at[MAX_TAKE];
+    if ((s->held = PyByteArray_FromStringAndSize(NULL, capacity)) == NULL) {
+        return -1;
+    }
+    while (s->n < limit) {
+        if (capacity - size < FD_READ_SIZE) {
+            capacity *= 2;
+            if (PyByteArray_Resize(s->held, capacity) < 0) {
+                return -1;
+            }
+        }
+        ssize_t got = read(fd, PyByteArray_AS_STRING(s->held) + size, FD_READ_SIZE);
+        if (got < 0 && errno == EINTR) {
+            continue;
+        }
+        if (got < 0 && (errno == EAGAIN || errno == EWOULDBLOCK)) {
+            break;
+        }
+        if (got <= 0) { /* 0: the node hung up (a report is never empty) */
+            *failed = got < 0 ? errno : ENODEV;
+            s->n = 0;
+            return 1;
+        }
+        at[s->n] = size;
+        s->length[s->n++] = got;
+        size += got;
+    }
+    const unsigned char *base = (const unsigned char *)PyByteArray_AS_STRING(s->held);
+    for (Py_ssize_t i = 0; i < s->n; i++) {
+        s->report[i] = base + at[i];
+    }
+    return 0;
+}
+
+/* A hidraw device's pull under the device lock: 1 pulled, 0 declined (reports from the open
+ * still pending, or a read failed: the Python pull hands the first over and raises the
+ * second), -2 never (no fd of its own, no C plan), -1 with an exception. */
+static int
+pull_fd_locked(PyObject *reader, PyObject *device, double now, const Py_ssize_t *limits,
+               Pull *s)
+{
+    int ready = pull_begins(reader, s);
+    if (ready != 1) {
+        return ready == 0 ? 1 : ready;
+    }
+    PyObject *fd_obj = PyObject_GetAttr(device, str_read_fd);
+    if (fd_obj == NULL) {
+        return -1;
+    }
+    long fd = fd_obj == Py_None ? -1 : PyLong_AsLong(fd_obj);
+    Py_DECREF(fd_obj);
+    if (fd < 0 || fd > INT_MAX) {
+        return PyErr_Occurred() ? -1 : -2;
+    }
+    PyObject *pending = PyObject_GetAttr(device, str_pending);
+    int waiting = pending == NULL ? -1 : PyObject_IsTrue(pending);
+    Py_XDECREF(pending);
+    PyObject *failed_read = waiting != 0 ? NULL : PyObject_GetAttr(device, str_failed_read);
+    if (waiting < 0 || (waiting == 0 && failed_read == NULL)) {
+        return -1;
+    }
+    int failed = failed_read != NULL && failed_read != Py_None;
+    Py_XDECREF(failed_read);
+    if (waiting || failed) {
+        return 0;
+    }
+    if (take_fd((int)fd, limits[0], s, &failed) < 0) {
+        return -1;
+    }
+    if (failed) {
+        return attr_set_new(device, str_failed_read, PyLong_FromLong(failed)) < 0 ? -1 : 0;
+    }
+    return pull_taken(reader, now, limits, s);
+}
+
+typedef int (*PullLocked)(PyObject *, PyObject *, double, const Py_ssize_t *, Pull *);
+
+/* The pull's arguments read, the device lock taken without waiting, `under_lock` run under it. */
+static PyObject *
+pull_with(PullLocked under_lock, PyObject *const *args, Py_ssize_t nargs)
+{
     double now;
     Py_ssize_t limits[3]; /* limit, kept, bad_limit */
     if (nargs != 6) {
@@ -1542,7 +1652,7 @@ pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
     Pull s; /* not zeroed whole: its arrays are written before they are read */
     s.decoder = s.plan = s.values = s.held = NULL;
     s.n = 0;
-    int rc = pull_locked(reader, device, now, limits, &s);
+    int rc = under_lock(reader, device, now, limits, &s);
     pull_clear(&s);
     PyObject *type, *value, *traceback;
     PyErr_Fetch(&type, &value, &traceback);
@@ -1565,6 +1675,25 @@ pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
     return PyBool_FromLong(rc);
 }
 
+static PyObject *
+pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)module;
+    return pull_with(pull_locked, args, nargs);
+}
+
+/* pull_fd(reader, device, now, limit, kept, bad_limit): a pulled reader's pull of a hidraw
+ * device (`hidapi_backend.HidapiDevice`, its own non-blocking fd `read_fd`) in one call, the
+ * compiled form of `reader.DeviceReader.pull` over `HidapiDevice.read(0.0)`: the reports
+ * queued read one a read() (no Python object made for each), then as `pull`. True, False
+ * (declined: the Python pull runs), None (never) as `pull`. */
+static PyObject *
+pull_fd(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)module;
+    return pull_with(pull_fd_locked, args, nargs);
+}
+
 static PyMethodDef module_methods[] = {
     {"parse_events", parse_events, METH_O,
      "parse_events(lines) -> (times, reports), or None: not every line as hid-recorder writes"},
@@ -1572,6 +1701,8 @@ static PyMethodDef module_methods[] = {
      "parse_packed(text) -> (events, end, lines), or None: a line not as written"},
     {"pull", (PyCFunction)(void (*)(void))pull, METH_FASTCALL,
      "pull(reader, device, now, limit, kept, bad_limit) -> True pulled, False declined, None never"},
+    {"pull_fd", (PyCFunction)(void (*)(void))pull_fd, METH_FASTCALL,
+     "pull_fd(reader, device, now, limit, kept, bad_limit) -> as pull, for a hidraw fd"},
     {NULL, NULL, 0, NULL},
 };
 

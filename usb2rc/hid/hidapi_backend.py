@@ -5,6 +5,15 @@ each top-level usage and leaves the kernel driver alone); the default `hid` modu
 libusb, which reports no usage page and detaches the kernel driver. Elsewhere it uses `hid`.
 The USB port path comes from sysfs on Linux, from pyusb elsewhere.
 
+Reads: on Linux a device's reports are read from a non-blocking fd of its own on the hidraw
+node (`HidapiDevice.read_fd`), one report a `read()`, as hidapi's `hid_read` reads them, but
+without its `poll()` before each read and the list of ints cython-hidapi makes of each
+report: at 1 kHz a device's reads are its largest cost, and a pulled reader's compiled pull
+(`usb2rc.hid._speedups.pull_fd`) reads the fd in C. Each open fd on a hidraw node has its own
+queue of every input report, so the hidapi handle's queue (kept for the descriptor and the
+reports asked for at open) is never read. Elsewhere, or where the node cannot be opened so,
+reads go through hidapi.
+
 Outputs (`HidapiDevice.open_output`) go through a second hidapi handle on the same path:
 hidapi keeps each handle's last error string unguarded, so two threads must never share a
 handle, and a write never waits for a read. USB control transfers (vendor formats the
@@ -19,6 +28,7 @@ import logging
 import math
 import os
 import re
+import select
 import sys
 from collections import deque
 from collections.abc import Callable
@@ -220,6 +230,18 @@ def open_error(info: DeviceInfo, exc: Exception) -> OSError:
     return DeviceOpenError(errno.EIO, f"{node or info.path}: cannot open {info.identity}: {exc}")
 
 
+def open_read_fd(info: DeviceInfo) -> int | None:
+    """A non-blocking fd of its own on the device's hidraw node (Linux), for its reads; None
+    where there is none, or it cannot be opened (the reads then go through hidapi)."""
+    if not info.hidraw or not sys.platform.startswith("linux"):
+        return None
+    try:
+        return os.open(info.hidraw, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        log.debug("%s: reads go through hidapi (no fd of its own: %s)", info.hidraw, exc)
+        return None
+
+
 class HidapiDevice:
     def __init__(self, info: DeviceInfo, handle: Any, hid_module: Any, sysfs_root: Path) -> None:
         self.info = info
@@ -227,6 +249,10 @@ class HidapiDevice:
         self._hid = hid_module
         self._sysfs = sysfs_root
         self._descriptor: bytes | None = None
+        # opened before the reports at open are asked for: a report sent meanwhile is queued
+        self.read_fd = open_read_fd(info)
+        # the errno of a read the compiled pull met on `read_fd`: raised by the next read
+        self.failed_read: int | None = None
         self._pending: deque[bytes] = deque(self._current_reports())
 
     def report_descriptor(self) -> bytes:
@@ -292,10 +318,30 @@ class HidapiDevice:
         return None
 
     def _read_handle(self, timeout_s: float) -> Any:
+        if self.read_fd is not None:
+            return self._read_fd(self.read_fd, timeout_s)
         if timeout_s <= 0:
             return self._handle.read(READ_SIZE)  # non-blocking handle: hid_read() polls
         # Round up: a timeout that rounds to 0 ms would mean hid_read(), not a short wait.
         return self._handle.read(READ_SIZE, max(1, math.ceil(timeout_s * 1000)))
+
+    def _read_fd(self, fd: int, timeout_s: float) -> bytes | None:
+        """One report from the device's own fd, None if none came within `timeout_s`."""
+        if self.failed_read is not None:
+            code, self.failed_read = self.failed_read, None
+            raise OSError(code, os.strerror(code))
+        if timeout_s > 0:
+            poller = select.poll()
+            poller.register(fd, select.POLLIN)
+            if not poller.poll(max(1, math.ceil(timeout_s * 1000))):
+                return None
+        try:
+            report = os.read(fd, READ_SIZE)
+        except BlockingIOError:
+            return None
+        if not report:  # a report is never empty: the node hung up (hidapi: POLLHUP, an error)
+            raise OSError(errno.ENODEV, "the device's node hung up")
+        return report
 
     def open_output(self) -> HidapiOutputPort:
         """A second handle on the same path (module docstring: never the reads' handle)."""
@@ -304,6 +350,10 @@ class HidapiDevice:
     def close(self) -> None:
         with contextlib.suppress(Exception):
             self._handle.close()
+        fd, self.read_fd = self.read_fd, None
+        if fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(fd)
 
 
 class HidapiOutputPort:

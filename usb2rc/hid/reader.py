@@ -146,6 +146,21 @@ class OutputRecord(NamedTuple):
     shown: OutputState | None = None  # what the device shows (None: not known, or nothing)
 
 
+def _compiled_pull(device: object, replayed: bool) -> Callable[..., bool | None] | None:
+    """The compiled pull for `device`, if the C loops are built: a replay device's (it has
+    `read_due`), or that of a device read on an fd of its own (an int `read_fd`)."""
+    c_loops = speedups.compiled()
+    if c_loops is None:
+        return None
+    if replayed:
+        pull: Callable[..., bool | None] = c_loops.pull
+        return pull
+    if isinstance(getattr(device, "read_fd", None), int):
+        pull_fd: Callable[..., bool | None] = c_loops.pull_fd
+        return pull_fd
+    return None
+
+
 class DeviceReader(Worker):
     def __init__(
         self,
@@ -169,9 +184,9 @@ class DeviceReader(Worker):
         self._press_decoder = decoder if isinstance(decoder, ButtonsDecoder) else None
         # the replay backend's `read_due` (everything due, in one call), if the device has it
         self._read_due: Callable[[int], list[bytes]] | None = getattr(device, "read_due", None)
-        # the compiled pull of a replay device (usb2rc.hid._speedups.pull), if built
-        c_loops = speedups.compiled()
-        self._c_pull = c_loops.pull if c_loops is not None and self._read_due is not None else None
+        # the compiled pull, if built: of a replay device (usb2rc.hid._speedups.pull), or of
+        # a device read on an fd of its own (`pull_fd`: hidapi_backend.HidapiDevice)
+        self._c_pull = _compiled_pull(device, self._read_due is not None)
         self._last_report = b""  # the raw report before, for `repeats`
         self._repeats = 0
         self._presses: tuple[int, ...] = ()

@@ -1,0 +1,238 @@
+"""A pulled reader's compiled pull of a device read on an fd of its own
+(`usb2rc.hid._speedups.pull_fd`) against the Python pull (`DeviceReader.pull` over
+`HidapiDevice.read(0.0)`).
+
+Each side is a real `HidapiDevice` (its constructor and its reads), its hidapi handle a fake
+that answers the descriptor and the reports asked for at open, its `read_fd` one end of a
+SOCK_SEQPACKET pair: like a hidraw node, it gives one whole report a `read()`. The test sends
+both sides the same reports between pulls; after every pull both must have published the
+same record (state, counts, time, press log, bad runs, repeats), told `on_bad_reports` the
+same edges, and left their decoders with the same values; a read that fails must fail
+alike (the reports of that pull dropped, the same error said). The reports: real
+descriptors with and without report IDs, short ones, unknown IDs, refused runs long enough
+to put the device in error, repeats, presses, more queued than one pull takes, reports
+pending from the open.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import socket
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
+from pathlib import Path
+from typing import Any
+from unittest import mock
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_compiled_pull import PLAYED, WatchedReader, descriptor, random_reports, stopped_clock
+
+from usb2rc.hid import hidapi_backend, reader, speedups
+from usb2rc.hid.backend import DeviceInfo
+from usb2rc.hid.descriptor import parse_descriptor
+from usb2rc.hid.hidapi_backend import HidapiDevice
+
+if not speedups.built():
+    if os.environ.get("CI"):
+        pytest.fail("the C loops were not built (setup.py; needs a C compiler and Python headers)")
+    pytest.skip(
+        "the C loops are not built here: only the Python pull runs", allow_module_level=True
+    )
+
+
+class FakeHandle:
+    """What a hidapi handle answers at open: the descriptor, and each input report asked for
+    (`pending`: report ID -> the report hidapi returns, its ID first)."""
+
+    def __init__(self, desc: bytes, pending: dict[int, bytes]) -> None:
+        self.desc, self.pending = desc, pending
+
+    def get_report_descriptor(self) -> list[int]:
+        return list(self.desc)
+
+    def get_input_report(self, report_id: int, length: int) -> list[int]:
+        if report_id not in self.pending:
+            raise OSError("no such report")
+        return list(self.pending[report_id])
+
+    def close(self) -> None:
+        pass
+
+
+class Side(WatchedReader):
+    """One reader on its own device and socket pair; `c`: the compiled pull, else Python."""
+
+    def __init__(self, node: Path, desc: bytes, pending: dict[int, bytes], c: bool) -> None:
+        self.sender, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        theirs.setblocking(False)
+        self._theirs = theirs
+        info = DeviceInfo(key=str(node), path=str(node), vid=1, pid=2, hidraw=str(node))
+        with mock.patch.object(hidapi_backend, "open_read_fd", lambda info: theirs.fileno()):
+            self.device = HidapiDevice(info, FakeHandle(desc, pending), None, node.parent)
+        c_loops = speedups.compiled()
+        assert c_loops is not None
+        assert reader._compiled_pull(self.device, False) is c_loops.pull_fd
+        super().__init__(self.device, c)
+
+    def send(self, reports: list[bytes]) -> None:
+        for report in reports:
+            self.sender.send(report)  # a few hundred fit in the queue: the pulls read them
+
+    def seen(self) -> tuple[object, ...]:
+        reader, decoder = self.reader, self.reader.decoder
+        return (
+            reader.record,
+            tuple(self.edges),
+            repr(reader._pull_error).replace(self.device.info.hidraw, "<node>"),
+            reader._last_report,
+            list(decoder._values),  # type: ignore[attr-defined]
+            decoder._buttons,  # type: ignore[attr-defined]
+            decoder.reports,  # type: ignore[attr-defined]
+            decoder.bad_reports,  # type: ignore[attr-defined]
+            len(self.device._pending),
+        )
+
+    def close(self) -> None:
+        self.device.read_fd = None  # the socket's own close closes it
+        self.sender.close()
+        self._theirs.close()
+
+
+@contextmanager
+def two_sides(tmp: Path, desc: bytes, pending: dict[int, bytes]) -> Iterator[tuple[Side, Side]]:
+    with ExitStack() as stack:
+        sides = []
+        for name in ("c", "py"):
+            node = tmp / f"hidraw-{name}"
+            node.touch()  # the node's path: there while plugged (HidapiDevice._gone)
+            side = Side(node, desc, pending, c=name == "c")
+            stack.callback(side.close)
+            sides.append(side)
+        yield sides[0], sides[1]
+
+
+def pull_both(c_side: Side, py_side: Side, clock: Any, step_s: float, label: str) -> None:
+    clock.now += step_s
+    c_side.reader.pull()
+    py_side.reader.pull()
+    assert c_side.seen() == py_side.seen(), label
+
+
+def at_open(rng: random.Random, desc: bytes) -> dict[int, bytes]:
+    """The reports the device answers at open (hidapi puts the report ID first, 0: none)."""
+    layout = parse_descriptor(desc)
+    pending = {}
+    for report_id, length in layout.input_report_lengths.items():
+        if rng.random() < 0.5:
+            body = rng.randbytes(length if report_id == 0 else length - 1)
+            pending[report_id] = bytes([report_id]) + body
+    return pending
+
+
+@st.composite
+def plays(draw: st.DrawFn) -> dict[str, Any]:
+    rng = random.Random(draw(st.integers(0, 2**32)))
+    desc = descriptor(draw(st.sampled_from(PLAYED)))
+    count = draw(st.sampled_from([1, 5, 40, 400]))
+    reports = random_reports(rng, desc, count)
+    chunks, at = [], 0
+    while at < len(reports):  # sent between two pulls: none, one, a few, more than a pull
+        size = rng.choice([0, 1, 3, 20, 120])
+        chunks.append(reports[at : at + size])
+        at += size
+    fail_at = draw(st.integers(0, len(chunks))) if draw(st.integers(0, 3)) == 0 else None
+    return {"desc": desc, "pending": at_open(rng, desc), "chunks": chunks, "fail_at": fail_at}
+
+
+@settings(max_examples=100, deadline=None)
+@given(plays())
+def test_the_compiled_fd_pull_leaves_what_the_python_pull_leaves(
+    tmp_path_factory: pytest.TempPathFactory, played: dict[str, Any]
+) -> None:
+    tmp = tmp_path_factory.mktemp("fd")
+    with stopped_clock() as clock, two_sides(tmp, played["desc"], played["pending"]) as sides:
+        c_side, py_side = sides
+        for k, chunk in enumerate(played["chunks"]):
+            if py_side.reader._pull_error is not None:
+                break  # nothing reads any more: the socket's queue would fill
+            c_side.send(chunk)
+            py_side.send(chunk)
+            if k == played["fail_at"]:
+                # a read that fails: a directory's fd (EISDIR) where the node's was
+                for side in sides:
+                    side.device.read_fd = os.open(tmp, os.O_RDONLY)
+            pull_both(c_side, py_side, clock, 0.02, f"pull {k}")
+        pull_both(c_side, py_side, clock, 0.02, "the last pull")
+        for side in sides:
+            if side.device.read_fd != side._theirs.fileno():
+                os.close(side.device.read_fd)  # type: ignore[arg-type]
+
+
+def test_the_c_path_takes_every_pull_once_the_open_reports_are_handed_over(
+    tmp_path: Path,
+) -> None:
+    desc = descriptor("Thrustmaster T.16000M")
+    rng = random.Random(3)
+    with stopped_clock() as clock, two_sides(tmp_path, desc, {0: bytes(65)}) as (c_side, py):
+        for k in range(30):
+            reports = [rng.randbytes(64) for _ in range(rng.choice([0, 1, 20]))]
+            c_side.send(reports)
+            py.send(reports)
+            pull_both(c_side, py, clock, 0.02, f"pull {k}")
+        assert c_side.compiled_pulls == 29  # the first handed back: the report from the open
+        assert c_side.reader.record.reports == py.reader.record.reports > 30
+
+
+def test_more_queued_than_a_pull_takes_is_left_for_the_next(tmp_path: Path) -> None:
+    desc = descriptor("Thrustmaster T.16000M")
+    with (
+        mock.patch.object(reader, "MAX_BATCH", 7),
+        stopped_clock() as clock,
+        two_sides(tmp_path, desc, {}) as (c_side, py),
+    ):
+        reports = [bytes([k]) * 64 for k in range(10)]
+        c_side.send(reports)
+        py.send(reports)
+        pull_both(c_side, py, clock, 0.02, "seven")
+        assert c_side.reader.record.reports == 7
+        pull_both(c_side, py, clock, 0.02, "three")
+        assert c_side.reader.record.reports == 10
+        assert c_side.compiled_pulls == 2
+
+
+def test_a_failed_read_is_said_as_the_python_read_says_it(tmp_path: Path) -> None:
+    desc = descriptor("Thrustmaster T.16000M")
+    with stopped_clock() as clock, two_sides(tmp_path, desc, {}) as (c_side, py):
+        for side in (c_side, py):
+            side.send([bytes(64)] * 3)
+            side.device.read_fd = os.open(tmp_path, os.O_RDONLY)
+        pull_both(c_side, py, clock, 0.02, "the failed read")
+        error = c_side.reader._pull_error
+        assert isinstance(error, OSError) and "read failed" in str(error)
+        assert c_side.reader.record.reports == 0  # the pull's reports dropped, as in Python
+        (tmp_path / "hidraw-c").unlink()  # the node gone: unplugged
+        c_side.reader._pull_error = None
+        c_side.device.failed_read = None
+        c_side.reader.pull()
+        assert "unplugged" in str(c_side.reader._pull_error)
+        for side in (c_side, py):
+            os.close(side.device.read_fd)  # type: ignore[arg-type]
+
+
+def test_a_node_that_hung_up_is_unplugged_on_either_path(tmp_path: Path) -> None:
+    """A read of nothing (a node whose far end hung up, as umockdev's pty after an unplug)
+    is an error, as hidapi's read makes it; with the node gone it says unplugged."""
+    desc = descriptor("Thrustmaster T.16000M")
+    with stopped_clock() as clock, two_sides(tmp_path, desc, {}) as (c_side, py):
+        for side in (c_side, py):
+            side.send([bytes(64)] * 2)
+        pull_both(c_side, py, clock, 0.02, "before")
+        for side in (c_side, py):
+            side.sender.close()
+            Path(side.device.info.hidraw).unlink()
+        pull_both(c_side, py, clock, 0.02, "hung up")
+        assert "unplugged" in str(c_side.reader._pull_error)
+        assert c_side.compiled_pulls == 1
