@@ -19,6 +19,8 @@ from types import ModuleType
 
 import pytest
 
+from usb2rc.hid import speedups
+
 ROOT = Path(__file__).resolve().parent.parent
 BENCH = ROOT / "bench"
 
@@ -75,6 +77,21 @@ def test_hot_paths() -> None:
                 "replay_pull_python_paced_us"):  # fmt: skip
         assert result["figures"][key] > 0, key
     assert re.search(r"^tick_hot_us\s+[0-9.]+ µs$", out, re.MULTILINE)
+
+
+def test_fd_pull() -> None:
+    """A step's pulls of devices read on an fd, through each read path; where the C loops
+    are not built it says so."""
+    out = run(sys.executable, "bench/bench_fd_pull.py", "--samples", "3")
+    result = last_json(out)
+    assert result["bench"] == "fd_pull"
+    if speedups.compiled() is None:
+        assert "the C loops are not built here" in out
+        return
+    for path in ("c", "python", "hidapi"):
+        assert result["figures"][f"{path}_after_sleep_20ms_us"] > 0, path
+    line = r"^c +4 pulls, 20 reports each, after a sleep of 20 ms: +[0-9.]+ µs$"
+    assert re.search(line, out, re.MULTILINE)
 
 
 def test_cold() -> None:
