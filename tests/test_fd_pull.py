@@ -34,6 +34,7 @@ from usb2rc.hid import hidapi_backend, reader, speedups
 from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.hid.hidapi_backend import HidapiDevice
+from usb2rc.runtime import stats_text
 
 if not speedups.built():
     if os.environ.get("CI"):
@@ -93,6 +94,8 @@ class Side(WatchedReader):
             decoder.reports,  # type: ignore[attr-defined]
             decoder.bad_reports,  # type: ignore[attr-defined]
             len(self.device._pending),
+            self.device.queue_full,
+            self.device._drained,
         )
 
     def close(self) -> None:
@@ -236,3 +239,32 @@ def test_a_node_that_hung_up_is_unplugged_on_either_path(tmp_path: Path) -> None
         pull_both(c_side, py, clock, 0.02, "hung up")
         assert "unplugged" in str(c_side.reader._pull_error)
         assert c_side.compiled_pulls == 1
+
+
+def test_a_drain_of_a_full_kernel_queue_is_counted_and_said(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """As many reports as the kernel queues for an fd, read in one drain: the kernel dropped
+    those sent after them. Counted on either path (a drain cut by the pull's limit goes on
+    in the next pull), said in the log the first time, shown in the device's stats line."""
+    desc = descriptor("Thrustmaster T.16000M")
+    full = hidapi_backend.KERNEL_QUEUE_REPORTS
+    with (
+        mock.patch.object(reader, "MAX_BATCH", 40),
+        stopped_clock() as clock,
+        two_sides(tmp_path, desc, {}) as (c_side, py),
+    ):
+        for k, count in enumerate([full - 1, full, 10, full + 30, 2 * full]):
+            for side in (c_side, py):
+                side.send([bytes([k]) * 64] * count)
+            for _ in range(4):  # the limit: up to four pulls a drain
+                pull_both(c_side, py, clock, 0.02, f"{count} reports")
+        assert c_side.device.queue_full == py.device.queue_full == 3
+        assert c_side.compiled_pulls == 20
+    said = [r.message for r in caplog.records if "as many as the kernel keeps" in r.message]
+    assert len(said) == 2  # the first time, for each device
+    line = stats_text.device_line(
+        {"name": "T", "port_path": "1-1", "reports": 1, "reports_per_s": 1.0,
+         "bad_reports": 0, "last_report_age_s": 0.1, "kernel_queue_full": 3}
+    )  # fmt: skip
+    assert line.endswith("kernel queue full 3 times (reports dropped)")

@@ -594,6 +594,9 @@ class Daemon:
         busy_s = getattr(reader.device, "busy_s", None)  # the replay backend's own work
         if busy_s is not None:
             stats["backend_busy_ms"] = busy_s * 1000
+        queue_full = getattr(reader.device, "queue_full", 0)  # a hidraw fd's, when it filled
+        if queue_full:
+            stats["kernel_queue_full"] = queue_full
         outputs = reader.outputs
         if outputs.written or outputs.refused:
             stats["outputs_written"] = outputs.written

@@ -822,7 +822,7 @@ static PyObject *str_device_lock, *str_acquire, *str_release, *str_closed, *str_
     *str_quiet_until, *str_set, *str_batch, *str_busy_s, *str_fault_due,
     *str_gone, *str_refill, *str_left, *str_on_bad_reports,
     *str_field_values, *str_field_buttons, *str_next_gone_check, *str_stat_path, *str_stat_id,
-    *str_gone_check_s, *str_read_fd, *str_pending, *str_failed_read;
+    *str_gone_check_s, *str_read_fd, *str_pending, *str_failed_read, *str_drained_full, *str_drained;
 
 static int
 intern_pull_names(void)
@@ -850,7 +850,8 @@ intern_pull_names(void)
         {&str_next_gone_check, "_next_gone_check"}, {&str_stat_path, "_stat_path"},
         {&str_stat_id, "_stat_id"}, {&str_gone_check_s, "_gone_check_s"},
         {&str_read_fd, "read_fd"}, {&str_pending, "_pending"},
-        {&str_failed_read, "failed_read"},
+        {&str_failed_read, "failed_read"}, {&str_drained_full, "drained_a_full_queue"},
+        {&str_drained, "_drained"},
     };
     for (size_t i = 0; i < sizeof names / sizeof names[0]; i++) {
         if ((*names[i].slot = PyUnicode_InternFromString(names[i].text)) == NULL) {
@@ -1526,6 +1527,7 @@ pull_locked(PyObject *reader, PyObject *device, double now, const Py_ssize_t *li
 }
 
 #define FD_READ_SIZE 1024 /* hidapi_backend.READ_SIZE: more than any input report */
+#define KERNEL_QUEUE_REPORTS 63 /* hidapi_backend.KERNEL_QUEUE_REPORTS: a hidraw fd's queue */
 
 /* The reports a hidraw node has queued, as `HidapiDevice.read(0.0)` reads them on its own
  * non-blocking fd: one report a read(), until none is left (EAGAIN) or `limit` are taken,
@@ -1569,6 +1571,35 @@ take_fd(int fd, Py_ssize_t limit, Pull *s, int *failed)
     return 0;
 }
 
+/* The drain's count, as `HidapiDevice._read_fd` keeps it: `n` more reports read from the fd
+ * (`_drained`, the drain's so far: a pull that stopped at its limit goes on with the next);
+ * at its end (`dry`: a read found none), a drain that read as many as the kernel queues
+ * tells the device (`drained_a_full_queue`). 0, or -1 with an exception. */
+static int
+drain_counted(PyObject *device, Py_ssize_t n, int dry)
+{
+    Py_ssize_t drained;
+    if (attr_ssize(device, str_drained, &drained) < 0) {
+        return -1;
+    }
+    Py_ssize_t before = drained;
+    drained += n;
+    if (!dry || before != 0) {
+        if (attr_set_new(device, str_drained, PyLong_FromSsize_t(dry ? 0 : drained)) < 0) {
+            return -1;
+        }
+    }
+    if (!dry || drained < KERNEL_QUEUE_REPORTS) {
+        return 0;
+    }
+    PyObject *count = PyLong_FromSsize_t(drained);
+    PyObject *told = count == NULL ? NULL
+                                   : PyObject_CallMethodOneArg(device, str_drained_full, count);
+    Py_XDECREF(count);
+    Py_XDECREF(told);
+    return told == NULL ? -1 : 0;
+}
+
 /* A hidraw device's pull under the device lock: 1 pulled, 0 declined (reports from the open
  * still pending, or a read failed: the Python pull hands the first over and raises the
  * second), -2 never (no fd of its own, no C plan), -1 with an exception. */
@@ -1606,6 +1637,9 @@ pull_fd_locked(PyObject *reader, PyObject *device, double now, const Py_ssize_t 
     }
     if (failed) {
         return attr_set_new(device, str_failed_read, PyLong_FromLong(failed)) < 0 ? -1 : 0;
+    }
+    if (drain_counted(device, s->n, s->n < limits[0]) < 0) {
+        return -1;
     }
     return pull_taken(reader, now, limits, s);
 }

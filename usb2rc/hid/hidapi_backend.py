@@ -51,6 +51,9 @@ from usb2rc.hid.usages import is_joystick_like, make_usage
 log = logging.getLogger(__name__)
 
 READ_SIZE = 1024  # hidraw returns one report per read; larger than any input report
+# What the kernel queues for one open fd of a hidraw node: a ring of HIDRAW_BUFFER_SIZE (64)
+# slots, one kept free. When it is full the kernel drops each new report (the newest).
+KERNEL_QUEUE_REPORTS = 63
 # cython-hidapi's read(n, timeout_ms): 0 (its default) means hid_read(), which waits for a
 # report on a blocking handle; > 0 means hid_read_timeout() (poll for that long). Handles are
 # blocking when opened, so open() makes them non-blocking: hid_read() then polls.
@@ -253,6 +256,9 @@ class HidapiDevice:
         self.read_fd = open_read_fd(info)
         # the errno of a read the compiled pull met on `read_fd`: raised by the next read
         self.failed_read: int | None = None
+        # drains of `read_fd` that found the kernel's queue full: reports were dropped
+        self.queue_full = 0
+        self._drained = 0  # reports this drain of `read_fd` read so far
         self._pending: deque[bytes] = deque(self._current_reports())
 
     def report_descriptor(self) -> bytes:
@@ -331,6 +337,7 @@ class HidapiDevice:
             code, self.failed_read = self.failed_read, None
             raise OSError(code, os.strerror(code))
         if timeout_s > 0:
+            self._drained = 0  # a wait, not a drain
             poller = select.poll()
             poller.register(fd, select.POLLIN)
             if not poller.poll(max(1, math.ceil(timeout_s * 1000))):
@@ -338,10 +345,33 @@ class HidapiDevice:
         try:
             report = os.read(fd, READ_SIZE)
         except BlockingIOError:
+            drained, self._drained = self._drained, 0
+            if drained >= KERNEL_QUEUE_REPORTS:
+                self.drained_a_full_queue(drained)
             return None
         if not report:  # a report is never empty: the node hung up (hidapi: POLLHUP, an error)
             raise OSError(errno.ENODEV, "the device's node hung up")
+        self._drained += timeout_s <= 0
         return report
+
+    def drained_a_full_queue(self, reports: int) -> None:
+        """A drain of `read_fd` read `reports`, as many as the kernel queues: the queue was
+        full, and the reports sent while it was were dropped (the newest). Counted (the
+        device's stats line), and said in the log the first time (the compiled pull calls
+        it too): a node no output reads, which only the node clock steps, fills it every
+        time, with nothing on the wire to lose."""
+        self.queue_full += 1
+        if self.queue_full > 1:
+            return
+        log.warning(
+            "%s: %d reports had queued since its last pull, as many as the kernel keeps for"
+            " a reader: those sent after them were dropped. Its node is stepped too seldom"
+            " for its report rate: a device faster than about 3 kHz, a node no output reads"
+            " (the node clock steps it), or a stalled daemon. The stats count each such"
+            " pull (`kernel queue full`)",
+            self.info.hidraw or self.info.path,
+            reports,
+        )
 
     def open_output(self) -> HidapiOutputPort:
         """A second handle on the same path (module docstring: never the reads' handle)."""
