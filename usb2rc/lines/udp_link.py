@@ -118,6 +118,9 @@ class UdpLink:
         self.datagrams_from_others = 0  # from an allowed sender that is not the peer
         self.peer_locks = 0  # udpin: times a caller became the peer
         self._sock: socket.socket | None = None
+        # the socket's readiness, asked before each read: a tick with nothing to read (the
+        # usual one) costs a poll, not a failed read and its exception
+        self._readable: select.poll | None = None
         self._peer: Address | None = None
         self._peer_heard_at = 0.0
         self._opened = False  # the writer was told OPENED for the current socket
@@ -148,6 +151,8 @@ class UdpLink:
                 self._open_failures.failed(self.last_error)
                 return False
             self._open_failures.opened()
+            self._readable = select.poll()
+            self._readable.register(self._sock, select.POLLIN)
             self.stats.opens += 1
             self.last_error = "" if self._peer else f"{self.url}: no vehicle has called yet"
         return self.is_open
@@ -190,10 +195,12 @@ class UdpLink:
     def _poll(self) -> None:
         """Read what waits (non-blocking, at most MAX_DATAGRAMS_PER_POLL datagrams); keep
         the peer's, count and drop the rest."""
-        sock = self._sock
-        if sock is None:
+        sock, readable = self._sock, self._readable
+        if sock is None or readable is None:
             return
         for _ in range(MAX_DATAGRAMS_PER_POLL):
+            if not readable.poll(0):  # nothing waits (the usual tick): no read, no exception
+                return
             try:
                 data, sender = sock.recvfrom(RECEIVE_SIZE)
             except (BlockingIOError, InterruptedError):
@@ -330,6 +337,7 @@ class UdpLink:
 
     def close(self) -> None:
         sock, self._sock = self._sock, None
+        self._readable = None
         self._opened = False
         if sock is not None:
             with contextlib.suppress(OSError):
