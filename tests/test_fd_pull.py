@@ -26,6 +26,7 @@ from typing import Any
 from unittest import mock
 
 import pytest
+from daemon_harness import wait_until
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_compiled_pull import PLAYED, WatchedReader, descriptor, random_reports, stopped_clock
@@ -246,7 +247,8 @@ def test_a_drain_of_a_full_kernel_queue_is_counted_and_said(
 ) -> None:
     """As many reports as the kernel queues for an fd, read in one drain: the kernel dropped
     those sent after them. Counted on either path (a drain cut by the pull's limit goes on
-    in the next pull), said in the log the first time, shown in the device's stats line."""
+    in the next pull), said in the log the first time, shown in the device's stats line
+    with how often its reader pulls it since."""
     desc = descriptor("Thrustmaster T.16000M")
     full = hidapi_backend.KERNEL_QUEUE_REPORTS
     with (
@@ -265,6 +267,78 @@ def test_a_drain_of_a_full_kernel_queue_is_counted_and_said(
     assert len(said) == 2  # the first time, for each device
     line = stats_text.device_line(
         {"name": "T", "port_path": "1-1", "reports": 1, "reports_per_s": 1.0,
-         "bad_reports": 0, "last_report_age_s": 0.1, "kernel_queue_full": 3}
+         "bad_reports": 0, "last_report_age_s": 0.1, "kernel_queue_full": 3,
+         "pulled_between_steps_ms": 3.94}
     )  # fmt: skip
-    assert line.endswith("kernel queue full 3 times (reports dropped)")
+    assert line.endswith(
+        "kernel queue full 3 times (reports dropped), its reader pulls it every 3.9 ms"
+    )
+
+
+@pytest.mark.parametrize("c", [True, False], ids=["compiled", "python"])
+def test_a_device_whose_queue_filled_is_pulled_by_its_own_thread_between_the_steps(
+    tmp_path: Path, c: bool
+) -> None:
+    """Once a step's pull finds the kernel's queue full, the reader's thread pulls the device
+    too, between the steps: what it sends later is read, its presses noted, with no step at
+    all, and the record is the one a single late pull of every report makes (which thread
+    pulled changes nothing but the time). With nothing more to read it pulls at the
+    slowest pace."""
+    desc = descriptor("Thrustmaster T.16000M")
+    rng = random.Random(7)
+    full = hidapi_backend.KERNEL_QUEUE_REPORTS
+    first, later = random_reports(rng, desc, full), random_reports(rng, desc, 90)
+    (tmp_path / "kept").mkdir()
+    (tmp_path / "twin").mkdir()
+    kept_node, twin_node = tmp_path / "kept" / "hidraw0", tmp_path / "twin" / "hidraw0"
+    kept_node.touch()
+    twin_node.touch()
+    with ExitStack() as stack:
+        kept, twin = Side(kept_node, desc, {}, c), Side(twin_node, desc, {}, c)
+        for side in (kept, twin):
+            stack.callback(side.close)
+        # the thread closes its device when it ends: a descriptor of its own to close
+        kept.device.read_fd = os.dup(kept.device.read_fd)  # type: ignore[arg-type]
+        kept.reader.start()
+        stack.callback(kept.reader.join, 5.0)
+        stack.callback(kept.reader.stop)
+        kept.send(first)
+        kept.reader.pull()  # the step's: the queue was full
+        assert kept.device.queue_full == 1
+        assert kept.reader.keep_every_s == reader.KEEP_FIRST_S
+        sent = full
+        for at in range(0, len(later), 30):  # never a full queue again: no step pulls
+            kept.send(later[at : at + 30])
+            sent += len(later[at : at + 30])
+            wait_until(lambda: kept.reader._taken() == sent, "the reader's own pulls")  # noqa: B023
+        twin.send(first + later)  # more than the kernel would keep: a socket keeps them
+        twin.reader.pull()
+        assert kept.reader.record._replace(at=0) == twin.reader.record._replace(at=0)
+        assert kept.reader.record.press_serial > 0
+        wait_until(lambda: kept.reader.keep_every_s == reader.KEEP_MAX_S, "the slowest pace")
+        assert kept.device.queue_full == 1
+
+
+@pytest.mark.parametrize(
+    ("reports_per_s", "every_s"),
+    [
+        (8000, 31.5 / 8000),
+        (4000, 31.5 / 4000),
+        (1000, reader.KEEP_MAX_S),
+        (10**6, reader.KEEP_MIN_S),
+    ],
+)
+def test_the_reader_pulls_a_filling_queue_at_half_of_it_at_the_rate_it_reports(
+    tmp_path: Path, reports_per_s: int, every_s: float
+) -> None:
+    node = tmp_path / "hidraw0"
+    node.touch()
+    side = Side(node, descriptor("Thrustmaster T.16000M"), {}, c=True)
+    try:
+        side.reader._queue_filled(hidapi_backend.KERNEL_QUEUE_REPORTS)
+        side.reader._kept_at = (0, 10.0)
+        side.reader.record = side.reader.record._replace(reports=reports_per_s // 2)
+        with mock.patch.object(side.reader, "pull"):
+            assert side.reader._keep_queue(10.5) == pytest.approx(every_s)
+    finally:
+        side.close()

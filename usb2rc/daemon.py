@@ -597,6 +597,8 @@ class Daemon:
         queue_full = getattr(reader.device, "queue_full", 0)  # a hidraw fd's, when it filled
         if queue_full:
             stats["kernel_queue_full"] = queue_full
+        if reader.keep_every_s is not None:  # its reader pulls it between the steps too
+            stats["pulled_between_steps_ms"] = reader.keep_every_s * 1000
         outputs = reader.outputs
         if outputs.written or outputs.refused:
             stats["outputs_written"] = outputs.written

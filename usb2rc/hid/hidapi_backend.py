@@ -258,6 +258,8 @@ class HidapiDevice:
         self.failed_read: int | None = None
         # drains of `read_fd` that found the kernel's queue full: reports were dropped
         self.queue_full = 0
+        # told of each such drain (its pulled reader: it then pulls the device between steps)
+        self.on_queue_full: Callable[[int], None] | None = None
         self._drained = 0  # reports this drain of `read_fd` read so far
         self._pending: deque[bytes] = deque(self._current_reports())
 
@@ -357,18 +359,20 @@ class HidapiDevice:
     def drained_a_full_queue(self, reports: int) -> None:
         """A drain of `read_fd` read `reports`, as many as the kernel queues: the queue was
         full, and the reports sent while it was were dropped (the newest). Counted (the
-        device's stats line), and said in the log the first time (the compiled pull calls
-        it too): a node no output reads, which only the node clock steps, fills it every
-        time, with nothing on the wire to lose."""
+        device's stats line), told to its reader (`on_queue_full`: from then on it pulls the
+        device between the steps too), and said in the log the first time (the compiled
+        pull calls it too)."""
         self.queue_full += 1
+        if self.on_queue_full is not None:
+            self.on_queue_full(KERNEL_QUEUE_REPORTS)
         if self.queue_full > 1:
             return
         log.warning(
             "%s: %d reports had queued since its last pull, as many as the kernel keeps for"
             " a reader: those sent after them were dropped. Its node is stepped too seldom"
-            " for its report rate: a device faster than about 3 kHz, a node no output reads"
-            " (the node clock steps it), or a stalled daemon. The stats count each such"
-            " pull (`kernel queue full`)",
+            " for its report rate (a device faster than about 3 kHz, a node no output reads,"
+            " a stalled daemon): its reader pulls it between the steps from now on, as often"
+            " as its rate needs. The stats count each full pull (`kernel queue full`)",
             self.info.hidraw or self.info.path,
             reports,
         )

@@ -19,6 +19,12 @@ close never overlap (`_device_lock`), and a pull after the close does nothing. A
 device's pull runs in one C call where the HID stage's C loops are built
 (`_speedups.pull`: the same steps on this reader's own fields; it hands the pull back to
 Python when the lock is taken or the replay owes a read error).
+A queue that fills between two steps loses reports: the kernel keeps 63 for each open fd of
+a hidraw node and drops the newest while it is full, so the last state before a tick would
+be old and a tap lost. A device that tells its reader so (`on_queue_full`: a hidraw fd read
+up to the kernel's limit, `hidapi_backend.HidapiDevice`) is pulled by its reader's thread
+too from then on, between the steps, often enough to take half the queue at the rate it
+reports (`keep_every_s`): the same pull, so which thread pulls changes nothing but the age.
 
 Outputs (pulled readers only): `post_output(driver, state)` leaves the newest state a device
 should show in a mailbox (the feedback thread's call; a newer post replaces one not written
@@ -46,6 +52,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import operator
 import threading
 import time
@@ -72,6 +79,13 @@ BAD_REPORTS_LIMIT = 20
 OUTPUT_RATE_HZ = 20.0  # output states shown per second and device, at most
 OUTPUT_BURST = 3  # states shown at once after a quiet spell
 OUTPUT_RETRY_S = 1.0  # after a refusal, the next try
+# A device whose queue filled between two pulls (`Device.on_queue_full`) is also pulled by its
+# own thread from then on, often enough to take KEEP_SHARE of the queue at its report rate:
+# the first after KEEP_FIRST_S, then between KEEP_MIN_S and KEEP_MAX_S apart.
+KEEP_SHARE = 0.5
+KEEP_FIRST_S = 0.002
+KEEP_MIN_S = 0.001
+KEEP_MAX_S = 0.02
 
 
 class Decoder(Protocol):
@@ -201,8 +215,16 @@ class DeviceReader(Worker):
         self._device_lock = threading.Lock()
         self._closed = False
         self._pull_error: BaseException | None = None
-        # stop(), a failure a pull met, or an output post: the pulled thread's wake-up
+        # stop(), a failure a pull met, an output post or a full queue: the thread's wake-up
         self._woken = threading.Event()
+        # a device whose queue filled between pulls: how often the thread pulls it too (None:
+        # never), and the reports and time at its last such pull (its report rate)
+        self.keep_every_s: float | None = None
+        self._keep_from_now = False
+        self._kept_at: tuple[int, float] | None = None
+        self._queue_reports = 0
+        if pulled and hasattr(device, "on_queue_full"):
+            device.on_queue_full = self._queue_filled
         # Outputs (module docstring): the mailbox, replaced whole by post_output; the rest is
         # the reader thread's own.
         self._output_post: tuple[OutputDriver, OutputState] | None = None
@@ -369,6 +391,33 @@ class DeviceReader(Worker):
             self._pull_error = exc
             self._woken.set()
 
+    def _queue_filled(self, queue_reports: int) -> None:
+        """The device's queue (`queue_reports` deep) was full at a pull, whichever thread
+        pulled: the thread pulls it too from now on, the first time KEEP_FIRST_S from now."""
+        self._queue_reports = queue_reports
+        self.keep_every_s = KEEP_FIRST_S
+        self._keep_from_now = True
+        self._woken.set()
+
+    def _taken(self) -> int:
+        record = self.record
+        return record.reports + record.bad_reports
+
+    def _keep_queue(self, now: float) -> float:
+        """The thread's own pull of a device whose queue fills between steps; how long
+        until the next: KEEP_SHARE of the queue at the rate it reported since the last."""
+        self.pull()
+        taken = self._taken()
+        last = self._kept_at
+        self._kept_at = (taken, now)
+        if last is not None and now > last[1] and taken > last[0]:
+            rate = (taken - last[0]) / (now - last[1])
+            every = KEEP_SHARE * self._queue_reports / rate
+            self.keep_every_s = max(KEEP_MIN_S, min(KEEP_MAX_S, every))
+        else:
+            self.keep_every_s = KEEP_MAX_S
+        return self.keep_every_s
+
     def stop(self) -> None:
         super().stop()
         self._woken.set()
@@ -463,16 +512,25 @@ class DeviceReader(Worker):
 
     def _await_pull_failure(self) -> None:
         """Pulled: the thread holds the device until stop() or a failure a pull met, which
-        it raises here (run() then ends it as a failed read), and writes its outputs."""
+        it raises here (run() then ends it as a failed read), writes its outputs, and pulls
+        a device whose queue fills between the steps (`keep_every_s`)."""
         timeout = threading.TIMEOUT_MAX
+        keep_due = math.inf
         while not self.stopping:
             self._woken.wait(timeout)
-            self._woken.clear()  # before the mailbox is read: a later post wakes it again
+            self._woken.clear()  # before the flags are read: a later one wakes it again
             if self.stopping:
                 break
             if self._pull_error is not None:
                 raise self._pull_error
-            timeout = self._serve_outputs(time.monotonic())
+            now = time.monotonic()
+            if self._keep_from_now:  # the queue filled (again): the first pull soon
+                self._keep_from_now = False
+                self._kept_at = (self._taken(), now)
+                keep_due = now + KEEP_FIRST_S
+            elif now >= keep_due:
+                keep_due = now + self._keep_queue(now)
+            timeout = min(self._serve_outputs(now), keep_due - now)
 
     def _loop(self) -> None:
         if self._pulled:

@@ -106,6 +106,8 @@ def device_line(record: dict[str, Any]) -> str:
         line += f", backend busy {record['backend_busy_ms']:.1f} ms"
     if "kernel_queue_full" in record:
         line += f", kernel queue full {record['kernel_queue_full']} times (reports dropped)"
+    if "pulled_between_steps_ms" in record:
+        line += f", its reader pulls it every {record['pulled_between_steps_ms']:.1f} ms"
     if "outputs_written" in record:
         line += f", outputs written {record['outputs_written']}"
         line += f", refused {record['outputs_refused']}"
