@@ -28,23 +28,22 @@ import json
 import os
 import random
 import select
-import socket
 import statistics
+import sys
 import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
-from unittest import mock
 
-from usb2rc.hid import hidapi_backend, speedups
-from usb2rc.hid.backend import DeviceInfo
+from usb2rc.hid import speedups
 from usb2rc.hid.descriptor import parse_descriptor
-from usb2rc.hid.hidapi_backend import HidapiDevice
 from usb2rc.hid.reader import DeviceReader
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+from seqpacket_device import SeqpacketDevice  # noqa: E402 - a test helper, found there
 
 DEVICES = ("Saitek/Logitech X52", "Thrustmaster T.16000M", "Saitek P-series", "Asus gamepad")
 REPORT_HZ = 1000.0
@@ -85,13 +84,8 @@ class Device:
     """One device: the reader on its end of the pair, the sender on the other, its reports."""
 
     def __init__(self, node: Path, desc: bytes, path: str, rng: random.Random) -> None:
-        self.sender, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
-        theirs.setblocking(False)
-        self.theirs = theirs
-        info = DeviceInfo(key=str(node), path=str(node), vid=1, pid=2, hidraw=str(node))
-        fd = None if path == "hidapi" else theirs.fileno()
-        with mock.patch.object(hidapi_backend, "open_read_fd", lambda info: fd):
-            self.device = HidapiDevice(info, Handle(desc, theirs.fileno()), None, node.parent)
+        self.pair = SeqpacketDevice(node, lambda fd: Handle(desc, fd), own_fd=path != "hidapi")
+        self.sender, self.device = self.pair.sender, self.pair.device
         layout = parse_descriptor(desc)
         decoder = layout.make_decoder()
         self.reader = DeviceReader(self.device, decoder, lambda r, c: None, pulled=True)
@@ -110,9 +104,7 @@ class Device:
             self.sender.send(head + self.rng.randbytes(size))
 
     def close(self) -> None:
-        self.device.read_fd = None
-        self.sender.close()
-        self.theirs.close()
+        self.pair.close()
 
 
 @contextmanager

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import os
 import random
-import socket
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from pathlib import Path
@@ -29,12 +28,11 @@ import pytest
 from daemon_harness import wait_until
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from seqpacket_device import SeqpacketDevice
 from test_compiled_pull import PLAYED, WatchedReader, descriptor, random_reports, stopped_clock
 
 from usb2rc.hid import hidapi_backend, reader, speedups
-from usb2rc.hid.backend import DeviceInfo
 from usb2rc.hid.descriptor import parse_descriptor
-from usb2rc.hid.hidapi_backend import HidapiDevice
 from usb2rc.runtime import stats_text
 
 if not speedups.built():
@@ -68,12 +66,9 @@ class Side(WatchedReader):
     """One reader on its own device and socket pair; `c`: the compiled pull, else Python."""
 
     def __init__(self, node: Path, desc: bytes, pending: dict[int, bytes], c: bool) -> None:
-        self.sender, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
-        theirs.setblocking(False)
-        self._theirs = theirs
-        info = DeviceInfo(key=str(node), path=str(node), vid=1, pid=2, hidraw=str(node))
-        with mock.patch.object(hidapi_backend, "open_read_fd", lambda info: theirs.fileno()):
-            self.device = HidapiDevice(info, FakeHandle(desc, pending), None, node.parent)
+        self.pair = SeqpacketDevice(node, lambda fd: FakeHandle(desc, pending))
+        self.sender, self._theirs = self.pair.sender, self.pair.theirs
+        self.device = self.pair.device
         c_loops = speedups.compiled()
         assert c_loops is not None
         assert reader._compiled_pull(self.device, False) is c_loops.pull_fd
@@ -100,9 +95,7 @@ class Side(WatchedReader):
         )
 
     def close(self) -> None:
-        self.device.read_fd = None  # the socket's own close closes it
-        self.sender.close()
-        self._theirs.close()
+        self.pair.close()
 
 
 @contextmanager
@@ -342,3 +335,14 @@ def test_the_reader_pulls_a_filling_queue_at_half_of_it_at_the_rate_it_reports(
             assert side.reader._keep_queue(10.5) == pytest.approx(every_s)
     finally:
         side.close()
+
+
+def test_a_wrong_call_of_either_compiled_pull_names_the_function_called() -> None:
+    c_loops = speedups.compiled()
+    assert c_loops is not None
+    for name in ("pull", "pull_fd"):
+        function = getattr(c_loops, name)
+        with pytest.raises(TypeError, match=rf"^{name}\(reader, device, now"):
+            function(None)
+        with pytest.raises(ValueError, match=rf"^{name}: limit 1\.\.1024"):
+            function(None, None, 0.0, 0, 1, 1)

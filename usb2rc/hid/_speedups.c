@@ -1646,14 +1646,15 @@ pull_fd_locked(PyObject *reader, PyObject *device, double now, const Py_ssize_t 
 
 typedef int (*PullLocked)(PyObject *, PyObject *, double, const Py_ssize_t *, Pull *);
 
-/* The pull's arguments read, the device lock taken without waiting, `under_lock` run under it. */
+/* The pull's arguments read, the device lock taken without waiting, `under_lock` run under it;
+ * `name`: the function called, for its errors. */
 static PyObject *
-pull_with(PullLocked under_lock, PyObject *const *args, Py_ssize_t nargs)
+pull_with(const char *name, PullLocked under_lock, PyObject *const *args, Py_ssize_t nargs)
 {
     double now;
     Py_ssize_t limits[3]; /* limit, kept, bad_limit */
     if (nargs != 6) {
-        PyErr_SetString(PyExc_TypeError, "pull(reader, device, now, limit, kept, bad_limit)");
+        PyErr_Format(PyExc_TypeError, "%s(reader, device, now, limit, kept, bad_limit)", name);
         return NULL;
     }
     if ((now = PyFloat_AsDouble(args[2])) == -1.0 && PyErr_Occurred()) {
@@ -1665,7 +1666,8 @@ pull_with(PullLocked under_lock, PyObject *const *args, Py_ssize_t nargs)
         }
     }
     if (limits[0] < 1 || limits[0] > MAX_TAKE || limits[1] < 1 || limits[2] < 1) {
-        PyErr_SetString(PyExc_ValueError, "pull: limit 1..1024, kept and bad_limit 1 or more");
+        PyErr_Format(PyExc_ValueError, "%s: limit 1..%d, kept and bad_limit 1 or more", name,
+                     (int)MAX_TAKE);
         return NULL;
     }
     PyObject *reader = args[0], *device = args[1];
@@ -1713,7 +1715,7 @@ static PyObject *
 pull(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)module;
-    return pull_with(pull_locked, args, nargs);
+    return pull_with("pull", pull_locked, args, nargs);
 }
 
 /* pull_fd(reader, device, now, limit, kept, bad_limit): a pulled reader's pull of a hidraw
@@ -1725,7 +1727,7 @@ static PyObject *
 pull_fd(PyObject *module, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)module;
-    return pull_with(pull_fd_locked, args, nargs);
+    return pull_with("pull_fd", pull_fd_locked, args, nargs);
 }
 
 static PyMethodDef module_methods[] = {
