@@ -16,7 +16,12 @@ as they are), a node step computes nothing (`NodeTable._step_locked` keeps the l
 and every session's tick returns its last bytes (`tick` of C2Session, ChannelSession and
 MavlinkSession): what a compiled step and compiled frames taking no time at all would leave.
 `--free step` or `--free frames` makes only that part free (which of the two a compiled engine
-would take first); `--free none` leaves the copy as the tree is. `--phases` (one scenario) also
+would take first); `--free none` leaves the copy as the tree is. Two more parts, never free by
+default, say what a tick's work costs by what it is for: `between`, the steps between
+C2-16B's (a batch C2-16B is not in, SUMD's and SBUS's at the 10 ms mark of five outputs,
+takes the last batch's snapshot: no pull, no step); `quiet`, the ticks of CRSF and MAVLink
+(once a second instead of every 20 ms: in `five` the nodes wait in the guard, CRSF sends
+nothing and MAVLink only its heartbeat). `--phases` (one scenario) also
 prints what each part of the copy's drivers' thread costs (thread CPU clocks around its loop's
 calls, the node table's step and each reader's pull, written by each daemon at its exit; a
 driver's parts per protocol); the clocks cost the copy CPU of their own, so its ratio is read
@@ -46,6 +51,7 @@ WARM_STEPS = 100  # node steps as they are, before the step becomes free
 WARM_TICKS = 50  # each session's ticks as they are, before its tick becomes free
 
 PARTS = ("step", "frames")
+MORE_PARTS = ("between", "quiet")  # never free by default: what a tick's work is for
 NOTHING = "none"  # --free none: the copy is the tree as it is (for --phases)
 PHASES_ENV = "USB2RC_BOUND_PHASES"  # --phases: the directory the copy's daemons write to
 BOUND_HOOK = '''"""bench_engine_bound.py's hook: a free step and frames; --phases: parts timed."""
@@ -86,6 +92,32 @@ def _free_tick(cls):
     cls.tick = tick
 
 
+def _no_step_between(module):
+    """A batch C2-16B is not in takes the last batch's snapshot (no pull, no step)."""
+    real_batch, real_begin, last = module.DriverThread._begin, module.LineDriver.begin, [None]
+
+    def begin(self, snapshot, step_s=0.0):
+        last[0] = snapshot
+        return real_begin(self, snapshot, step_s)
+
+    def batch(self, now):
+        waiting = [d for d in self.drivers if d._held is None]
+        starting = [d for d in waiting if d.next_moment <= now + module.SAME_TICK_S]
+        if starting and last[0] is not None:
+            due = module._due_with(waiting, [d._deadline for d in starting])
+            if not any(type(d.session).__name__ == "C2Session" for d in due):
+                for driver in due:
+                    driver.begin(last[0], 0.0)
+                return
+        real_batch(self, now)
+
+    module.LineDriver.begin, module.DriverThread._begin = begin, batch
+
+
+def _once_a_second(cls):
+    cls.next_due = lambda self, due, now: due + 1.0
+
+
 FREE = {free!r}
 PATCHES = {{}}  # module -> what is done to it once imported, in order
 
@@ -100,6 +132,11 @@ if "frames" in FREE:
     _patch("usb2rc.protocols.c2_16b.session", lambda m: _free_tick(m.C2Session))
     _patch("usb2rc.lines.session", lambda m: _free_tick(m.ChannelSession))
     _patch("usb2rc.protocols.mavlink.session", lambda m: _free_tick(m.MavlinkSession))
+if "between" in FREE:
+    _patch("usb2rc.lines.driver", _no_step_between)
+if "quiet" in FREE:
+    _patch("usb2rc.protocols.crsf.session", lambda m: _once_a_second(m.CrsfSession))
+    _patch("usb2rc.protocols.mavlink.session", lambda m: _once_a_second(m.MavlinkSession))
 
 
 # --phases: each daemon writes the thread CPU of the drivers' thread's parts to this directory
@@ -190,9 +227,10 @@ def main() -> None:
     parser.add_argument(
         "--free",
         nargs="+",
-        choices=[*PARTS, NOTHING],
+        choices=[*PARTS, *MORE_PARTS, NOTHING],
         default=list(PARTS),
-        help=f"what is free (both; {NOTHING}: nothing, the tree's parts timed with --phases)",
+        help=f"what is free (step and frames; {NOTHING}: nothing, the tree's parts timed with"
+        " --phases)",
     )
     parser.add_argument(
         "--phases",

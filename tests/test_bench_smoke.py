@@ -348,6 +348,22 @@ def test_engine_bound_copy_makes_what_it_is_asked_free(
     assert ticks.split() == ([free_tick] * 3 if "frames" in free else own_ticks)
 
 
+@pytest.mark.parametrize("free", [("between", "quiet"), ()])
+def test_engine_bound_copy_takes_the_steps_between_and_the_quiet_ticks_away(
+    tmp_path: Path, free: tuple[str, ...]
+) -> None:
+    copy = engine_bound().bound_copy(ROOT, tmp_path, free)
+    probe = (
+        "import usb2rc.lines.driver as d, usb2rc.protocols.crsf.session as c, "
+        "usb2rc.protocols.mavlink.session as m; print(d.DriverThread._begin.__qualname__); "
+        "print(c.CrsfSession.next_due.__qualname__, m.MavlinkSession.next_due.__qualname__)"
+    )
+    batch, quiet = python_in(copy, probe).splitlines()
+    assert (batch == "_no_step_between.<locals>.batch") == ("between" in free)
+    once = "_once_a_second.<locals>.<lambda>"
+    assert quiet.split() == [once, once] if "quiet" in free else once not in quiet
+
+
 def test_engine_bound_runs_the_hot_path_bench() -> None:
     out = run(
         sys.executable, "bench/bench_engine_bound.py", "--only", "idle", "--rounds", "1",
