@@ -79,9 +79,9 @@ BAD_REPORTS_LIMIT = 20
 OUTPUT_RATE_HZ = 20.0  # output states shown per second and device, at most
 OUTPUT_BURST = 3  # states shown at once after a quiet spell
 OUTPUT_RETRY_S = 1.0  # after a refusal, the next try
-# A device whose queue filled between two pulls (`Device.on_queue_full`) is also pulled by its
-# own thread from then on, often enough to take KEEP_SHARE of the queue at its report rate:
-# the first after KEEP_FIRST_S, then between KEEP_MIN_S and KEEP_MAX_S apart.
+# A device whose queue filled between two pulls (`HidapiDevice.on_queue_full`) is also pulled
+# by its reader's thread from then on, often enough to take KEEP_SHARE of the queue at its
+# report rate: the first after KEEP_FIRST_S, then between KEEP_MIN_S and KEEP_MAX_S apart.
 KEEP_SHARE = 0.5
 KEEP_FIRST_S = 0.002
 KEEP_MIN_S = 0.001
