@@ -31,6 +31,7 @@ from hypothesis import strategies as st
 from seqpacket_device import SeqpacketDevice
 from test_compiled_pull import PLAYED, WatchedReader, descriptor, random_reports, stopped_clock
 
+from usb2rc.daemon import Daemon
 from usb2rc.hid import hidapi_backend, reader, speedups
 from usb2rc.hid.descriptor import parse_descriptor
 from usb2rc.runtime import stats_text
@@ -310,6 +311,13 @@ def test_a_device_whose_queue_filled_is_pulled_by_its_own_thread_between_the_ste
         assert kept.reader.record.press_serial > 0
         wait_until(lambda: kept.reader.keep_every_s == reader.KEEP_MAX_S, "the slowest pace")
         assert kept.device.queue_full == 1
+        # what the daemon's stats say of it (the log's and `monitor`'s device line)
+        line = stats_text.device_line(Daemon._device_stats(kept.reader, 0.0, 1.0))
+        assert line.endswith(
+            "kernel queue full 1 times (reports dropped), its reader pulls it every 20.0 ms"
+        )
+        kept.reader.stop()  # a stop ends the thread between two of its pulls
+        assert kept.reader.join(5.0) and not kept.reader.is_alive()
 
 
 @pytest.mark.parametrize(
