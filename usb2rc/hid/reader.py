@@ -58,7 +58,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from functools import reduce
-from typing import NamedTuple, Protocol, runtime_checkable
+from typing import NamedTuple, Protocol, TypeGuard
 
 from usb2rc.hid import speedups
 from usb2rc.hid.backend import Device, DeviceGone, ErrorCode, OutputPort
@@ -98,7 +98,6 @@ class Decoder(Protocol):
     def state(self) -> InputState: ...
 
 
-@runtime_checkable
 class ButtonsDecoder(Decoder, Protocol):
     """A decoder that tells the buttons each report pressed (descriptor.ReportDecoder): the
     reader then notes every press, for the taps between two ticks."""
@@ -107,6 +106,12 @@ class ButtonsDecoder(Decoder, Protocol):
     def buttons(self) -> int: ...
 
     def feed_presses(self, reports: list[bytes]) -> tuple[int, int, list[int]]: ...
+
+
+def tells_presses(decoder: Decoder) -> TypeGuard[ButtonsDecoder]:
+    """Whether `decoder` tells the buttons each report pressed (by its method, not by an
+    `isinstance` of a runtime-checkable Protocol, which compiled modules do not have)."""
+    return hasattr(decoder, "feed_presses")
 
 
 OnExit = Callable[["DeviceReader", ErrorCode | None], None]
@@ -195,7 +200,7 @@ class DeviceReader(Worker):
         # Told when the device enters or leaves error (bad reports); set before start().
         self.on_bad_reports: OnBadReports | None = None
         # the decoder, where its button mask can be read per report (fakes in tests: None)
-        self._press_decoder = decoder if isinstance(decoder, ButtonsDecoder) else None
+        self._press_decoder = decoder if tells_presses(decoder) else None
         # the replay backend's `read_due` (everything due, in one call), if the device has it
         self._read_due: Callable[[int], list[bytes]] | None = getattr(device, "read_due", None)
         # the compiled pull, if built: of a replay device (usb2rc.hid._speedups.pull), or of

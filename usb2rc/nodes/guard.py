@@ -35,6 +35,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any
 
 from usb2rc.hid.usages import GD_GAMEPAD, GD_JOYSTICK, GD_RZ, GD_X, GD_Y, SIM_THROTTLE
 from usb2rc.nodes.scaling import INT16_MAX, INT16_MIN, UINT16_MAX
@@ -231,14 +232,16 @@ class RestWatch:
     spans: dict[int, tuple[float, float]] = field(default_factory=dict)  # slot -> (lo, hi)
     first: dict[int, int] = field(default_factory=dict)  # slot -> its first value (wire)
     moved: set[int] = field(default_factory=set)  # slots whose value changed since the plug
-    record: object = None  # the reader record last taken (each is a new object)
+    # the reader record last taken (each is a new object; compared by identity only). Any:
+    # an `object` field with a None default is what the hot path's compiler cannot keep
+    record: Any = None
     reports: int = -1  # its report count
     run_since: float | None = None  # start of the rest seen report by report (no gap)
     plugged: float | None = None  # the time of the first frame that read the device
     fixed: bool = False  # a centre axis stuck at an end since the plug (see above)
     waiting: tuple[str, ...] = ()
     # the guard whose every axis is in `moved` (none yet): its records need no more noting
-    moved_all_of: object = None
+    moved_all_of: NeutralGuard | None = None
 
     def check(
         self,

@@ -13,7 +13,6 @@ its codec (`usb2rc.protocols`).
 from __future__ import annotations
 
 import math
-import weakref
 from collections.abc import Callable, Sequence
 
 from usb2rc.config.layout import GROUP1_BUTTONS, NODE_BUTTONS
@@ -36,42 +35,45 @@ def scale_linear(v: int, lo: int, hi: int, unsigned: bool = False) -> int:
     return linear_field(0, lo, hi, unsigned)((v,), 0)
 
 
+class LinearField:
+    """`scale_linear` of field `index` of a decoded state's values (`invert`: of lo + hi -
+    value), as one callable of (values, buttons): the node step calls it for every axis of
+    every device at every step, so the range is worked out once and the rounding is inline.
+    `terms` says what it computes, for a compiled step that computes it without calling it
+    (usb2rc.nodes.steady): it returns `round((v' - lo) * 65535 / (hi - lo)) - offset`, v' the
+    field clamped to [lo, hi], or lo + hi - it inverted."""
+
+    __slots__ = ("hi", "index", "invert", "lo", "offset", "span", "terms")
+
+    def __init__(self, index: int, lo: int, hi: int, offset: int, invert: bool) -> None:
+        self.index, self.lo, self.hi, self.offset, self.invert = index, lo, hi, offset, invert
+        self.span = hi - lo
+        self.terms = (index, lo, hi, offset, invert)
+
+    def __call__(self, values: Sequence[int], _buttons: int) -> int:
+        lo, hi = self.lo, self.hi
+        v = lo + hi - values[self.index] if self.invert else values[self.index]
+        v = lo if v < lo else hi if v > hi else v
+        q, r = divmod((v - lo) * 65535, self.span)  # round_div inline: halves to even
+        if 2 * r > self.span or (2 * r == self.span and q & 1):
+            q += 1
+        return q - self.offset
+
+
 def linear_field(
     index: int, lo: int, hi: int, unsigned: bool = False, invert: bool = False
 ) -> Callable[[Sequence[int], int], int]:
-    """`scale_linear` of field `index` of a decoded state's values (`invert`: of lo + hi -
-    value), as one function of (values, buttons): the node step calls it for every axis of
-    every device at every step, so the range is worked out once and the rounding is inline."""
+    """A `LinearField` of field `index` (a constant, the centre, for an empty range)."""
     if hi <= lo:
         centre = 32768 if unsigned else 0
         return lambda _values, _buttons: centre
-    span, offset = hi - lo, 0 if unsigned else 32768
-
-    def scale(values: Sequence[int], _buttons: int) -> int:
-        v = lo + hi - values[index] if invert else values[index]
-        v = lo if v < lo else hi if v > hi else v
-        q, r = divmod((v - lo) * 65535, span)  # round_div inline: halves to even
-        if 2 * r > span or (2 * r == span and q & 1):
-            q += 1
-        return q - offset
-
-    _LINEAR[scale] = (index, lo, hi, offset, invert)
-    return scale
-
-
-# What each function `linear_field` made computes: (index, lo, hi, offset, invert), for a
-# compiled step that computes it without calling it (usb2rc.nodes.steady). Weak: a reload's
-# functions go with their mapping.
-_LINEAR: weakref.WeakKeyDictionary[Callable[..., int], tuple[int, int, int, int, bool]] = (
-    weakref.WeakKeyDictionary()
-)
+    return LinearField(index, lo, hi, 0 if unsigned else 32768, invert)
 
 
 def linear_terms(fn: Callable[..., int] | None) -> tuple[int, int, int, int, bool] | None:
-    """(index, lo, hi, offset, invert) of a function `linear_field` made (it returns
-    `round((v' - lo) * 65535 / (hi - lo)) - offset`, v' the field clamped to [lo, hi], or
-    lo + hi - it inverted), None for any other."""
-    return None if fn is None else _LINEAR.get(fn)
+    """(index, lo, hi, offset, invert) of a `LinearField` (see there), None for any other
+    function."""
+    return fn.terms if isinstance(fn, LinearField) else None
 
 
 def to_wire(x: float, unsigned: bool = False) -> int:

@@ -59,7 +59,8 @@ def block(channels: Sequence[int]) -> int:
     )
 
 
-def _check_channels(channels: Sequence[int]) -> None:
+def _check_channels(channels: Sequence[object]) -> None:
+    # each value as an object: compiled, an `int` loop variable would take a bool as 0 or 1
     for number, value in enumerate(channels, start=1):
         if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= VALUE_MAX:
             raise ValueError(f"channel {number} must be an int in 0..2047, got {value!r}")

@@ -214,7 +214,8 @@ def _wire_axes(axes: Sequence[int]) -> list[int]:
         raise ValueError(f"expected {AXIS_COUNT} axes {AXIS_NAMES}, got {len(axes)}")
     # Fast path with C-level builtins; the per-axis loop only runs to name the bad axis.
     if set(map(type, axes)) != {int} or min(axes) < -32768 or max(axes) > 65535:
-        for name, value in zip(AXIS_NAMES, axes, strict=True):
+        values: Sequence[object] = axes  # compiled, an `int` would take a bool as 0 or 1
+        for name, value in zip(AXIS_NAMES, values, strict=True):
             _check_int(f"axis {name}", value, -32768, 65535)
     return list(map(_UINT16_MASK.__and__, axes))
 

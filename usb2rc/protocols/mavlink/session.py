@@ -83,31 +83,32 @@ RELEASE_S = 1.0  # how long the release is repeated (datagrams get lost) before 
 
 Nodes = Mapping[int, NodeFrame]
 Channel = ChannelRef | ChannelSource
-Reading = Callable[[Nodes], tuple[int | bool, bool]]  # -> (int16 axis or pressed, failsafe)
+Reading = Callable[[Nodes], tuple[int, bool]]  # -> (int16 axis, or 1 pressed, failsafe)
 Trigger = tuple[ChannelSource, int | None]  # an action's button (None) or switch and its value
 
 
 def channel_reading(source: Channel) -> Reading:
     """One channel's node value each tick: an axis as int16 (a uint16 slot, as the frame's
     `unsigned_slots` says, shifted down by 32768; a slot nobody feeds is the centre), a
-    button as pressed or not; and whether its node is failsafe (or absent: centre /
-    released, failsafe). Never raises on a tick."""
+    button as 1 pressed or 0 not (`is_button` says which a channel is: never the value's
+    type, which a compiled module does not keep); and whether its node is failsafe (or
+    absent: centre / released, failsafe). Never raises on a tick."""
     node_id, index = source.node_id, source.index
     if isinstance(source, ChannelSource) and source.kind in ("switch", "mix"):
         return int16_value(source)  # a switch or mix (nodes/curves.py): an int16, as an axis
     if source.kind == "button":
         group, bit = node_button_bit(index)
 
-        def button(nodes: Nodes) -> tuple[int | bool, bool]:
+        def button(nodes: Nodes) -> tuple[int, bool]:
             frame = nodes.get(node_id)
             if frame is None:
-                return False, True
+                return 0, True
             word = frame.group2 if group else frame.group1
-            return bool(word >> bit & 1), frame.failsafe
+            return word >> bit & 1, frame.failsafe
 
         return button
 
-    def axis(nodes: Nodes) -> tuple[int | bool, bool]:
+    def axis(nodes: Nodes) -> tuple[int, bool]:
         frame = nodes.get(node_id)
         if frame is None:
             return 0, True
@@ -120,17 +121,24 @@ def channel_reading(source: Channel) -> Reading:
     return axis
 
 
-def _pwm(value: int | bool) -> int:
-    return button_to_pwm(value) if isinstance(value, bool) else axis_to_pwm(value)
+def is_button(source: Channel) -> bool:
+    """Whether `channel_reading(source)` reads a button (1 pressed, 0 not)."""
+    if isinstance(source, ChannelSource) and source.kind in ("switch", "mix"):
+        return False
+    return source.kind == "button"
 
 
-def _manual(value: int | bool, field_name: str) -> int:
+def _pwm(value: int, button: bool) -> int:
+    return button_to_pwm(value != 0) if button else axis_to_pwm(value)
+
+
+def _manual(value: int, button: bool, field_name: str) -> int:
     """A MANUAL_CONTROL axis field; a button there is the field's ends."""
     if field_name == "z":
-        if isinstance(value, bool):
+        if button:
             return MANUAL_Z_MAX if value else MANUAL_Z_MIN
         return axis_to_manual_z(value)
-    if isinstance(value, bool):
+    if button:
         return MANUAL_MAX if value else MANUAL_MIN
     return axis_to_manual(value)
 
@@ -164,6 +172,7 @@ class MavlinkChannels:
         self.sources = tuple(sources)
         self.message = message
         self.readings = tuple(channel_reading(source) for source in self.sources)
+        self.buttons = tuple(is_button(source) for source in self.sources)
         self.triggers = tuple(trigger_value(source, target) for source, target in triggers)
         # the nodes the channels and the actions' buttons and switches read (None: any)
         self.node_ids = nodes_read([*self.sources, *(source for source, _ in triggers)])
@@ -198,19 +207,21 @@ class MavlinkChannels:
         return {"triggers": tuple(active), "triggers_failsafe": failsafe}
 
     def _values(self, nodes: Nodes) -> ControlValues:
-        values: list[int | bool] = []
+        values: list[int] = []
         failsafe = False
         for reading in self.readings:
             value, channel_failsafe = reading(nodes)
             values.append(value)
             failsafe = failsafe or channel_failsafe
+        kinds = self.buttons
         if self.message == RC_CHANNELS_OVERRIDE:
-            return ControlValues(failsafe, channels=tuple(_pwm(v) for v in values))
-        axes = [_manual(v, name) for v, name in zip(values, MANUAL_AXES, strict=False)]
+            return ControlValues(failsafe, channels=tuple(map(_pwm, values, kinds)))
+        axes = [_manual(*field) for field in zip(values, kinds, MANUAL_AXES, strict=False)]
         axes += [0] * (len(MANUAL_AXES) - len(axes))
         buttons = 0
-        for bit, value in enumerate(values[len(MANUAL_AXES) :]):
-            pressed = value if isinstance(value, bool) else value > 0  # an axis: past centre
+        extra = len(MANUAL_AXES)
+        for bit, (value, button) in enumerate(zip(values[extra:], kinds[extra:], strict=True)):
+            pressed = value != 0 if button else value > 0  # an axis: past centre
             buttons |= int(pressed) << bit
         return ControlValues(failsafe, axes=(axes[0], axes[1], axes[2], axes[3]), buttons=buttons)
 

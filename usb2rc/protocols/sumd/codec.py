@@ -58,7 +58,8 @@ def encode_sumd(channels: Sequence[int], failsafe: bool = False) -> bytes:
     count = len(channels)
     if not MIN_CHANNELS <= count <= MAX_CHANNELS:
         raise ValueError(f"SUMD carries {MIN_CHANNELS}..{MAX_CHANNELS} channels, got {count}")
-    for index, value in enumerate(channels, start=1):
+    values: Sequence[object] = channels  # compiled, an `int` would take a bool as 0 or 1
+    for index, value in enumerate(values, start=1):
         if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= 0xFFFF:
             raise ValueError(f"channel {index} must be an int in 0..65535, got {value!r}")
     status = STATUS_FAILSAFE if failsafe else STATUS_LIVE
