@@ -15,6 +15,7 @@ x, y, r (`axis_to_manual`) and z (`axis_to_manual_z`).
 
 from __future__ import annotations
 
+import hashlib
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -36,7 +37,10 @@ def signing_timestamp(wall_time: float) -> int:
 def set_up_signing(mav: Any, key: bytes, wall_time: float, sign_outgoing: bool) -> None:
     """What mavutil's `setup_signing` does, on a bare `MAVLink`: the key, link id 0, the
     timestamp from the wall clock (a receiver refuses a new stream more than a minute older
-    than its own clock), and no unsigned message accepted."""
+    than its own clock), and no unsigned message accepted. hashlib, which pymavlink signs
+    with, is loaded now (it loads lazily: usb2rc/protocols/mavlink/__init__.py), not in the
+    first tick that signs."""
+    hashlib.new("sha256")
     mav.signing.secret_key = key
     mav.signing.link_id = 0
     mav.signing.timestamp = signing_timestamp(wall_time)
