@@ -32,6 +32,13 @@ change (C2-16B's rolling code stands still): the far ends here only read and dro
 
 The ratio (copy over tree) is the bound: no compiled step and frames can do better on this
 host. bench/README.md, "Where issue 40 stands", has the figures.
+
+Both sides run the interpreted hot path (USB2RC_NO_MYPYC=1, in the environment of
+bench_hot_path.py and so of every daemon it starts; the copy's hook also sets it in its own
+process, whoever starts it): the hook replaces methods of the hot path's classes, which the
+classes compiled at install (mypyc, usb2rc.compiled_path) refuse, and the tree beside the copy
+runs the same path, so the ratio compares like with like. The C loops (the HID drain, the
+steady node step) stay on: the figures are those of the daemon before its mypyc build.
 """
 
 from __future__ import annotations
@@ -54,6 +61,12 @@ PARTS = ("step", "frames")
 MORE_PARTS = ("between", "quiet")  # never free by default: what a tick's work is for
 NOTHING = "none"  # --free none: the copy is the tree as it is (for --phases)
 PHASES_ENV = "USB2RC_BOUND_PHASES"  # --phases: the directory the copy's daemons write to
+PURE_ENV = "USB2RC_NO_MYPYC"  # usb2rc.compiled_path's: both sides run the interpreted path
+INTERPRETED = (
+    f"interpreted hot path ({PURE_ENV}=1): both trees' daemons, as the copy's hook needs"
+    " (compiled classes refuse its patches), so the ratio compares like with like; the C"
+    " loops are off too"
+)
 BOUND_HOOK = '''"""bench_engine_bound.py's hook: a free step and frames; --phases: parts timed."""
 
 import atexit
@@ -63,6 +76,10 @@ import json
 import os
 import sys
 import time
+
+# The changes below replace methods of the hot path's classes, which compiled classes refuse:
+# this process (and every one it starts) runs the interpreted hot path, as the tree beside it.
+os.environ["{pure_env}"] = "1"
 
 WARM_STEPS = {warm_steps}
 WARM_TICKS = {warm_ticks}
@@ -184,11 +201,19 @@ if PHASES_DIR:
 
 
 class _PatchAfterImport(importlib.abc.MetaPathFinder):
+    """Finds a module to change as the finders after it would (usb2rc.compiled_path's, which
+    loads the hot path from its source, first among them), and changes it once run."""
+
     def find_spec(self, name, path, target=None):
         changes = PATCHES.get(name)
         if changes is None:
             return None
-        spec = importlib.machinery.PathFinder.find_spec(name, path)
+        spec = None
+        for finder in sys.meta_path[sys.meta_path.index(self) + 1 :]:
+            find = getattr(finder, "find_spec", None)
+            spec = find(name, path, target) if find is not None else None
+            if spec is not None:
+                break
         if spec is None or spec.loader is None:
             return spec
         run_module = spec.loader.exec_module
@@ -202,23 +227,32 @@ class _PatchAfterImport(importlib.abc.MetaPathFinder):
         return spec
 
 
+# usb2rc's own finder goes first in sys.meta_path once `import usb2rc` has chosen the path
+# (the source, as set above): imported here, so that this finder goes before it.
+import usb2rc
+
 sys.meta_path.insert(0, _PatchAfterImport())
 '''
 
 
 def bound_copy(tree: Path, directory: Path, free: tuple[str, ...] = PARTS) -> Path:
-    """`tree`'s usb2rc (its built C loops too) with the hook beside it, making `free` free."""
+    """`tree`'s usb2rc (its built parts too: the hook's USB2RC_NO_MYPYC=1 leaves the mypyc
+    modules unused) with the hook beside it, making `free` free."""
     copy = directory / "bound"
     shutil.copytree(tree / "usb2rc", copy / "usb2rc", ignore=shutil.ignore_patterns("__pycache__"))
     hook = BOUND_HOOK.format(
-        free=tuple(free), warm_steps=WARM_STEPS, warm_ticks=WARM_TICKS, phases_env=PHASES_ENV
+        free=tuple(free),
+        warm_steps=WARM_STEPS,
+        warm_ticks=WARM_TICKS,
+        phases_env=PHASES_ENV,
+        pure_env=PURE_ENV,
     )
     (copy / "sitecustomize.py").write_text(hook)
     return copy
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], epilog=INTERPRETED)
     parser.add_argument("--tree", type=Path, default=ROOT, help="the source tree (this one)")
     parser.add_argument("--only", nargs="+", default=["c2", "five"], help="bench_hot_path's")
     parser.add_argument("--rounds", default="3")
@@ -253,8 +287,12 @@ def main() -> None:
         if args.together:
             command.append("--together")
         free = " and ".join(free_parts) or "nothing"
+        print(INTERPRETED, flush=True)
         print(f"{tree}: as it is; {copy}: {free} free once warmed up", flush=True)
-        env = dict(os.environ, **({PHASES_ENV: str(phases)} if args.phases else {}))
+        env = dict(os.environ)
+        env[PURE_ENV] = "1"  # both trees' daemons (and the copy's hook sets it too)
+        if args.phases:
+            env[PHASES_ENV] = str(phases)
         code = subprocess.run(command, env=env).returncode
         if args.phases:
             print_phases(phases)

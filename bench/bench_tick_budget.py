@@ -32,7 +32,6 @@ whose readers are not pulled (an A/B against an older commit) leaves these rows 
 from __future__ import annotations
 
 import argparse
-import inspect
 import json
 import random
 import statistics
@@ -210,8 +209,10 @@ def session_figures(ticks: int, runs: int, inputs: int) -> dict[str, float]:
 
 
 def reader_figures(models: int, seconds: float, rate_hz: float) -> dict[str, float]:
-    if "pulled" not in inspect.signature(DeviceReader).parameters:
-        return {}  # an older tree: its readers are not pulled
+    if not callable(getattr(DeviceReader, "pull", None)):
+        # an older tree: its readers are not pulled (`pull` came with `pulled=`, 902b4a4; no
+        # `inspect.signature`, which a class compiled at install need not have)
+        return {}
     with tempfile.TemporaryDirectory() as tmp:
         # looped: the first lap's parse (the replay's cost) comes before the window
         recordings = named_device_recordings(BENCH_MODELS[:models], seconds + 2.0, rate_hz)

@@ -13,6 +13,8 @@ import pytest
 from daemon_harness import PtyLine
 from hypothesis import HealthCheck, settings
 
+from usb2rc import compiled_path
+
 # Property tests: no deadline per example, no "too slow" health check. On a loaded host an
 # example that takes 10 ms alone can take more than hypothesis's 200 ms, and hypothesis
 # then fails the test as flaky (seen beside CPU hogs). What a test must do in time, it
@@ -25,6 +27,20 @@ settings.load_profile("loaded-host")
 
 def pytest_configure(config: pytest.Config) -> None:
     process_harness.become_subreaper()
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """A test marked `interpreted` wraps or swaps a part of a hot-path class, which a
+    compiled class does not allow: it runs where the hot path is interpreted (CI's second
+    pass sets USB2RC_NO_MYPYC=1), and says why it is skipped where it is compiled."""
+    if not compiled_path.compiled_active():
+        return
+    skip = pytest.mark.skip(
+        reason="reaches into a compiled hot-path class: runs with USB2RC_NO_MYPYC=1"
+    )
+    for item in items:
+        if item.get_closest_marker("interpreted") is not None:
+            item.add_marker(skip)
 
 
 def pytest_sessionstart(session: pytest.Session) -> None:

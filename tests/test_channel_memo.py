@@ -7,7 +7,7 @@ counted every time)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -17,12 +17,13 @@ from usb2rc.configfile import load_config_text
 from usb2rc.lines.session import ChannelSession
 from usb2rc.nodes.mapping import compile_mapping
 from usb2rc.nodes.step import NodeFrame
-from usb2rc.protocols.channels import OutputChannels
+from usb2rc.protocols.channels import ChannelValue, Nodes, OutputChannels
 from usb2rc.protocols.crsf.session import CrsfModule, CrsfSession
 from usb2rc.protocols.ibus.session import IbusSession
 from usb2rc.protocols.mavlink.session import MavlinkChannels
 from usb2rc.protocols.rc11_channels import RC11_SCALE
 from usb2rc.protocols.sbus.session import SbusSession
+from usb2rc.protocols.sumd import codec as sumd
 from usb2rc.protocols.sumd.session import SumdSession
 
 CONFIG = """
@@ -81,21 +82,29 @@ def test_a_repeated_tick_gives_what_a_fresh_evaluation_gives(
 
 
 def test_equal_frames_are_not_evaluated_again() -> None:
-    kept = channels()
+    scaled = channels()
     calls = []
-    evaluated = kept._evaluated
 
-    def counted(frames: list[NodeFrame]) -> tuple[list[int], bool]:
-        calls.append(frames)
-        return evaluated(frames)
+    def counted(channel: ChannelValue) -> ChannelValue:
+        def value(nodes: Nodes) -> tuple[int, bool]:
+            calls.append(nodes)
+            return channel(nodes)
 
-    kept._evaluated = counted  # type: ignore[method-assign]
+        return value
+
+    kept = OutputChannels(
+        [counted(channel) for channel in scaled.channels],
+        scaled.frame_length,
+        scaled.node_ids,
+        of_frames_alone=True,  # as `scaled` makes them
+    )
+    each = len(kept)  # one call of each channel a tick evaluated
     frames = [NodeFrame(0, True, (100,) * 10, 1, 0)]
     kept.evaluate(frames)
     kept.evaluate([NodeFrame(0, True, (100,) * 10, 1, 0)])  # equal, not the same objects
-    assert len(calls) == 1
+    assert len(calls) == each
     kept.evaluate([NodeFrame(0, True, (100,) * 10, 3, 0)])  # a button: evaluated
-    assert len(calls) == 2
+    assert len(calls) == 2 * each
 
 
 def mavlink_sources() -> list[ChannelRef]:
@@ -168,18 +177,33 @@ def test_a_session_sends_for_repeated_values_what_it_encodes_afresh(
             assert withheld == failsafe_ticks
 
 
+class ReadValues(list[int]):
+    """Wire values that count how often they are read whole (iterated): encoding a frame
+    reads them; a frame reused for equal values only compares them (list equality reads
+    the items without iterating)."""
+
+    reads = 0
+
+    def __iter__(self) -> Iterator[int]:
+        ReadValues.reads += 1
+        return super().__iter__()
+
+
 def test_equal_values_are_not_encoded_again() -> None:
     session = SumdSession("sumd", channels(), 29, 100.0)
     session.line_opened()
-    calls = []
-    encode = session.encode
 
-    def counted(values: Sequence[int], failsafe: bool) -> bytes:
-        calls.append(values)
-        return encode(values, failsafe)
+    def frame(values: list[int], failsafe: bool) -> tuple[bytes, int]:
+        """The frame, and how often `encode` read the values for it."""
+        ReadValues.reads = 0
+        made = session.frame(ReadValues(values), failsafe)
+        return made, ReadValues.reads
 
-    session.encode = counted  # type: ignore[method-assign]
-    first = session.frame([992] * 6, False)
-    assert session.frame([992] * 6, False) is first and len(calls) == 1
-    assert session.frame([992] * 6, True) != first and len(calls) == 2  # the flag changed
-    assert session.frame([993] + [992] * 5, True) and len(calls) == 3
+    first, reads = frame([992] * 6, False)
+    assert first == sumd.encode_sumd([992] * 6) and reads > 0
+    again, reads = frame([992] * 6, False)  # equal, not the same list: not encoded again
+    assert again is first and reads == 0
+    flagged, reads = frame([992] * 6, True)  # the flag changed: encoded
+    assert flagged != first and reads > 0
+    moved, reads = frame([993] + [992] * 5, True)  # a value changed: encoded
+    assert moved == sumd.encode_sumd([993] + [992] * 5, failsafe=True) and reads > 0

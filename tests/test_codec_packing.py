@@ -10,9 +10,11 @@ from typing import Any
 
 import legacy_encoders as legacy
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
+from wrong_type import fail_alike
 
+from usb2rc import compiled_path
 from usb2rc.protocols import crc, rc11
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.crsf import codec as crsf
@@ -25,7 +27,8 @@ bytes_ = st.integers(0, 255)
 axes = st.lists(st.integers(-32768, 65535), min_size=10, max_size=10)
 groups = st.integers(0, 0xFFFFFFFF)
 channels11 = st.lists(st.integers(0, rc11.VALUE_MAX), min_size=16, max_size=16)
-# Values a caller might get wrong: each check's message must be the old one.
+# Values a caller might get wrong: each check's message must be the old one (where one is
+# of the wrong type and the hot path compiled, both must fail: tests/wrong_type.py).
 odd_values = st.one_of(
     st.integers(-70000, 70000),
     st.booleans(),
@@ -92,11 +95,18 @@ def test_encode_data_is_the_old_encoder(
     st.one_of(groups, odd_values),
     st.one_of(groups, odd_values),
 )
+@example(c2_16b.LIVE, 1, 0, [0] * 10, 0, True)  # a bool: refused, or 0 or 1 where compiled
+@example(c2_16b.LIVE, 1, 0, [0, True, *[0] * 8], 0, 0)  # in a list: refused on either path
 def test_encode_data_fails_as_the_old_encoder(
     status: Any, node: Any, code: Any, axes_: Any, g1: Any, g2: Any
 ) -> None:
     args = (status, node, code, axes_, g1, g2)
-    assert outcome(c2_16b.encode_data, *args) == outcome(legacy.encode_data, *args)
+    new = outcome(c2_16b.encode_data, *args)
+    if compiled_path.compiled_active():
+        # compiled, a single `int` argument takes a bool as 0 or 1 (tests/wrong_type.py)
+        args = tuple(int(arg) if type(arg) is bool else arg for arg in args)
+    old = outcome(legacy.encode_data, *args)
+    assert fail_alike(new, old, *args), (new, old)
 
 
 @given(
@@ -139,11 +149,15 @@ def test_sbus_and_crsf_are_the_old_encoders(
     st.lists(st.one_of(st.integers(0, rc11.VALUE_MAX), odd_values), min_size=14, max_size=18),
     st.one_of(st.integers(-2, 300), odd_values),
 )
+@example([0] * 15 + [False], 0)  # a bool is an int: its check must stay
 def test_sbus_and_crsf_fail_as_the_old_encoders(values: list[Any], address: Any) -> None:
-    assert outcome(rc11.pack, values) == outcome(legacy.rc11_pack, values)
-    assert outcome(sbus.encode_sbus, values) == outcome(legacy.encode_sbus, values)
+    new, old = outcome(rc11.pack, values), outcome(legacy.rc11_pack, values)
+    assert fail_alike(new, old, values), (new, old)
+    new, old = outcome(sbus.encode_sbus, values), outcome(legacy.encode_sbus, values)
+    assert fail_alike(new, old, values), (new, old)
     new = outcome(crsf.encode_rc_channels, values, address)
-    assert new == outcome(legacy.encode_rc_channels, values, address)
+    old = outcome(legacy.encode_rc_channels, values, address)
+    assert fail_alike(new, old, values, address), (new, old)
 
 
 def test_sbus_and_crsf_reproduce_the_published_frames() -> None:

@@ -247,9 +247,12 @@ def timed_writes(protocols: list[str]) -> TimedWrites:
             session = C2Session(far.path, settings)
         period_s = session.period_s
         name = f"{protocol}-{index}"
-        driver = LineDriver(name, link, session, step_if_due, period_s, alone=outputs == 1)
+        timed = Timed(index, link, session, written, stopping)
+        driver = LineDriver(
+            name, timed.link, timed.session, step_if_due, period_s, alone=outputs == 1
+        )
         drivers.append(driver)
-        _timed(driver, index, written, stopping)
+        timed.driver = driver
         assert link.open_now()
     thread = DriverThread("drivers", drivers)
     thread.start()
@@ -270,35 +273,56 @@ def _each_wrote(written: list[dict[str, Any]], outputs: int, ticks: int) -> bool
     return all(counts[index] >= ticks for index in range(outputs))
 
 
-def _timed(
-    driver: LineDriver, index: int, written: list[dict[str, Any]], stopping: threading.Event
-) -> None:
-    """Notes on `written` when each of `driver`'s ticks began, made its bytes, wrote them."""
-    this_tick: dict[str, Any] = {}
-    begin, session_tick, link_write = driver.begin, driver.session.tick, driver.link.write
+class Timed:
+    """Notes on `written` when each of a driver's ticks began, made its bytes, wrote them,
+    through the session and the link it is given (the driver's own methods, compiled, cannot
+    be wrapped): a tick begins with its first look at the link (`is_open`, which only a
+    tick's start reads), makes its bytes in `session.tick` and writes them in `link.write`;
+    its deadline and start are the driver's then."""
 
-    def timed_begin(snapshot: Any, step_s: float = 0.0) -> None:
-        this_tick.clear()
-        this_tick.update(
-            output=index,
-            deadline=driver._deadline,
-            start=driver._start,
-            began=time.monotonic(),
-            snapshot=snapshot,
-        )
-        begin(snapshot, step_s)
+    def __init__(
+        self,
+        index: int,
+        link: Any,
+        session: Any,
+        written: list[dict[str, Any]],
+        stopping: threading.Event,
+    ) -> None:
+        self.driver: LineDriver | None = None
+        this_tick: dict[str, Any] = {}
+        timed = self
 
-    def timed_session_tick(now: float, snapshot: Any) -> bytes:
-        this_tick["made"] = time.monotonic()
-        return session_tick(now, snapshot)
+        class TimedLink:
+            def __getattr__(self, name: str) -> Any:
+                return getattr(link, name)
 
-    def timed_write(data: bytes) -> Any:
-        written.append({**this_tick, "written": time.monotonic(), "final": stopping.is_set()})
-        return link_write(data)
+            @property
+            def is_open(self) -> bool:
+                driver = timed.driver
+                assert driver is not None
+                this_tick.clear()
+                this_tick.update(
+                    output=index,
+                    deadline=driver.deadline,
+                    start=driver.start,
+                    began=time.monotonic(),
+                )
+                return bool(link.is_open)
 
-    driver.begin = timed_begin  # type: ignore[method-assign]
-    driver.session.tick = timed_session_tick  # type: ignore[method-assign]
-    driver.link.write = timed_write  # type: ignore[method-assign]
+            def write(self, data: bytes) -> Any:
+                final = stopping.is_set()
+                written.append({**this_tick, "written": time.monotonic(), "final": final})
+                return link.write(data)
+
+        class TimedSession:
+            def __getattr__(self, name: str) -> Any:
+                return getattr(session, name)
+
+            def tick(self, now: float, snapshot: Any) -> bytes:
+                this_tick.update(made=time.monotonic(), snapshot=snapshot)
+                return bytes(session.tick(now, snapshot))
+
+        self.link, self.session = TimedLink(), TimedSession()
 
 
 def on_the_grid(deadline: float, period_s: float) -> bool:

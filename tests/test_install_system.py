@@ -39,12 +39,15 @@ HAVE_SYSUSERS = shutil.which("systemd-sysusers") is not None
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("wheel")
+    # the service files are what is tested: no mypyc build of the hot path (a minute of CPU;
+    # tests/test_wheel_journey.py builds the whole wheel)
     result = subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w", str(out), str(ROOT)],
         capture_output=True,
         text=True,
         timeout=300,
         check=False,
+        env={**os.environ, "USB2RC_NO_MYPYC": "1"},
     )
     assert result.returncode == 0, result.stderr[-3000:]
     (built,) = out.glob("usb2rc-*.whl")

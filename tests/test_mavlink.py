@@ -96,6 +96,12 @@ NODE = st.builds(
     group1=st.integers(0, 2**32 - 1),
     group2=st.integers(0, 2**32 - 1),
     unsigned_slots=st.integers(0, 1023),
+    # the defaults given: a compiled NamedTuple's signature does not show them to hypothesis
+    handover=st.none(),
+    low_battery=st.just(False),
+    switches=st.just(()),
+    pressed=st.just((0, 0)),
+    pressed_switches=st.just(()),
 )
 REF = st.one_of(
     st.builds(

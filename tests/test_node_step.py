@@ -9,6 +9,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from daemon_harness import (
@@ -263,7 +264,9 @@ def test_the_node_clock_leaves_alone_a_table_a_driver_stepped_within_its_period(
     ages: list[float] = []
     for outputs in ((c2,), (c2, sumd)):
         daemon = Daemon(Config(outputs=outputs), ReplayBackend(tmp_path))
-        monkeypatch.setattr(daemon.table, "step_if_stale", ages.append)
+        # the clock's step asks the daemon's table (a compiled NodeTable: its methods cannot
+        # be swapped) when it steps: a recorder in its place notes the age it is asked for
+        monkeypatch.setattr(daemon, "table", SimpleNamespace(step_if_stale=ages.append))
         daemon.node_clock._step()
         assert ages.pop() == pytest.approx(daemon.node_clock.period_s)
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 import random
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 from daemon_harness import StickState
 from test_node_table_driver import BINDING, LAYOUT, info
@@ -19,7 +21,7 @@ from usb2rc.configfile import Config, OutputConfig
 from usb2rc.daemon import Daemon
 from usb2rc.hid.reader import ReaderRecord
 from usb2rc.hid.replay import ReplayBackend
-from usb2rc.lines.driver import nodes_read_by
+from usb2rc.lines.driver import LineDriver, nodes_read_by
 from usb2rc.nodes.guard import REST_S
 from usb2rc.nodes.mapping import ChannelSource, MixLine
 from usb2rc.nodes.step import BASE_PERIOD_S, TapLatch
@@ -141,19 +143,25 @@ def testnodes_read_by_by_channels_mixes_and_unresolved_switches() -> None:
 
 
 class _Session:
+    """What `nodes_read_by` asks of a driver's session (and its constructor, `on_deadline`)."""
+
+    on_deadline = False
+
     def __init__(self, reads: frozenset[int] | None) -> None:
         self.reads = reads
 
 
-class _Driver:
-    def __init__(self, reads: frozenset[int] | None) -> None:
-        self.session = _Session(reads)
+def _driver(reads: frozenset[int] | None) -> LineDriver:
+    """A driver (a compiled function takes only a real one) over a session reading `reads`."""
+    link: Any = SimpleNamespace(url="loop://")
+    session: Any = _Session(reads)
+    return LineDriver("out", link, session, NodeTable().step_if_due, 0.02)
 
 
 def test_outputs_due_together_step_the_nodes_any_of_them_reads() -> None:
-    crsf, sbus, c2 = _Driver(frozenset({0})), _Driver(frozenset({1, 2})), _Driver(None)
-    assert nodes_read_by([crsf, sbus]) == {0, 1, 2}  # type: ignore[list-item]
-    assert nodes_read_by([crsf, c2]) is None  # type: ignore[list-item]
+    crsf, sbus, c2 = _driver(frozenset({0})), _driver(frozenset({1, 2})), _driver(None)
+    assert nodes_read_by([crsf, sbus]) == {0, 1, 2}
+    assert nodes_read_by([crsf, c2]) is None
 
 
 def test_each_protocols_output_reads_the_nodes_of_its_channels(tmp_path: Path) -> None:

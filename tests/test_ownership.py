@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import pytest
 import serial
 
 from usb2rc.configfile import Config, OutputConfig
@@ -103,6 +104,9 @@ def _watch_period(thread: LineDriver, writers: set[str]) -> None:
     thread.__class__ = type("Watched", (type(thread),), {"__setattr__": setattr_watched})
 
 
+# every assignment to the driver's fields is watched (its class swapped for one with a
+# `__setattr__`): a compiled LineDriver's fields are stored in C, past any `__setattr__`
+@pytest.mark.interpreted
 def test_only_the_drivers_thread_writes_the_period_and_follows_the_module(
     tmp_path: Path,
 ) -> None:
@@ -192,6 +196,9 @@ def test_a_port_lost_during_a_read_is_closed_after_the_read(monkeypatch: Any) ->
     link.close()
 
 
+# every assignment to the link's fields is watched (a SerialLink subclass with a
+# `__setattr__`): a compiled class cannot be subclassed here, and stores past it
+@pytest.mark.interpreted
 def test_each_link_field_has_one_writer_thread(monkeypatch: Any) -> None:
     """A whole journey (open in the helper thread, adopt, write, a read fails in the RX
     thread, the writer closes and reopens) with every field assignment recorded: each
@@ -259,6 +266,9 @@ def test_each_link_field_has_one_writer_thread(monkeypatch: Any) -> None:
 # --- a line session: the driver thread is its one writer -------------------------------------
 
 
+# every assignment to the session's, its module's and its line's fields is watched
+# (subclasses with a `__setattr__`): compiled classes cannot be subclassed here
+@pytest.mark.interpreted
 def test_a_session_its_module_and_its_line_are_written_by_the_driver_thread_only() -> None:
     """What a far end sends reaches the session on the driver's thread (the reader thread only
     queues bytes): every field of the session, its module and its line's state has that one

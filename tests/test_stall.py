@@ -17,6 +17,7 @@ import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pytest
 from daemon_harness import PtyLine, StickState, install, recording, run_daemon
@@ -25,7 +26,9 @@ from test_stall_journeys import PTY_FAR_END_BUFFER, PTY_KERNEL_QUEUE
 
 from usb2rc import __version__
 from usb2rc.lines.driver import LineDriver
+from usb2rc.lines.link import Link
 from usb2rc.lines.serial_link import SerialLink
+from usb2rc.lines.session import LinkState
 from usb2rc.nodes.table import NodeTable
 from usb2rc.protocols.c2_16b import codec as c2_16b
 from usb2rc.protocols.c2_16b.engine import C2Settings
@@ -270,7 +273,7 @@ class LoopRig:
             self.received += port.read(waiting)
 
 
-def c2_driver(name: str, link: SerialLink, table: NodeTable, settings: C2Settings) -> LineDriver:
+def c2_driver(name: str, link: Link, table: NodeTable, settings: C2Settings) -> LineDriver:
     return LineDriver(
         name, link, C2Session(name, settings), table.step_if_due, 1 / settings.rate_hz
     )
@@ -375,21 +378,36 @@ def test_a_sumd_pty_holds_no_more_than_a_tick_behind_a_far_end_that_stopped_read
 # --- a serial port: its queue is dropped when the stall begins ----------------------------
 
 
-def test_a_serial_port_queue_is_dropped_when_a_stall_begins(monkeypatch):
+class PosingAsUart:
+    """A pty's link posing as a UART's: what it reports is a transmit queue it counts,
+    `queued[0]` bytes (a pty's is not counted: TIOCOUTQ reads 0 whatever waits in it), as
+    SerialLink reports a serial port's; the rest (its writes, its flush) is the pty's link."""
+
+    def __init__(self, link: SerialLink, queued: list[int]) -> None:
+        self.link, self.queued = link, queued
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.link, name)
+
+    def state(self, probe_writable: bool) -> LinkState:
+        real = self.link.state(probe_writable)
+        return LinkState(self.queued[0], flushable=True) if real.flushable else real
+
+    def wait_writable(self, timeout_s: float) -> bool:
+        return False  # as a port whose queue is counted: the session waits on the count
+
+
+def test_a_serial_port_queue_is_dropped_when_a_stall_begins():
     """A port whose OS reports its transmit queue (a UART; here a pty posing as one, its
     queue count set by the test): when the queue is over two ticks the line is stalled, and
     what it holds, as old as the stall, is dropped at once; the line starts over with the
     startup frame (a C2-16B receiver may have read any part of what was dropped)."""
-    from usb2rc.lines import serial_link as transport
-
     queued = [0]
-    monkeypatch.setattr(transport, "is_pty", lambda fd: False)  # a pty posing as a UART
-    monkeypatch.setattr(transport, "_out_waiting", lambda port: queued[0])
     master, slave = os.openpty()
     tty.setraw(master)
     table = NodeTable()
     link = SerialLink(os.ttyname(slave))
-    out = c2_driver("uart", link, table, C2Settings(version=__version__))
+    out = c2_driver("uart", PosingAsUart(link, queued), table, C2Settings(version=__version__))
     try:
         assert link.open_now()
         table.add_device(0, info("a", "1-1"), BINDING, Source.of(StickState(x=0)), "JOYSTICK")

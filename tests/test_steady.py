@@ -255,17 +255,25 @@ def counting(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
     """How many steps the compiled path took (a view) and handed back (None), and how
     many of its frames had a handover and a low battery."""
     counts = {"taken": 0, "declined": 0, "handover": 0, "low battery": 0}
-    real = steady.step
+    real = steady.compiled()
+    assert real is not None
 
-    def step(*args: Any) -> Any:
-        view = real(*args)
-        counts["taken" if view is not None else "declined"] += 1
-        if view is not None:
-            counts["handover"] += view.frame.handover is not None
-            counts["low battery"] += view.frame.low_battery
-        return view
+    class Counted:
+        """The C module `steady.step` calls (a compiled module's own functions cannot be
+        swapped; the module it reads at each step can), its steps counted."""
 
-    monkeypatch.setattr(steady, "step", step)
+        def __getattr__(self, name: str) -> Any:
+            return getattr(real, name)
+
+        def step(self, *args: Any) -> Any:
+            view = real.step(*args)
+            counts["taken" if view is not None else "declined"] += 1
+            if view is not None:
+                counts["handover"] += view.frame.handover is not None
+                counts["low battery"] += view.frame.low_battery
+            return view
+
+    monkeypatch.setattr(steady, "_compiled", Counted())
     return counts
 
 

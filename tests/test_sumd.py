@@ -10,6 +10,7 @@ from typing import Any
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from wrong_type import rejected
 
 from usb2rc.protocols.sumd.codec import (
     SumdDecoder,
@@ -72,7 +73,7 @@ def test_axis_scaling_is_the_rounded_straight_line(extended: bool, low: int, hig
 
 @pytest.mark.parametrize("value", [-32769, 32768, 65535, 1.0])
 def test_axis_scaling_rejects_non_int16(value: Any) -> None:
-    with pytest.raises(ValueError, match="int16"):
+    with rejected("int16", value):  # 1.0 is a wrong type (tests/wrong_type.py)
         axis_to_sumd(value)
 
 
@@ -90,11 +91,11 @@ def test_button_scaling() -> None:
         ([0x2EE0] * 33, "2..32 channels"),
         ([0x2EE0, -1], "channel 2"),
         ([65536, 0], "channel 1"),
-        ([0x2EE0, 1.5], "channel 2"),
+        ([0x2EE0, 1.5], "channel 2"),  # a wrong type (tests/wrong_type.py)
     ],
 )
 def test_encoder_rejects_bad_channels(channels: list[Any], message: str) -> None:
-    with pytest.raises(ValueError, match=message):
+    with rejected(message, channels):
         encode_sumd(channels)
 
 

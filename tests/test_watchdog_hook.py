@@ -9,6 +9,19 @@ from usb2rc.daemon import Daemon
 from usb2rc.hid.replay import ReplayBackend
 
 
+class Hung:
+    """A session whose ticks fail; the rest is the session it wraps."""
+
+    def __init__(self, session):
+        self.session = session
+
+    def __getattr__(self, name):
+        return getattr(self.session, name)
+
+    def tick(self, now, snapshot):
+        raise RuntimeError("the SUMD session hangs")
+
+
 def test_watchdog_starves_when_one_output_stops_ticking(tmp_path, monkeypatch):
     config = Config(
         outputs=(
@@ -25,10 +38,9 @@ def test_watchdog_starves_when_one_output_stops_ticking(tmp_path, monkeypatch):
         assert fed.wait(5), "never fed while both outputs tick"
         c2, sumd_out = (out.driver for out in daemon.outputs)
 
-        def hung(now, snapshot):
-            raise RuntimeError("the SUMD session hangs")
-
-        monkeypatch.setattr(sumd_out.session, "tick", hung)  # SUMD ticks no more
+        # SUMD ticks no more: its driver's session (compiled: its `tick` cannot be
+        # swapped) in a wrapper whose ticks fail
+        monkeypatch.setattr(sumd_out, "session", Hung(sumd_out.session))
         ticks_before = c2.stats.ticks
         # once the SUMD output has been silent for a second, the C2 ticks stop feeding
         deadline_ticks = ticks_before + 60  # 1.2 s of 20 ms ticks

@@ -17,7 +17,7 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
-from usb2rc import status_socket
+from usb2rc import compiled_path, status_socket
 from usb2rc.commands.arguments import replay_dir
 from usb2rc.commands.check import check_record
 from usb2rc.config.port_url import port_argument
@@ -209,6 +209,7 @@ def serve(
         return 0
     log.info("%s", speedups.status())
     log.info("%s", steady.status())
+    log.info("%s", compiled_path.status())
     try:
         daemon.start()  # inside: a start that fails half-way still stops what it started
         _main_loop(daemon, config_path, stats_interval, notifier, signals, stats_format)
