@@ -6,6 +6,8 @@ line session on the one interface of `usb2rc.lines.session` (`<name>.session`), 
 share, and its scaling) with `rc11_channels` (its `WireScale`, the padding), `channels` (a
 channel output's channels, through its protocol's `WireScale`).
 
-Encoders return bytes and raise ValueError on bad input; the streaming decoders take bytes in
-any chunking, return frames, count what they skip and never raise. No threads, no ports.
+Encoders return bytes and raise ValueError on a bad value (a value of the wrong type raises
+TypeError where the hot path is compiled: docs/DESIGN.md, "The hot path compiled by
+mypyc"); the streaming decoders take bytes in any chunking, return frames, count what they
+skip and never raise. No threads, no ports.
 """
