@@ -65,7 +65,7 @@ PURE_ENV = "USB2RC_NO_MYPYC"  # usb2rc.compiled_path's: both sides run the inter
 INTERPRETED = (
     f"interpreted hot path ({PURE_ENV}=1): both trees' daemons, as the copy's hook needs"
     " (compiled classes refuse its patches), so the ratio compares like with like; the C"
-    " loops are off too"
+    " loops stay on"
 )
 BOUND_HOOK = '''"""bench_engine_bound.py's hook: a free step and frames; --phases: parts timed."""
 

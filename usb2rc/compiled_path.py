@@ -74,12 +74,16 @@ def _compiled(module: str) -> bool:
 
 
 def extensions_without_sources_file() -> list[str]:
-    """The modules of the package with an extension beside their source."""
-    modules = (
-        ".".join(source.relative_to(PACKAGE_DIR.parent).with_suffix("").parts)
-        for source in PACKAGE_DIR.rglob("*.py")
-    )
-    return sorted(module for module in modules if _compiled(module))
+    """The modules of the package with an extension beside their source (the package's
+    extensions looked at, not each of its sources)."""
+    modules = {
+        ".".join(extension.relative_to(PACKAGE_DIR.parent).parts[:-1])
+        + "."
+        + extension.name.split(".", 1)[0]
+        for suffix in importlib.machinery.EXTENSION_SUFFIXES
+        for extension in PACKAGE_DIR.rglob(f"*{suffix}")
+    }
+    return sorted(module for module in modules if _source(module).exists())
 
 
 def read_sources(text: str) -> tuple[str, dict[str, str]]:

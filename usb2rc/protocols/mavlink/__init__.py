@@ -15,26 +15,39 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import sys
+import threading
 import types
 from typing import Any
 
 LAZY_MODULES = ("hashlib", "ssl")
 
 
+_LOADING = threading.Lock()  # one thread loads a stand-in's module; another waits for it
+_LOADED: dict[str, types.ModuleType] = {}  # each stand-in's module, once loaded
+
+
 class LazyModule(types.ModuleType):
     """A module's stand-in in `sys.modules` that loads it at the first use of one of its
     names, then holds the module's names itself (an importer keeps the stand-in). An
     `import` statement reads only `__spec__`, which it has: it loads nothing (the standard
-    `importlib.util.LazyLoader` loads at any attribute, `__spec__` too)."""
+    `importlib.util.LazyLoader` loads at any attribute, `__spec__` too). Loaded once: a name
+    the module lacks after that is its AttributeError."""
 
     def __getattr__(self, name: str) -> Any:
-        del sys.modules[self.__name__]
-        try:
-            module = importlib.import_module(self.__name__)
-        finally:
-            sys.modules[self.__name__] = self
-        self.__dict__.update(module.__dict__)
-        return getattr(module, name)
+        return getattr(self._module(), name)
+
+    def _module(self) -> types.ModuleType:
+        with _LOADING:
+            module = _LOADED.get(self.__name__)
+            if module is None:
+                del sys.modules[self.__name__]
+                try:
+                    module = importlib.import_module(self.__name__)
+                finally:
+                    sys.modules[self.__name__] = self
+                _LOADED[self.__name__] = module
+                self.__dict__.update(module.__dict__)
+        return module
 
 
 def import_lazily(name: str) -> None:
