@@ -45,9 +45,11 @@ HOT_MODULES = [
     "usb2rc/nodes/trims.py",
     "usb2rc/lines/driver.py",
     "usb2rc/lines/link.py",
+    "usb2rc/lines/rx.py",
     "usb2rc/lines/serial_link.py",
     "usb2rc/lines/session.py",
     "usb2rc/lines/udp_link.py",
+    "usb2rc/runtime/flag.py",
     "usb2rc/runtime/load.py",
     "usb2rc/runtime/samples.py",
     # every module of every protocol's package but its output (its builder and registry

@@ -209,6 +209,9 @@ class Daemon:
         self._liveness_asked_at = -LIVENESS_CHECK_S  # when `_tick` last asked (drivers' thread)
         self._on_status = on_status
         self._ready_once = threading.Event()  # set once, under _ready_lock; read anywhere
+        # set after `_ready_once`: what `_tick` reads at every output's tick (an attribute,
+        # where `Event.is_set` is a Python call)
+        self._ready = False
         self._ready_lock = threading.Lock()
         self.outputs = [self._make_output(i, out) for i, out in enumerate(self.output_configs)]
         self.drivers = Drivers("drivers", [out.driver for out in self.outputs])
@@ -351,6 +354,7 @@ class Daemon:
             if self._ready_once.is_set():
                 return
             self._ready_once.set()
+            self._ready = True
         log.info(message)
         if self._on_ready:
             self._on_ready()
@@ -361,7 +365,7 @@ class Daemon:
 
     def _tick(self) -> None:
         """Called by every output after each tick: the liveness hook (systemd watchdog)."""
-        if not self._ready_once.is_set() and not any(o.link.is_open for o in self.outputs):
+        if not self._ready and not any(o.link.is_open for o in self.outputs):
             # Decision: with every serial port missing the pipeline still runs and retries
             # each second (that is its job), so it is ready; the status line says what waits.
             waiting = "; ".join(o.link.last_error for o in self.outputs if o.link.last_error)

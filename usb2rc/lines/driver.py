@@ -555,7 +555,10 @@ class DriverThread(Worker):
         now = time.monotonic()
         for driver in drivers:
             driver.plan(aligned(now, driver.period_s), driver.period_s)
-        while not self.stopping:
+        # the flag itself, not `stopping` and `sleep`: Worker's are Python calls, and the loop
+        # asks twice a tick
+        stop_flag = self._stopping
+        while not stop_flag.is_set():
             if all([d.asleep and d._held is None for d in drivers]):
                 self._doze()
                 continue
@@ -619,7 +622,7 @@ class DriverThread(Worker):
         for driver in self.drivers:
             if driver.stalled:
                 driver.wait_while_stalled(max(0.0, end - time.monotonic()))
-        return self.sleep(max(0.0, end - time.monotonic()))
+        return self._stopping.wait(max(0.0, end - time.monotonic()))
 
     def _final_ticks(self) -> None:
         """usb2rc stops: each protocol's failsafe before its port closes (docs/ICD.md,

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import Final, Protocol
 
 from usb2rc.lines.session import LinkState
 
@@ -34,13 +34,19 @@ class LinkStats:
     flushes: int = 0  # the link dropped what it held, when a stall began or drained
 
 
-class Written(NamedTuple):
+class Written:
     """What one write put out: `sent` bytes surely (a prefix), then `unsure` bytes that may
-    or may not have gone; `lost`: the write failed and the port is closed."""
+    or may not have gone; `lost`: the write failed and the port is closed. A plain class,
+    not a NamedTuple: compiled, one is made in C (a NamedTuple's `__new__` is Python code),
+    and one is made at every write."""
 
-    sent: int
-    unsure: int = 0
-    lost: bool = False
+    def __init__(self, sent: int, unsure: int = 0, lost: bool = False) -> None:
+        self.sent: Final = sent
+        self.unsure: Final = unsure
+        self.lost: Final = lost
+
+    def __repr__(self) -> str:
+        return f"Written(sent={self.sent}, unsure={self.unsure}, lost={self.lost})"
 
 
 class LineEvent(enum.Enum):

@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Iterable, Sequence
-from typing import Any, Generic, NamedTuple, Protocol, TypeVar
+from typing import Any, Final, Generic, Protocol, TypeVar
 
 from usb2rc.feedback.model import Telemetry
 from usb2rc.nodes.step import LIVENESS_PERIOD_S, NodeFrame, TapLatch, aligned
@@ -134,14 +134,29 @@ class LineState:
         return self.stopping and (failsafe_out or self.now is Line.CLOSED or self.stalled)
 
 
-class LinkState(NamedTuple):
-    """What a link reports, as the driver read it just now (the link only reports). A
-    NamedTuple, as the records made at every tick are (built in C, not field by field)."""
+class LinkState:
+    """What a link reports, as the driver read it just now (the link only reports). A plain
+    class, made at every tick: compiled, in C (a NamedTuple's `__new__` is Python code)."""
 
-    queued: int | None = None  # bytes it holds for the far end; None: it does not say
-    flushable: bool = False  # it can drop what it holds (a serial port, a pty)
-    hides_queue: bool = False  # it holds bytes it cannot count (a pty): droppable only
-    writable: bool = True  # it takes bytes now (after a stall: the far end reads again)
+    def __init__(
+        self,
+        queued: int | None = None,
+        flushable: bool = False,
+        hides_queue: bool = False,
+        writable: bool = True,
+    ) -> None:
+        self.queued: Final = queued  # bytes it holds for the far end; None: it does not say
+        self.flushable: Final = flushable  # it can drop what it holds (a serial port, a pty)
+        # it holds bytes it cannot count (a pty): droppable only
+        self.hides_queue: Final = hides_queue
+        # it takes bytes now (after a stall: the far end reads again)
+        self.writable: Final = writable
+
+    def __repr__(self) -> str:
+        return (
+            f"LinkState(queued={self.queued}, flushable={self.flushable}, "
+            f"hides_queue={self.hides_queue}, writable={self.writable})"
+        )
 
 
 class Ask(enum.Enum):
@@ -198,12 +213,22 @@ class Backpressure:
         return False
 
 
-class Delivered(NamedTuple):
-    """What `wrote()` found went out: frames counted once, as the stats want them."""
+class Delivered:
+    """What `wrote()` found went out: frames counted once, as the stats want them (a plain
+    class, made at every write: compiled, in C)."""
 
-    service_frames: int = 0
-    data_frames: int = 0
-    stalled: bool = False
+    def __init__(
+        self, service_frames: int = 0, data_frames: int = 0, stalled: bool = False
+    ) -> None:
+        self.service_frames: Final = service_frames
+        self.data_frames: Final = data_frames
+        self.stalled: Final = stalled
+
+    def __repr__(self) -> str:
+        return (
+            f"Delivered(service_frames={self.service_frames}, "
+            f"data_frames={self.data_frames}, stalled={self.stalled})"
+        )
 
 
 class LineSession(Protocol):

@@ -32,9 +32,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
-from functools import cached_property
-from typing import NamedTuple
+from typing import Final, NamedTuple
 
 from usb2rc.config.model import HandoverConfig
 from usb2rc.hid.descriptor import InputState
@@ -159,32 +157,60 @@ class NodeView(NamedTuple):
     overrides: tuple[tuple[int, int], ...] = ()  # (slot, value): switch slots, throttle cuts
 
 
-# keyword-only: a field added later cannot shift what positional arguments meant
-@dataclass(frozen=True, kw_only=True)
 class TableSnapshot:
-    """Every node after step `period` (sorted by Node-ID)."""
+    """Every node after step `period` (sorted by Node-ID). Immutable (`Final`). A plain
+    class with its own `__init__`: compiled, one is made in C, where a dataclass's
+    generated `__init__` would run as Python at every step. Keyword-only: a field added
+    later cannot shift what positional arguments meant."""
 
-    period: int = -1
-    at: float = 0.0  # the clock's time of the step
-    nodes: tuple[NodeView, ...] = ()
-    switches: tuple[tuple[str, int], ...] = ()  # every switch's position, by name
+    def __init__(
+        self,
+        *,
+        period: int = -1,
+        at: float = 0.0,
+        nodes: tuple[NodeView, ...] = (),
+        switches: tuple[tuple[str, int], ...] = (),
+    ) -> None:
+        self.period: Final = period
+        self.at: Final = at  # the clock's time of the step
+        self.nodes: Final = nodes
+        self.switches: Final = switches  # every switch's position, by name
+        # When the newest report a live device published was read (monotonic): what a
+        # frame made from this snapshot carries at the freshest. None: no live device.
+        # Worked out here, once (every output due with it asks).
+        self.newest_report_at: Final = _newest_report_at(nodes)
 
     @property
     def frames(self) -> list[NodeFrame]:
         return [node.frame for node in self.nodes]
 
-    @cached_property
-    def newest_report_at(self) -> float | None:
-        """When the newest report a live device published was read (monotonic): what a
-        frame made from this snapshot carries at the freshest. None: no live device. Worked
-        out once per snapshot (every output due with it asks)."""
-        times = [
-            device.record.at
-            for node in self.nodes
-            for device in node.devices
-            if device.live and device.record.at is not None
-        ]
-        return max(times, default=None)
+    def _fields(self) -> tuple[object, ...]:
+        return (self.period, self.at, self.nodes, self.switches)
+
+    def __eq__(self, other: object) -> bool:
+        if type(other) is not type(self):
+            return NotImplemented
+        assert isinstance(other, TableSnapshot)
+        return self._fields() == other._fields()
+
+    def __hash__(self) -> int:
+        return hash(self._fields())
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}(period={self.period}, at={self.at}, nodes={self.nodes}, "
+            f"switches={self.switches})"
+        )
+
+
+def _newest_report_at(nodes: tuple[NodeView, ...]) -> float | None:
+    newest: float | None = None
+    for node in nodes:
+        for device in node.devices:
+            at = device.record.at
+            if device.live and at is not None and (newest is None or at > newest):
+                newest = at
+    return newest
 
 
 EMPTY = TableSnapshot()

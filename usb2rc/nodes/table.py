@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Any, Protocol
+from typing import Any, Final, Protocol
 
 from usb2rc.config.controls_model import SwitchConfig, ThrottleCut
 from usb2rc.config.layout import AXIS_COUNT, AXIS_NAMES
@@ -103,14 +103,28 @@ class EventLog:
 EMPTY_LOG = EventLog()
 
 
-# keyword-only: a field added later cannot shift what positional arguments meant
-@dataclass(frozen=True, kw_only=True)
 class NodeSnapshot(TableSnapshot):
     """A step's snapshot (`nodes.step.TableSnapshot`) with the service event log as it was
     when the step ran: a line session reads both from one value, so a device's `2` is in
     the same snapshot as the first frame that has it gone."""
 
-    log: EventLog = EMPTY_LOG
+    def __init__(
+        self,
+        *,
+        period: int = -1,
+        at: float = 0.0,
+        nodes: tuple[NodeView, ...] = (),
+        switches: tuple[tuple[str, int], ...] = (),
+        log: EventLog = EMPTY_LOG,
+    ) -> None:
+        super().__init__(period=period, at=at, nodes=nodes, switches=switches)
+        self.log: Final = log
+
+    def _fields(self) -> tuple[object, ...]:
+        return (self.period, self.at, self.nodes, self.switches, self.log)
+
+    def __repr__(self) -> str:
+        return f"{super().__repr__()[:-1]}, log={self.log})"
 
 
 @dataclass(frozen=True)

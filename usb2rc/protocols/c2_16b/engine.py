@@ -47,7 +47,7 @@ import logging
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Final
 
 from usb2rc.lines.link import BITS_PER_BYTE_ON_WIRE
 from usb2rc.lines.session import Delivered, LineState
@@ -119,15 +119,24 @@ class _Owed:
         return self.service is c2_16b.Service.DISCONNECTED
 
 
-class _Slot(NamedTuple):
-    """One frame of the last output: where its 35 frame bytes end, and what it was (a
-    NamedTuple: one is made per frame)."""
+class _Slot:
+    """One frame of the last output: where its 35 frame bytes end, and what it was (a plain
+    class, made per frame: compiled, in C)."""
 
-    end: int  # offset of the frame's last byte + 1 (its LF, if any, does not count)
-    startup: bool = False
-    owed: _Owed | None = None
-    data_node: int | None = None
-    status: int = 0  # a data frame's status byte (`&`: byte 4 is its destination, not a code)
+    def __init__(
+        self,
+        end: int,
+        startup: bool = False,
+        owed: _Owed | None = None,
+        data_node: int | None = None,
+        status: int = 0,
+    ) -> None:
+        self.end: Final = end  # offset of the frame's last byte + 1 (its LF does not count)
+        self.startup: Final = startup
+        self.owed: Final = owed
+        self.data_node: Final = data_node
+        # a data frame's status byte (`&`: byte 4 is its destination, not a code)
+        self.status: Final = status
 
 
 def _announced_after(announced: set[int], owed: Iterable[_Owed]) -> set[int]:
@@ -342,10 +351,19 @@ class C2Engine:
         self._last_len = sum(map(len, out))
         return b"".join(out)
 
-    def _add(self, out: list[bytes], slots: list[_Slot], frame: bytes, **slot: Any) -> None:
+    def _add(
+        self,
+        out: list[bytes],
+        slots: list[_Slot],
+        frame: bytes,
+        startup: bool = False,
+        owed: _Owed | None = None,
+        data_node: int | None = None,
+        status: int = 0,
+    ) -> None:
         start = sum(map(len, out))
         out.append(frame)
-        slots.append(_Slot(start + c2_16b.FRAME_LEN, **slot))  # (not `replace`: per frame)
+        slots.append(_Slot(start + c2_16b.FRAME_LEN, startup, owed, data_node, status))
 
     def _service_frames(
         self, out: list[bytes], slots: list[_Slot], nodes: int, room: int
