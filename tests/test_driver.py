@@ -4,6 +4,7 @@ its reader thread. What is judged is what reaches the far end, decoded."""
 
 from __future__ import annotations
 
+import itertools
 import math
 import threading
 import time
@@ -218,10 +219,13 @@ class TimedWrites(NamedTuple):
     steps: list[float]  # when the node table was asked for a step (a snapshot)
 
 
-def timed_writes(protocols: list[str]) -> TimedWrites:
-    """A driver of each of `protocols` ("c2-16b" at 100 Hz, "sumd" at 200 Hz), each over its
-    own pty, on one drivers' thread, until each wrote 60 ticks; per write: which output, the
-    tick's deadline and planned start, when the tick began, made its bytes (from which
+def timed_writes(
+    protocols: list[str], enough: Callable[[list[dict[str, Any]]], bool] | None = None
+) -> TimedWrites:
+    """A driver of each of `protocols` ("c2-16b" at 100 Hz, "sumd" at 200 Hz, "crsf" at
+    100 Hz, sending: its node is live), each over its own pty, on one drivers' thread,
+    until each wrote 60 ticks (or `enough` says so of the writes); per write: which output,
+    the tick's deadline and planned start, when the tick began, made its bytes (from which
     snapshot) and wrote them. The final ticks (at once, on stop) are left out."""
     table = NodeTable()
     table.add_device(0, info("k0", "1-0"), BINDING, Source.of(StickState()), "JOYSTICK")
@@ -238,10 +242,14 @@ def timed_writes(protocols: list[str]) -> TimedWrites:
 
     for index, (protocol, far) in enumerate(zip(protocols, fars, strict=True)):
         link = SerialLink(far.path, 921600)
-        session: C2Session | SumdSession
+        session: C2Session | SumdSession | CrsfSession
         if protocol == "sumd":
             channels = SumdChannels.of([ChannelSource(0, "axis", 0), ChannelSource(0, "axis", 1)])
             session = SumdSession(far.path, channels, channels.frame_length, 200.0)
+        elif protocol == "crsf":
+            axes = [ChannelSource(0, "axis", 0), ChannelSource(0, "axis", 1)]
+            scaled = OutputChannels.scaled(axes, RC11_SCALE, crsf.RC_FRAME_LEN)
+            session = CrsfSession(far.path, scaled, CrsfModule(0.01))
         else:
             settings = C2Settings(rate_hz=100, baudrate=921600, version="0.1.0")
             session = C2Session(far.path, settings)
@@ -257,7 +265,10 @@ def timed_writes(protocols: list[str]) -> TimedWrites:
     thread = DriverThread("drivers", drivers)
     thread.start()
     try:
-        until(lambda: _each_wrote(written, outputs, 60), "60 written ticks of each output")
+        if enough is None:
+            until(lambda: _each_wrote(written, outputs, 60), "60 written ticks of each output")
+        else:
+            until(lambda: enough(list(written)), "the writes the test needs")
     finally:
         stopping.set()
         thread.stop()
@@ -330,21 +341,26 @@ def on_the_grid(deadline: float, period_s: float) -> bool:
     return round(steps) == pytest.approx(steps, abs=1e-6)
 
 
-def test_outputs_due_together_are_made_ahead_from_one_snapshot_and_written_in_config_order() -> (
-    None
-):
-    """Several outputs on the drivers' thread: each has its lead; the ticks due together
-    start on the earliest of their starts, are made from one step of the node table, asked
-    for once, and are written on their deadline, never before it, in config order, after
-    all of them were made."""
-    drivers, on_grid, steps = timed_writes(["c2-16b"] * 3)
-    for driver in drivers:
-        assert driver.lead is not None and 0.0 < driver.lead.s <= 0.01 * LEAD_MAX_SHARE
+def by_deadline(writes: list[dict[str, Any]]) -> dict[float, list[dict[str, Any]]]:
+    """The writes of each deadline, in the order they were written."""
     ticks: dict[float, list[dict[str, Any]]] = {}
-    for w in on_grid:
-        assert w["start"] < w["deadline"] <= w["written"] and on_the_grid(w["deadline"], 0.01)
-        assert w["began"] <= w["made"] <= w["written"]
+    for w in writes:
         ticks.setdefault(round(w["deadline"], 6), []).append(w)
+    return ticks
+
+
+def test_outputs_due_together_are_made_from_one_snapshot_and_each_written_once_made() -> None:
+    """Several C2-16B outputs on the drivers' thread: none makes its bytes ahead (C2-16B's
+    far end times its frames to the period, not to the microsecond); the ticks due together
+    start on their deadline, are made from one step of the node table, asked for once, and
+    each is written as soon as it is made, in config order: the first output's write waits
+    for the step and its own bytes only, as the only output's does."""
+    drivers, on_grid, steps = timed_writes(["c2-16b"] * 3)
+    assert not any(driver.leads for driver in drivers)
+    for w in on_grid:
+        assert w["start"] == w["deadline"] and on_the_grid(w["deadline"], 0.01)
+        assert w["deadline"] <= w["began"] <= w["made"] <= w["written"]
+    ticks = by_deadline(on_grid)
     deadlines = sorted(ticks)
     together = [at for at in deadlines if len(ticks[at]) == 3]
     assert len(together) >= 50
@@ -352,13 +368,12 @@ def test_outputs_due_together_are_made_ahead_from_one_snapshot_and_written_in_co
         tick = ticks[at]
         if len(tick) != 3:
             continue
-        assert [w["output"] for w in tick] == [0, 1, 2]  # written in config order
-        first_start = min(w["start"] for w in tick)
-        assert first_start <= min(w["began"] for w in tick)  # on the earliest start
-        made = max(w["made"] for w in tick)
-        assert made <= min(w["written"] for w in tick)
+        assert [w["output"] for w in tick] == [0, 1, 2]  # in config order
+        for first, then in itertools.pairwise(tick):
+            assert first["written"] <= then["made"]  # written before the next is made
         # one step asked for since the tick before was made: not counted from the planned
         # start, which a late tick before (a loaded host) may have stepped after
+        made = max(w["made"] for w in tick)
         since = max(w["made"] for w in ticks[before]) if before is not None else -math.inf
         assert sum(since < step <= made for step in steps) == 1
         assert len({id(w["snapshot"]) for w in tick}) == 1  # one step's values
@@ -375,38 +390,51 @@ def test_the_only_output_reads_the_records_on_its_deadline_and_writes_them_at_on
         assert w["deadline"] <= w["began"] <= w["made"] <= w["written"]
 
 
-def test_a_protocol_whose_far_end_does_not_time_its_frames_writes_them_as_soon_as_made() -> None:
-    """Beside C2-16B, whose far end times its frames (it leads), SUMD's receiver takes a frame
-    whenever it comes: SUMD has no lead. Its ticks on their own wake on their deadline, read
-    the records then and write at once (one wake-up a tick); those due with C2-16B's are
-    made with it, from one snapshot, and written on the deadline after it."""
-    (c2, sumd), on_grid, _ = timed_writes(["c2-16b", "sumd"])
-    assert c2.lead is not None and sumd.lead is None
-    ticks: dict[float, list[dict[str, Any]]] = {}
-    for w in on_grid:
-        ticks.setdefault(round(w["deadline"], 6), []).append(w)
-    own = {at: tick[0] for at, tick in ticks.items() if [w["output"] for w in tick] == [1]}
-    together = [tick for tick in ticks.values() if [w["output"] for w in tick] == [0, 1]]
-    for w in own.values():
+def test_an_output_whose_far_end_times_its_frames_is_made_and_written_first() -> None:
+    """SUMD's receiver takes a frame whenever it comes; C2-16B's times its frames. Listed
+    after SUMD, C2-16B's ticks due with SUMD's are still made and written first, from one
+    snapshot, so SUMD's work never moves C2-16B's write. SUMD's ticks on their own wake on
+    their deadline, read the records then and write at once (one wake-up a tick)."""
+    (sumd, c2), on_grid, _ = timed_writes(["sumd", "c2-16b"])
+    assert not sumd.leads and not c2.leads
+    ticks = by_deadline(on_grid)
+    own = [tick[0] for tick in ticks.values() if [w["output"] for w in tick] == [0]]
+    together = [tick for tick in ticks.values() if len(tick) == 2]
+    assert len(own) >= 20 and len(together) >= 20
+    for w in own:
         assert w["start"] == w["deadline"] and on_the_grid(w["deadline"], 0.005)
         assert w["deadline"] <= w["began"] <= w["made"] <= w["written"]
-    # SUMD's tick before, held up past C2-16B's start (a loaded host), is made with C2-16B's
-    # batch, and SUMD's tick due with C2-16B then starts after it: those are not judged
-    on_time = [
-        (c2_write, sumd_write)
-        for c2_write, sumd_write in together
-        if (before := own.get(round(sumd_write["deadline"] - 0.005, 6))) is not None
-        and before["written"] < c2_write["began"]
-    ]
-    assert len(own) >= 20 and len(on_time) >= 20
-    for c2_write, sumd_write in on_time:
-        assert (
-            sumd_write["start"] == sumd_write["deadline"]
-            and c2_write["start"] < c2_write["deadline"]
-        )
+    for c2_write, sumd_write in together:
+        assert (c2_write["output"], sumd_write["output"]) == (1, 0)
         assert c2_write["snapshot"] is sumd_write["snapshot"]  # made together, one step
-        assert sumd_write["made"] <= c2_write["written"] <= sumd_write["written"]
-        assert sumd_write["deadline"] <= c2_write["written"]
+        assert c2_write["deadline"] <= c2_write["written"] <= sumd_write["made"]
+
+
+def test_crsf_makes_its_frames_ahead_while_it_sends_and_the_ticks_due_with_it_are_held() -> None:
+    """A sending CRSF output (its module times the frames to the microsecond) makes its
+    bytes a lead ahead of its deadline, and so does C2-16B beside it (the thread wakes
+    twice a tick anyway, and a batch started on CRSF's lead alone could outgrow it); the
+    ticks due together are made in one batch, from one snapshot, and both are written on
+    the deadline, never before it, C2-16B first (config order among the outputs whose
+    far end times their frames)."""
+
+    def made_in_time(writes: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
+        """The ticks due together whose bytes were all made before their deadline (one
+        that is not, early or on a loaded host, writes at once: not judged here)."""
+        ticks = by_deadline([w for w in writes if not w["final"]]).values()
+        return [t for t in ticks if len(t) == 2 and max(w["made"] for w in t) < t[0]["deadline"]]
+
+    (c2, crsf_driver), on_grid, _ = timed_writes(
+        ["c2-16b", "crsf"], lambda writes: len(made_in_time(writes)) >= 30
+    )
+    assert crsf_driver.leads and c2.leads
+    assert crsf_driver.lead is not None and 0.0 < crsf_driver.lead.s <= 0.01 * LEAD_MAX_SHARE
+    for c2_write, crsf_write in made_in_time(on_grid):
+        assert (c2_write["output"], crsf_write["output"]) == (0, 1)
+        assert c2_write["snapshot"] is crsf_write["snapshot"]
+        assert crsf_write["start"] < crsf_write["deadline"] <= c2_write["written"]
+        assert max(c2_write["made"], crsf_write["made"]) <= c2_write["written"]
+        assert c2_write["written"] <= crsf_write["written"]
 
 
 def test_the_lead_is_the_ticks_recent_cost_and_one_held_up_tick_does_not_move_it() -> None:

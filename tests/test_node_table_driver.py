@@ -354,3 +354,51 @@ def test_every_consumer_gets_the_same_unsigned_slots():
     values, failsafe = SumdChannels.of(sources).evaluate([frame])
     # rz full travel (uint16 65535), slider at its failsafe 0 (uint16: the low end)
     assert (values[1:], failsafe) == ([15200, 8800], True)
+
+
+@dataclass
+class PtyLink(FakeLink):
+    """A pty as the driver sees it: what it holds is hidden but can be dropped; counts the
+    drops."""
+
+    drops: int = 0
+
+    def state(self, probe_writable: bool) -> LinkState:
+        return LinkState(None, flushable=True, hides_queue=True, writable=True)
+
+    def flush(self, counted: bool = True) -> bool:
+        self.drops += 1
+        return True
+
+
+def crsf_output(table: NodeTable, link: FakeLink) -> LineDriver:
+    from usb2rc.protocols.channels import OutputChannels
+    from usb2rc.protocols.crsf import codec as crsf
+    from usb2rc.protocols.crsf.session import CrsfModule, CrsfSession
+    from usb2rc.protocols.rc11_channels import RC11_SCALE
+
+    source = ChannelSource(0, "axis", 0, unsigned=False)
+    channels = OutputChannels.scaled([source], RC11_SCALE, crsf.RC_FRAME_LEN)
+    return LineDriver(
+        "crsf", link, CrsfSession("crsf", channels, CrsfModule(0.004)), table.step_if_due, 0.004
+    )
+
+
+def test_a_silent_line_on_a_pty_is_not_dropped_at_each_tick_but_what_it_wrote_is():
+    """A channel output drops what the far end of a pty left unread before each tick; a
+    tick after one that wrote nothing has nothing of its own to drop (a CRSF line is
+    silent while its node waits), and the first tick on a port drops whatever it holds.
+    A silent CRSF line makes no frame ahead of its deadline; a sending one does."""
+    table = NodeTable()
+    link = PtyLink()
+    out = crsf_output(table, link)
+    for _ in range(5):  # node 0 has no device: CRSF's failsafe is silence
+        out.tick()
+    assert link.writes == [] and link.drops == 1  # the new port's, once
+    assert not out.session.makes_ahead()  # no frame to time: it starts on its deadline
+    table.add_device(0, info("k0", "1-1"), BINDING, Source.of(LEFT), "JOYSTICK")
+    out.tick()  # the first frame
+    assert len(link.writes) == 1 and link.drops == 1
+    assert out.session.makes_ahead()  # sending: its module times the frames
+    out.tick()  # the frame before may be unread: dropped before the next one
+    assert len(link.writes) == 2 and link.drops == 2

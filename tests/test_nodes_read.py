@@ -143,9 +143,7 @@ def testnodes_read_by_by_channels_mixes_and_unresolved_switches() -> None:
 
 
 class _Session:
-    """What `nodes_read_by` asks of a driver's session (and its constructor, `on_deadline`)."""
-
-    on_deadline = False
+    """What `nodes_read_by` asks of a driver's session."""
 
     def __init__(self, reads: frozenset[int] | None) -> None:
         self.reads = reads

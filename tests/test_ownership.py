@@ -320,15 +320,23 @@ def test_a_session_its_module_and_its_line_are_written_by_the_driver_thread_only
     assert writers and all(who == {"driver"} for who in writers.values()), writers
 
 
-def test_a_daemon_with_one_output_reads_on_its_deadline_and_with_two_the_timed_one_leads(
+def test_a_daemon_with_one_output_reads_on_its_deadline_and_beside_others_crsf_leads(
     tmp_path: Path,
 ) -> None:
     """`LineDriver.alone` is the daemon's: its only output has no lead (nothing else ticks, and
-    a lead ages every frame's records). Of two, the one whose far end times its frames
-    (C2-16B) makes its bytes ahead, so its write does not wait for the other's tick; SUMD's
-    receiver takes a frame whenever it comes, so SUMD has none."""
+    a lead ages every frame's records). Beside others, a sending CRSF output makes its bytes
+    ahead (its module times them to the microsecond); C2-16B and SUMD make theirs on their
+    deadline (C2-16B leads too once the drivers' thread saw CRSF's lead: tests/test_driver.py)."""
     assert [o.driver.lead for o in _daemon(tmp_path).outputs] == [None]
     c2 = OutputConfig(protocol="c2-16b", port="loop://", rate_hz=50)
-    two = Config(outputs=(c2, OutputConfig(protocol="sumd", port="loop://", channels=("node0.x",))))
-    c2_lead, sumd_lead = [o.driver.lead for o in Daemon(two, ReplayBackend(tmp_path)).outputs]
-    assert c2_lead is not None and sumd_lead is None
+    channels = ("node0.x",)
+    others = (
+        OutputConfig(protocol="sumd", port="loop://", channels=channels),
+        OutputConfig(protocol="crsf", port="loop://", channels=channels),
+    )
+    drivers = [
+        o.driver for o in Daemon(Config(outputs=(c2, *others)), ReplayBackend(tmp_path)).outputs
+    ]
+    for driver in drivers:
+        driver.plan(1.0, driver.period_s)
+    assert [driver.leads for driver in drivers] == [False, False, True]

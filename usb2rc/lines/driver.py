@@ -12,16 +12,17 @@ Once a tick, on absolute monotonic deadlines, an output's `LineDriver`
 It knows no protocol: what to send, when to stall, when to flush, when the next tick is due
 (`session.next_due`) are the session's. A late tick is counted, never caught up with a burst.
 
-One thread drives every output (`DriverThread`). The daemon's only output (`alone`) wakes on
-its deadline, reads the records and writes its bytes as soon as they are made. Beside
-others, an output whose far end times its frames (`session.on_deadline`: C2-16B, CRSF)
-makes its bytes `Lead.s` before its deadline (what its ticks took together, recently) and
-writes them on it, as a transmitter's mixer runs ahead of its frame timer; the lead costs
-every frame's records that much age, which the only output, and a protocol whose receiver
-takes a frame whenever it comes (SUMD, SBUS, iBus, MAVLink), have no reason to pay: those
-wake on their deadline and write as soon as their bytes are made. Ticks due together are
-made together, from one snapshot, and written in config order: threads of their own would
-queue for the one interpreter, and C2-16B's write would move with the others' work.
+One thread drives every output (`DriverThread`). A tick wakes on its deadline, reads the
+records and writes its bytes as soon as they are made. Beside others, a session that makes
+its ticks ahead (`session.makes_ahead()`: a sending CRSF output, whose module corrects the
+frames' phase to the microsecond) makes its bytes `Lead.s` before its deadline (what its
+ticks took together, recently) and writes them on it, as a transmitter's mixer runs ahead
+of its frame timer; the lead costs every frame's records that much age, and the thread a
+second wake-up, which no other output pays. Ticks due together are made together, from one
+snapshot: those whose far end times their frames (`session.on_deadline`: C2-16B, CRSF)
+first, each written as soon as it is made, so C2-16B's write beside others moves with the
+step and its own bytes only, as the only output's does. Threads of their own would queue
+for the one interpreter, and C2-16B's write would move with the others' work.
 
 One clock: a driver's ticks fall on the multiples of its period from the grid's epoch on the
 monotonic clock (`aligned`, `nodes.step.GRID_EPOCH_S`: 3/4 of a kernel tick, off the kernel's
@@ -176,10 +177,10 @@ class LineDriver:
     after every tick (the watchdog hook), `on_first_write` once, after the first write
     that went out.
     `alone`: the daemon's only output. It has no lead (`lead` is None) and writes as soon
-    as its bytes are made, as does one whose session is not `on_deadline`; beside others,
-    an `on_deadline` one makes them `lead.s` ahead and writes them on its deadline. A
-    tick due on the same deadline as one that leads is made with it (`DriverThread`) and
-    written on the deadline too.
+    as its bytes are made, as does one whose session does not make its ticks ahead
+    (`leads`, decided at each `plan`); beside others, one that does makes them `lead.s`
+    ahead and writes them on its deadline. A tick due on the same deadline as one that
+    leads is made with it (`DriverThread`) and written on the deadline too.
     Every field is written by the drivers' thread only; `period_s` and `stats` are read by
     others."""
 
@@ -200,9 +201,14 @@ class LineDriver:
         self.snapshot = snapshot
         # the period now (a CRSF module may change it: `plan`)
         self.period_s = period_s
-        # the only output, and one whose far end does not time its frames, has no lead: it
-        # reads the records on its deadline
-        self.lead = None if alone or not session.on_deadline else Lead(period_s)
+        # the only output has no lead: it reads the records on its deadline; beside others,
+        # one whose session makes its ticks ahead (`makes_ahead`, asked at each `plan`) starts
+        # this lead before the deadline, and so does one whose far end times its frames
+        # (`on_deadline`) while another's does (`beside_ahead`: the thread wakes twice a
+        # tick then anyway, and a batch started on another's lead could outgrow it)
+        self.lead = None if alone else Lead(period_s)
+        self.leads = False  # the tick planned starts its lead ahead
+        self.beside_ahead = False  # another output's session makes its ticks ahead (the thread's)
         self.stats = OutputStats()
         # a missed tick is said in the log (rate limited), with usb2rc's CPU share
         self._missed_log = MissedTickLog(f"{name} ({link.url})", CpuMark.now())
@@ -220,6 +226,10 @@ class LineDriver:
         self.stalled = False
         self.last_tick_monotonic = 0.0
         self._last_write = 0.0
+        # bytes went out on this port since its queue was last dropped (`Ask.DROP_UNREAD`): a
+        # port nothing was written to since holds nothing of ours to drop (a silent CRSF
+        # line asks at every tick)
+        self._unread_maybe = True
         self._input_at: float | None = None  # newest report of the tick's snapshot (read at)
         # the tick in progress (this thread only): due, started, made, held for the write
         self._deadline = 0.0
@@ -242,7 +252,11 @@ class LineDriver:
         """The next tick is due at `deadline`, `period_s` before the one after it (the
         session's: a CRSF module may change it); it starts its lead before it."""
         self._deadline = deadline
-        self._start = deadline - (self.lead.s if self.lead else 0.0)
+        lead, session = self.lead, self.session
+        self.leads = lead is not None and (
+            session.makes_ahead() or (session.on_deadline and self.beside_ahead)
+        )
+        self._start = deadline - (lead.s if lead is not None and self.leads else 0.0)
         self.period_s = period_s
         self.next_moment = self._start
 
@@ -388,6 +402,7 @@ class LineDriver:
         event = link.line_event()
         if event is not None:
             if event is LineEvent.OPENED:
+                self._unread_maybe = True  # a port new to this driver: what it holds is unknown
                 session.line_opened()
             else:
                 session.line_lost()
@@ -403,7 +418,8 @@ class LineDriver:
         was_stalled = session.stalled
         ask = session.link_state(self.link.state(probe_writable=was_stalled))
         if ask is Ask.DROP_UNREAD:
-            self.link.flush(counted=False)
+            if self._unread_maybe:
+                self._unread_maybe = not self.link.flush(counted=False)
         elif ask is Ask.FLUSH:
             flushed = self.link.flush()
             session.flush_done(flushed)
@@ -421,6 +437,7 @@ class LineDriver:
         if written.lost:  # what went out before the failure counts; the line is gone
             self.session.line_lost()
         if written.sent or written.unsure:
+            self._unread_maybe = True
             self._note_write()
         return written
 
@@ -521,20 +538,26 @@ def nodes_read_by(drivers: Sequence[LineDriver]) -> frozenset[int] | None:
 
 class DriverThread(Worker):
     """The drivers' thread: every output's ticks, on one thread, in one loop (as
-    python-can's `Notifier` serves every bus). A tick starts its lead before its deadline
-    (`begin`: the bytes made) and writes on it (`write`, then `finish`). Ticks due
-    together, the default outputs' every 20 ms, start together from one snapshot, so the
-    readers wake once for all of them, and write on their deadline in config order, one
-    right after another (each counted after all of them went out): no write waits for
-    another thread's work. Ticks due together start on the earliest of their starts: the
-    lead of any of them (`LineDriver.lead`, which learns what its ticks took with those due
-    together), or their deadline when none leads."""
+    python-can's `Notifier` serves every bus). A tick starts on its deadline, or its lead
+    before it (`LineDriver.leads`), makes its bytes (`begin`) and writes them on the
+    deadline (`write`, then `finish`). Ticks due together, the default outputs' every 20
+    ms, start together from one snapshot, so the readers are pulled once for all of them,
+    and are made and written in order: those whose far end times their frames
+    (`session.on_deadline`: C2-16B, CRSF) first, then the others, each group in config
+    order. Each is written as soon as it is made once its deadline has come, so C2-16B's
+    write beside others waits for the step and its own bytes only, as when it is the only
+    output; each tick is counted after all of them went out. Ticks due together start on
+    the earliest of their starts: the lead of any of them (which learns what its ticks took
+    with those due together), or their deadline when none leads; then all of them are
+    held for the deadline."""
 
     def __init__(self, name: str, drivers: Sequence[LineDriver]) -> None:
         super().__init__(name)
-        self.drivers = list(drivers)
+        # the ticks due together are made and written in this order (sorted is stable)
+        self.drivers = sorted(drivers, key=lambda driver: not driver.session.on_deadline)
         self._bell = threading.Event()  # wake(): the nodes changed or a far end spoke
         self.dozes = 0  # times every output was asleep and the thread slept until woken
+        self._ahead: list[bool] = []  # which drivers' sessions made their ticks ahead, last
 
     def wake(self) -> None:
         """Something an asleep output may have to answer: a device came or went, the far
@@ -581,10 +604,11 @@ class DriverThread(Worker):
     def _begin(self, now: float) -> None:
         """The ticks that start now, those within SAME_TICK_S after (one batch), and those
         due on the same deadline as any of them (due together: they start with the one that
-        leads most), made in config order from one snapshot: outputs due together send one
+        leads most), made in order from one snapshot: outputs due together send one
         step's values, and a record a reader publishes meanwhile does not step the table
-        again. Each that started on its own start teaches its lead what the whole batch
-        took."""
+        again. A tick whose deadline has come is written as soon as it is made; all are
+        counted after the batch. Each that started on its own lead teaches it what the
+        whole batch took."""
         waiting = [driver for driver in self.drivers if driver._held is None]
         horizon = now + SAME_TICK_S
         starting = [driver for driver in waiting if driver.next_moment <= horizon]
@@ -595,12 +619,37 @@ class DriverThread(Worker):
         # the daemon's drivers all read its one node table: the nodes the batch reads
         snapshot = batch[0].snapshot(nodes_read_by(batch))
         step_s = time.monotonic() - stepping
+        written: list[LineDriver] = []
         for driver in batch:
             driver.begin(snapshot, step_s)
+            now = time.monotonic()
+            if driver.next_moment <= now:  # its deadline has come
+                # with those made before it and held whose deadline came too (a lead that
+                # fell short), in order
+                for made in batch:
+                    if made.holding and made.next_moment <= now:
+                        made.write()
+                        written.append(made)
+                    if made is driver:
+                        break
         ready = time.monotonic()
+        self._note_ahead()
+        for driver in written:
+            driver.finish()
         for driver in starting:
-            if driver.lead is not None:
+            if driver.lead is not None and driver.leads:
                 driver.lead.took(ready - driver.start, driver.period_s)
+
+    def _note_ahead(self) -> None:
+        """Tell each driver whether another's session makes its ticks ahead now (for its
+        next `plan`)."""
+        drivers = self.drivers
+        ahead = [d.lead is not None and d.session.makes_ahead() for d in drivers]
+        if ahead == self._ahead:
+            return
+        self._ahead, count = ahead, sum(ahead)
+        for driver, its_own in zip(drivers, ahead, strict=True):
+            driver.beside_ahead = count > (1 if its_own else 0)
 
     def _doze(self) -> None:
         """Every output is asleep: sleep until woken (or DOZE_SAFETY_S), then tick again on

@@ -238,6 +238,7 @@ class LineSession(Protocol):
     reads: frozenset[int] | None
     on_deadline: bool
 
+    def makes_ahead(self) -> bool: ...
     @property
     def line_open(self) -> bool: ...
     @property
@@ -266,10 +267,12 @@ class SessionBase:
     has an engine hands them to it (`EngineSession`).
 
     `on_deadline`: the far end times this protocol's frames (C2-16B's period, a CRSF
-    module's packet timing), so beside other outputs they are made ahead and written on
-    their deadline (`lines.driver.Lead`). Other protocols' receivers take a frame whenever
-    it comes (SUMD, SBUS, iBus, MAVLink): theirs are written as soon as they are made, from
-    records read at the deadline, not a lead before it."""
+    module's packet timing), so among the ticks due together its are made and written
+    first, before the others' work can move them. Other protocols' receivers take a frame
+    whenever it comes (SUMD, SBUS, iBus, MAVLink). `makes_ahead()`: its next tick's bytes
+    are made a lead before the deadline, beside other outputs, and written on it
+    (`lines.driver.Lead`): only where a far end times frames to a fraction of a
+    millisecond, and only while it sends."""
 
     on_deadline = False
 
@@ -349,6 +352,11 @@ class SessionBase:
 
     def next_due(self, due: float, now: float) -> float:
         return due + self.period_s
+
+    def makes_ahead(self) -> bool:
+        """Whether its next tick, beside other outputs, is made a lead before its deadline
+        (see the class docstring); after a tick, for the next one."""
+        return False
 
     def period(self, now: float) -> float:
         return self.period_s

@@ -182,6 +182,13 @@ class CrsfSession(ChannelSession):
     def received(self, data: bytes, now: float) -> None:
         self.module.received(data, now)
 
+    def makes_ahead(self) -> bool:
+        """While it sends: a module corrects the frames' phase to the microsecond, and at
+        500 Hz a frame made on its deadline beside C2-16B's would move by the tick's work
+        (docs/DESIGN.md, `lines/driver.LineDriver`). Silent (a channel's node in
+        failsafe), it has no frame to time."""
+        return not self._silent
+
     def frame_due(self, due: float, now: float) -> float:
         """The module's interval and phase while it sends timing corrections."""
         return self.module.next_send(due, now)
